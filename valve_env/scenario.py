@@ -1,0 +1,209 @@
+"""Scenarios: hot-water draws, primary supply temperature and differential
+pressure, sampled per control step from the env's seeded generator.
+
+Draws follow the EU tapping cycles S, M, L (Regulation 814/2013 Annex III,
+transcribed from RWTH-EBC/BESMod; see valve_env/data/PROFILES_SOURCE.md). The
+stochastic variant jitters each draw's start time and scales its energy with
+a seeded generator, and adds the same day's cycle on top of itself with no
+fixed timetable, so every seed gives another day.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from functools import lru_cache
+from importlib import resources
+from typing import Any, Mapping
+
+import numpy as np
+import pandas as pd
+
+from valve_env.params import ConfigError, _from_mapping
+
+PROFILES = ("S", "M", "L", "none")
+SUPPLY_PROFILES = ("constant", "daily", "random")
+
+
+@dataclass(frozen=True)
+class ScenarioParams:
+    """What happens around the tank during an episode.
+
+    | field | unit | meaning (default and source) |
+    |---|---|---|
+    | tapping_profile | - | "S", "M", "L" (EU 814/2013 tapping cycles) or "none"; "M" (a family's daily use, 5.845 kWh) |
+    | stochastic_draws | - | True: seeded variant (start jitter, energy scaling); False: the cycle as tabled |
+    | draw_jitter_min | min | standard deviation of each draw's start-time jitter; 20 |
+    | draw_energy_cv | - | coefficient of variation of each draw's energy (lognormal); 0.2 |
+    | supply_C | degC | primary supply temperature; 70 (SPEC section 5) |
+    | supply_profile | - | "constant", "daily" (sine, coldest at 15:00) or "random" (Ornstein-Uhlenbeck) |
+    | supply_amplitude_K | K | amplitude of the daily sine or standard deviation of the random profile; 5 |
+    | supply_tau_h | h | correlation time of the random supply profile; 2 |
+    | dp_mbar | mbar | the network's differential pressure across the valve when the agent does not set it; 100 (calibration) |
+    | dp_noise_mbar | mbar | standard deviation of an Ornstein-Uhlenbeck disturbance on dp; 0 |
+    | dp_tau_s | s | its correlation time; 600 |
+    | ps_bar | bar | static pressure at the valve; 2 (calibration) |
+    | T_init_C | degC | initial tank temperature (mean) ; 55 |
+    | T_init_spread_K | K | seeded uniform spread of the initial temperature, +-; 3 |
+    """
+
+    tapping_profile: str = "M"
+    stochastic_draws: bool = True
+    draw_jitter_min: float = 20.0
+    draw_energy_cv: float = 0.2
+    supply_C: float = 70.0
+    supply_profile: str = "constant"
+    supply_amplitude_K: float = 5.0
+    supply_tau_h: float = 2.0
+    dp_mbar: float = 100.0
+    dp_noise_mbar: float = 0.0
+    dp_tau_s: float = 600.0
+    ps_bar: float = 2.0
+    T_init_C: float = 55.0
+    T_init_spread_K: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.tapping_profile not in PROFILES:
+            raise ConfigError(f"ScenarioParams.tapping_profile must be one of {PROFILES}, got {self.tapping_profile!r}")
+        if self.supply_profile not in SUPPLY_PROFILES:
+            raise ConfigError(
+                f"ScenarioParams.supply_profile must be one of {SUPPLY_PROFILES}, got {self.supply_profile!r}"
+            )
+        if not isinstance(self.stochastic_draws, bool):
+            raise ConfigError(f"ScenarioParams.stochastic_draws must be true or false, got {self.stochastic_draws!r}")
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ConfigError(f"ScenarioParams.{f.name} must be finite, got {v!r}")
+        for name in ("draw_jitter_min", "draw_energy_cv", "supply_amplitude_K", "dp_noise_mbar", "T_init_spread_K"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"ScenarioParams.{name} must be >= 0, got {getattr(self, name)!r}")
+        for name in ("supply_tau_h", "dp_tau_s"):
+            if getattr(self, name) <= 0:
+                raise ConfigError(f"ScenarioParams.{name} must be > 0, got {getattr(self, name)!r}")
+        if self.dp_mbar < 0:
+            raise ConfigError(f"ScenarioParams.dp_mbar must be >= 0, got {self.dp_mbar!r}")
+        if not 0.0 < self.supply_C < 130.0:
+            raise ConfigError(f"ScenarioParams.supply_C must be in (0, 130) degC, got {self.supply_C!r}")
+        if not 0.0 < self.T_init_C < 100.0:
+            raise ConfigError(f"ScenarioParams.T_init_C must be in (0, 100) degC, got {self.T_init_C!r}")
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None) -> "ScenarioParams":
+        if data is not None and isinstance(data, Mapping):
+            data = dict(data)
+            for key in ("stochastic_draws",):
+                if key in data and not isinstance(data[key], bool):
+                    raise ConfigError(f"ScenarioParams.{key} must be true or false, got {data[key]!r}")
+            for key in ("tapping_profile", "supply_profile"):
+                if key in data:
+                    data[key] = str(data[key])
+        return _from_mapping(cls, data)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@lru_cache(maxsize=None)
+def tapping_cycle(name: str) -> pd.DataFrame:
+    """The tabled EU tapping cycle ``name`` (S, M or L) as a DataFrame."""
+    if name not in ("S", "M", "L"):
+        raise ConfigError(f"unknown tapping profile {name!r}; choose S, M or L")
+    with resources.files("valve_env.data").joinpath(f"ecodesign_tapping_profile_{name}.csv").open("r") as fh:
+        df = pd.read_csv(fh)
+    return df
+
+
+@dataclass
+class ScenarioArrays:
+    """Per-control-step scenario inputs (length n_steps each).
+
+    draw_W: mean demanded draw power over the step at the draw temperature
+    (cp (T_draw - T_cold) times the useful flow); draw_T_C: the draw's required
+    temperature; draw_mmax: the tap's full flow, kg/s; supply_C; dp_mbar.
+    """
+
+    draw_W: np.ndarray
+    draw_T_C: np.ndarray
+    draw_mmax: np.ndarray
+    supply_C: np.ndarray
+    dp_mbar: np.ndarray
+    T_init_C: float
+
+    def as_matrix(self) -> np.ndarray:
+        """(n_steps, 5) float64 matrix in the order the simulator kernel reads."""
+        return np.ascontiguousarray(
+            np.stack([self.draw_W, self.draw_T_C, self.draw_mmax, self.supply_C, self.dp_mbar], axis=1)
+        )
+
+
+def _spread(starts: np.ndarray, durations: np.ndarray, values: np.ndarray, dt: float, n: int) -> np.ndarray:
+    """Average of piecewise-constant pulses over each step [k dt, (k+1) dt)."""
+    out = np.zeros(n)
+    for s, d, v in zip(starts, durations, values):
+        e = s + d
+        k0 = int(np.floor(s / dt))
+        k1 = int(np.floor(e / dt))
+        for k in range(max(k0, 0), min(k1, n - 1) + 1):
+            a = max(s, k * dt)
+            b = min(e, (k + 1) * dt)
+            if b > a:
+                out[k] += v * (b - a) / dt
+    return out
+
+
+def make_scenario(
+    params: ScenarioParams, rng: np.random.Generator, n_steps: int, dt_s: float, T_cold: float, cp: float
+) -> ScenarioArrays:
+    """Sample one episode's scenario from ``rng`` (the env's seeded generator)."""
+    horizon = n_steps * dt_s
+    draw_W = np.zeros(n_steps)
+    draw_T = np.full(n_steps, 45.0)
+    draw_m = np.zeros(n_steps)
+    if params.tapping_profile != "none":
+        cyc = tapping_cycle(params.tapping_profile)
+        start = cyc["t_start_s"].to_numpy(dtype=float)
+        Q = cyc["Qtap_kWh"].to_numpy(dtype=float) * 3.6e6
+        f_kgs = cyc["f_l_min"].to_numpy(dtype=float) / 60.0
+        T_d = cyc["T_draw_C"].to_numpy(dtype=float)
+        if params.stochastic_draws:
+            start = start + rng.normal(0.0, params.draw_jitter_min * 60.0, size=start.size)
+            if params.draw_energy_cv > 0:
+                s2 = np.log1p(params.draw_energy_cv**2)
+                Q = Q * rng.lognormal(-0.5 * s2, np.sqrt(s2), size=Q.size)
+        power = f_kgs * cp * (T_d - T_cold)
+        dur = Q / power
+        start = np.mod(start, horizon) if horizon >= 86400.0 else start
+        draw_W = _spread(start, dur, power, dt_s, n_steps)
+        active = _spread(start, dur, np.ones_like(power), dt_s, n_steps)
+        Tw = _spread(start, dur, T_d, dt_s, n_steps)
+        mw = _spread(start, dur, f_kgs, dt_s, n_steps)
+        on = active > 0
+        draw_T[on] = Tw[on] / active[on]
+        draw_m[on] = mw[on] / active[on]
+    t = (np.arange(n_steps) + 0.5) * dt_s
+    if params.supply_profile == "constant":
+        supply = np.full(n_steps, params.supply_C)
+    elif params.supply_profile == "daily":
+        supply = params.supply_C + params.supply_amplitude_K * np.cos(2 * np.pi * (t - 3 * 3600.0) / 86400.0)
+    else:
+        supply = params.supply_C + _ou(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_amplitude_K)
+    if params.dp_noise_mbar > 0:
+        dp = params.dp_mbar + _ou(rng, n_steps, dt_s, params.dp_tau_s, params.dp_noise_mbar)
+        dp = np.maximum(dp, 0.0)
+    else:
+        dp = np.full(n_steps, params.dp_mbar)
+    T0 = params.T_init_C + (rng.uniform(-1.0, 1.0) * params.T_init_spread_K if params.T_init_spread_K > 0 else 0.0)
+    return ScenarioArrays(draw_W, draw_T, draw_m, supply, dp, float(T0))
+
+
+def _ou(rng: np.random.Generator, n: int, dt: float, tau: float, sd: float) -> np.ndarray:
+    """Stationary Ornstein-Uhlenbeck path sampled exactly at step dt."""
+    a = np.exp(-dt / tau)
+    z = rng.normal(0.0, 1.0, size=n)
+    x = np.empty(n)
+    x[0] = sd * z[0]
+    b = sd * np.sqrt(1.0 - a * a)
+    for k in range(1, n):
+        x[k] = a * x[k - 1] + b * z[k]
+    return x

@@ -1,0 +1,240 @@
+"""The plant simulator: valve + sensor bulb + stratified tank, one control step.
+
+``plant_step`` advances one environment by one control step; ``plant_step_batch``
+runs it over N environments in parallel. Both are compiled by numba from the
+pure physics functions in :mod:`valve_env.physics` (cached on disk), so the
+single env, the batched env and the estimator share one model of the valve.
+
+Packed arrays (float64):
+
+* valve vector ``vp``: :meth:`ValveParams.to_array` (indices ``params.I_*``)
+* plant vector ``pp``: :func:`pack_plant` (indices ``P_*`` below)
+* state ``s``: layer temperatures (bottom .. top), then T_g, F_h, x, direction
+* accumulators ``acc``: KPI integrals and the energy account (``A_*``)
+* step outputs ``out``: what the env turns into observations and info (``O_*``)
+* scenario row: draw power W, draw temperature degC, tap flow kg/s, supply degC, dp mbar
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from valve_env.config import EnvConfig
+from valve_env.physics import valve as _valve
+
+# The physics functions are ``register_jitable``: plain NumPy when called from
+# Python, compiled inline here. One source, one model.
+from valve_env.physics.tank import (  # noqa: E402
+    advection_heat,
+    buoyancy_mix,
+    coil_heat,
+    draw_flow,
+    loss_heat,
+    pump_power_W,
+)
+from valve_env.physics.valve import dahl_update, flow_kgh, opening, setpoint_pressure  # noqa: E402
+
+# plant vector
+(P_NL, P_NC, P_M, P_UA_COIL, P_UA_LOSS, P_T_AMB, P_T_COLD, P_CP, P_PUMP_EFF, P_DP_CIRC, P_Q_REF,
+ P_BULB_A, P_BULB_LAYER, P_DT, P_NSUB, P_T_TARGET, P_T_FLOOR, P_W_TRACK, P_W_FLOOR, P_W_ENERGY,
+ P_PS) = range(21)
+N_PLANT = 21
+# state offsets after the layers
+S_TG, S_FH, S_X, S_DIR = 0, 1, 2, 3
+N_STATE_EXTRA = 4
+# accumulators
+(A_SQ, A_ABS, A_TDIS, A_UNMET, A_HEAT, A_PUMP, A_RET, A_MASS, A_TRAVEL, A_REV, A_LOSS, A_DRAW,
+ A_TIME, A_DELIVERED, A_DEMAND) = range(15)
+N_ACC = 15
+# step outputs
+(O_T_TOP, O_T_POCKET, O_T_BOTTOM, O_T_SUP, O_T_RET, O_Q_KGH, O_DP, O_DRAW_LMIN, O_HEAT_W, O_PUMP_W,
+ O_X, O_FH, O_TG, O_T_SET) = range(14)
+N_OUT = 14
+N_SCEN = 5
+PRIMARY_ENERGY_FACTOR_ELECTRICITY = 2.5
+
+
+def pack_plant(cfg: EnvConfig) -> np.ndarray:
+    """The plant vector for ``plant_step`` from an EnvConfig."""
+    t, b, c, sc = cfg.tank, cfg.bulb, cfg.control, cfg.scenario
+    dt_sub = c.dt_s / c.n_sub
+    bulb_layer = min(t.n_layers - 1, int(b.height * t.n_layers))
+    pp = np.zeros(N_PLANT)
+    pp[P_NL] = t.n_layers
+    pp[P_NC] = t.coil_layers
+    pp[P_M] = t.layer_mass_kg
+    pp[P_UA_COIL] = t.UA_coil
+    pp[P_UA_LOSS] = t.UA_loss
+    pp[P_T_AMB] = t.T_ambient
+    pp[P_T_COLD] = t.T_cold
+    pp[P_CP] = t.cp
+    pp[P_PUMP_EFF] = t.pump_eff
+    pp[P_DP_CIRC] = t.dp_circuit_mbar
+    pp[P_Q_REF] = t.q_ref_kgh
+    pp[P_BULB_A] = np.exp(-dt_sub / b.tau_s)
+    pp[P_BULB_LAYER] = bulb_layer
+    pp[P_DT] = c.dt_s
+    pp[P_NSUB] = c.n_sub
+    pp[P_T_TARGET] = c.T_target_C
+    pp[P_T_FLOOR] = c.T_floor_C
+    pp[P_W_TRACK] = c.w_track
+    pp[P_W_FLOOR] = c.w_floor
+    pp[P_W_ENERGY] = c.w_energy
+    pp[P_PS] = sc.ps_bar
+    return pp
+
+
+def initial_state(cfg: EnvConfig, T0: float) -> np.ndarray:
+    """A settled start: the whole tank at T0, bulb at T0, no friction force."""
+    n = cfg.tank.n_layers
+    s = np.zeros(n + N_STATE_EXTRA)
+    s[:n] = T0
+    s[n + S_TG] = T0
+    s[n + S_FH] = 0.0
+    s[n + S_X] = float(
+        _valve.opening(T0, 0.0, cfg.scenario.dp_mbar, cfg.scenario.ps_bar,
+                       _valve.setpoint_pressure(cfg.control.setting_C, cfg.valve.to_array()), cfg.valve.to_array())
+    )
+    return s
+
+
+@njit(cache=True)
+def plant_step(s, acc, out, vp, pp, scen, T_set, dp, work):
+    """Advance one environment by one control step; returns the reward.
+
+    ``s``, ``acc`` and ``out`` are updated in place. ``scen`` is this step's
+    scenario row, ``T_set`` the valve's temperature setting (degC), ``dp`` the
+    differential pressure across the valve (mbar), ``work`` a (3, n_layers)
+    scratch array.
+    """
+    nl = int(pp[P_NL])
+    nc = int(pp[P_NC])
+    nsub = int(pp[P_NSUB])
+    dt = pp[P_DT] / nsub
+    cp = pp[P_CP]
+    Mcp = pp[P_M] * cp
+    T_cold = pp[P_T_COLD]
+    bl = int(pp[P_BULB_LAYER])
+    a_b = pp[P_BULB_A]
+    T = s[:nl]
+    Q = work[0]
+    wsum = work[1]
+    wcnt = work[2]
+    p_bset = setpoint_pressure(T_set, vp)
+    draw_W = scen[0]
+    draw_T = scen[1]
+    draw_m = scen[2]
+    T_sup = scen[3]
+    ps = pp[P_PS]
+    T_g = s[nl + S_TG]
+    F_h = s[nl + S_FH]
+    x = s[nl + S_X]
+    direction = s[nl + S_DIR]
+    e2 = 0.0
+    eabs = 0.0
+    short = 0.0
+    heat_J = 0.0
+    pump_J = 0.0
+    ret_mass = 0.0
+    mass = 0.0
+    draw_mass = 0.0
+    for _ in range(nsub):
+        # sensor bulb: exact first-order lag towards the pocket's layer
+        T_g_new = T[bl] + (T_g - T[bl]) * a_b
+        F_h = dahl_update(F_h, T_g_new - T_g, vp)
+        T_g = T_g_new
+        x_new = opening(T_g, F_h, dp, ps, p_bset, vp)
+        dx = x_new - x
+        if dx > 1e-9 or dx < -1e-9:
+            acc[A_TRAVEL] += abs(dx)
+            d = 1.0 if dx > 0 else -1.0
+            if direction != 0.0 and d != direction:
+                acc[A_REV] += 1.0
+            direction = d
+        x = x_new
+        m = flow_kgh(x, dp, vp) / 3600.0
+        T_ret = coil_heat(T, nc, m, T_sup, pp[P_UA_COIL], cp, Q)
+        q_coil = m * cp * (T_sup - T_ret)
+        m_draw, delivered = draw_flow(draw_W, draw_T, draw_m, T[nl - 1], T_cold, cp)
+        acc[A_DRAW] += m_draw * cp * (T[nl - 1] - T_cold) * dt
+        acc[A_DELIVERED] += delivered * dt
+        acc[A_DEMAND] += draw_W * dt
+        if draw_W > 0.0:
+            acc[A_UNMET] += (draw_W - delivered) * dt
+        advection_heat(T, m_draw, T_cold, cp, Q)
+        acc[A_LOSS] += loss_heat(T, pp[P_UA_LOSS], pp[P_T_AMB], Q) * dt
+        for j in range(nl):
+            T[j] += Q[j] * dt / Mcp
+        buoyancy_mix(T, wsum, wcnt)
+        p_w = pump_power_W(m, dp, pp[P_DP_CIRC], pp[P_Q_REF], pp[P_PUMP_EFF])
+        heat_J += q_coil * dt
+        pump_J += p_w * dt
+        ret_mass += m * T_ret * dt
+        mass += m * dt
+        draw_mass += m_draw * dt
+        e = T[nl - 1] - pp[P_T_TARGET]
+        e2 += e * e
+        eabs += abs(e)
+        sh = pp[P_T_FLOOR] - T[nl - 1]
+        if sh > 0.0:
+            short += sh
+    s[nl + S_TG] = T_g
+    s[nl + S_FH] = F_h
+    s[nl + S_X] = x
+    s[nl + S_DIR] = direction
+    step = pp[P_DT]
+    acc[A_SQ] += e2 * dt
+    acc[A_ABS] += eabs * dt
+    acc[A_TDIS] += short * dt
+    acc[A_HEAT] += heat_J
+    acc[A_PUMP] += pump_J
+    acc[A_RET] += ret_mass
+    acc[A_MASS] += mass
+    acc[A_TIME] += step
+    out[O_T_TOP] = T[nl - 1]
+    out[O_T_POCKET] = T[bl]
+    out[O_T_BOTTOM] = T[0]
+    out[O_T_SUP] = T_sup
+    out[O_T_RET] = ret_mass / mass if mass > 1e-12 else T[0]
+    out[O_Q_KGH] = mass / step * 3600.0
+    out[O_DP] = dp
+    out[O_DRAW_LMIN] = draw_mass / step * 60.0
+    out[O_HEAT_W] = heat_J / step
+    out[O_PUMP_W] = pump_J / step
+    out[O_X] = x
+    out[O_FH] = F_h
+    out[O_TG] = T_g
+    out[O_T_SET] = T_set
+    p_kw = (heat_J + PRIMARY_ENERGY_FACTOR_ELECTRICITY * pump_J) / step / 1000.0
+    return -(pp[P_W_TRACK] * e2 / nsub + pp[P_W_FLOOR] * short / nsub + pp[P_W_ENERGY] * p_kw)
+
+
+@njit(cache=True, parallel=True)
+def plant_step_batch(S, ACC, OUT, VP, PP, SCEN, K, T_SET, DP, WORK, R):
+    """``plant_step`` over N environments: row i of every array is env i;
+    ``SCEN`` is (N, n_steps, 5) and ``K`` the step index of each env."""
+    n = S.shape[0]
+    for i in prange(n):
+        R[i] = plant_step(S[i], ACC[i], OUT[i], VP[i], PP[i], SCEN[i, K[i]], T_SET[i], DP[i], WORK[i])
+
+
+def kpis_from_acc(acc: np.ndarray) -> dict[str, float]:
+    """The SPEC section 5 KPIs from an accumulator vector."""
+    T = max(acc[A_TIME], 1e-12)
+    return {
+        "rmse_K": float(np.sqrt(acc[A_SQ] / T)),
+        "iae_Kh": float(acc[A_ABS] / 3600.0),
+        "tdis_Kh": float(acc[A_TDIS] / 3600.0),
+        "unmet_kWh": float(acc[A_UNMET] / 3.6e6),
+        "heat_kWh": float(acc[A_HEAT] / 3.6e6),
+        "pump_kWh": float(acc[A_PUMP] / 3.6e6),
+        "return_C": float(acc[A_RET] / acc[A_MASS]) if acc[A_MASS] > 1e-12 else float("nan"),
+        "travel_mm": float(acc[A_TRAVEL]),
+        "reversals": float(acc[A_REV]),
+    }
+
+
+KPI_NAMES: tuple[str, ...] = (
+    "rmse_K", "iae_Kh", "tdis_Kh", "unmet_kWh", "heat_kWh", "pump_kWh", "return_C", "travel_mm", "reversals",
+)
