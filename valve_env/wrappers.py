@@ -58,9 +58,9 @@ class ObservationDelay(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         self._buf.clear()
         for _ in range(self.steps + 1):
             self._buf.append(obs)
-        return obs, info
+        return obs.copy(), info
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         obs, r, term, trunc, info = self.env.step(action)
         self._buf.append(obs)
-        return self._buf[0], float(r), term, trunc, info
+        return self._buf[0].copy(), float(r), term, trunc, info
