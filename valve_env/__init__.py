@@ -19,7 +19,7 @@ __version__ = "0.1.0"
 ENV_IDS: tuple[str, ...] = ("ThermoValve-v0", "ThermoValvePressure-v0", "ThermoValveDual-v0")
 MAX_EPISODE_STEPS = ControlParams().n_steps
 
-for _id, _fn in zip(ENV_IDS, ("make_setting", "make_pressure", "make_dual")):
+for _id, _fn in zip(ENV_IDS, ("make_setting", "make_pressure", "make_dual"), strict=True):
     if _id not in registry:
         register(
             id=_id,

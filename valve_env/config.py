@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import yaml
 
@@ -71,7 +72,9 @@ class ControlParams:
         if not self.setting_min_C < self.setting_max_C:
             raise ConfigError("ControlParams.setting_min_C must be < setting_max_C")
         if not self.setting_min_C <= self.setting_C <= self.setting_max_C:
-            raise ConfigError(f"ControlParams.setting_C must be within [setting_min_C, setting_max_C], got {self.setting_C}")
+            raise ConfigError(
+                f"ControlParams.setting_C must be within [setting_min_C, setting_max_C], got {self.setting_C}"
+            )
         if not 0 <= self.dp_min_mbar < self.dp_max_mbar:
             raise ConfigError("ControlParams.dp_min_mbar must be >= 0 and < dp_max_mbar")
         for name in ("w_track", "w_floor", "w_energy"):
@@ -83,7 +86,7 @@ class ControlParams:
         return int(round(self.horizon_h * 3600.0 / self.dt_s))
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> "ControlParams":
+    def from_dict(cls, data: Mapping[str, Any] | None) -> ControlParams:
         return _from_mapping(cls, data)
 
     def to_dict(self) -> dict[str, Any]:
@@ -115,7 +118,7 @@ class SensorParams:
         object.__setattr__(self, "dead_time_steps", int(self.dead_time_steps))
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> "SensorParams":
+    def from_dict(cls, data: Mapping[str, Any] | None) -> SensorParams:
         return _from_mapping(cls, data)
 
     def to_dict(self) -> dict[str, Any]:
@@ -136,7 +139,7 @@ class EnvConfig:
     def to_dict(self) -> dict[str, dict[str, Any]]:
         return {name: getattr(self, name).to_dict() for name in SECTIONS}
 
-    def replace(self, **changes: Any) -> "EnvConfig":
+    def replace(self, **changes: Any) -> EnvConfig:
         return dataclasses.replace(self, **changes)
 
 
@@ -177,7 +180,7 @@ def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def make_config(config: "str | Path | EnvConfig | Mapping[str, Any] | None" = None, **overrides: Any) -> EnvConfig:
+def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None, **overrides: Any) -> EnvConfig:
     """Build an EnvConfig from a YAML path, a mapping or an EnvConfig, then
     apply keyword overrides: a section name with a mapping or a dataclass
     (``valve={"sigma": 5.0}``), or a single field of ScenarioParams or
@@ -205,7 +208,7 @@ def make_config(config: "str | Path | EnvConfig | Mapping[str, Any] | None" = No
     for k, v in overrides.items():
         if k in SECTIONS:
             if dataclasses.is_dataclass(v) and not isinstance(v, type):
-                v = v.to_dict()  # type: ignore[union-attr]
+                v = dataclasses.asdict(v)
             if not isinstance(v, Mapping):
                 raise ConfigError(f"{k}= must be a mapping of field names or a {SECTIONS[k].__name__}")
             sections = _merge(sections, {k: v})

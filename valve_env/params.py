@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -126,11 +127,11 @@ class ValveParams:
             dtype=np.float64,
         )
 
-    def replace(self, **changes: float) -> "ValveParams":
+    def replace(self, **changes: float) -> ValveParams:
         return dataclasses.replace(self, **changes)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> "ValveParams":
+    def from_dict(cls, data: Mapping[str, Any] | None) -> ValveParams:
         return _from_mapping(cls, data)
 
     def to_dict(self) -> dict[str, float]:
@@ -144,7 +145,7 @@ class BulbParams:
     | field | unit | default source |
     |---|---|---|
     | tau_s | s | 40 s, SPEC section 5 (a liquid-filled immersion bulb in still water) |
-    | height | - | relative height of the bulb in the tank, 0 bottom .. 1 top; 0.7 (upper third, as a tank thermostat pocket) |
+    | height | - | relative height of the bulb in the tank, 0 bottom .. 1 top; 0.7 (upper third, a thermostat pocket) |
     """
 
     tau_s: float = 40.0
@@ -156,7 +157,7 @@ class BulbParams:
             raise ConfigError(f"BulbParams.height must be in [0, 1], got {self.height!r}")
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> "BulbParams":
+    def from_dict(cls, data: Mapping[str, Any] | None) -> BulbParams:
         return _from_mapping(cls, data)
 
     def to_dict(self) -> dict[str, float]:
@@ -217,7 +218,7 @@ class TankParams:
         return self.volume_l * self.rho / self.n_layers
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> "TankParams":
+    def from_dict(cls, data: Mapping[str, Any] | None) -> TankParams:
         return _from_mapping(cls, data)
 
     def to_dict(self) -> dict[str, float]:

@@ -10,7 +10,7 @@ if TYPE_CHECKING:
     from valve_env.config import EnvConfig
 
 
-def render_history(hist: np.ndarray, cfg: "EnvConfig", mode: str) -> np.ndarray:
+def render_history(hist: np.ndarray, cfg: EnvConfig, mode: str) -> np.ndarray:
     """Draw temperatures, valve opening and actions; returns an RGB uint8 array.
 
     ``hist`` columns: t_s, T_out, T_pocket, T_bottom, x_mm, setting_C, dp_mbar.

@@ -11,10 +11,11 @@ fixed timetable, so every seed gives another day.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from functools import lru_cache
+from functools import cache
 from importlib import resources
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -31,7 +32,7 @@ class ScenarioParams:
 
     | field | unit | meaning (default and source) |
     |---|---|---|
-    | tapping_profile | - | "S", "M", "L" (EU 814/2013 tapping cycles) or "none"; "M" (a family's daily use, 5.845 kWh) |
+    | tapping_profile | - | "S", "M", "L" (EU 814/2013 tapping cycles) or "none"; "M" (5.845 kWh/day) |
     | stochastic_draws | - | True: seeded variant (start jitter, energy scaling); False: the cycle as tabled |
     | draw_jitter_min | min | standard deviation of each draw's start-time jitter; 20 |
     | draw_energy_cv | - | coefficient of variation of each draw's energy (lognormal); 0.2 |
@@ -39,7 +40,7 @@ class ScenarioParams:
     | supply_profile | - | "constant", "daily" (sine, coldest at 15:00) or "random" (Ornstein-Uhlenbeck) |
     | supply_amplitude_K | K | amplitude of the daily sine or standard deviation of the random profile; 5 |
     | supply_tau_h | h | correlation time of the random supply profile; 2 |
-    | dp_mbar | mbar | the network's differential pressure across the valve when the agent does not set it; 100 (calibration) |
+    | dp_mbar | mbar | the network's dp across the valve when the agent does not set it; 100 (calibration) |
     | dp_noise_mbar | mbar | standard deviation of an Ornstein-Uhlenbeck disturbance on dp; 0 |
     | dp_tau_s | s | its correlation time; 600 |
     | ps_bar | bar | static pressure at the valve; 2 (calibration) |
@@ -89,7 +90,7 @@ class ScenarioParams:
             raise ConfigError(f"ScenarioParams.T_init_C must be in (0, 100) degC, got {self.T_init_C!r}")
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> "ScenarioParams":
+    def from_dict(cls, data: Mapping[str, Any] | None) -> ScenarioParams:
         if data is not None and isinstance(data, Mapping):
             data = dict(data)
             for key in ("stochastic_draws",):
@@ -104,7 +105,7 @@ class ScenarioParams:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-@lru_cache(maxsize=None)
+@cache
 def tapping_cycle(name: str) -> pd.DataFrame:
     """The tabled EU tapping cycle ``name`` (S, M or L) as a DataFrame."""
     if name not in ("S", "M", "L"):
@@ -140,7 +141,7 @@ class ScenarioArrays:
 def _spread(starts: np.ndarray, durations: np.ndarray, values: np.ndarray, dt: float, n: int) -> np.ndarray:
     """Average of piecewise-constant pulses over each step [k dt, (k+1) dt)."""
     out = np.zeros(n)
-    for s, d, v in zip(starts, durations, values):
+    for s, d, v in zip(starts, durations, values, strict=True):
         e = s + d
         k0 = int(np.floor(s / dt))
         k1 = int(np.floor(e / dt))

@@ -18,7 +18,9 @@ from valve_env.envs.thermovalve import (
 _CLASSES = {"setting": ThermoValveEnv, "pressure": ThermoValvePressureEnv, "dual": ThermoValveDualEnv}
 
 
-def make_thermovalve(mode: str = "setting", config: Any = None, render_mode: str | None = None, **overrides: Any) -> gym.Env:
+def make_thermovalve(
+    mode: str = "setting", config: Any = None, render_mode: str | None = None, **overrides: Any
+) -> gym.Env:
     """Build the env for ``mode`` and wrap it with the measurement wrappers that
     its ``sensors`` configuration asks for (noise, dead time)."""
     from valve_env.wrappers import ObservationDelay, SensorNoise

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -146,7 +146,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     * v0: initial release.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012
     mode: Mode = "setting"
 
     def __init__(
@@ -351,7 +351,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
             scenario=self._scen.copy(),
             setting_C=float(self._setting),
             dp_mbar=float(self._dp),
-            rng_state=copy.deepcopy(self.np_random.bit_generator.state),
+            rng_state=copy.deepcopy(dict(self.np_random.bit_generator.state)),
             E0_J=self._E0,
         )
 
