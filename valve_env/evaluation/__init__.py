@@ -1,0 +1,30 @@
+"""The evaluator: score any controller with SB3's ``predict`` on the SPEC
+section 5 KPIs over seeded episodes (``thermovalve evaluate``, ``thermovalve demo``)."""
+
+from __future__ import annotations
+
+from valve_env.evaluation.evaluator import (
+    DEFAULT_CONTROLLERS,
+    evaluate,
+    evaluate_detailed,
+    make_env,
+    markdown_table,
+    rollout,
+    run_episodes,
+    summarise,
+    summary_frame,
+    write_outputs,
+)
+
+__all__ = [
+    "DEFAULT_CONTROLLERS",
+    "evaluate",
+    "evaluate_detailed",
+    "make_env",
+    "markdown_table",
+    "rollout",
+    "run_episodes",
+    "summarise",
+    "summary_frame",
+    "write_outputs",
+]
