@@ -123,9 +123,9 @@ def test_pi_dead_zone_limit_follows_the_pocket_temperature() -> None:
 
 def test_self_acting_holds_its_setting() -> None:
     obs = _obs_batch(3, np.random.default_rng(5))
-    assert np.all(SelfActing()(obs) == np.float32(ControlParams().setting_C))
-    assert np.all(SelfActing(setting_C=60.0)(obs) == 60.0)
-    np.testing.assert_array_equal(SelfActing("ThermoValveDual-v0", dp_mbar=80.0)(obs[0]), [62.0, 80.0])
+    assert np.all(SelfActing()(obs) == np.float32(ControlParams().T_target_C))
+    assert np.all(SelfActing(setting_C=62.0)(obs) == 62.0)
+    np.testing.assert_array_equal(SelfActing("ThermoValveDual-v0", dp_mbar=80.0)(obs[0]), [60.0, 80.0])
     assert SelfActing("ThermoValvePressure-v0")(obs[0]).tolist() == [100.0]
 
 

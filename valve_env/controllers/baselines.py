@@ -26,8 +26,8 @@ _SCEN = ScenarioParams()
 class SelfActing(Controller):
     """Today's practice: the valve alone at a fixed setting.
 
-    ThermoValve-v0 sends the fixed ``setting_C`` (default: the env's
-    ``control.setting_C``, 62 degC); ThermoValvePressure-v0 sends a constant
+    ThermoValve-v0 sends the fixed ``setting_C`` (default: the outlet target,
+    60 degC, as an installer dials it in); ThermoValvePressure-v0 sends a constant
     pump differential pressure ``dp_mbar`` (default: the network's calibration
     value, 100 mbar) while the env holds the setting; ThermoValveDual-v0 sends
     both.
@@ -36,7 +36,7 @@ class SelfActing(Controller):
     name: ClassVar[str] = "self_acting"
 
     def __init__(
-        self, env_id: str = "ThermoValve-v0", setting_C: float = _CTRL.setting_C, dp_mbar: float = _SCEN.dp_mbar
+        self, env_id: str = "ThermoValve-v0", setting_C: float = _CTRL.T_target_C, dp_mbar: float = _SCEN.dp_mbar
     ) -> None:
         super().__init__(env_id)
         self.setting_C = float(setting_C)

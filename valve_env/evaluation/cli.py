@@ -160,7 +160,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     env_id = "ThermoValve-v0"
-    names = ["self_acting", "self_acting:setting_C=60", "pi", "pi_compensated"]
+    names = ["self_acting", "pi", "pi_compensated"]
     t0 = time.perf_counter()
     print(f"Simulating one day ({env_id}, seed {args.seed}) and evaluating the baselines on {args.episodes} "
           f"seeded days each ...")
@@ -215,8 +215,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     d = subparsers.add_parser(
         "demo", help="simulate a day, evaluate the baselines, write the table and figures",
-        description="Simulates one day per baseline, evaluates self_acting (env default setting and setting = "
-                    "target), pi and pi_compensated on seeded days of the default scenario, prints the table "
+        description="Simulates one day per baseline, evaluates self_acting (set at the target), "
+                    "pi and pi_compensated on seeded days of the default scenario, prints the table "
                     "and writes table.md, results.csv, episodes.csv, results.json, trajectories.png, tradeoff.png.",
     )
     d.add_argument("--out", default="out/demo", metavar="DIR", help="output directory (default out/demo)")
