@@ -19,11 +19,14 @@ __version__ = "0.1.0"
 ENV_IDS: tuple[str, ...] = ("ThermoValve-v0", "ThermoValvePressure-v0", "ThermoValveDual-v0")
 MAX_EPISODE_STEPS = ControlParams().n_steps
 
-for _id, _fn in zip(ENV_IDS, ("make_setting", "make_pressure", "make_dual"), strict=True):
+_VECTOR_CLASSES = ("ThermoValveVectorEnv", "ThermoValvePressureVectorEnv", "ThermoValveDualVectorEnv")
+for _id, _fn, _vec in zip(ENV_IDS, ("make_setting", "make_pressure", "make_dual"), _VECTOR_CLASSES, strict=True):
     if _id not in registry:
         register(
             id=_id,
             entry_point=f"valve_env.envs:{_fn}",
+            # the native batched env (valve_env.envs.vector): gym.make_vec(id, num_envs=N)
+            vector_entry_point=f"valve_env.envs.vector:{_vec}",
             max_episode_steps=MAX_EPISODE_STEPS,
         )
 

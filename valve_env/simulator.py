@@ -4,6 +4,9 @@
 runs it over N environments in parallel. Both are compiled by numba from the
 pure physics functions in :mod:`valve_env.physics` (cached on disk), so the
 single env, the batched env and the estimator share one model of the valve.
+``env_step`` is the single env's whole step (action checks, ``apply_action``,
+``plant_step``, ``fill_obs``) in one call; ``env_step_batch`` runs the same
+functions over N envs for the batched env (valve_env.envs.vector).
 
 Packed arrays (float64):
 
@@ -217,6 +220,157 @@ def plant_step_batch(S, ACC, OUT, VP, PP, SCEN, K, T_SET, DP, WORK, R):
     n = S.shape[0]
     for i in prange(n):
         R[i] = plant_step(S[i], ACC[i], OUT[i], VP[i], PP[i], SCEN[i, K[i]], T_SET[i], DP[i], WORK[i])
+
+
+# -- the environments' step: action -> plant_step -> observation --------------
+# Shared by the single env (``env_step``) and the batched env
+# (``env_step_batch``): both call the same ``apply_action``, ``plant_step`` and
+# ``fill_obs``, so the two cannot drift apart.
+
+MODE_SETTING, MODE_PRESSURE, MODE_DUAL = 0, 1, 2
+MODE_CODES: dict[str, int] = {"setting": MODE_SETTING, "pressure": MODE_PRESSURE, "dual": MODE_DUAL}
+# the observation (valve_env.envs.thermovalve.OBS_NAMES) from the step outputs
+OBS_FROM_OUT = (O_T_TOP, O_T_POCKET, O_T_BOTTOM, O_T_SUP, O_T_RET, O_Q_KGH, O_DP, O_DRAW_LMIN)
+N_OBS = 12
+# the env's action memory ``sd``: the setting in force (degC), the dp in force (mbar)
+SD_SET, SD_DP = 0, 1
+
+
+@njit(cache=True)
+def fill_obs(obs, out, pp, k, T_set):
+    """Write the float32 observation of step index ``k`` from the step outputs."""
+    for j in range(8):
+        obs[j] = out[OBS_FROM_OUT[j]]
+    ang = k * (2.0 * np.pi * pp[P_DT] / 86400.0)
+    obs[8] = np.sin(ang)
+    obs[9] = np.cos(ang)
+    obs[10] = T_set
+    obs[11] = pp[P_T_TARGET]
+
+
+@njit(cache=True)
+def apply_action(a, mode, scen, sd):
+    """Put a (validated, clipped) action in force: ``sd`` <- (setting, dp).
+
+    setting mode: the setting is the action, dp the scenario's; pressure mode:
+    dp is the action, the setting stays; dual: both."""
+    if mode == MODE_SETTING:
+        sd[SD_SET] = a[0]
+        sd[SD_DP] = scen[4]
+    elif mode == MODE_PRESSURE:
+        sd[SD_DP] = a[0]
+    else:
+        sd[SD_SET] = a[0]
+        sd[SD_DP] = a[1]
+
+
+@njit(cache=True)
+def env_step(s, acc, out, obs, vp, pp, scen, k, a, bounds, mode, sd, work):
+    """One step of one env from its raw action: validate, clip, act, simulate, observe.
+
+    ``scen`` is the episode's (n_steps, 5) scenario, ``k`` the step index,
+    ``a`` the action (float64, overwritten by its clipped value), ``bounds``
+    (2, act_dim) the action box, ``sd`` the action memory (setting, dp).
+    Returns (reward, status): status -1 if the action is not finite (nothing
+    is changed), 1 if it was clipped, else 0.
+    """
+    na = a.shape[0]
+    for j in range(na):
+        if not np.isfinite(a[j]):
+            return 0.0, -1
+    status = 0
+    for j in range(na):
+        if a[j] < bounds[0, j]:
+            a[j] = bounds[0, j]
+            status = 1
+        elif a[j] > bounds[1, j]:
+            a[j] = bounds[1, j]
+            status = 1
+    row = scen[k]
+    apply_action(a, mode, row, sd)
+    r = plant_step(s, acc, out, vp, pp, row, sd[SD_SET], sd[SD_DP], work)
+    fill_obs(obs, out, pp, k + 1, sd[SD_SET])
+    return r, status
+
+
+def _env_step_batch(S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD,
+                    STEP, WORK):
+    """``env_step`` over N envs (row i of every array is env i) for the envs with ``STEP[i]``.
+
+    First every stepping env's action ``A_IN[i]`` is validated: if one is not
+    finite, nothing changes and its index is returned. Then the actions are
+    clipped into ``A`` (``CLIPPED[i]`` set for a stepping env whose action was
+    outside ``bounds``) and each stepping env takes ``apply_action``,
+    ``plant_step`` and ``fill_obs``, exactly as the single env's ``env_step``.
+    ``INFO`` (6, N) receives the info columns x, F_h, T_g, heat, pump and the
+    time (s). Returns -2 if some action was clipped, else -1.
+
+    Each env's scenario is run-length encoded: rows ``RV[i, :NRUN[i]]`` start
+    at step indices ``RK[i, :NRUN[i]]`` (``RK[i, 0] == 0``); ``CUR[i]`` is the
+    run in force, which only moves forward within an episode.
+    """
+    n = S.shape[0]
+    na = A_IN.shape[1]
+    for i in range(n):
+        if STEP[i]:
+            for j in range(na):
+                if not np.isfinite(A_IN[i, j]):
+                    return i
+    any_clip = False
+    for i in range(n):
+        c = False
+        for j in range(na):
+            v = A_IN[i, j]
+            if v < bounds[0, j]:
+                v = bounds[0, j]
+                c = True
+            elif v > bounds[1, j]:
+                v = bounds[1, j]
+                c = True
+            A[i, j] = v
+        c = c and STEP[i]
+        CLIPPED[i] = c
+        any_clip = any_clip or c
+    for i in prange(n):
+        if STEP[i]:
+            k = K[i]
+            c = CUR[i]
+            while c + 1 < NRUN[i] and RK[i, c + 1] <= k:
+                c += 1
+            CUR[i] = c
+            row = RV[i, c]
+            apply_action(A[i], mode, row, SD[i])
+            R[i] = plant_step(S[i], ACC[i], OUT[i], vp, pp, row, SD[i, SD_SET], SD[i, SD_DP], WORK[i])
+            K[i] = k + 1
+            fill_obs(OBS[i], OUT[i], pp, k + 1, SD[i, SD_SET])
+        o = OUT[i]
+        INFO[0, i] = o[O_X]
+        INFO[1, i] = o[O_FH]
+        INFO[2, i] = o[O_TG]
+        INFO[3, i] = o[O_HEAT_W]
+        INFO[4, i] = o[O_PUMP_W]
+        INFO[5, i] = K[i] * pp[P_DT]
+    return -2 if any_clip else -1
+
+
+# one source, two compilations: threads over envs, and a serial loop for small N
+env_step_batch = njit(cache=True, parallel=True)(_env_step_batch)
+env_step_batch_serial = njit(cache=True)(_env_step_batch)
+
+
+def reset_outputs(out: np.ndarray, s: np.ndarray, pp: np.ndarray, scen0: np.ndarray, setting: float, dp: float) -> None:
+    """The step outputs at the start of an episode (no flow history yet)."""
+    nl = int(pp[P_NL])
+    out[:] = 0.0
+    out[O_T_TOP] = s[nl - 1]
+    out[O_T_POCKET] = s[int(pp[P_BULB_LAYER])]
+    out[O_T_BOTTOM] = s[0]
+    out[O_T_SUP] = scen0[3]
+    out[O_T_RET] = s[0]
+    out[O_DP] = dp
+    out[O_X] = s[nl + S_X]
+    out[O_TG] = s[nl + S_TG]
+    out[O_T_SET] = setting
 
 
 def kpis_from_acc(acc: np.ndarray) -> dict[str, float]:

@@ -175,6 +175,10 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         self.action_space = spaces.Box(np.array(lo, np.float32), np.array(hi, np.float32), dtype=np.float32)
         self._a_lo = np.array(lo, np.float64)
         self._a_hi = np.array(hi, np.float64)
+        self._bounds = np.stack([self._a_lo, self._a_hi])
+        self._a_shape = self.action_space.shape
+        self._a_buf = np.zeros(len(lo))
+        self._mode_code = sim.MODE_CODES[self.mode]
         t_hi = 150.0
         obs_lo = np.array([-20, -20, -20, -20, -20, 0, 0, 0, -1, -1, c.setting_min_C, -20], np.float32)
         obs_hi = np.array(
@@ -188,8 +192,9 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         self._out = np.zeros(sim.N_OUT)
         self._scen = np.zeros((self._n_steps, sim.N_SCEN))
         self._k = 0
-        self._setting = c.setting_C
-        self._dp = self.cfg.scenario.dp_mbar
+        self._sd = np.array([c.setting_C, self.cfg.scenario.dp_mbar])  # setting, dp in force
+        self._obs_now = np.zeros(sim.N_OBS, np.float32)
+        self._dt_s = c.dt_s
         self._E0 = 0.0
         self._hist: np.ndarray | None = None
         self._needs_reset = True
@@ -207,19 +212,8 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         self._k = 0
         self._setting = cfg.control.setting_C
         self._dp = float(self._scen[0, 4])
-        nl = cfg.tank.n_layers
-        out = self._out
-        out[:] = 0.0
-        T = self._s[:nl]
-        out[sim.O_T_TOP] = T[-1]
-        out[sim.O_T_POCKET] = T[int(self._pp[sim.P_BULB_LAYER])]
-        out[sim.O_T_BOTTOM] = T[0]
-        out[sim.O_T_SUP] = self._scen[0, 3]
-        out[sim.O_T_RET] = T[0]
-        out[sim.O_DP] = self._dp
-        out[sim.O_X] = self._s[nl + sim.S_X]
-        out[sim.O_TG] = self._s[nl + sim.S_TG]
-        out[sim.O_T_SET] = self._setting
+        sim.reset_outputs(self._out, self._s, self._pp, self._scen[0], self._setting, self._dp)
+        sim.fill_obs(self._obs_now, self._out, self._pp, 0, self._setting)
         self._E0 = self.stored_energy_J()
         self._needs_reset = False
         if self.render_mode is not None:
@@ -230,31 +224,28 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         if self._needs_reset:
             raise RuntimeError("call reset() before step(), and again after the episode ends")
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape[0] != self._a_lo.shape[0]:
-            raise ValueError(f"action must have shape {self.action_space.shape}, got {np.shape(action)}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be finite, got {a.tolist()}")
-        clipped = bool(np.any(a < self._a_lo) or np.any(a > self._a_hi))
-        if clipped:
-            a = np.minimum(np.maximum(a, self._a_lo), self._a_hi)
-        k = self._k
-        scen = self._scen[k]
-        if self.mode == "setting":
-            self._setting = a[0]
-            self._dp = scen[4]
-        elif self.mode == "pressure":
-            self._dp = a[0]
+        # Hot path: validation, clipping, the action, the physics and the
+        # observation are one call of the shared numba kernel (simulator.env_step).
+        a = self._a_buf
+        if type(action) is np.ndarray and action.shape == self._a_shape:
+            a[:] = action
         else:
-            self._setting = a[0]
-            self._dp = a[1]
-        reward = sim.plant_step(
-            self._s, self._acc, self._out, self._vp, self._pp, scen, self._setting, self._dp, self._work
+            arr = np.asarray(action, dtype=np.float64).reshape(-1)
+            if arr.shape[0] != a.shape[0]:
+                raise ValueError(f"action must have shape {self.action_space.shape}, got {np.shape(action)}")
+            a[:] = arr
+        obs = np.empty(sim.N_OBS, np.float32)
+        reward, status = sim.env_step(
+            self._s, self._acc, self._out, obs, self._vp, self._pp, self._scen, self._k, a, self._bounds,
+            self._mode_code, self._sd, self._work,
         )
-        self._k = k + 1
+        if status < 0:
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        self._obs_now = obs
+        self._k += 1
         truncated = self._k >= self._n_steps
         info = self._info()
-        if clipped:
+        if status:
             info["action_clipped"] = True
         if truncated:
             self._needs_reset = True
@@ -262,7 +253,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
             info["energy"] = self.energy_account()
         if self._hist is not None:
             self._record()
-        return self._obs(), float(reward), False, truncated, info
+        return obs.copy(), reward, False, truncated, info
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array" or self._hist is None:
@@ -272,26 +263,37 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         return render_history(self._hist[: self._k + 1], self.cfg, self.mode)
 
     # -- helpers --------------------------------------------------------------
+    @property
+    def _setting(self) -> float:
+        """The valve setting in force, degC."""
+        return float(self._sd[sim.SD_SET])
+
+    @_setting.setter
+    def _setting(self, value: float) -> None:
+        self._sd[sim.SD_SET] = value
+
+    @property
+    def _dp(self) -> float:
+        """The differential pressure in force, mbar."""
+        return float(self._sd[sim.SD_DP])
+
+    @_dp.setter
+    def _dp(self, value: float) -> None:
+        self._sd[sim.SD_DP] = value
+
     def _obs(self) -> np.ndarray:
-        out = self._out
-        o = np.empty(12, np.float32)
-        o[:8] = out[_OUT_TO_OBS]
-        ang = self._k * self._tod_step
-        o[8] = np.sin(ang)
-        o[9] = np.cos(ang)
-        o[10] = self._setting
-        o[11] = self.cfg.control.T_target_C
-        return o
+        """The current observation (built by simulator.fill_obs, as in the batched env)."""
+        return self._obs_now.copy()
 
     def _info(self) -> dict[str, Any]:
-        out = self._out
+        out = self._out.tolist()
         return {
             "x_mm": out[sim.O_X],
             "F_h_N": out[sim.O_FH],
             "T_g_C": out[sim.O_TG],
             "heat_W": out[sim.O_HEAT_W],
             "pump_W": out[sim.O_PUMP_W],
-            "t_s": self._k * self.cfg.control.dt_s,
+            "t_s": self._k * self._dt_s,
         }
 
     def _record(self) -> None:
@@ -369,6 +371,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         self.np_random.bit_generator.state = copy.deepcopy(st.rng_state)
         self._E0 = float(st.E0_J)
         self._needs_reset = self._k >= self._n_steps
+        sim.fill_obs(self._obs_now, self._out, self._pp, self._k, self._setting)
         if self.render_mode is not None:
             self._hist = np.full((self._n_steps + 1, 7), np.nan)
             self._record()
