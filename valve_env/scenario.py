@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from numba import njit
 
 from valve_env.params import ConfigError, _from_mapping
 
@@ -138,18 +139,25 @@ class ScenarioArrays:
         )
 
 
+@njit(cache=True)
 def _spread(starts: np.ndarray, durations: np.ndarray, values: np.ndarray, dt: float, n: int) -> np.ndarray:
-    """Average of piecewise-constant pulses over each step [k dt, (k+1) dt)."""
-    out = np.zeros(n)
-    for s, d, v in zip(starts, durations, values, strict=True):
-        e = s + d
-        k0 = int(np.floor(s / dt))
-        k1 = int(np.floor(e / dt))
-        for k in range(max(k0, 0), min(k1, n - 1) + 1):
+    """Step averages of pulses: ``values[:, c]`` during [starts, starts + durations).
+
+    Column c of the result is the mean over each step [k dt, (k+1) dt) of the
+    sum of the pulses' c-th values (all columns in one pass)."""
+    out = np.zeros((n, values.shape[1]))
+    for p in range(starts.shape[0]):
+        s = starts[p]
+        e = s + durations[p]
+        k0 = max(int(np.floor(s / dt)), 0)
+        k1 = min(int(np.floor(e / dt)), n - 1)
+        for k in range(k0, k1 + 1):
             a = max(s, k * dt)
             b = min(e, (k + 1) * dt)
             if b > a:
-                out[k] += v * (b - a) / dt
+                w = (b - a) / dt
+                for c in range(values.shape[1]):
+                    out[k, c] += values[p, c] * w
     return out
 
 
@@ -167,18 +175,26 @@ def make_scenario(
         Q = cyc["Qtap_kWh"].to_numpy(dtype=float) * 3.6e6
         f_kgs = cyc["f_l_min"].to_numpy(dtype=float) / 60.0
         T_d = cyc["T_draw_C"].to_numpy(dtype=float)
-        if params.stochastic_draws:
-            start = start + rng.normal(0.0, params.draw_jitter_min * 60.0, size=start.size)
-            if params.draw_energy_cv > 0:
-                s2 = np.log1p(params.draw_energy_cv**2)
-                Q = Q * rng.lognormal(-0.5 * s2, np.sqrt(s2), size=Q.size)
+        n_days = max(1, int(np.ceil(horizon / 86400.0 - 1e-9)))
+        starts, energies = [], []
+        for day in range(n_days):  # the cycle repeats every day, each day with its own randomness
+            s_d, Q_d = start + day * 86400.0, Q
+            if params.stochastic_draws:
+                s_d = s_d + rng.normal(0.0, params.draw_jitter_min * 60.0, size=start.size)
+                if params.draw_energy_cv > 0:
+                    s2 = np.log1p(params.draw_energy_cv**2)
+                    Q_d = Q * rng.lognormal(-0.5 * s2, np.sqrt(s2), size=Q.size)
+            starts.append(s_d)
+            energies.append(Q_d)
+        start = np.concatenate(starts)
+        Q = np.concatenate(energies)
+        f_kgs = np.tile(f_kgs, n_days)
+        T_d = np.tile(T_d, n_days)
         power = f_kgs * cp * (T_d - T_cold)
         dur = Q / power
         start = np.mod(start, horizon) if horizon >= 86400.0 else start
-        draw_W = _spread(start, dur, power, dt_s, n_steps)
-        active = _spread(start, dur, np.ones_like(power), dt_s, n_steps)
-        Tw = _spread(start, dur, T_d, dt_s, n_steps)
-        mw = _spread(start, dur, f_kgs, dt_s, n_steps)
+        spread = _spread(start, dur, np.stack([power, np.ones_like(power), T_d, f_kgs], axis=1), dt_s, n_steps)
+        draw_W, active, Tw, mw = spread[:, 0].copy(), spread[:, 1], spread[:, 2], spread[:, 3]
         on = active > 0
         draw_T[on] = Tw[on] / active[on]
         draw_m[on] = mw[on] / active[on]

@@ -270,3 +270,17 @@ def test_user_valve_parameters_reach_the_physics():
     env = gym.make("ThermoValve-v0", valve={"F_hmax": 3.0, "sigma": 20.0})
     _, _, infos = rollout(env, seed=4, n=2000)
     assert max(abs(i["F_h_N"]) for i in infos) > 1.31
+
+
+def test_multi_day_horizons_repeat_the_tapping_cycle_every_day():
+    from valve_env.scenario import ScenarioParams, make_scenario
+
+    days = 3
+    sc = make_scenario(ScenarioParams(), np.random.default_rng(0), 2880 * days, 30.0, 10.0, 4180.0)
+    daily_kWh = [sc.draw_W[d * 2880 : (d + 1) * 2880].sum() * 30.0 / 3.6e6 for d in range(days)]
+    for e in daily_kWh:
+        assert 0.6 * 5.845 < e < 1.4 * 5.845  # cycle M each day, +-20 % seeded variation
+    assert len(set(daily_kWh)) == days  # each day has its own randomness
+    env = gym.make("ThermoValve-v0", horizon_h=48.0, max_episode_steps=5760)
+    _, _, infos = rollout(env, seed=0, actions=np.full((5760, 1), 60.0, np.float32))
+    assert len(infos) == 5760 and "kpis" in infos[-1]
