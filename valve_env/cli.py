@@ -7,9 +7,14 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from typing import Sequence
+from collections.abc import Sequence
 
 SUBCOMMAND_MODULES: tuple[str, ...] = (
+    "valve_env.bench",
+    "valve_env.diagnosis.cli",
+    "valve_env.estimation.cli",
+    "valve_env.evaluation.cli",
+    "agents.cli",
 )
 
 

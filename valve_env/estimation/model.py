@@ -10,6 +10,12 @@ A model is declared in plain Python:
 works on the transformed scale). Jacobians default to finite differences; a
 model may override ``drift_jacobian`` and ``observation_jacobian``.
 
+Beyond the four model functions a model may declare itself ``linear`` (the
+drift is affine in the states and the inputs; the estimator then offers the
+linear Kalman filter with exact discretisation) and may return compiled
+(numba) versions of its functions from :meth:`SDEModel.compiled`, which the
+fast filter kernel uses; without them the generic Python filter runs.
+
 This file is the contract shared by the estimator (Kalman filters,
 likelihood, maximum likelihood) and by the model library (the valve and its
 effects, the diagnosis).
@@ -17,8 +23,9 @@ effects, the diagnosis).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Literal, Sequence
+from typing import Any, Literal
 
 import numpy as np
 
@@ -45,15 +52,126 @@ class Parameter:
     doc: str = ""
 
 
+def to_work(value: float, q: Parameter) -> float:
+    """Natural scale -> the optimiser's (transformed) scale."""
+    if q.transform == "log":
+        return float(np.log(value))
+    if q.transform == "logit":
+        lo, hi = _finite_bounds(q)
+        z = (value - lo) / (hi - lo)
+        z = min(max(z, 1e-15), 1.0 - 1e-15)
+        return float(np.log(z / (1.0 - z)))
+    return float(value)
+
+
+def from_work(theta: float, q: Parameter) -> float:
+    """The optimiser's scale -> natural scale."""
+    if q.transform == "log":
+        return float(np.exp(theta))
+    if q.transform == "logit":
+        lo, hi = _finite_bounds(q)
+        return float(lo + (hi - lo) / (1.0 + np.exp(-theta)))
+    return float(theta)
+
+
+def dnat_dwork(theta: float, q: Parameter) -> float:
+    """Derivative of the natural value with respect to the transformed one (delta method)."""
+    if q.transform == "log":
+        return float(np.exp(theta))
+    if q.transform == "logit":
+        lo, hi = _finite_bounds(q)
+        s = 1.0 / (1.0 + np.exp(-theta))
+        return float((hi - lo) * s * (1.0 - s))
+    return 1.0
+
+
+def work_bounds(q: Parameter) -> tuple[float | None, float | None]:
+    """Bounds on the optimiser's scale (None = unbounded)."""
+    if q.transform == "logit":
+        return (None, None)
+    if q.transform == "log":
+        lo = None if q.lower is None or q.lower <= 0 else float(np.log(q.lower))
+        hi = None if q.upper is None else float(np.log(q.upper))
+        return (lo, hi)
+    return (q.lower, q.upper)
+
+
+def _finite_bounds(q: Parameter) -> tuple[float, float]:
+    if q.lower is None or q.upper is None:
+        raise ValueError(f"parameter {q.name!r}: the logit transform needs finite lower and upper bounds")
+    return float(q.lower), float(q.upper)
+
+
+@dataclass(frozen=True)
+class CompiledFunctions:
+    """numba-compiled (``@njit``) model functions, each
+    ``(t, x, u, pc, ctx) -> ndarray`` with the shapes of the corresponding
+    :class:`SDEModel` methods (float64, C-contiguous). ``pc`` is the
+    natural-scale vector of all parameters followed by
+    :meth:`SDEModel.compiled_constants`; ``ctx`` is passed through unchanged
+    (any numba-typable value, e.g. a tuple of further ``@njit`` functions that
+    the model functions call). Functions that receive dispatchers in ``ctx``
+    must not use ``cache=True`` (numba cannot reload such cache entries); the
+    filter kernel that calls them compiles once per process. Used by the
+    compiled filter kernel in :mod:`valve_env.estimation.filters`."""
+
+    drift: Callable[..., Any]
+    drift_jacobian: Callable[..., Any]
+    diffusion: Callable[..., Any]
+    observation: Callable[..., Any]
+    observation_jacobian: Callable[..., Any]
+    obs_variance: Callable[..., Any]
+    ctx: Any = ()
+
+
 class SDEModel:
     """Base class of a continuous-discrete stochastic model. Subclasses set the
-    name tuples and parameters and implement the four model functions."""
+    name tuples and parameters and implement the four model functions.
+
+    Optional: ``linear = True`` when the drift is affine in states and inputs
+    (``f = A x + B u + c`` with A, B, c free of x and u) and G, h (linear), R do
+    not depend on the states: the linear Kalman filter with exact
+    discretisation then applies. :meth:`compiled` may return numba versions of
+    the model functions for the fast filter kernel."""
 
     name: str = "model"
     states: tuple[str, ...] = ()
     inputs: tuple[str, ...] = ()
     outputs: tuple[str, ...] = ()
     parameters: tuple[Parameter, ...] = ()
+    linear: bool = False
+    #: compiled EKF: drift Jacobian and diffusion at every RK4 stage (ctsmTMB) or once per step
+    jacobian_each_stage: bool = True
+
+    def compiled(self) -> CompiledFunctions | None:
+        """numba versions of the model functions, or None (the generic Python path).
+
+        A subclass that changes a model function must either override this too
+        or return None; :class:`valve_env.estimation.valve_model.ValveModel`
+        documents how its hooks are compiled."""
+        return None
+
+    def prepare(self, data: Any) -> Any:
+        """Derived input columns the model needs (a DataFrame in, a DataFrame out); identity here."""
+        return data
+
+    def fast_filter(self, p: np.ndarray, arr: Any) -> Any | None:
+        """A specialised filter pass for this model (a ``filters.FilterResult``) or None.
+
+        Models with a hand-written kernel (the base valve model) return it here;
+        ``filters.run_filter`` prefers it for the "ekf" method unless ``fast=False``."""
+        return None
+
+    def compiled_constants(self) -> np.ndarray:
+        """Constants appended to ``p`` when the compiled functions are called
+        (``pc = concatenate([p, compiled_constants()])``); empty by default."""
+        return np.zeros(0)
+
+    def parameter(self, name: str) -> Parameter:
+        for q in self.parameters:
+            if q.name == name:
+                return q
+        raise KeyError(f"{self.name}: unknown parameter {name!r}; known: {list(self.param_names)}")
 
     # --- names -----------------------------------------------------------
     @property

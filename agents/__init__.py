@@ -1,0 +1,1 @@
+"""ThermoValve RL agents: training, shipped models, leaderboard and Dask sweeps."""

@@ -1,0 +1,322 @@
+"""A sweep of algorithms x seeds x scenarios on a Dask cluster.
+
+    thermovalve sweep --algos ppo,sac --seeds 0,1,2 --scenarios default,profile_L --timesteps 200000 \
+        --out runs/sweep [--workers 2 | --scheduler tcp://host:8786]
+    python -m agents.sweep ...
+
+Each cell (algo, seed, scenario) trains an agent on that scenario
+(:func:`agents.train.train`) and scores its final model through the
+evaluator (``valve_env.evaluation.evaluate_detailed``) on held-out seeds.
+Cells are Dask tasks: a ``distributed.LocalCluster`` by default (``--workers``
+processes, one thread each), or an existing cluster by its scheduler address
+(the workers need this package installed and the output directory on a
+shared file system).
+
+Resuming: a cell's result is written atomically (a temporary file, then
+``os.replace``) to ``<out>/results/<cell>.json``; a rerun skips every cell
+whose result exists. A cell that raised writes ``<out>/failed/<cell>.json``
+(the error and traceback) and is retried on the next run; an interrupted
+cell leaves no result and is also rerun. ``<out>/summary.csv`` and
+``summary.md`` collect the results after every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import shlex
+import sys
+import tempfile
+import time
+import traceback
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One training + scoring job of the grid."""
+
+    algo: str
+    seed: int
+    scenario: str
+    env_id: str = "ThermoValve-v0"
+    timesteps: int = 100_000
+    eval_episodes: int = 5
+    eval_seed: int = 1000
+    overrides: tuple[str, ...] = ()
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def key(self) -> str:
+        return f"{self.env_id}__{self.algo}__{self.scenario}__s{self.seed}"
+
+
+def make_grid(
+    algos: Iterable[str],
+    seeds: Iterable[int],
+    scenarios: Iterable[str],
+    env_id: str = "ThermoValve-v0",
+    timesteps: int = 100_000,
+    eval_episodes: int = 5,
+    eval_seed: int = 1000,
+    overrides: Sequence[str] = (),
+    env_kwargs: Mapping[str, Any] | None = None,
+) -> list[Cell]:
+    """The full grid algos x seeds x scenarios (scenarios: agents.scenarios's static ones)."""
+    from agents.scenarios import is_randomised
+    from agents.train import ALGOS
+
+    cells = []
+
+    def for_algo(algo: str) -> tuple[str, ...]:
+        """Overrides for one algo: plain ``key=value`` apply to all, ``algo:key=value`` to that algo."""
+        out = []
+        for o in overrides:
+            head, _, rest = o.partition(":")
+            if rest and "=" not in head:
+                if head == algo:
+                    out.append(rest)
+            else:
+                out.append(o)
+        return tuple(out)
+
+    for algo, seed, scen in itertools.product(algos, seeds, scenarios):
+        if algo not in ALGOS:
+            raise ValueError(f"unknown algo {algo!r}; choose from {', '.join(ALGOS)}")
+        if is_randomised(scen):
+            raise ValueError(f"scenario {scen!r} changes per episode and cannot be a training scenario")
+        cells.append(
+            Cell(algo, int(seed), scen, env_id, int(timesteps), int(eval_episodes), int(eval_seed), for_algo(algo),
+                 dict(env_kwargs or {}))
+        )
+    return cells
+
+
+def write_json_atomic(path: Path, data: Mapping[str, Any]) -> None:
+    """Write JSON so that a reader sees the old file or the complete new one, never a part."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh, indent=1)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def run_cell(cell: Cell, out_dir: str) -> dict[str, Any]:
+    """Train and score one cell (runs on a Dask worker). Writes the result or
+    the failure record itself and returns it."""
+    from agents.loader import load_agent
+    from agents.scenarios import scenario_env_kwargs
+    from valve_env.evaluation import evaluate_detailed
+
+    out = Path(out_dir)
+    result_path = out / "results" / f"{cell.key}.json"
+    failed_path = out / "failed" / f"{cell.key}.json"
+    t0 = time.time()
+    record: dict[str, Any] = {
+        "cell": {**asdict(cell), "key": cell.key},
+        "host": os.uname().nodename,
+        "pid": os.getpid(),
+    }
+    try:
+        from agents.train import train
+
+        env_kwargs = {**scenario_env_kwargs(cell.scenario), **dict(cell.env_kwargs)}
+        run_dir = train(
+            cell.algo,
+            cell.env_id,
+            seed=cell.seed,
+            timesteps=cell.timesteps,
+            out=out / "cells" / cell.key,
+            overrides=cell.overrides,
+            env_kwargs=env_kwargs,
+            progress_bar=False,
+            eval_freq=0,
+            command=f"agents.sweep.run_cell({cell!r})",
+        )
+        ctrl = load_agent(cell.algo, cell.env_id, run_dir=run_dir)
+        summary, per_ep = evaluate_detailed(
+            {cell.algo: ctrl}, cell.env_id, cell.eval_episodes, cell.eval_seed, env_kwargs
+        )
+        res = summary["results"][cell.algo]
+        meta = json.loads((run_dir / "run.json").read_text())
+        record.update(
+            {
+                "status": "done",
+                "run_dir": str(run_dir),
+                "train_wall_s": meta.get("wall_time_s"),
+                "wall_s": round(time.time() - t0, 1),
+                "eval": {"episodes": cell.eval_episodes, "seed": cell.eval_seed, "env_kwargs": env_kwargs},
+                "return": res["return"],
+                "kpis": res["kpis"],
+                "episodes": per_ep[cell.algo].to_dict(orient="records"),
+            }
+        )
+        write_json_atomic(result_path, record)
+        failed_path.unlink(missing_ok=True)
+    except Exception as exc:  # recorded, retried on the next run
+        record.update(
+            {
+                "status": "failed",
+                "error": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc(),
+                "wall_s": round(time.time() - t0, 1),
+            }
+        )
+        write_json_atomic(failed_path, record)
+    return record
+
+
+def pending(cells: Sequence[Cell], out_dir: str | Path) -> list[Cell]:
+    """Cells without a result file (never run, failed or interrupted)."""
+    res = Path(out_dir) / "results"
+    return [c for c in cells if not (res / f"{c.key}.json").is_file()]
+
+
+def collect(out_dir: str | Path) -> pd.DataFrame:
+    """One row per finished cell: algo, seed, scenario, return and KPI means."""
+    rows = []
+    for p in sorted((Path(out_dir) / "results").glob("*.json")):
+        r = json.loads(p.read_text())
+        c = r["cell"]
+        row = {"env_id": c["env_id"], "algo": c["algo"], "scenario": c["scenario"], "seed": c["seed"],
+               "timesteps": c["timesteps"], "return": r["return"]["mean"], "return_std": r["return"]["std"]}
+        row.update({k: v["mean"] for k, v in r["kpis"].items()})
+        row["train_wall_s"] = r.get("train_wall_s")
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def write_summary(out_dir: str | Path) -> pd.DataFrame:
+    out = Path(out_dir)
+    df = collect(out)
+    df.to_csv(out / "summary.csv", index=False)
+    lines = ["# Sweep summary", ""]
+    if len(df):
+        g = df.groupby(["env_id", "algo", "scenario"])
+        agg = g.agg(
+            cells=("seed", "count"), return_mean=("return", "mean"), return_std=("return", "std"),
+            rmse_K=("rmse_K", "mean"), heat_kWh=("heat_kWh", "mean"), tdis_Kh=("tdis_Kh", "mean"),
+        ).reset_index()
+        lines += ["Means over seeds of each cell's evaluation mean (return_std: across seeds).", ""]
+        lines.append("| " + " | ".join(agg.columns) + " |")
+        lines.append("|" + "---|" * len(agg.columns))
+        for _, r in agg.iterrows():
+            lines.append("| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |")
+    failed = sorted(p.stem for p in (out / "failed").glob("*.json")) if (out / "failed").is_dir() else []
+    if failed:
+        lines += ["", f"Failed cells (retried on the next run): {', '.join(failed)}"]
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    return df
+
+
+def run_sweep(
+    cells: Sequence[Cell],
+    out_dir: str | Path,
+    scheduler: str | None = None,
+    workers: int = 2,
+    verbose: bool = True,
+) -> dict[str, Any]:
+    """Run the pending cells on Dask; returns counts of done / failed / skipped cells."""
+    from distributed import Client, LocalCluster, as_completed
+
+    out = Path(out_dir).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    todo = pending(cells, out)
+    stats: dict[str, Any] = {"total": len(cells), "skipped": len(cells) - len(todo), "done": 0, "failed": 0}
+    write_json_atomic(out / "grid.json", {"cells": [{**asdict(c), "key": c.key} for c in cells]})
+    if verbose:
+        print(f"[sweep] {len(cells)} cells, {stats['skipped']} already done, {len(todo)} to run", file=sys.stderr)
+    if todo:
+        cluster = None
+        if scheduler:
+            client = Client(scheduler)
+        else:
+            cluster = LocalCluster(
+                n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None
+            )
+            client = Client(cluster)
+        try:
+            futures = {client.submit(run_cell, c, str(out), key=f"cell-{c.key}-{time.time_ns()}", pure=False): c
+                       for c in todo}
+            for fut in as_completed(futures):
+                c = futures[fut]
+                try:
+                    rec = fut.result()
+                except Exception as exc:  # the worker died or the task was lost: record it client-side
+                    rec = {"cell": {**asdict(c), "key": c.key}, "status": "failed",
+                           "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
+                    write_json_atomic(out / "failed" / f"{c.key}.json", rec)
+                stats[rec["status"]] = stats.get(rec["status"], 0) + 1
+                if verbose:
+                    extra = f"return {rec['return']['mean']:.2f}" if rec["status"] == "done" else rec.get("error", "")
+                    print(f"[sweep] {c.key}: {rec['status']} {extra}", file=sys.stderr, flush=True)
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    write_summary(out)
+    return stats
+
+
+# --------------------------------------------------------------------------- CLI
+def _ints(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        if "-" in part.strip()[1:]:
+            a, b = part.split("-", 1)
+            out += list(range(int(a), int(b) + 1))
+        elif part.strip():
+            out.append(int(part))
+    return out
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--algos", default="ppo", help="comma-separated algorithms (default ppo)")
+    p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds or ranges, e.g. 0-4 (default 0,1,2)")
+    p.add_argument("--scenarios", default="default", help="comma-separated training scenarios (agents.scenarios)")
+    p.add_argument("--env", default="ThermoValve-v0")
+    p.add_argument("--timesteps", type=int, default=100_000, help="training steps per cell")
+    p.add_argument("--eval-episodes", type=int, default=5)
+    p.add_argument("--eval-seed", type=int, default=1000)
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="config override (as in thermovalve train); ALGO:KEY=VALUE applies to one algo only")
+    p.add_argument("--out", default="runs/sweep", help="sweep directory (results/, failed/, cells/, summary.*)")
+    p.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
+    p.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler, e.g. tcp://host:8786")
+
+
+def run(args: argparse.Namespace) -> int:
+    cells = make_grid(
+        [a for a in args.algos.split(",") if a], _ints(args.seeds), [s for s in args.scenarios.split(",") if s],
+        args.env, args.timesteps, args.eval_episodes, args.eval_seed, args.overrides,
+    )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "command.txt").write_text(shlex.join(sys.argv) + "\n")
+    stats = run_sweep(cells, out, scheduler=args.scheduler, workers=args.workers)
+    print(json.dumps(stats))
+    print(f"summary: {out / 'summary.md'}")
+    return 0 if stats.get("failed", 0) == 0 else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m agents.sweep", description=__doc__.split("\n\n")[0])
+    add_arguments(p)
+    return run(p.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

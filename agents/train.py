@@ -1,0 +1,402 @@
+"""Train a stable-baselines3 agent on a ThermoValve environment.
+
+    python -m agents.train --algo ppo --env ThermoValve-v0 --seed 0 [--timesteps N] [--out runs/...]
+    thermovalve train --algo ppo --env ThermoValve-v0 --seed 0 --ship     # retrain + ship into agents/zoo
+
+Hyperparameters come from ``configs/<algo>.yml`` (rl-baselines3-zoo style,
+keyed by env id). Every run directory holds: ``config.yml`` (the resolved
+config), ``command.txt``, ``run.json`` (seed, versions, wall time),
+``monitor/`` (SB3 Monitor CSVs with the episode KPIs), ``tb/`` (TensorBoard),
+``model.zip`` + ``vecnormalize.pkl`` + ``obs_norm.json`` (final) and
+``best/`` (the best periodic evaluation's model and statistics).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import platform
+import shlex
+import shutil
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+ALGOS: tuple[str, ...] = ("ppo", "sac", "td3", "a2c")
+REPO_ROOT = Path(__file__).resolve().parent.parent
+CONFIG_DIR = REPO_ROOT / "configs"
+ZOO_DIR = Path(__file__).resolve().parent / "zoo"
+DEFAULT_RUNS = REPO_ROOT / "runs"
+
+
+# --------------------------------------------------------------------------- config
+def load_algo_config(algo: str, env_id: str, config_dir: str | Path | None = None) -> dict[str, Any]:
+    """The hyperparameter block for ``env_id`` in ``configs/<algo>.yml``."""
+    algo = algo.lower()
+    path = Path(config_dir or CONFIG_DIR) / f"{algo}.yml"
+    if not path.is_file():
+        raise FileNotFoundError(f"no hyperparameter file {path} for algo {algo!r}")
+    data = yaml.safe_load(path.read_text()) or {}
+    if env_id not in data:
+        raise KeyError(f"{path} has no entry for env id {env_id!r}; it has {sorted(data)}")
+    cfg = copy.deepcopy(data[env_id])
+    cfg.setdefault("hyperparams", {})
+    return cfg
+
+
+def _set_nested(cfg: dict[str, Any], dotted: str, value: Any) -> None:
+    keys = dotted.split(".")
+    d = cfg
+    for k in keys[:-1]:
+        d = d.setdefault(k, {})
+    d[keys[-1]] = value
+
+
+def apply_overrides(cfg: dict[str, Any], overrides: Sequence[str]) -> dict[str, Any]:
+    """``key.sub=value`` overrides (values parsed as YAML), e.g. ``hyperparams.learning_rate=1e-4``."""
+    out = copy.deepcopy(cfg)
+    for item in overrides:
+        if "=" not in item:
+            raise ValueError(f"override {item!r} must look like key=value")
+        k, v = item.split("=", 1)
+        _set_nested(out, k.strip(), yaml.safe_load(v))
+    return out
+
+
+def _number(value: Any) -> Any:
+    """YAML 1.1 reads ``1e-4`` (no dot) as a string: make such strings numbers."""
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
+def _schedule(value: Any) -> Any:
+    """rl-zoo style ``lin_3e-4`` linear schedules; numbers pass through."""
+    if isinstance(value, str) and value.startswith("lin_"):
+        start = float(value[4:])
+
+        def lin(progress_remaining: float) -> float:
+            return progress_remaining * start
+
+        return lin
+    return value
+
+
+def build_model_kwargs(algo: str, cfg: Mapping[str, Any], n_actions: int) -> dict[str, Any]:
+    """SB3 constructor keywords from the ``hyperparams`` block (no eval of strings)."""
+    import torch.nn as nn
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+    hp = {k: _number(v) for k, v in copy.deepcopy(dict(cfg.get("hyperparams") or {})).items()}
+    pk = {k: _number(v) for k, v in dict(hp.pop("policy_kwargs", {}) or {}).items()}
+    if "activation_fn" in pk:
+        acts = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}
+        pk["activation_fn"] = acts[str(pk["activation_fn"]).lower()]
+    if pk:
+        hp["policy_kwargs"] = pk
+    for key in ("learning_rate", "clip_range"):
+        if key in hp:
+            hp[key] = _schedule(hp[key])
+    noise = hp.pop("action_noise", None)
+    if noise:
+        sigma = float(noise.get("sigma", 0.1)) * np.ones(n_actions)
+        kind = noise.get("type", "normal")
+        if kind == "normal":
+            hp["action_noise"] = NormalActionNoise(np.zeros(n_actions), sigma)
+        elif kind == "ornstein-uhlenbeck":
+            hp["action_noise"] = OrnsteinUhlenbeckActionNoise(np.zeros(n_actions), sigma)
+        else:
+            raise ValueError(f"unknown action_noise type {kind!r}")
+    if "train_freq" in hp and isinstance(hp["train_freq"], list):
+        hp["train_freq"] = tuple(hp["train_freq"])
+    return hp
+
+
+def algo_class(algo: str) -> Any:
+    import stable_baselines3 as sb3
+
+    classes = {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3, "a2c": sb3.A2C}
+    if algo.lower() not in classes:
+        raise ValueError(f"unknown algo {algo!r}; choose from {sorted(classes)}")
+    return classes[algo.lower()]
+
+
+# --------------------------------------------------------------------------- statistics
+def save_obs_norm(venv: Any, path: str | Path) -> None:
+    """VecNormalize's observation statistics as plain JSON (what agents.loader reads)."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    data: dict[str, Any] = {"norm_obs": False}
+    if isinstance(venv, VecNormalize) and venv.norm_obs:
+        rms: Any = venv.obs_rms  # a RunningMeanStd for Box observations
+        data = {
+            "norm_obs": True,
+            "mean": np.asarray(rms.mean, dtype=np.float64).tolist(),
+            "var": np.asarray(rms.var, dtype=np.float64).tolist(),
+            "count": float(rms.count),
+            "clip_obs": float(venv.clip_obs),
+            "epsilon": float(venv.epsilon),
+        }
+    Path(path).write_text(json.dumps(data, indent=1))
+
+
+def _versions() -> dict[str, str]:
+    import gymnasium
+    import stable_baselines3
+    import torch
+
+    import valve_env
+
+    return {
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "gymnasium": gymnasium.__version__,
+        "valve_env": valve_env.__version__,
+    }
+
+
+# --------------------------------------------------------------------------- training
+def _fixed_seed_eval_callback() -> type:
+    from stable_baselines3.common.callbacks import EvalCallback
+
+    class FixedSeedEvalCallback(EvalCallback):
+        """EvalCallback that re-seeds the evaluation env before every
+        evaluation, so each checkpoint is scored on the same episodes and the
+        kept "best" model is not just the one that met the easiest days."""
+
+        def __init__(self, eval_seed: int, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self.eval_seed = int(eval_seed)
+
+        def _on_training_start(self) -> None:
+            # score the initial policy too: with a residual action it is ~the base law,
+            # so "best" can only be a checkpoint that beats it on these episodes
+            n_calls = self.n_calls
+            self.n_calls = 0
+            self._on_step()
+            self.n_calls = n_calls
+
+        def _on_step(self) -> bool:
+            if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+                self.eval_env.seed(self.eval_seed)
+            return super()._on_step()
+
+    return FixedSeedEvalCallback
+
+
+def train(
+    algo: str,
+    env_id: str,
+    seed: int = 0,
+    timesteps: int | None = None,
+    out: str | Path | None = None,
+    overrides: Sequence[str] = (),
+    env_kwargs: Mapping[str, Any] | None = None,
+    progress_bar: bool = True,
+    eval_freq: int | None = None,
+    n_threads: int = 1,
+    config_dir: str | Path | None = None,
+    command: str | None = None,
+    verbose: int = 0,
+) -> Path:
+    """Train one agent; returns its run directory."""
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.utils import set_random_seed
+
+    from agents.wrappers import make_vec_env
+
+    algo = algo.lower()
+    cfg = apply_overrides(load_algo_config(algo, env_id, config_dir), overrides)
+    if env_kwargs is not None:
+        cfg["env_kwargs"] = {**(cfg.get("env_kwargs") or {}), **dict(env_kwargs)}
+    cfg.setdefault("env_kwargs", {})
+    if timesteps is not None:
+        cfg["n_timesteps"] = int(timesteps)
+    n_timesteps = int(float(cfg["n_timesteps"]))
+    cfg["n_timesteps"] = n_timesteps
+    ev = dict(cfg.get("eval") or {})
+    if eval_freq is not None:
+        ev["freq"] = int(eval_freq)
+    cfg["eval"] = ev
+
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    run_dir = Path(out) if out else DEFAULT_RUNS / env_id / f"{algo}_s{seed}_{stamp}"
+    run_dir.mkdir(parents=True, exist_ok=True)
+    resolved = {"algo": algo, "env_id": env_id, "seed": int(seed), **cfg}
+    (run_dir / "config.yml").write_text(yaml.safe_dump(resolved, sort_keys=False))
+    cmd = command if command is not None else " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv])
+    (run_dir / "command.txt").write_text(cmd + "\n")
+    meta: dict[str, Any] = {
+        "algo": algo,
+        "env_id": env_id,
+        "seed": int(seed),
+        "n_timesteps": n_timesteps,
+        "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "versions": _versions(),
+    }
+    (run_dir / "run.json").write_text(json.dumps(meta, indent=1))
+
+    torch.set_num_threads(int(n_threads))
+    set_random_seed(seed)
+    (run_dir / "monitor").mkdir(exist_ok=True)
+    venv = make_vec_env(env_id, cfg, seed=seed, monitor_dir=run_dir / "monitor", training=True)
+    n_actions = int(venv.action_space.shape[0])  # type: ignore[index]
+    cls = algo_class(algo)
+    kwargs = build_model_kwargs(algo, cfg, n_actions)
+    model = cls(cfg.get("policy", "MlpPolicy"), venv, seed=seed, device="cpu", verbose=verbose, **kwargs)
+    model.set_logger(configure(str(run_dir / "tb"), ["tensorboard", "csv"]))
+
+    FixedSeedEvalCallback = _fixed_seed_eval_callback()
+    callbacks: list[BaseCallback] = []
+    eval_env = None
+    freq = int(ev.get("freq", 0) or 0)
+    if freq > 0:
+        (run_dir / "best").mkdir(exist_ok=True)
+        (run_dir / "eval_monitor").mkdir(exist_ok=True)
+        eval_env = make_vec_env(
+            env_id, cfg, seed=seed + 10_000, n_envs=1, monitor_dir=run_dir / "eval_monitor", training=False
+        )
+
+        class SaveStats(BaseCallback):
+            def _on_step(self) -> bool:
+                save_obs_norm(venv, run_dir / "best" / "obs_norm.json")
+                if hasattr(venv, "save"):
+                    venv.save(str(run_dir / "best" / "vecnormalize.pkl"))
+                return True
+
+        callbacks.append(
+            FixedSeedEvalCallback(
+                seed + 10_000,
+                eval_env,
+                callback_on_new_best=SaveStats(),
+                n_eval_episodes=int(ev.get("episodes", 2)),
+                eval_freq=max(1, freq // venv.num_envs),
+                log_path=str(run_dir / "best"),
+                best_model_save_path=str(run_dir / "best"),
+                deterministic=True,
+                verbose=0,
+            )
+        )
+    t0 = time.time()
+    model.learn(
+        total_timesteps=n_timesteps,
+        callback=CallbackList(callbacks) if callbacks else None,
+        progress_bar=progress_bar,
+        tb_log_name="run",
+    )
+    wall = time.time() - t0
+    model.save(str(run_dir / "model.zip"))
+    if hasattr(venv, "save"):
+        venv.save(str(run_dir / "vecnormalize.pkl"))
+    save_obs_norm(venv, run_dir / "obs_norm.json")
+    meta.update(
+        {
+            "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "wall_time_s": round(wall, 1),
+            "steps_per_s": round(model.num_timesteps / max(wall, 1e-9), 1),
+            "num_timesteps": int(model.num_timesteps),
+        }
+    )
+    if (run_dir / "best" / "evaluations.npz").is_file():
+        d = np.load(run_dir / "best" / "evaluations.npz")
+        means = d["results"].mean(axis=1)
+        i = int(np.argmax(means))
+        meta["best_eval"] = {"timesteps": int(d["timesteps"][i]), "mean_return": float(means[i])}
+    (run_dir / "run.json").write_text(json.dumps(meta, indent=1))
+    venv.close()
+    if eval_env is not None:
+        eval_env.close()
+    return run_dir
+
+
+# --------------------------------------------------------------------------- shipping
+def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool = True) -> Path:
+    """Copy a run's model into ``agents/zoo/<env_id>/<algo>.zip`` with its config
+    (``<algo>.yml``) and observation statistics (``<algo>_obs_norm.json``)."""
+    run_dir = Path(run_dir)
+    cfg = yaml.safe_load((run_dir / "config.yml").read_text())
+    algo, env_id = cfg["algo"], cfg["env_id"]
+    src = run_dir / "best" if use_best and (run_dir / "best" / "best_model.zip").is_file() else run_dir
+    model = src / ("best_model.zip" if src.name == "best" else "model.zip")
+    dest = Path(zoo_dir or ZOO_DIR) / env_id
+    dest.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(model, dest / f"{algo}.zip")
+    shutil.copyfile(src / "obs_norm.json", dest / f"{algo}_obs_norm.json")
+    meta = json.loads((run_dir / "run.json").read_text())
+    shipped = {
+        **cfg,
+        "shipped_from": {
+            "checkpoint": "best evaluation" if src.name == "best" else "final",
+            "run": meta,
+            "command": (run_dir / "command.txt").read_text().strip(),
+        },
+    }
+    (dest / f"{algo}.yml").write_text(yaml.safe_dump(shipped, sort_keys=False))
+    return dest / f"{algo}.zip"
+
+
+# --------------------------------------------------------------------------- CLI
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--algo", required=True, choices=ALGOS, help="stable-baselines3 algorithm")
+    p.add_argument("--env", default="ThermoValve-v0", help="environment id (default ThermoValve-v0)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--timesteps", type=int, default=None, help="override n_timesteps of the config")
+    p.add_argument("--out", default=None, help="run directory (default runs/<env>/<algo>_s<seed>_<time>)")
+    p.add_argument("--config-dir", default=None, help="directory of <algo>.yml files (default configs/)")
+    p.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+        help="override a config entry, e.g. --set hyperparams.learning_rate=1e-4 (repeatable)",
+    )
+    p.add_argument("--eval-freq", type=int, default=None, help="env steps between evaluations (0: none)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (tests, CI)")
+    p.add_argument("--ship", action="store_true", help="copy the best model into agents/zoo/<env>/<algo>.*")
+    p.add_argument("--verbose", type=int, default=0)
+
+
+def run(args: argparse.Namespace) -> int:
+    progress = not args.no_progress and os.environ.get("THERMOVALVE_NO_PROGRESS", "") == ""
+    run_dir = train(
+        args.algo,
+        args.env,
+        seed=args.seed,
+        timesteps=args.timesteps,
+        out=args.out,
+        overrides=args.overrides,
+        progress_bar=progress,
+        eval_freq=args.eval_freq,
+        n_threads=args.threads,
+        config_dir=args.config_dir,
+        verbose=args.verbose,
+    )
+    meta = json.loads((run_dir / "run.json").read_text())
+    print(f"run directory: {run_dir}")
+    print(f"trained {meta['num_timesteps']} steps in {meta['wall_time_s']} s ({meta['steps_per_s']} steps/s)")
+    if "best_eval" in meta:
+        print(f"best evaluation: return {meta['best_eval']['mean_return']:.2f} at {meta['best_eval']['timesteps']}")
+    if args.ship:
+        print(f"shipped: {ship(run_dir)}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m agents.train", description=__doc__.split("\n\n")[0])
+    add_arguments(p)
+    return run(p.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

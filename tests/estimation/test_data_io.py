@@ -1,0 +1,75 @@
+"""load_run: SPEC section 2 validation with one-line errors; the input file is never changed."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from valve_env.data_io import MIN_ROWS, DataError, load_run
+from valve_env.params import ValveParams
+from valve_env.physics.valve import opening_from_flow
+
+
+def _write(df: pd.DataFrame, path: Path) -> Path:
+    df.to_csv(path, index=False)
+    return path
+
+
+@pytest.fixture
+def run_df(small_run: Callable[..., pd.DataFrame]) -> pd.DataFrame:
+    return small_run(seed=4, hours=1.0)
+
+
+def test_load_valid_run_keeps_extras_and_file(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    df = run_df.assign(comment="ok")
+    path = _write(df, tmp_path / "run.csv")
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    out = load_run(path)
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == digest
+    assert "comment" in out.columns and len(out) == len(df)
+    np.testing.assert_allclose(out["x_mm"], df["x_mm"])
+
+
+def test_x_derived_from_flow_where_absent(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    path = _write(run_df.drop(columns=["x_mm"]), tmp_path / "nox.csv")
+    out = load_run(path)
+    vp = ValveParams().to_array()
+    np.testing.assert_allclose(out["x_mm"], opening_from_flow(run_df["q_kgh"], run_df["dp_mbar"], vp))
+    # the derived opening follows the true one within the flow noise
+    assert np.sqrt(np.mean((out["x_mm"] - run_df["x_mm"]) ** 2)) < 0.01
+    partial = run_df.copy()
+    partial.loc[3, "x_mm"] = np.nan
+    out2 = load_run(_write(partial, tmp_path / "partial.csv"))
+    assert np.isfinite(out2["x_mm"]).all() and out2.attrs["x_mm_derived_rows"] == 1
+
+
+@pytest.mark.parametrize(("mutate", "pattern"), [
+    (lambda d: d.drop(columns=["dp_mbar"]), r"missing column 'dp_mbar'"),
+    (lambda d: d.astype({"q_kgh": object}).assign(q_kgh=lambda x: x.q_kgh.where(x.index != 7, "abc")),
+     r"non-numeric value 'abc' in column 'q_kgh' at row 8"),
+    (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where(x.index != 4, np.nan)),
+     r"NaN .* column 'T_med_C' at row 5"),
+    (lambda d: d.assign(time_s=lambda x: x.time_s.where(x.index != 10, 0.0)), r"time_s is not increasing at row 11"),
+    (lambda d: d.iloc[:5], rf"too short a record, 5 rows; at least {MIN_ROWS}"),
+    (lambda d: d.assign(T_tank_C=55.0), r"constant .* identifies nothing"),
+])
+def test_bad_input_one_line(tmp_path: Path, run_df: pd.DataFrame, mutate: Callable[[pd.DataFrame], pd.DataFrame],
+                            pattern: str) -> None:
+    path = _write(mutate(run_df), tmp_path / "bad.csv")
+    with pytest.raises(DataError, match=pattern) as info:
+        load_run(path)
+    assert "\n" not in str(info.value)
+    assert isinstance(info.value, ValueError)
+
+
+def test_missing_and_empty_files(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match="no such file"):
+        load_run(tmp_path / "nope.csv")
+    (tmp_path / "empty.csv").write_text("")
+    with pytest.raises(DataError, match="empty"):
+        load_run(tmp_path / "empty.csv")

@@ -1,0 +1,67 @@
+"""Residual diagnostics (statsmodels ACF, Ljung-Box, CCF; cumulated periodogram) and bench figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from valve_env.estimation.diagnostics import (
+    cumulated_periodogram,
+    paper_figure,
+    phase_diagram,
+    residual_report,
+    whiteness_figure,
+)
+
+
+def test_white_noise_passes_and_ar1_fails(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    e = rng.standard_normal(4000)
+    u = pd.DataFrame({"u": rng.standard_normal(4000)})
+    rep = residual_report(e, u)
+    assert rep.white
+    assert rep.summary()["acf_outside_band"] <= 5
+    assert "u" in rep.ccf and np.all(np.abs(rep.ccf["u"]) < 0.1)
+    ar = np.zeros(4000)
+    for k in range(1, 4000):
+        ar[k] = 0.5 * ar[k - 1] + e[k]
+    rep2 = residual_report(ar)
+    assert not rep2.white
+    assert rep2.ljung_box["lb_pvalue"].iloc[-1] < 1e-6
+    assert rep2.cpgram_max_dev > rep2.cpgram_band
+    # residuals that still carry an input: visible in the cross-correlation
+    rep3 = residual_report(e + 0.5 * u["u"].to_numpy(), u)
+    assert rep3.ccf["u"][0] > 0.3
+    # missing values are dropped
+    e2 = e.copy()
+    e2[::10] = np.nan
+    assert residual_report(e2).n == 3600
+    whiteness_figure(rep3, tmp_path / "w.png")
+    assert (tmp_path / "w.png").stat().st_size > 0
+
+
+def test_cumulated_periodogram_of_white_noise_is_the_diagonal() -> None:
+    rng = np.random.default_rng(1)
+    f, c, band = cumulated_periodogram(rng.standard_normal(2000))
+    assert f[-1] == 0.5 and c[-1] == 1.0
+    assert np.max(np.abs(c - f / 0.5)) < band
+
+
+def test_figures(tmp_path: Path) -> None:
+    t = np.arange(500) * 10.0
+    y = np.sin(t / 500.0)
+    e = np.random.default_rng(2).standard_normal(500) * 0.01
+    paper_figure(t, y + e, y, y, e, tmp_path / "fit.png")
+    phase_diagram(50 + y, y + e, tmp_path / "phase.png", simulated=y)
+    assert (tmp_path / "fit.png").stat().st_size > 0 and (tmp_path / "phase.png").stat().st_size > 0
+
+
+def test_run_bench_returns_flat_figures() -> None:
+    from valve_env.estimation.bench import run_bench
+
+    out = run_bench(hours=2.0, min_time_s=0.1, generic=False)
+    assert all(isinstance(v, float) for v in out.values())
+    assert out["estimator_nll_evals_per_s"] > 0 and out["estimator_fit_wall_s"] > 0
+    assert out["estimator_n_samples"] == 721.0

@@ -1,0 +1,122 @@
+"""Measured valve runs (SPEC section 2): loading with validation and clear errors.
+
+    df = load_run("run.csv")
+
+Required columns: time_s, T_tank_C, T_med_C, q_kgh, dp_mbar, ps_bar; optional x_mm
+(where absent, or where a cell is empty, it is derived from q_kgh and dp_mbar with
+:func:`valve_env.physics.valve.opening_from_flow`); extra columns are kept. Every
+problem raises :class:`DataError` with one line that names it. The file is only read.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from valve_env.params import ValveParams
+from valve_env.physics.valve import opening_from_flow
+
+REQUIRED: tuple[str, ...] = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar")
+OPTIONAL: tuple[str, ...] = ("x_mm",)
+#: The shortest record that identifies the base model's parameters.
+MIN_ROWS = 30
+#: A temperature range below this (K) identifies nothing (no hysteresis loop, no gain).
+MIN_T_RANGE_K = 0.2
+
+
+class DataError(ValueError):
+    """A measured run that cannot be used; the message is one line naming the problem."""
+
+
+def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> pd.DataFrame:
+    """Read and validate a SPEC section 2 CSV file; returns a DataFrame (float columns for
+    the SPEC names, x_mm derived where absent, extra columns kept as read)."""
+    p = Path(path)
+    if not p.exists():
+        raise DataError(f"{p}: no such file")
+    if p.is_dir():
+        raise DataError(f"{p}: is a directory, not a CSV file")
+    try:
+        raw = pd.read_csv(p, dtype=str, keep_default_na=False, skipinitialspace=True)
+    except pd.errors.EmptyDataError as exc:
+        raise DataError(f"{p}: the file is empty") from exc
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise DataError(f"{p}: not a readable CSV file ({first})") from exc
+    return validate_run(raw, source=str(p), valve=valve)
+
+
+def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | None = None) -> pd.DataFrame:
+    """Validate a run given as a DataFrame (strings or numbers); returns a validated copy."""
+    raw = data.copy()
+    raw.columns = [str(c).strip() for c in raw.columns]
+    dup = sorted({c for c in raw.columns if list(raw.columns).count(c) > 1})
+    if dup:
+        raise DataError(f"{source}: duplicate column(s) {dup}")
+    missing = [c for c in REQUIRED if c not in raw.columns]
+    if missing:
+        raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)})")
+    out = raw.copy()
+    for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
+        out[col] = _numeric(raw[col], col, source, allow_empty=col in OPTIONAL)
+    n = len(out)
+    if n < MIN_ROWS:
+        raise DataError(f"{source}: too short a record, {n} rows; at least {MIN_ROWS} are needed")
+    t = out["time_s"].to_numpy()
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise DataError(f"{source}: time_s is not increasing at row {i + 1} (line {i + 2}) "
+                        f"({t[i - 1]:.6g} then {t[i]:.6g}); times must be strictly increasing")
+    for col in ("dp_mbar",):
+        neg = np.flatnonzero(out[col].to_numpy() < 0)
+        if neg.size:
+            raise DataError(f"{source}: negative {col} at row {int(neg[0]) + 1} (line {int(neg[0]) + 2})")
+    T = out["T_tank_C"].to_numpy()
+    if float(np.max(T) - np.min(T)) < MIN_T_RANGE_K:
+        raise DataError(f"{source}: T_tank_C is constant (range {np.max(T) - np.min(T):.3g} K < "
+                        f"{MIN_T_RANGE_K} K): a constant temperature identifies nothing")
+    vp = (valve or ValveParams()).to_array()
+    derived = opening_from_flow(out["q_kgh"].to_numpy(), out["dp_mbar"].to_numpy(), vp)
+    if "x_mm" in out.columns:
+        x = out["x_mm"].to_numpy(dtype=float)
+        gap = ~np.isfinite(x)
+        if gap.any():
+            out["x_mm"] = np.where(gap, derived, x)
+        out.attrs["x_mm_derived_rows"] = int(gap.sum())
+    else:
+        out["x_mm"] = derived
+        out.attrs["x_mm_derived_rows"] = n
+    out.attrs["source"] = source
+    return out.reset_index(drop=True)
+
+
+def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Series:
+    if not pd.api.types.is_numeric_dtype(col):
+        s = col.astype(str).str.strip()
+        empty = s.eq("") | s.str.lower().isin(["nan", "na", "null", "none"])
+        num = pd.to_numeric(s.where(~empty, None), errors="coerce")
+        nonnum = num.isna() & ~empty
+        if nonnum.any():
+            i = int(np.flatnonzero(nonnum.to_numpy())[0])
+            raise DataError(f"{source}: non-numeric value {col.iloc[i]!r} in column {name!r} "
+                            f"at row {i + 1} (line {i + 2})")
+        bad = empty.to_numpy()
+    else:
+        num = pd.to_numeric(col, errors="coerce")
+        bad = ~np.isfinite(num.to_numpy(dtype=float))
+    vals = num.to_numpy(dtype=float)
+    inf = np.isinf(vals)
+    if inf.any():
+        i = int(np.flatnonzero(inf)[0])
+        raise DataError(f"{source}: infinite value in column {name!r} at row {i + 1} (line {i + 2})")
+    if bad.any() and not allow_empty:
+        i = int(np.flatnonzero(bad)[0])
+        raise DataError(f"{source}: NaN (empty or missing value) in column {name!r} at row {i + 1} (line {i + 2})")
+    return pd.Series(vals, index=col.index, name=name)
+
+
+__all__ = ["DataError", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K"]
