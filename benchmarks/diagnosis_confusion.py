@@ -1,0 +1,211 @@
+"""Confusion-matrix study of the diagnosis (issue 6).
+
+Hide an effect (or none) in generated runs, randomised over effects, effect sizes,
+sampling intervals, record lengths, noise levels, sampling jitter and seeds; run the
+full diagnosis and tabulate the named cause against the truth. Prints the matrix
+and writes it to docs/diagnosis_confusion.md (and a JSON file with every run).
+
+    python benchmarks/diagnosis_confusion.py --runs 60 --seed 1 --workers 1
+
+Targets: at least 95 % correct names, no more than 5 % false findings on `none` runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+CLASSES = ("none", "sensor_lag", "medium_temperature", "stiction", "setpoint_drift")
+
+#: The randomisation (documented in docs/diagnosis.md).
+RANGES: dict[str, Any] = {
+    "tau_s": ("log-uniform", 20.0, 180.0),
+    "beta": ("uniform", 0.03, 0.25),
+    "band_mm": ("uniform", 0.01, 0.04),
+    "rate_MPa_per_h": ("+-uniform", 1.5e-5, 6e-5),
+    "dt_s": ("choice", [5.0, 10.0, 20.0, 30.0]),
+    "duration_h": ("uniform", 12.0, 30.0),
+    "T_noise_C": ("uniform", 0.0, 0.01),
+    "x_noise_mm": ("uniform", 1.5e-3, 3.0e-3),
+    "jitter": ("choice", [0.0, 0.2]),
+}
+
+
+def draw_effect(name: str, rng: np.random.Generator) -> dict[str, dict[str, float]]:
+    if name == "none":
+        return {}
+    if name == "sensor_lag":
+        return {name: {"tau_s": float(math.exp(rng.uniform(math.log(20.0), math.log(180.0))))}}
+    if name == "medium_temperature":
+        return {name: {"beta": float(rng.uniform(0.03, 0.25))}}
+    if name == "stiction":
+        return {name: {"band_mm": float(rng.uniform(0.01, 0.04))}}
+    if name == "setpoint_drift":
+        return {name: {"rate_MPa_per_h": float(rng.choice([-1.0, 1.0]) * rng.uniform(1.5e-5, 6e-5))}}
+    raise ValueError(name)
+
+
+def make_cases(n: int, seed: int, classes: tuple[str, ...] = CLASSES) -> list[dict[str, Any]]:
+    """n cases, the classes in turn (balanced), everything else drawn at random."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for i in range(n):
+        truth = classes[i % len(classes)]
+        cases.append({
+            "i": i,
+            "truth": truth,
+            "effects": draw_effect(truth, rng),
+            "seed": int(rng.integers(0, 2**31 - 1)),
+            "dt_s": float(rng.choice([5.0, 10.0, 20.0, 30.0])),
+            "duration_h": float(rng.uniform(12.0, 30.0)),
+            "T_noise_C": float(rng.uniform(0.0, 0.01)),
+            "x_noise_mm": float(rng.uniform(1.5e-3, 3.0e-3)),
+            "jitter": float(rng.choice([0.0, 0.2])),
+        })
+    return cases
+
+
+def run_case(case: dict[str, Any]) -> dict[str, Any]:
+    from valve_env.diagnosis.diagnose import diagnose
+    from valve_env.experiment import simulate_experiment
+
+    df = simulate_experiment(seed=case["seed"], duration_h=case["duration_h"], dt_s=case["dt_s"],
+                             effects=case["effects"] or None, T_noise_C=case["T_noise_C"],
+                             x_noise_mm=case["x_noise_mm"], jitter=case["jitter"])
+    t0 = time.perf_counter()
+    d = diagnose(df)
+    out = dict(case)
+    out.update({"cause": d.cause, "selected": d.selected, "seconds": time.perf_counter() - t0, "n": len(df)})
+    if d.cause != "none":
+        f = d.findings[0]
+        out["estimate"] = {k: float(v) for k, v in f.fit.effect_params.items()}
+        out["std"] = {k: float(f.fit.std.get(k, float("nan"))) for k in f.fit.effect_params}
+        out["lr_stat"] = f.lr_stat
+        out["validation_rms_before_mm"] = f.validation_rms_before_mm
+        out["validation_rms_after_mm"] = f.validation_rms_after_mm
+    best = d.findings[0]
+    out["best_candidate"] = best.effect
+    out["best_p"] = best.p_value
+    return out
+
+
+def run_study(cases: list[dict[str, Any]], workers: int = 1, progress: bool = True) -> list[dict[str, Any]]:
+    results: list[dict[str, Any]] = []
+    if workers <= 1:
+        for c in cases:
+            r = run_case(c)
+            results.append(r)
+            if progress:
+                print(f"[{len(results)}/{len(cases)}] truth={r['truth']:<18} cause={r['cause']:<18} "
+                      f"dt={r['dt_s']:g}s {r['duration_h']:.1f}h {r['seconds']:.1f}s", flush=True)
+        return results
+    with ProcessPoolExecutor(max_workers=workers) as ex:
+        for r in ex.map(run_case, cases):
+            results.append(r)
+            if progress:
+                print(f"[{len(results)}/{len(cases)}] truth={r['truth']:<18} cause={r['cause']:<18} "
+                      f"dt={r['dt_s']:g}s {r['duration_h']:.1f}h {r['seconds']:.1f}s", flush=True)
+    return results
+
+
+def confusion(results: list[dict[str, Any]]) -> dict[str, Any]:
+    labels = list(CLASSES)
+    for r in results:
+        if r["cause"] not in labels:
+            labels.append(r["cause"])
+    mat = {t: {p: 0 for p in labels} for t in CLASSES}
+    for r in results:
+        mat[r["truth"]][r["cause"]] += 1
+    n = len(results)
+    correct = sum(mat[t][t] for t in CLASSES)
+    n_none = sum(mat["none"].values())
+    false_none = n_none - mat["none"]["none"]
+    # parameter recovery of correctly named effects
+    z = []
+    for r in results:
+        if r["truth"] != "none" and r["cause"] == r["truth"]:
+            for k, v in r["estimate"].items():
+                true = r["effects"][r["truth"]][k]
+                s = r["std"][k]
+                if s and math.isfinite(s) and s > 0:
+                    z.append((v - true) / s)
+    z_abs = np.abs(np.array(z)) if z else np.zeros(0)
+    extra = sum(1 for r in results if len(r["selected"]) > (0 if r["truth"] == "none" else 1))
+    return {
+        "labels": labels, "matrix": mat, "n": n, "correct": correct,
+        "correct_rate": correct / n if n else float("nan"),
+        "none_runs": n_none, "false_findings_on_none": false_none,
+        "false_rate_on_none": false_none / n_none if n_none else float("nan"),
+        "param_within_1sd": float(np.mean(z_abs <= 1)) if z else float("nan"),
+        "param_within_2sd": float(np.mean(z_abs <= 2)) if z else float("nan"),
+        "param_within_3sd": float(np.mean(z_abs <= 3)) if z else float("nan"),
+        "n_param": len(z),
+        "runs_with_extra_effect": extra,
+        "seconds_median": float(np.median([r["seconds"] for r in results])) if results else float("nan"),
+        "seconds_max": float(np.max([r["seconds"] for r in results])) if results else float("nan"),
+    }
+
+
+def markdown(c: dict[str, Any], cmd: str, results: list[dict[str, Any]]) -> str:
+    labels = c["labels"]
+    L = ["# Diagnosis confusion matrix", "",
+         f"Measured with `{cmd}` ({c['n']} generated runs; {platform.machine()}, Python "
+         f"{platform.python_version()}).", "",
+         "Rows: the effect hidden in the run; columns: the cause named by `thermovalve diagnose`.", "",
+         "| truth \\ named | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
+    for t in CLASSES:
+        L.append(f"| {t} | " + " | ".join(str(c["matrix"][t][p]) for p in labels) + " |")
+    L += ["", f"- correct names: {c['correct']}/{c['n']} = {c['correct_rate']:.1%} (target >= 95 %)",
+          f"- false findings on `none` runs: {c['false_findings_on_none']}/{c['none_runs']} = "
+          f"{c['false_rate_on_none']:.1%} (target <= 5 %)",
+          f"- runs where forward selection added a second effect that is not there: "
+          f"{c['runs_with_extra_effect']}/{c['n']}",
+          f"- parameters of correctly named effects within 1/2/3 reported sd: {c['param_within_1sd']:.0%} / "
+          f"{c['param_within_2sd']:.0%} / {c['param_within_3sd']:.0%} (of {c['n_param']})",
+          f"- diagnosis time per run: median {c['seconds_median']:.1f} s, max {c['seconds_max']:.1f} s", "",
+          "Randomisation: " + "; ".join(f"{k} {v[0]} {v[1:]}" for k, v in RANGES.items()) + ".", "",
+          "## Runs", "", "| # | truth | parameters | dt s | h | T noise | named | selected | estimate ± sd | s |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        truth_p = ", ".join(f"{k}={v:.3g}" for d in r["effects"].values() for k, v in d.items()) or "-"
+        est = ", ".join(f"{k}={v:.3g}±{r['std'][k]:.2g}" for k, v in r.get("estimate", {}).items()) or "-"
+        L.append(f"| {r['i']} | {r['truth']} | {truth_p} | {r['dt_s']:g} | {r['duration_h']:.1f} | "
+                 f"{r['T_noise_C']:.4f} | {r['cause']} | {' -> '.join(r['selected']) or '-'} | {est} | "
+                 f"{r['seconds']:.1f} |")
+    return "\n".join(L) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", type=int, default=60)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--out", default="docs/diagnosis_confusion.md")
+    ap.add_argument("--json", default="docs/diagnosis_confusion.json")
+    a = ap.parse_args(argv)
+    cases = make_cases(a.runs, a.seed)
+    t0 = time.perf_counter()
+    results = run_study(cases, a.workers)
+    c = confusion(results)
+    cmd = f"python benchmarks/diagnosis_confusion.py --runs {a.runs} --seed {a.seed} --workers {a.workers}"
+    md = markdown(c, cmd, results)
+    print(md)
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    if a.out:
+        Path(a.out).write_text(md)
+    if a.json:
+        Path(a.json).write_text(json.dumps({"summary": c, "runs": results}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

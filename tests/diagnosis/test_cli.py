@@ -1,0 +1,130 @@
+"""`thermovalve diagnose`: the SPEC section 4 document, the report, and bad input."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from valve_env.cli import main
+from valve_env.experiment import simulate_experiment
+
+
+def _sha(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    p = tmp_path_factory.mktemp("runs") / "run.csv"
+    simulate_experiment(seed=77, duration_h=6.0, dt_s=20.0,
+                        effects={"medium_temperature": {"beta": 0.1}}).to_csv(p, index=False)
+    return p
+
+
+def test_diagnose_writes_spec_json_and_report(good: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    before = _sha(good)
+    out = tmp_path / "out.json"
+    code = main(["diagnose", str(good), "--json", str(out)])
+    assert code == 0, capsys.readouterr().err
+    j = json.loads(out.read_text())
+    assert j["cause"] == "medium_temperature"
+    assert set(j["base"]) >= {"params", "std", "loglik", "rms_mm"}
+    f0 = j["findings"][0]
+    assert f0["effect"] == "medium_temperature" and set(f0["params"]) == {"beta"}
+    for key in ("loglik", "lr_stat", "p_value", "delta_aic", "delta_bic", "rms_before_mm", "rms_after_mm",
+                "validation_rms_before_mm", "validation_rms_after_mm"):
+        assert isinstance(f0[key], float)
+    assert len(j["findings"]) == 4
+    report = tmp_path / "out.md"
+    text = report.read_text()
+    assert "Cause: `medium_temperature`" in text
+    for png in ("out_fit.png", "out_phase.png", "out_residuals.png"):
+        assert (tmp_path / png).stat().st_size > 1000
+        assert png in text
+    assert _sha(good) == before, "the input must never change"
+
+
+def test_validate_other_run(good: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    other = tmp_path / "other.csv"
+    simulate_experiment(seed=78, duration_h=4.0, dt_s=20.0,
+                        effects={"medium_temperature": {"beta": 0.1}}).drop(columns=["x_mm"]).to_csv(other, index=False)
+    out = tmp_path / "v.json"
+    code = main(["diagnose", str(good), "--validate", str(other), "--json", str(out), "--no-report",
+                 "--effects", "medium_temperature,stiction"])
+    assert code == 0, capsys.readouterr().err
+    j = json.loads(out.read_text())
+    assert j["cause"] == "medium_temperature"
+    assert j["settings"]["validation"] == "independent run"
+    assert not (tmp_path / "v.md").exists()
+
+
+def _bad_files(tmp: Path, good: Path) -> dict[str, tuple[Path, str]]:
+    df = pd.read_csv(good)
+    cases: dict[str, tuple[Path, str]] = {}
+
+    def put(name: str, frame: pd.DataFrame, expect: str) -> None:
+        p = tmp / f"{name}.csv"
+        frame.to_csv(p, index=False)
+        cases[name] = (p, expect)
+
+    put("missing_column", df.drop(columns=["T_tank_C"]), "missing column")
+    d = df.copy()
+    d["q_kgh"] = d["q_kgh"].astype(object)
+    d.loc[50, "q_kgh"] = "abc"
+    put("non_numeric", d, "non-numeric")
+    d = df.copy()
+    d.loc[60, "T_med_C"] = np.nan
+    put("nan", d, "NaN")
+    d = df.copy()
+    d.loc[70, "time_s"] = d.loc[69, "time_s"]
+    put("time", d, "increasing")
+    put("short", df.iloc[:50], "too short")
+    d = df.copy()
+    d["T_tank_C"] = 55.0
+    put("constant", d, "constant")
+    p = tmp / "empty.csv"
+    p.write_text("")
+    cases["empty"] = (p, "empty")
+    p = tmp / "binary.csv"
+    p.write_bytes(bytes(range(256)) * 4)
+    cases["binary"] = (p, "")
+    cases["absent"] = (tmp / "does_not_exist.csv", "no such file")
+    return cases
+
+
+def test_bad_input_one_line_no_traceback(good: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for name, (path, expect) in _bad_files(tmp_path, good).items():
+        before = _sha(path) if path.exists() else None
+        out = tmp_path / f"{name}.json"
+        code = main(["diagnose", str(path), "--json", str(out)])
+        err = capsys.readouterr().err
+        assert code != 0, name
+        lines = err.strip().splitlines()
+        assert len(lines) == 1, (name, err)
+        assert "Traceback" not in err
+        assert expect.lower() in err.lower(), (name, err)
+        assert not out.exists()
+        if before is not None:
+            assert _sha(path) == before
+    # output directory missing, or the output is the input
+    code = main(["diagnose", str(good), "--json", str(tmp_path / "nodir" / "x.json")])
+    assert code != 0 and "does not exist" in capsys.readouterr().err
+    code = main(["diagnose", str(good), "--json", str(good)])
+    assert code != 0 and "overwrite the input" in capsys.readouterr().err
+
+
+def test_entry_point_bad_input_subprocess(tmp_path: Path) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text("time_s,T_tank_C\n0,1\n")
+    r = subprocess.run([sys.executable, "-m", "valve_env.cli", "diagnose", str(p), "--json", str(tmp_path / "o.json")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert "missing column" in r.stderr

@@ -1,0 +1,90 @@
+"""The likelihood engine of the diagnosis: latent temperatures, simulation, filters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from valve_env.diagnosis.engine import monotone_path, ou_loglik, smooth_temperature, stick_loglik
+from valve_env.diagnosis.fitting import Model, RunData
+from valve_env.experiment import simulate_experiment
+
+
+@pytest.fixture(scope="module")
+def run():  # type: ignore[no-untyped-def]
+    return simulate_experiment(seed=21, duration_h=6.0)
+
+
+def _data(df, truth: bool = False) -> RunData:  # type: ignore[no-untyped-def]
+    d = RunData.from_arrays(df["time_s"].to_numpy(), df["T_tank_C"].to_numpy(), df["T_med_C"].to_numpy(),
+                            df["x_mm"].to_numpy(), df["dp_mbar"].to_numpy(), df["ps_bar"].to_numpy())
+    if truth:
+        d.T = df["true_T_tank_C"].to_numpy().copy()
+        d.M = df["true_T_med_C"].to_numpy().copy()
+        d.s_T = d.s_M = 1e-4
+    return d
+
+
+def test_monotone_path_removes_small_reversals_without_lag() -> None:
+    t = np.linspace(0, 10, 2001)
+    y = np.sin(t)
+    rng = np.random.default_rng(0)
+    noisy = y + 0.002 * rng.standard_normal(t.size)
+    out = monotone_path(noisy, 0.02)
+    d = np.diff(out)
+    # the direction changes only at the true turning points (pi/2, 3pi/2, 5pi/2)
+    changes = np.flatnonzero(np.diff(np.sign(d[np.abs(d) > 0])) != 0)
+    assert len(changes) == 3
+    assert np.max(np.abs(out - y)) < 0.02
+    # level-unbiased, no time shift
+    assert abs(np.mean(out - y)) < 1e-3
+    # the turning points stay where they are (no lag): the first maximum is at pi/2
+    first_max = t[np.argmax(out[: t.size // 3])]
+    plateau = t[out == out[np.argmax(out[: t.size // 3])]]
+    assert plateau.min() - 0.3 < np.pi / 2 < plateau.max() + 0.3
+    assert abs(first_max - np.pi / 2) < 0.5
+    assert np.array_equal(monotone_path(y, 0.0), y)
+
+
+def test_smoother_beats_the_noise_and_adds_no_lag(run) -> None:  # type: ignore[no-untyped-def]
+    t = run["time_s"].to_numpy()
+    level, rate, s_T, _ = smooth_temperature(t, run["T_tank_C"].to_numpy())
+    err = level - run["true_T_tank_C"].to_numpy()
+    assert s_T == pytest.approx(0.01, rel=0.15)
+    assert np.sqrt(np.mean(err**2)) < 0.7 * 0.01
+    v = np.gradient(run["true_T_tank_C"].to_numpy(), t)
+    # a lag would make the error correlate with the rate
+    assert abs(np.corrcoef(err, v)[0, 1]) < 0.2
+
+
+def test_simulation_reproduces_the_generator(run) -> None:  # type: ignore[no-untyped-def]
+    d = _data(run, truth=True)
+    m = Model(())
+    xs, Tg, F = m.simulate(d, {**m.default_start(d), "sigma": 6.41, "F_hmax": 1.31, "p_bset": 0.0776})
+    assert np.sqrt(np.mean((xs - run["true_x_mm"].to_numpy()) ** 2)) < 5e-4
+    assert np.sqrt(np.mean((F - run["true_F_h_N"].to_numpy()) ** 2)) < 0.02
+
+
+def test_noisy_temperature_does_not_break_the_dahl_model(run) -> None:  # type: ignore[no-untyped-def]
+    """With the noisy channel handled as a latent temperature the simulation stays at the noise level."""
+    d = _data(run)
+    m = Model(())
+    xs, _, _ = m.simulate(d, {**m.default_start(d), "sigma": 6.41, "F_hmax": 1.31, "p_bset": 0.0776})
+    assert np.sqrt(np.mean((xs - run["true_x_mm"].to_numpy()) ** 2)) < 2.4e-3
+
+
+def test_stick_filter_nests_the_base_model(run) -> None:  # type: ignore[no-untyped-def]
+    d = _data(run)
+    m = Model(("stiction",))
+    vals = {**m.default_start(d), "band_mm": 0.0, "s_e": 2e-3, "tau_e": 300.0, "s_w": 2.4e-3}
+    vp, e = m._vectors(vals)
+    from valve_env.diagnosis.engine import simulate_valve
+
+    x, _, _, x_sub, idx = simulate_valve(d.t, d.T, d.M, d.dp, d.ps, vp, e, 2.5, m.delta(d), True)
+    mask = np.ones(len(d), dtype=np.bool_)
+    a = ou_loglik(d.t, d.x - x, 2.4e-3, 2e-3, 300.0, mask)[0]
+    b = stick_loglik(d.t, d.x, x_sub, idx, 0.0, 2.0, 2.4e-3, 2e-3, 300.0, mask)[0]
+    assert b == pytest.approx(a, rel=1e-9, abs=1e-6)
+    # and a positive band on data without stiction costs likelihood
+    c = stick_loglik(d.t, d.x, x_sub, idx, 0.02, 2.0, 2.4e-3, 2e-3, 300.0, mask)[0]
+    assert c < a

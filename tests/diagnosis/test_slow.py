@@ -1,0 +1,42 @@
+"""The >= 50-run confusion-matrix study and the 24 h speed target (slow: `pytest -m slow`)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _study():  # type: ignore[no-untyped-def]
+    path = ROOT / "benchmarks" / "diagnosis_confusion.py"
+    spec = importlib.util.spec_from_file_location("diagnosis_confusion", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["diagnosis_confusion"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.slow
+def test_confusion_matrix_targets() -> None:
+    study = _study()
+    results = study.run_study(study.make_cases(50, seed=11), workers=1, progress=False)
+    c = study.confusion(results)
+    assert c["n"] >= 50
+    assert c["correct_rate"] >= 0.95, c
+    assert c["false_rate_on_none"] <= 0.05, c
+
+
+@pytest.mark.slow
+def test_bench_24h_under_60s() -> None:
+    from valve_env.diagnosis.bench import run_bench
+
+    r = run_bench()
+    assert r["samples"] == 8641
+    assert r["diagnosis_wall_s"] < 60.0, r
+    assert r["diagnosis_cases"]["sensor_lag"]["cause"] == "sensor_lag"
+    assert r["diagnosis_cases"]["none"]["cause"] == "none"

@@ -1,0 +1,532 @@
+"""Diagnosis of a measured run: where the calibrated valve model fails, the named cause, the gain.
+
+The procedure (SPEC section 4), as an expert in grey-box modelling would do it
+(forward selection with likelihood-ratio tests, Bacher and Madsen 2011), but
+automatic:
+
+1. Read and check the run (SPEC section 2). Estimate the latent temperatures
+   (:mod:`valve_env.diagnosis.engine`).
+2. Split: fit on the first part of the run, hold out the rest for validation
+   (``holdout``), or fit on the whole run and validate on ``validate``.
+3. Fit the base model (SPEC section 1) by maximum likelihood and describe its
+   misfit: residual statistics, autocorrelation, where in time and where in the
+   phase diagram (opening against gas temperature, rising or falling) the
+   misfit lies, and how it correlates with the signatures of the effects.
+4. Fit every candidate effect (SPEC section 3) on top of the base model and
+   rank them: likelihood-ratio statistic with its p-value (chi-square with one
+   degree of freedom per added parameter; a 50:50 chi-square(0)/chi-square(1)
+   mixture where the null value is on the edge of the parameter space),
+   delta AIC and delta BIC, RMS before and after, and the same on the
+   validation data (one-step prediction RMS and log-likelihood).
+5. Name the best candidate only when its gain is significant (p < alpha and
+   delta BIC < 0), relevant (the effect moves the simulated opening by at least
+   ``min_effect_size`` times the noise sd, RMS) **and** real on the validation
+   data (the held-out log-likelihood rises by more than ``min_validation_gain``
+   and the held-out one-step RMS does not rise). Otherwise the cause is
+   ``none``. Stiction is exempt from the RMS condition (``variance_gain``): it
+   improves the prediction mostly by knowing when the opening will not move (a
+   better predicted variance) rather than by a smaller mean error, and the
+   held-out log-likelihood, a proper scoring rule, measures that.
+6. Forward selection: with the named effect in the model, try the remaining
+   effects the same way; repeat while one is accepted. ``selected`` lists the
+   effects in the order found; ``cause`` is the first.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from valve_env.diagnosis.effects import EFFECTS, check_effects
+from valve_env.diagnosis.fitting import FitResult, Model, RunData
+from valve_env.params import ValveParams
+from valve_env.physics.valve import opening_from_flow
+
+REQUIRED = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar")
+MIN_SAMPLES = 200
+MIN_DURATION_S = 2.0 * 3600.0
+MIN_T_RANGE_K = 1.0
+MIN_X_RANGE_MM = 0.05
+
+
+class DiagnosisError(ValueError):
+    """Bad input or a diagnosis that cannot be made; the message is one line naming the problem."""
+
+
+# --------------------------------------------------------------------------- input
+def read_run(path: str | os.PathLike[str]) -> pd.DataFrame:
+    """Read and check a measured run (SPEC section 2); raises DiagnosisError with one line.
+
+    Uses :func:`valve_env.data_io.load_run` where it exists (its ``DataError`` becomes a
+    DiagnosisError) and adds the checks the diagnosis needs. The file is only read."""
+    p = Path(path)
+    if not p.exists():
+        raise DiagnosisError(f"{p}: no such file")
+    if p.is_dir():
+        raise DiagnosisError(f"{p}: is a directory, not a CSV file")
+    try:
+        from valve_env import data_io  # the estimation issue's loader (SPEC section 2)
+    except ImportError:
+        data_io = None  # type: ignore[assignment]
+    if data_io is not None and hasattr(data_io, "load_run"):
+        try:
+            data_io.load_run(p)
+        except getattr(data_io, "DataError", ValueError) as exc:
+            raise DiagnosisError(_one_line(f"{p}: {exc}" if str(p) not in str(exc) else str(exc))) from None
+        except Exception:  # noqa: BLE001 - our own checks below name the problem
+            pass
+    try:
+        df = pd.read_csv(p)
+    except UnicodeDecodeError:
+        raise DiagnosisError(f"{p}: not a text CSV file") from None
+    except pd.errors.EmptyDataError:
+        raise DiagnosisError(f"{p}: the file is empty") from None
+    except (pd.errors.ParserError, ValueError) as exc:
+        raise DiagnosisError(_one_line(f"{p}: cannot parse the CSV: {exc}")) from None
+    except OSError as exc:
+        raise DiagnosisError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    return check_run(df, str(p))
+
+
+def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
+    """Validate the columns and values of a run; returns the numeric columns (x_mm derived if absent)."""
+    cols = [c.strip() if isinstance(c, str) else c for c in df.columns]
+    df = df.copy()
+    df.columns = cols
+    missing = [c for c in REQUIRED if c not in df.columns]
+    if missing:
+        raise DiagnosisError(f"{name}: missing column(s) {', '.join(missing)} (SPEC section 2 needs "
+                             f"{', '.join(REQUIRED)}; x_mm optional)")
+    use = list(REQUIRED) + (["x_mm"] if "x_mm" in df.columns else [])
+    out = pd.DataFrame(index=df.index)
+    for c in use:
+        col = pd.to_numeric(df[c], errors="coerce")
+        bad = col.isna() & df[c].notna()
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            raise DiagnosisError(f"{name}: non-numeric value {df[c].iloc[i]!r} in column {c} at data row {i + 1}")
+        if col.isna().any():
+            i = int(np.flatnonzero(col.isna().to_numpy())[0])
+            raise DiagnosisError(f"{name}: missing value (NaN) in column {c} at data row {i + 1}")
+        v = col.to_numpy(dtype=float)
+        if not np.isfinite(v).all():
+            i = int(np.flatnonzero(~np.isfinite(v))[0])
+            raise DiagnosisError(f"{name}: non-finite value {v[i]} in column {c} at data row {i + 1}")
+        out[c] = v
+    t = out["time_s"].to_numpy()
+    if len(t) < MIN_SAMPLES:
+        raise DiagnosisError(f"{name}: too short a record: {len(t)} samples (the diagnosis needs at least "
+                             f"{MIN_SAMPLES})")
+    dt = np.diff(t)
+    if (dt <= 0).any():
+        i = int(np.flatnonzero(dt <= 0)[0])
+        raise DiagnosisError(f"{name}: time_s is not strictly increasing at data row {i + 2} "
+                             f"({t[i]:g} then {t[i + 1]:g})")
+    if t[-1] - t[0] < MIN_DURATION_S:
+        raise DiagnosisError(f"{name}: too short a record: {(t[-1] - t[0]) / 3600:.2g} h (the diagnosis needs at "
+                             f"least {MIN_DURATION_S / 3600:g} h)")
+    if (out["dp_mbar"] <= 0).any():
+        raise DiagnosisError(f"{name}: dp_mbar must be positive")
+    T = out["T_tank_C"].to_numpy()
+    if np.ptp(T) < MIN_T_RANGE_K:
+        raise DiagnosisError(f"{name}: T_tank_C is constant (range {np.ptp(T):.3g} K < {MIN_T_RANGE_K:g} K): "
+                             "a constant temperature identifies nothing")
+    if "x_mm" not in out.columns:
+        out["x_mm"] = opening_from_flow(out["q_kgh"].to_numpy(), out["dp_mbar"].to_numpy(),
+                                        ValveParams().to_array())
+    if np.ptp(out["x_mm"].to_numpy()) < MIN_X_RANGE_MM:
+        raise DiagnosisError(f"{name}: the valve opening hardly moves (range {np.ptp(out['x_mm']):.3g} mm): "
+                             "nothing to identify")
+    return out.reset_index(drop=True)
+
+
+def prepare(df: pd.DataFrame, name: str = "run") -> RunData:
+    """RunData (latent temperatures estimated) from a checked run."""
+    return RunData.from_arrays(df["time_s"].to_numpy(), df["T_tank_C"].to_numpy(), df["T_med_C"].to_numpy(),
+                               df["x_mm"].to_numpy(), df["dp_mbar"].to_numpy(), df["ps_bar"].to_numpy(), name)
+
+
+def _one_line(s: str) -> str:
+    return " ".join(str(s).split())
+
+
+# --------------------------------------------------------------------------- results
+@dataclass
+class Finding:
+    """A candidate effect tried on top of a reference model."""
+
+    effect: str
+    fit: FitResult
+    reference: tuple[str, ...]
+    lr_stat: float
+    p_value: float
+    delta_aic: float
+    delta_bic: float
+    rms_before_mm: float
+    rms_after_mm: float
+    validation_rms_before_mm: float
+    validation_rms_after_mm: float
+    validation_loglik_gain: float
+    validation_sim_rms_before_mm: float
+    validation_sim_rms_after_mm: float
+    significant: bool = False
+    validated: bool = False
+    relevant: bool = False
+    effect_size_mm: float = 0.0
+
+    @property
+    def accepted(self) -> bool:
+        return self.significant and self.relevant and self.validated
+
+    def to_json(self) -> dict[str, Any]:
+        names = EFFECTS[self.effect].param_names
+        return {
+            "effect": self.effect,
+            "params": {k: float(self.fit.params[k]) for k in names},
+            "std": {k: float(self.fit.std.get(k, float("nan"))) for k in names},
+            "loglik": float(self.fit.loglik),
+            "lr_stat": float(self.lr_stat),
+            "p_value": float(self.p_value),
+            "delta_aic": float(self.delta_aic),
+            "delta_bic": float(self.delta_bic),
+            "rms_before_mm": float(self.rms_before_mm),
+            "rms_after_mm": float(self.rms_after_mm),
+            "validation_rms_before_mm": float(self.validation_rms_before_mm),
+            "validation_rms_after_mm": float(self.validation_rms_after_mm),
+            "validation_loglik_gain": float(self.validation_loglik_gain),
+            "validation_sim_rms_before_mm": float(self.validation_sim_rms_before_mm),
+            "validation_sim_rms_after_mm": float(self.validation_sim_rms_after_mm),
+            "significant": bool(self.significant),
+            "validated": bool(self.validated),
+            "relevant": bool(self.relevant),
+            "effect_size_mm": float(self.effect_size_mm),
+            "on_top_of": list(self.reference),
+            "all_params": {k: float(v) for k, v in self.fit.params.items()},
+            "all_std": {k: float(v) for k, v in self.fit.std.items()},
+        }
+
+
+@dataclass
+class Diagnosis:
+    """The result of :func:`diagnose`; ``to_json()`` is the SPEC section 4 document."""
+
+    cause: str
+    selected: list[str]
+    base: FitResult
+    findings: list[Finding]
+    steps: list[list[Finding]]
+    final: FitResult
+    diagnostics: dict[str, Any]
+    settings: dict[str, Any]
+    train: RunData
+    valid: RunData
+    valid_range: tuple[int, int]
+    base_valid_rms: float
+    final_valid_rms: float
+    seconds: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        b = self.base
+        base_names = ("sigma", "F_hmax", "p_bset")
+        noise = ("s_w", "s_e", "tau_e")
+        gain = {
+            "validation_rms_before_mm": self.base_valid_rms,
+            "validation_rms_after_mm": self.final_valid_rms,
+            "validation_rms_reduction": 1.0 - self.final_valid_rms / self.base_valid_rms
+            if self.base_valid_rms > 0 else 0.0,
+            "rms_before_mm": b.rms_mm,
+            "rms_after_mm": self.final.rms_mm,
+            "loglik_gain": self.final.loglik - b.loglik,
+        }
+        return {
+            "cause": self.cause,
+            "selected": list(self.selected),
+            "base": {
+                "params": {k: float(b.params[k]) for k in base_names},
+                "std": {k: float(b.std.get(k, float("nan"))) for k in base_names},
+                "noise": {k: float(b.params[k]) for k in noise},
+                "loglik": float(b.loglik),
+                "rms_mm": float(b.rms_mm),
+                "n": int(b.n),
+                "diagnostics": self.diagnostics,
+            },
+            "findings": [f.to_json() for f in self.findings],
+            "selection": [
+                {"step": i + 1, "on_top_of": list(step[0].reference) if step else [],
+                 "tried": [f.effect for f in step],
+                 "accepted": step[0].effect if step and step[0].accepted else None,
+                 "best": step[0].to_json() if step else None}
+                for i, step in enumerate(self.steps)
+            ],
+            "final": {
+                "effects": list(self.final.effects),
+                "params": {k: float(v) for k, v in self.final.params.items()},
+                "std": {k: float(v) for k, v in self.final.std.items()},
+                "loglik": float(self.final.loglik),
+                "rms_mm": float(self.final.rms_mm),
+            },
+            "gain": gain,
+            "settings": self.settings,
+            "seconds": self.seconds,
+            "notes": self.notes,
+        }
+
+    def summary(self) -> str:
+        if self.cause == "none":
+            best = self.findings[0] if self.findings else None
+            why = ""
+            if best is not None:
+                why = (f" (best candidate {best.effect}: p={best.p_value:.2g}, dBIC={best.delta_bic:.1f}, "
+                       f"validation RMS {best.validation_rms_before_mm * 1e3:.2f} -> "
+                       f"{best.validation_rms_after_mm * 1e3:.2f} um)")
+            return f"cause: none: no extension of the base model is justified{why}"
+        f = self.findings[0]
+        pars = ", ".join(f"{k}={v:.4g} +- {f.fit.std.get(k, float('nan')):.2g}"
+                         for k, v in f.fit.effect_params.items())
+        more = f"; forward selection: {' -> '.join(self.selected)}" if len(self.selected) > 1 else ""
+        return (f"cause: {self.cause} ({pars}); LR={f.lr_stat:.1f}, p={f.p_value:.2g}, dBIC={f.delta_bic:.1f}; "
+                f"validation RMS {self.base_valid_rms * 1e3:.2f} -> {self.final_valid_rms * 1e3:.2f} um{more}")
+
+
+# --------------------------------------------------------------------------- the procedure
+def _p_value(lr: float, effects: tuple[str, ...]) -> float:
+    """p-value of the LR statistic for adding ``effects`` (one parameter each)."""
+    lr = max(lr, 0.0)
+    k = sum(len(EFFECTS[e].parameters) for e in effects)
+    if all(EFFECTS[e].boundary for e in effects) and k == 1:
+        return float(0.5 * stats.chi2.sf(lr, 1)) if lr > 0 else 1.0
+    return float(stats.chi2.sf(lr, k))
+
+
+def _held_out(model: Model, data: RunData, values: dict[str, float], a: int, b: int) -> tuple[float, float, float]:
+    """(one-step RMS mm, log-likelihood, simulation RMS mm) over samples a..b of ``data``."""
+    nu, S = model.prediction_errors(data, values)
+    nu_v, S_v = nu[a:b], S[a:b]
+    ll = float(np.sum(-0.5 * (np.log(2 * np.pi * S_v) + nu_v**2 / S_v)))
+    xs, _, _ = model.simulate(data, values)
+    sim = float(np.sqrt(np.mean((data.x[a:b] - xs[a:b]) ** 2)))
+    return float(np.sqrt(np.mean(nu_v**2))), ll, sim
+
+
+def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: RunData, valid: RunData,
+         vr: tuple[int, int], valve: ValveParams, alpha: float, ref_val: tuple[float, float, float],
+         warm: dict[str, float] | None, min_gain: float, min_size: float) -> Finding:
+    effects = tuple(e for e in EFFECTS if e in (*ref_effects, effect))  # canonical order
+    model = Model(effects, valve)
+    if not ref_effects:
+        # from the paper's values (a strong effect can pull the base fit far from the truth), and from
+        # the base fit where that is better (the extension contains the base model: never worse)
+        fit = model.fit(train)
+        if fit.loglik < ref_fit.loglik + 1.0:
+            alt = model.fit(train, start={**ref_fit.params, **(warm or {})})
+            fit = alt if alt.loglik > fit.loglik else fit
+    else:
+        fit = model.fit(train, start={**ref_fit.params, **(warm or {})})
+    lr = max(2.0 * (fit.loglik - ref_fit.loglik), 0.0)
+    k = len(EFFECTS[effect].parameters)
+    p = _p_value(lr, (effect,))
+    n = train.t.shape[0]
+    v_rms, v_ll, v_sim = _held_out(model, valid, fit.params, *vr)
+    f = Finding(
+        effect=effect, fit=fit, reference=ref_effects, lr_stat=lr, p_value=p, delta_aic=2 * k - lr,
+        delta_bic=k * math.log(n) - lr, rms_before_mm=ref_fit.rms_mm, rms_after_mm=fit.rms_mm,
+        validation_rms_before_mm=ref_val[0], validation_rms_after_mm=v_rms,
+        validation_loglik_gain=v_ll - ref_val[1], validation_sim_rms_before_mm=ref_val[2],
+        validation_sim_rms_after_mm=v_sim,
+    )
+    f.effect_size_mm = effect_size(model, train, fit.params, effect)
+    f.significant = p < alpha and f.delta_bic < 0
+    f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
+    f.validated = f.validation_loglik_gain > min_gain and (
+        EFFECTS[effect].variance_gain or v_rms <= ref_val[0])
+    return f
+
+
+def effect_size(model: Model, data: RunData, values: dict[str, float], effect: str) -> float:
+    """How much the effect moves the simulated opening: RMS (mm) of the difference between the
+    simulation with the fitted effect and with the effect switched off (everything else equal)."""
+    xs, _, _ = model.simulate(data, values)
+    nulls = {p.name: p.null for p in EFFECTS[effect].parameters}
+    x0, _, _ = model.simulate(data, {**values, **nulls})
+    return float(np.sqrt(np.mean((xs - x0) ** 2)))
+
+
+def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout: float = 0.25,
+             alpha: float = 0.001, effects: list[str] | tuple[str, ...] | None = None,
+             valve: ValveParams | None = None, max_effects: int = 2, min_validation_gain: float = 2.0,
+             min_effect_size: float = 0.5, name: str = "run") -> Diagnosis:
+    """Diagnose a measured run (a DataFrame with SPEC section 2 columns). See the module docstring.
+
+    ``validate``: an independent run for validation (else the last ``holdout`` fraction of ``df``
+    is held out). ``alpha``: significance level of the likelihood-ratio test. ``effects``:
+    candidate names (default: all of SPEC section 3). ``max_effects``: the most effects forward
+    selection adds. ``min_validation_gain``: the held-out log-likelihood gain (nats) an effect
+    must bring to count as real. ``min_effect_size``: the RMS change of the simulated opening the
+    effect must make, in units of the measurement noise sd, to count as relevant (a statistically
+    significant but physically negligible effect, such as a lag of a fraction of the sampling
+    interval, is an artefact of the data processing rather than a cause)."""
+    t0 = time.perf_counter()
+    valve = valve if valve is not None else ValveParams()
+    cands = check_effects(list(effects) if effects else list(EFFECTS))
+    run = check_run(df, name)
+    if validate is not None:
+        vdf = check_run(validate, "validation run")
+        train = prepare(run, name)
+        valid = prepare(vdf, "validation run")
+        vr = (0, len(valid))
+        mode = "independent run"
+    else:
+        if not 0.05 <= holdout <= 0.5:
+            raise DiagnosisError(f"holdout must be in [0.05, 0.5], got {holdout}")
+        full = prepare(run, name)
+        n_train = int(round(len(full) * (1.0 - holdout)))
+        if n_train < MIN_SAMPLES or len(full) - n_train < MIN_SAMPLES // 4:
+            raise DiagnosisError(f"{name}: too short a record to hold out {holdout:.0%} for validation")
+        train = full.slice(0, n_train)
+        valid = full
+        vr = (n_train, len(full))
+        mode = f"hold-out: last {holdout:.0%} of the run"
+
+    base_model = Model((), valve)
+    base = base_model.fit(train)
+    base_val = _held_out(base_model, valid, base.params, *vr)
+    diagnostics = residual_diagnostics(base_model, train, base)
+
+    steps: list[list[Finding]] = []
+    selected: list[str] = []
+    ref_effects: tuple[str, ...] = ()
+    ref_fit, ref_val = base, base_val
+    single: dict[str, FitResult] = {}
+    findings: list[Finding] = []
+    while len(selected) < max_effects:
+        remaining = [e for e in cands if e not in selected]
+        if not remaining:
+            break
+        step = []
+        for e in remaining:
+            warm = single[e].effect_params if e in single else None
+            step.append(_try(e, ref_effects, ref_fit, train, valid, vr, valve, alpha, ref_val, warm,
+                             min_validation_gain, min_effect_size))
+        step.sort(key=lambda f: (not f.accepted, f.delta_bic))
+        steps.append(step)
+        if not selected:
+            findings = step
+            single = {f.effect: f.fit for f in step}
+        best = step[0]
+        if not best.accepted:
+            break
+        selected.append(best.effect)
+        ref_effects = best.fit.effects
+        ref_fit = best.fit
+        ref_val = (best.validation_rms_after_mm, ref_val[1] + best.validation_loglik_gain,
+                   best.validation_sim_rms_after_mm)
+    final = ref_fit
+    final_val = ref_val[0]
+    settings = {"validation": mode, "alpha": alpha, "holdout": holdout if validate is None else None,
+                "candidates": list(cands), "min_validation_gain": min_validation_gain,
+                "min_effect_size_noise_sd": min_effect_size,
+                "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
+                "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
+    return Diagnosis(
+        cause=selected[0] if selected else "none", selected=selected, base=base, findings=findings, steps=steps,
+        final=final, diagnostics=diagnostics, settings=settings, train=train, valid=valid, valid_range=vr,
+        base_valid_rms=base_val[0], final_valid_rms=final_val, seconds=time.perf_counter() - t0,
+    )
+
+
+def diagnose_files(path: str | os.PathLike[str], *, validate: str | os.PathLike[str] | None = None,
+                   **kwargs: Any) -> Diagnosis:
+    """:func:`diagnose` on CSV files (read only)."""
+    run = read_run(path)
+    vdf = read_run(validate) if validate is not None else None
+    try:
+        return diagnose(run, validate=vdf, name=str(path), **kwargs)
+    except ValueError as exc:
+        if isinstance(exc, DiagnosisError):
+            raise
+        raise DiagnosisError(_one_line(str(exc))) from None
+
+
+# --------------------------------------------------------------------------- residual diagnostics
+def residual_diagnostics(model: Model, data: RunData, fit: FitResult, window_h: float = 1.0) -> dict[str, Any]:
+    """What the model gets wrong and where: residual statistics, autocorrelation, misfit over time and
+    over the phase diagram, and the correlation of the residual with each effect's signature."""
+    from statsmodels.stats.diagnostic import acorr_ljungbox
+
+    xs, Tg, _ = model.simulate(data, fit.params)
+    r = data.x - xs
+    nu, S = model.prediction_errors(data, fit.params)
+    z = nu / np.sqrt(S)
+    lags = min(20, len(z) // 5)
+    acf = [float(np.corrcoef(r[:-k], r[k:])[0, 1]) for k in range(1, lags + 1)]
+    lb = acorr_ljungbox(z, lags=[lags], return_df=True)
+    t_h = (data.t - data.t[0]) / 3600.0
+    edges = np.arange(0.0, t_h[-1] + window_h, window_h)
+    by_time = []
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        m = (t_h >= a) & (t_h < b)
+        if m.any():
+            by_time.append({"from_h": float(a), "to_h": float(b), "rms_mm": float(np.sqrt(np.mean(r[m] ** 2))),
+                            "mean_mm": float(np.mean(r[m]))})
+    v = data.vT
+    thr = max(3.0 * data.s_T / max(data.median_dt, 1.0), 1e-4)
+    rising, falling = v > thr, v < -thr
+    still = ~(rising | falling)
+    bins = np.arange(np.floor(Tg.min()), np.ceil(Tg.max()) + 1.0, 1.0)
+    phase = []
+    for a, b in zip(bins[:-1], bins[1:], strict=True):
+        for lab, m in (("rising", rising), ("falling", falling)):
+            mm = m & (Tg >= a) & (Tg < b)
+            if mm.sum() >= 5:
+                phase.append({"T_from_C": float(a), "T_to_C": float(b), "direction": lab, "n": int(mm.sum()),
+                              "mean_mm": float(np.mean(r[mm])), "rms_mm": float(np.sqrt(np.mean(r[mm] ** 2)))})
+
+    def corr(a: np.ndarray, b: np.ndarray) -> float:
+        if np.std(a) == 0 or np.std(b) == 0:
+            return 0.0
+        return float(np.corrcoef(a, b)[0, 1])
+
+    open_ = (xs > 0.01) & (xs < 0.99 * model.valve.stroke)
+    ro = r[open_] if open_.sum() > 10 else r
+    sel = open_ if open_.sum() > 10 else np.ones_like(r, dtype=bool)
+    signatures = {
+        "sensor_lag": corr(ro, data.vT[sel]),
+        "medium_temperature": corr(ro, (data.M - data.T)[sel]),
+        "setpoint_drift": corr(ro, data.t[sel]),
+        "stiction": float(np.mean(np.abs(np.diff(data.x[sel])) < 0.5 * max(fit.params["s_w"], 1e-4)))
+        - float(np.mean(np.abs(np.diff(xs[sel])) < 0.5 * max(fit.params["s_w"], 1e-4))),
+    }
+    worst = sorted(by_time, key=lambda w: -w["rms_mm"])[:3]
+    return {
+        "rms_mm": float(np.sqrt(np.mean(r**2))),
+        "one_step_rms_mm": float(np.sqrt(np.mean(nu**2))),
+        "noise_sd_mm": float(fit.params["s_w"]),
+        "model_error_sd_mm": float(fit.params["s_e"]),
+        "model_error_time_constant_s": float(fit.params["tau_e"]),
+        "ljung_box_lag": int(lags),
+        "ljung_box_p": float(lb["lb_pvalue"].iloc[0]),
+        "acf": acf,
+        "mean_mm": {"rising": float(np.mean(r[rising])) if rising.any() else 0.0,
+                    "falling": float(np.mean(r[falling])) if falling.any() else 0.0,
+                    "still": float(np.mean(r[still])) if still.any() else 0.0},
+        "rms_by_direction_mm": {"rising": float(np.sqrt(np.mean(r[rising] ** 2))) if rising.any() else 0.0,
+                                "falling": float(np.sqrt(np.mean(r[falling] ** 2))) if falling.any() else 0.0,
+                                "still": float(np.sqrt(np.mean(r[still] ** 2))) if still.any() else 0.0},
+        "worst_hours": worst,
+        "by_time": by_time,
+        "phase": phase,
+        "signature_correlation": signatures,
+    }
+
+
+__all__ = ["DiagnosisError", "Diagnosis", "Finding", "diagnose", "diagnose_files", "read_run", "check_run",
+           "prepare", "residual_diagnostics"]

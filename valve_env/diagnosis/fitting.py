@@ -1,0 +1,429 @@
+"""Maximum-likelihood fits of the base valve model and its extensions (simulation likelihood).
+
+The likelihood is that of :mod:`valve_env.diagnosis.engine`: the valve is
+simulated from the latent (smoothed) temperatures, and the residual of the
+measured opening is an Ornstein-Uhlenbeck model error plus white noise. Free
+parameters: the paper's Table 4 (``sigma``, ``F_hmax``, ``p_bset``), the
+noise (``s_w``, ``s_e``, ``tau_e``) and the parameters of the effects
+switched on. Standard deviations come from the inverse of the numerical
+Hessian (delta method to the natural scale); for a parameter whose
+likelihood is rough (``band_mm``) from the curvature of its profile
+likelihood.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares, minimize
+
+from valve_env.diagnosis.effects import EFFECTS, ENGINE_INDEX, EffectParameter
+from valve_env.diagnosis.engine import ou_loglik, simulate_valve, smooth_temperature, stick_loglik, stick_simulate
+from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
+
+#: (name, unit, lower, upper) of the base and noise parameters, all on a log scale.
+BASE_PARAMS: tuple[tuple[str, str, float, float], ...] = (
+    ("sigma", "N/K", 0.3, 100.0),
+    ("F_hmax", "N", 0.01, 20.0),
+    ("p_bset", "MPa", 0.01, 0.5),
+)
+NOISE_PARAMS: tuple[tuple[str, str, float, float], ...] = (
+    ("s_w", "mm", 1e-5, 1.0),
+    ("s_e", "mm", 1e-6, 1.0),
+    ("tau_e", "s", 1.0, 900.0),
+)
+
+
+@dataclass
+class RunData:
+    """A measured run prepared for the diagnosis: raw channels and latent temperatures."""
+
+    t: np.ndarray
+    T_raw: np.ndarray
+    M_raw: np.ndarray
+    x: np.ndarray
+    dp: np.ndarray
+    ps: np.ndarray
+    T: np.ndarray
+    vT: np.ndarray
+    M: np.ndarray
+    vM: np.ndarray
+    s_T: float
+    s_M: float
+    name: str = "run"
+
+    @classmethod
+    def from_arrays(cls, t: np.ndarray, T_tank: np.ndarray, T_med: np.ndarray, x: np.ndarray, dp: np.ndarray,
+                    ps: np.ndarray, name: str = "run") -> RunData:
+        f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+        t, T_tank, T_med, x, dp, ps = map(f, (t, T_tank, T_med, x, dp, ps))
+        T, vT, s_T, _ = smooth_temperature(t, T_tank)
+        M, vM, s_M, _ = smooth_temperature(t, T_med)
+        return cls(t, T_tank, T_med, x, dp, ps, T, vT, M, vM, s_T, s_M, name)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def slice(self, a: int, b: int) -> RunData:
+        s = slice(a, b)
+        return RunData(self.t[s], self.T_raw[s], self.M_raw[s], self.x[s], self.dp[s], self.ps[s], self.T[s],
+                       self.vT[s], self.M[s], self.vM[s], self.s_T, self.s_M, self.name)
+
+    @property
+    def median_dt(self) -> float:
+        return float(np.median(np.diff(self.t)))
+
+
+@dataclass
+class FitResult:
+    """A fitted model: natural-scale parameters with standard deviations, log-likelihood, RMS."""
+
+    effects: tuple[str, ...]
+    params: dict[str, float]
+    std: dict[str, float]
+    loglik: float
+    n: int
+    n_free: int
+    rms_mm: float
+    converged: bool
+    message: str = ""
+    extra: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def effect_params(self) -> dict[str, float]:
+        names = [p.name for e in self.effects for p in EFFECTS[e].parameters]
+        return {k: self.params[k] for k in names}
+
+    @property
+    def physical_params(self) -> dict[str, float]:
+        return {k: self.params[k] for k, *_ in BASE_PARAMS}
+
+
+class Model:
+    """The base valve model with a set of effects switched on (the simulation likelihood)."""
+
+    def __init__(self, effects: tuple[str, ...] = (), valve: ValveParams | None = None, max_step_s: float = 2.5):
+        self.effects = tuple(effects)
+        self.valve = valve if valve is not None else ValveParams()
+        self.max_step_s = float(max_step_s)
+        self.eff_params = [p for e in self.effects for p in EFFECTS[e].parameters]
+        self.names = [n for n, *_ in BASE_PARAMS] + [p.name for p in self.eff_params] + [n for n, *_ in NOISE_PARAMS]
+        self._vp = self.valve.to_array()
+
+    # --- the work (optimiser) scale ---------------------------------------------------
+    def _spec(self, name: str) -> tuple[str, float, float, float]:
+        """(transform, lower, upper, scale)."""
+        for n, _, lo, hi in (*BASE_PARAMS, *NOISE_PARAMS):
+            if n == name:
+                return "log", lo, hi, 1.0
+        for p in self.eff_params:
+            if p.name == name:
+                return "lin", p.lower, p.upper, p.scale
+        raise KeyError(name)
+
+    def to_work(self, values: dict[str, float]) -> np.ndarray:
+        z = []
+        for n in self.names:
+            kind, lo, hi, sc = self._spec(n)
+            v = min(max(values[n], lo), hi)
+            z.append(math.log(v) if kind == "log" else v / sc)
+        return np.array(z)
+
+    def from_work(self, z: np.ndarray) -> dict[str, float]:
+        out = {}
+        for n, zi in zip(self.names, z, strict=True):
+            kind, lo, hi, sc = self._spec(n)
+            out[n] = math.exp(zi) if kind == "log" else zi * sc
+        return out
+
+    def work_bounds(self) -> list[tuple[float, float]]:
+        b = []
+        for n in self.names:
+            kind, lo, hi, sc = self._spec(n)
+            b.append((math.log(lo), math.log(hi)) if kind == "log" else (lo / sc, hi / sc))
+        return b
+
+    def dnat_dwork(self, values: dict[str, float]) -> np.ndarray:
+        return np.array([values[n] if self._spec(n)[0] == "log" else self._spec(n)[3] for n in self.names])
+
+    def delta(self, data: RunData) -> float:
+        """Smallest reversal of the sensed temperature that drives the friction: 5 sd of the channel noise."""
+        return max(5.0 * max(data.s_T, data.s_M * self._beta_hint()), 1e-3)
+
+    def _beta_hint(self) -> float:
+        return 1.0 if "medium_temperature" in self.effects else 0.0
+
+    # --- the likelihood ----------------------------------------------------------------
+    def _vectors(self, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        vp = self._vp.copy()
+        vp[I_SIGMA] = values["sigma"]
+        vp[I_F_HMAX] = values["F_hmax"]
+        vp[I_P_BSET] = values["p_bset"]
+        e = np.zeros(4)
+        for p in self.eff_params:
+            e[ENGINE_INDEX[p.name]] = values[p.name]
+        return vp, e
+
+    def _stuck(self, values: dict[str, float]) -> bool:
+        return "stiction" in self.effects and values.get("band_mm", 0.0) > 0.0
+
+    def simulate(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Open-loop simulation: (opening mm, gas temperature degC, friction force N) at the samples."""
+        vp, e = self._vectors(values)
+        stuck = self._stuck(values)
+        x, Tg, F, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s,
+                                              self.delta(data), stuck)
+        if stuck:
+            x = stick_simulate(x_sub, idx, values["band_mm"], float(vp[I_STROKE]))
+        return x, Tg, F
+
+    def _filter(self, data: RunData, values: dict[str, float],
+                mask: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
+        vp, e = self._vectors(values)
+        stuck = self._stuck(values)
+        x, _, _, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s,
+                                             self.delta(data), stuck)
+        if mask is None:
+            mask = np.ones(len(data), dtype=np.bool_)
+        if stuck:
+            return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),
+                                values["s_w"], values["s_e"], values["tau_e"], mask)
+        return ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
+
+    def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None) -> float:
+        """Exact Gaussian log-likelihood of the measured opening (over the samples in ``mask``)."""
+        return float(self._filter(data, values, mask)[0])
+
+    def prediction_errors(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """One-step prediction errors (mm) and their variances."""
+        _, innov, S = self._filter(data, values)
+        return innov, S
+
+    # --- fitting -------------------------------------------------------------------------
+    def default_start(self, data: RunData) -> dict[str, float]:
+        """Paper values, the set pressure scanned, noise levels from the residual of that start."""
+        v = self.valve
+        d = np.diff(data.x)
+        s_w = max(float(np.std(d)) / math.sqrt(2.0), 1e-4)
+        start = {"sigma": v.sigma, "F_hmax": v.F_hmax, "p_bset": v.p_bset, "s_w": s_w, "s_e": 0.01,
+                 "tau_e": max(10.0 * data.median_dt, 300.0)}
+        for p in self.eff_params:
+            start[p.name] = p.null
+        best, best_r = v.p_bset, math.inf
+        for f in np.linspace(0.9, 1.1, 21):
+            xs, _, _ = self.simulate(data, {**start, "p_bset": v.p_bset * f})
+            r = float(np.mean((data.x - xs) ** 2))
+            if r < best_r:
+                best, best_r = v.p_bset * f, r
+        start["p_bset"] = best
+        start["s_e"] = max(math.sqrt(best_r), 2.0 * s_w)
+        return start
+
+    def fit(self, data: RunData, start: dict[str, float] | None = None, fixed: dict[str, float] | None = None,
+            maxiter: int = 300, with_std: bool = True) -> FitResult:
+        """Maximum likelihood from ``start`` (defaults: paper values), keeping ``fixed`` parameters fixed.
+
+        Each effect parameter is first scanned over a grid with the other parameters at ``start`` (a
+        robust start: the likelihood can be far from quadratic away from the optimum). A parameter
+        with ``log_grid`` (stiction's band, whose likelihood is rough) is then refined by
+        golden-section search on the log scale alternating with fits of the other parameters, and its
+        standard deviation comes from the curvature of that profile."""
+        cold = start is None
+        start = {**self.default_start(data), **(start or {})}
+        fixed = dict(fixed or {})
+        if cold:
+            # stage 1, from the paper's values: least squares of the simulation error, so that the slowly
+            # varying model error cannot absorb a wrong set point or friction and trap the fit (e.g. a
+            # valve simulated shut all the time); with effects: scan them, then least squares jointly
+            start.update(self._least_squares(data, start, fixed, ()))
+            for p in self.eff_params:
+                if p.name not in fixed:
+                    start[p.name] = self._scan(data, start, p)
+            smooth = tuple(p for p in self.eff_params if not p.log_grid and p.name not in fixed)
+            if smooth:
+                start.update(self._least_squares(data, start, fixed, smooth))
+            xs, _, _ = self.simulate(data, start)
+            start["s_e"] = max(float(np.sqrt(np.mean((data.x - xs) ** 2))), 1e-4)
+        for p in self.eff_params:
+            if p.name not in fixed:
+                start[p.name] = self._scan(data, start, p)
+        fit = self._fit_smooth(data, start, fixed, maxiter, False)
+        # a second look: scan each effect parameter again around the fit (the first scan saw the
+        # effect against base parameters that had absorbed part of it); refit where it helps
+        for _ in range(2):
+            better = dict(fit.params)
+            ll0 = self.loglik(data, better)
+            moved = False
+            for p in self.eff_params:
+                if p.name in fixed:
+                    continue
+                v = float(fit.params[p.name])
+                grid = np.concatenate([self._grid(data, p), v * np.array([0.5, 0.7, 0.85, 1.2, 1.4, 2.0])])
+                grid = np.clip(grid, p.lower, p.upper)
+                for g in grid:
+                    ll = self.loglik(data, {**better, p.name: float(g)})
+                    if ll > ll0 + 0.1:
+                        ll0, better[p.name], moved = ll, float(g), True
+            if not moved:
+                break
+            fit = self._fit_smooth(data, better, fixed, maxiter, False)
+        if with_std:
+            fit = self._fit_smooth(data, fit.params, fixed, 50, True)
+        return fit
+
+    def _least_squares(self, data: RunData, start: dict[str, float], fixed: dict[str, float],
+                       effects: tuple[EffectParameter, ...]) -> dict[str, float]:
+        """sigma, F_hmax, p_bset (log scale) and the given effect parameters (scaled) by trust-region
+        least squares of the simulation error."""
+        names = [n for n, *_ in BASE_PARAMS if n not in fixed] + [p.name for p in effects]
+        if not names:
+            return {}
+        z0 = self.to_work(start)
+        idx = [self.names.index(n) for n in names]
+        b = self.work_bounds()
+        lo = np.array([b[i][0] for i in idx])
+        hi = np.array([b[i][1] for i in idx])
+        z_start = np.clip(z0[idx], lo + 1e-9, hi - 1e-9)
+
+        def resid(zs: np.ndarray) -> np.ndarray:
+            z = z0.copy()
+            z[idx] = zs
+            xs, _, _ = self.simulate(data, self.from_work(z))
+            return data.x - xs
+
+        res = least_squares(resid, z_start, bounds=(lo, hi), x_scale=np.full(len(names), 0.05), max_nfev=80,
+                            diff_step=1e-4)
+        z = z0.copy()
+        z[idx] = res.x
+        vals = self.from_work(z)
+        return {n: vals[n] for n in names}
+
+    def _grid(self, data: RunData, p: EffectParameter) -> np.ndarray:
+        if p.log_grid:
+            lo = max(0.5 * float(np.std(np.diff(data.x))), 1e-3)
+            return np.concatenate([[p.null], np.geomspace(lo, min(p.upper, 0.3), 8)])
+        if p.name == "tau_s":
+            return np.array([0.0, 1.0, 3.0, 10.0, 20.0, 40.0, 70.0, 120.0, 200.0, 350.0, 600.0, 1000.0])
+        if p.name == "beta":
+            return np.array([0.0, 0.01, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6])
+        span = np.array([0.0, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0]) * p.scale
+        return np.clip(np.unique(np.concatenate([-span, span])), p.lower, p.upper)
+
+    def _scan(self, data: RunData, start: dict[str, float], p: EffectParameter) -> float:
+        best, best_ll = start[p.name], -math.inf
+        for g in self._grid(data, p):
+            vals = {**start, p.name: float(g)}
+            ll = self.loglik(data, vals)
+            if ll > best_ll:
+                best, best_ll = float(g), ll
+        return best
+
+    def _fit_smooth(self, data: RunData, start: dict[str, float], fixed: dict[str, float], maxiter: int,
+                    with_std: bool) -> FitResult:
+        free = [i for i, n in enumerate(self.names) if n not in fixed]
+        z_all = self.to_work({**start, **fixed})
+        bounds = self.work_bounds()
+
+        def nll(zf: np.ndarray) -> float:
+            z = z_all.copy()
+            z[free] = zf
+            vals = self.from_work(z)
+            ll = self.loglik(data, vals)
+            return -ll if math.isfinite(ll) else 1e300
+
+        res = minimize(nll, z_all[free], method="L-BFGS-B", bounds=[bounds[i] for i in free],
+                       options={"maxiter": maxiter, "ftol": 1e-8, "gtol": 1e-5, "eps": 1e-7})
+        z = z_all.copy()
+        z[free] = res.x
+        vals = self.from_work(z)
+        std = {n: float("nan") for n in self.names}
+        if with_std:
+            names = [self.names[i] for i in free]
+
+            def contrib(zf: np.ndarray) -> np.ndarray:
+                zz = z_all.copy()
+                zz[free] = zf
+                nu, S = self.prediction_errors(data, self.from_work(zz))
+                return -0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S)
+
+            std.update(self._std(nll, contrib, res.x, names, vals, free))
+        return self._result(data, vals, std, -float(res.fun), len(free), bool(res.success), str(res.message))
+
+    def _std(self, nll, contrib, zf: np.ndarray, names: list[str], vals: dict[str, float],  # type: ignore[no-untyped-def]
+             free: list[int]) -> dict[str, float]:
+        """Standard deviations: the larger of the model-based one (inverse Hessian of the negative
+        log-likelihood) and the robust one (Newey-West HAC sandwich of the per-sample scores, which
+        stays honest where the residual model is only approximate). Delta method to natural scale."""
+        k = zf.size
+        h = 1e-3
+        H = np.empty((k, k))
+        f0 = nll(zf)
+        for i in range(k):
+            e = np.zeros(k)
+            e[i] = h
+            H[i, i] = (nll(zf + e) - 2 * f0 + nll(zf - e)) / h**2
+            for j in range(i):
+                ej = np.zeros(k)
+                ej[j] = h
+                H[i, j] = H[j, i] = (nll(zf + e + ej) - nll(zf + e - ej) - nll(zf - e + ej) + nll(zf - e - ej)) / (
+                    4 * h * h)
+        g = self.dnat_dwork(vals)[free]
+        out = {n: float("nan") for n in names}
+        try:
+            Hi = np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            return out
+        # per-sample scores by central differences
+        n = None
+        G = None
+        for i in range(k):
+            e = np.zeros(k)
+            e[i] = h
+            col = (contrib(zf + e) - contrib(zf - e)) / (2 * h)
+            if G is None:
+                n = col.size
+                G = np.empty((n, k))
+            G[:, i] = col
+        assert G is not None and n is not None
+        G = G - G.mean(axis=0)
+        L = int(4.0 * (n / 100.0) ** (2.0 / 9.0))
+        M = G.T @ G
+        for lag in range(1, L + 1):
+            w = 1.0 - lag / (L + 1.0)
+            Gam = G[lag:].T @ G[:-lag]
+            M += w * (Gam + Gam.T)
+        cov_model = Hi
+        cov_robust = Hi @ M @ Hi
+        for i, name in enumerate(names):
+            v = max(cov_model[i, i], cov_robust[i, i])
+            out[name] = float(math.sqrt(v) * abs(g[i])) if v > 0 and math.isfinite(v) else float("nan")
+        return out
+
+    @staticmethod
+    def _profile_std(pts: dict[float, float], ll_best: float) -> float:
+        """sd from the curvature of the log-likelihood in one parameter (a parabola through the points)."""
+        b = np.array(sorted(pts))
+        ll = np.array([pts[k] for k in b])
+        try:
+            c2, _, _ = np.polyfit(b, ll, 2)
+        except (np.linalg.LinAlgError, ValueError):
+            return float("nan")
+        return float(math.sqrt(-1.0 / (2.0 * c2))) if c2 < 0 else float("nan")
+
+    def _result(self, data: RunData, vals: dict[str, float], std: dict[str, float], ll: float, n_free: int,
+                ok: bool, msg: str) -> FitResult:
+        xs, _, _ = self.simulate(data, vals)
+        rms = float(np.sqrt(np.mean((data.x - xs) ** 2)))
+        return FitResult(self.effects, vals, std, ll, len(data), n_free, rms, ok, msg)
+
+
+def simulation_rms(model: Model, data: RunData, values: dict[str, float], a: int = 0, b: int | None = None) -> float:
+    """RMS (mm) of measured minus simulated opening over samples a..b (simulating from the start of ``data``)."""
+    xs, _, _ = model.simulate(data, values)
+    r = (data.x - xs)[a:b]
+    return float(np.sqrt(np.mean(r * r)))
+
+
+__all__ = ["RunData", "FitResult", "Model", "simulation_rms", "BASE_PARAMS", "NOISE_PARAMS"]
