@@ -14,6 +14,28 @@ import numpy as np
 
 from valve_env.envs.thermovalve import FLOW_OBS, TEMPERATURE_OBS
 
+_T_IDX = np.array(TEMPERATURE_OBS)
+_F_IDX = np.array(FLOW_OBS)
+
+
+def noisy_observation(
+    observation: np.ndarray,
+    rng: np.random.Generator,
+    noise_K: float,
+    flow_noise_rel: float,
+    low: np.ndarray,
+    high: np.ndarray,
+) -> np.ndarray:
+    """A copy of ``observation`` with white noise on the temperatures (sd
+    ``noise_K``) and relative noise on flow and dp, drawn from ``rng`` and
+    clipped to [low, high]. Shared by :class:`SensorNoise` and the batched env."""
+    o = np.array(observation, dtype=np.float32, copy=True)
+    if noise_K > 0:
+        o[_T_IDX] += rng.normal(0.0, noise_K, size=_T_IDX.size).astype(np.float32)
+    if flow_noise_rel > 0:
+        o[_F_IDX] *= (1.0 + rng.normal(0.0, flow_noise_rel, size=_F_IDX.size)).astype(np.float32)
+    return np.clip(o, low, high)
+
 
 class SensorNoise(gym.ObservationWrapper[np.ndarray, np.ndarray, np.ndarray]):
     """White Gaussian noise on the observed temperatures (``noise_K``, K) and a
@@ -26,19 +48,13 @@ class SensorNoise(gym.ObservationWrapper[np.ndarray, np.ndarray, np.ndarray]):
             raise ValueError("SensorNoise: noise_K and flow_noise_rel must be finite and >= 0")
         self.noise_K = float(noise_K)
         self.flow_noise_rel = float(flow_noise_rel)
-        self._t_idx = np.array(TEMPERATURE_OBS)
-        self._f_idx = np.array(FLOW_OBS)
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
-        rng = self.env.unwrapped.np_random
-        o = np.array(observation, dtype=np.float32, copy=True)
-        if self.noise_K > 0:
-            o[self._t_idx] += rng.normal(0.0, self.noise_K, size=self._t_idx.size).astype(np.float32)
-        if self.flow_noise_rel > 0:
-            o[self._f_idx] *= (1.0 + rng.normal(0.0, self.flow_noise_rel, size=self._f_idx.size)).astype(np.float32)
         space = self.observation_space
         assert isinstance(space, gym.spaces.Box)
-        return np.clip(o, space.low, space.high)
+        return noisy_observation(
+            observation, self.env.unwrapped.np_random, self.noise_K, self.flow_noise_rel, space.low, space.high
+        )
 
 
 class ObservationDelay(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):

@@ -49,8 +49,6 @@ from gymnasium.vector.utils import batch_space
 from valve_env import simulator as sim
 from valve_env.config import EnvConfig, make_config
 from valve_env.envs.thermovalve import (
-    FLOW_OBS,
-    TEMPERATURE_OBS,
     Mode,
     ThermoValveDualEnv,
     ThermoValveEnv,
@@ -159,8 +157,6 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._noise = sens.noise_K > 0 or sens.flow_noise_rel > 0
         self._delay = sens.dead_time_steps
         self._delay_buf = np.zeros((n, self._delay + 1, sim.N_OBS), np.float32) if self._delay > 0 else None
-        self._t_idx = np.array(TEMPERATURE_OBS)
-        self._f_idx = np.array(FLOW_OBS)
         self._bulb_layer = int(self._pp[sim.P_BULB_LAYER])
 
     # -- Gymnasium API ------------------------------------------------------
@@ -383,17 +379,14 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
 
     def _noisy(self, i: int, observation: np.ndarray) -> np.ndarray:
         """valve_env.wrappers.SensorNoise.observation for env i, from env i's generator."""
+        from valve_env.wrappers import noisy_observation
+
         rng = self._rngs[i]
         assert rng is not None
         sens = self.cfg.sensors
-        o = np.array(observation, dtype=np.float32, copy=True)
-        if sens.noise_K > 0:
-            o[self._t_idx] += rng.normal(0.0, sens.noise_K, size=self._t_idx.size).astype(np.float32)
-        if sens.flow_noise_rel > 0:
-            o[self._f_idx] *= (1.0 + rng.normal(0.0, sens.flow_noise_rel, size=self._f_idx.size)).astype(np.float32)
         space = self.single_observation_space
         assert isinstance(space, gym.spaces.Box)
-        return np.clip(o, space.low, space.high)
+        return noisy_observation(observation, rng, sens.noise_K, sens.flow_noise_rel, space.low, space.high)
 
     def _base_info(self, idx: np.ndarray, vals: np.ndarray | None = None) -> dict[str, Any]:
         """The single env's per-step info keys for envs ``idx``, vectorised with masks;
