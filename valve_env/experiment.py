@@ -254,6 +254,10 @@ def simulate_experiment(
 
     # sample times (optionally jittered, always strictly increasing)
     n = int(math.floor(t_end / dt_s + 1e-9)) + 1
+    n_steps = t_end / min(dt_s, opt["fine_dt_s"])
+    if n_steps > 5e7:
+        raise ConfigError(f"duration_h={duration_h!r} needs {n_steps:.3g} internal steps; at most 5e7 "
+                          "(shorten the run or raise fine_dt_s)")
     t_s = np.arange(n) * dt_s
     if opt["jitter"] > 0:
         t_s = t_s + rng.uniform(-opt["jitter"], opt["jitter"], n) * dt_s

@@ -62,8 +62,8 @@ def test_parameters_within_reported_uncertainty(results, truth: str) -> None:  #
         est, sd = f.fit.params[k], f.fit.std[k]
         assert math.isfinite(sd) and sd > 0
         if truth == "stiction":
-            # the stick-slip filter is biased low for narrow bands (docs/diagnosis.md): 20 % or 3 sd
-            assert abs(est - true) <= max(3 * sd, 0.2 * true), (k, est, sd, true)
+            # the band is biased by 10-40 % (docs/diagnosis.md, "Known limits"): 30 % or 3 sd
+            assert abs(est - true) <= max(3 * sd, 0.3 * true), (k, est, sd, true)
         else:
             assert abs(est - true) <= 3 * sd, (k, est, sd, true)
 
@@ -98,8 +98,10 @@ def test_input_noise_is_not_an_effect() -> None:
 
 def test_validation_run(tmp_path: Path) -> None:
     eff = {"medium_temperature": {"beta": 0.1}}
-    a = simulate_experiment(seed=151, duration_h=6.0, effects=eff)
-    b = simulate_experiment(seed=152, duration_h=4.0, effects=eff)
+    a = simulate_experiment(seed=151, duration_h=12.0, effects=eff)
+    b = simulate_experiment(seed=152, duration_h=6.0, effects=eff)
+    for run in (a, b):  # informative runs: the valve moves through its range
+        assert np.ptp(run["true_x_mm"]) > 0.8
     d = diagnose(a, validate=b, effects=["medium_temperature", "sensor_lag"])
     assert d.cause == "medium_temperature"
     assert d.settings["validation"] == "independent run"

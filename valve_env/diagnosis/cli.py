@@ -81,6 +81,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
                                  T_noise_C=args.T_noise, x_noise_mm=args.x_noise, jitter=args.jitter)
     except ConfigError as exc:
         return _fail(str(exc))
+    except MemoryError:
+        return _fail(f"out of memory for {args.hours:g} h at {args.dt:g} s", EXIT_ERROR)
     if args.no_truth:
         df = df[[c for c in df.columns if not c.startswith("true_")]]
     try:
@@ -118,7 +120,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     except DiagnosisError as exc:
         return _fail(str(exc))
     except MemoryError:
-        return _fail("out of memory")
+        return _fail("out of memory", EXIT_ERROR)
+    except Exception as exc:  # noqa: BLE001 - never a bare traceback; name the failure in one line
+        return _fail(f"diagnosis failed: {type(exc).__name__}: {' '.join(str(exc).split())}", EXIT_ERROR)
     try:
         out.write_text(json.dumps(_clean(result.to_json()), indent=2) + "\n")
     except OSError as exc:
@@ -131,6 +135,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             write_report(result, report)
         except OSError as exc:
             return _fail(f"cannot write the report {report}: {exc.strerror or exc}")
+        except Exception as exc:  # noqa: BLE001 - the JSON is written; report the failure in one line
+            return _fail(f"report failed: {type(exc).__name__}: {' '.join(str(exc).split())}", EXIT_ERROR)
         print(f"report: {report}")
     print(result.summary())
     return 0

@@ -308,14 +308,15 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
     """Simulate the valve without stiction: (x, T_g, F_h) at the sample times, and the demanded opening
     on the sub-step grid (for the stick-slip filter).
 
-    ``T``, ``M``: latent tank and medium temperatures at the samples. ``vp`` is the packed ValveParams
+    ``T``, ``M``: latent tank and medium temperatures at the samples. The sensed temperature
+    T_env = T + beta (M - T) is freed of reversals smaller than ``delta`` (:func:`monotone_path`;
+    doing this on each channel separately instead would create spurious reversals where one channel
+    rests on an isotonic plateau while the other moves). ``vp`` is the packed ValveParams
     (sigma, F_hmax, p_bset taken from it); ``e`` the effect vector (tau_s, beta, band_mm,
-    rate_MPa_per_h), zeros switch the effects off (``band_mm`` is used by :func:`stick_loglik`). The
-    sensed temperature T_env = T + beta (M - T) is freed of reversals smaller than ``delta``
-    (:func:`monotone_path`) and interpolated linearly between samples on sub-steps of at most
-    ``max_step_s``. ``x`` is the opening clipped to [0, stroke]; with ``want_sub`` the clipped
-    opening at every sub-step is returned in ``x_sub`` and ``sub_idx[k]`` is the index of sample k
-    in it."""
+    rate_MPa_per_h), zeros switch the effects off (``band_mm`` is used by :func:`stick_loglik`).
+    T_env is interpolated linearly between samples on sub-steps of at most ``max_step_s``. ``x`` is
+    the opening clipped to [0, stroke]; with ``want_sub`` the clipped opening at every sub-step is
+    returned in ``x_sub`` and ``sub_idx[k]`` is the index of sample k in it."""
     n = t.shape[0]
     x_out = np.empty(n)
     Tg_out = np.empty(n)

@@ -14,7 +14,8 @@ import numpy as np
 
 from valve_env.diagnosis.diagnose import Diagnosis
 from valve_env.diagnosis.effects import EFFECTS
-from valve_env.diagnosis.fitting import Model
+from valve_env.diagnosis.fitting import Model, RunData
+from valve_env.params import ValveParams
 
 UNITS = {"sigma": "N/K", "F_hmax": "N", "p_bset": "MPa", "s_w": "mm", "s_e": "mm", "tau_e": "s", "tau_s": "s",
          "beta": "-", "band_mm": "mm", "rate_MPa_per_h": "MPa/h"}
@@ -33,7 +34,8 @@ def _fmt(v: float) -> str:
     return f"{v:.4g}" if 1e-3 <= a < 1e5 else f"{v:.3e}"
 
 
-def _series(model: Model, data, params):  # type: ignore[no-untyped-def]
+def _series(model: Model, data: RunData,
+            params: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, str]:
     """(simulated opening, gas temperature, standardised one-step errors, residual, residual label).
 
     The residual is measured minus simulated; for a model with stiction, whose open-loop staircase
@@ -136,10 +138,9 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
     return figs
 
 
-def _valve(d: Diagnosis):  # type: ignore[no-untyped-def]
-    from valve_env.params import ValveParams
-
-    return ValveParams()
+def _valve(d: Diagnosis) -> ValveParams:
+    """The valve constants the diagnosis used."""
+    return d.valve
 
 
 def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "run") -> str:
@@ -188,7 +189,8 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
                                         for w in diag["worst_hours"]) + ".",
           "- Correlation of the residual with the effects' signatures: "
           + ", ".join(f"{k} {v:+.2f}" for k, v in diag["signature_correlation"].items())
-          + " (rate of T_tank; T_med - T_tank; time; excess of flat steps in the measured opening).", ""]
+          + " (correlation with the rate of T_tank, with T_med - T_tank and with time; for stiction the share "
+          "of steps in which the model moves by more than 3 noise sd while the measured opening rests).", ""]
     for name, cap in figures:
         L += [f"![{cap}]({name})", "", f"*{cap}*", ""]
 
