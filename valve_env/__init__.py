@@ -16,22 +16,33 @@ from valve_env.scenario import ScenarioParams
 
 __version__ = "0.1.0"
 
-ENV_IDS: tuple[str, ...] = ("ThermoValve-v0", "ThermoValvePressure-v0", "ThermoValveDual-v0")
+#: env id -> what the agent sets ("setting", "pressure" or "dual"): the one table of the ids
+ENV_MODES: dict[str, str] = {
+    "ThermoValve-v0": "setting",
+    "ThermoValvePressure-v0": "pressure",
+    "ThermoValveDual-v0": "dual",
+}
+ENV_IDS: tuple[str, ...] = tuple(ENV_MODES)
 MAX_EPISODE_STEPS = ControlParams().n_steps
 
-_VECTOR_CLASSES = ("ThermoValveVectorEnv", "ThermoValvePressureVectorEnv", "ThermoValveDualVectorEnv")
-for _id, _fn, _vec in zip(ENV_IDS, ("make_setting", "make_pressure", "make_dual"), _VECTOR_CLASSES, strict=True):
+_VECTOR_CLASSES = {
+    "setting": "ThermoValveVectorEnv",
+    "pressure": "ThermoValvePressureVectorEnv",
+    "dual": "ThermoValveDualVectorEnv",
+}
+for _id, _mode in ENV_MODES.items():
     if _id not in registry:
         register(
             id=_id,
-            entry_point=f"valve_env.envs:{_fn}",
+            entry_point=f"valve_env.envs:make_{_mode}",
             # the native batched env (valve_env.envs.vector): gym.make_vec(id, num_envs=N)
-            vector_entry_point=f"valve_env.envs.vector:{_vec}",
+            vector_entry_point=f"valve_env.envs.vector:{_VECTOR_CLASSES[_mode]}",
             max_episode_steps=MAX_EPISODE_STEPS,
         )
 
 __all__ = [
     "ENV_IDS",
+    "ENV_MODES",
     "BulbParams",
     "ConfigError",
     "ControlParams",

@@ -27,6 +27,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from valve_env import ENV_MODES
 from valve_env.envs.thermovalve import OBS_NAMES
 
 OBS_DIM = len(OBS_NAMES)
@@ -36,11 +37,6 @@ I_SETTING = OBS_NAMES.index("setting_C")
 I_DP = OBS_NAMES.index("dp_mbar")
 I_T_TARGET = OBS_NAMES.index("T_target_C")
 
-ENV_MODES: dict[str, str] = {
-    "ThermoValve-v0": "setting",
-    "ThermoValvePressure-v0": "pressure",
-    "ThermoValveDual-v0": "dual",
-}
 
 
 @runtime_checkable
