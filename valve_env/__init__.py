@@ -8,11 +8,19 @@ ThermoValveDual-v0.
 
 from __future__ import annotations
 
-from gymnasium.envs.registration import register, registry
+import os
 
-from valve_env.config import ControlParams, EnvConfig, SensorParams, make_config
-from valve_env.params import BulbParams, ConfigError, TankParams, ValveParams
-from valve_env.scenario import ScenarioParams
+# The batched env runs on numba's threads. With OpenMP's default busy-waiting,
+# a step on a machine whose cores are busy with other work waits for a parked
+# thread and ran 10x slower than serial here; sleeping waiters do not
+# (docs/speed.md). A default only: a value the user set is kept.
+os.environ.setdefault("OMP_WAIT_POLICY", "passive")
+
+from gymnasium.envs.registration import register, registry  # noqa: E402
+
+from valve_env.config import ControlParams, EnvConfig, SensorParams, make_config  # noqa: E402
+from valve_env.params import BulbParams, ConfigError, TankParams, ValveParams  # noqa: E402
+from valve_env.scenario import ScenarioParams  # noqa: E402
 
 __version__ = "0.1.0"
 

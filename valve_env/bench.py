@@ -222,7 +222,7 @@ def bench_memory(n: int) -> dict[str, Any]:
     assert isinstance(u, ThermoValveVectorEnv)
     state_bytes = sum(
         getattr(u, name).nbytes
-        for name in ("_S", "_ACC", "_OUT", "_OBS", "_R", "_K", "_SD", "_WORK", "_CUR", "_NRUN", "_RK", "_RV", "_E0")
+        for name in ("_S", "_ACC", "_OUT", "_OBS", "_R", "_K", "_SD", "_CUR", "_NRUN", "_RK", "_RV", "_E0")
     )
     dense = n * u.n_steps * sim.N_SCEN * 8
     env.close()

@@ -1,7 +1,6 @@
 """The plant simulator: valve + sensor bulb + stratified tank, one control step.
 
-``plant_step`` advances one environment by one control step; ``plant_step_batch``
-runs it over N environments in parallel. Both are compiled by numba from the
+``plant_step`` advances one environment by one control step. Both are compiled by numba from the
 pure physics functions in :mod:`valve_env.physics` (cached on disk), so the
 single env, the batched env and the estimator share one model of the valve.
 ``env_step`` is the single env's whole step (action checks, ``apply_action``,
@@ -134,10 +133,17 @@ def plant_step(s, acc, out, vp, pp, scen, T_set, dp, work):
     F_h = s[nl + S_FH]
     x = s[nl + S_X]
     direction = s[nl + S_DIR]
+    dt_Mcp = dt / Mcp
     e2 = 0.0
     eabs = 0.0
     short = 0.0
     heat_J = 0.0
+    travel = 0.0
+    reversals = 0.0
+    drawn_J = 0.0
+    delivered_J = 0.0
+    unmet_J = 0.0
+    loss_J = 0.0
     pump_J = 0.0
     ret_mass = 0.0
     mass = 0.0
@@ -150,25 +156,24 @@ def plant_step(s, acc, out, vp, pp, scen, T_set, dp, work):
         x_new = opening(T_g, F_h, dp, ps, p_bset, vp)
         dx = x_new - x
         if dx > 1e-9 or dx < -1e-9:
-            acc[A_TRAVEL] += abs(dx)
+            travel += abs(dx)
             d = 1.0 if dx > 0 else -1.0
             if direction != 0.0 and d != direction:
-                acc[A_REV] += 1.0
+                reversals += 1.0
             direction = d
         x = x_new
         m = flow_kgh(x, dp, vp) / 3600.0
         T_ret = coil_heat(T, nc, m, T_sup, pp[P_UA_COIL], cp, Q)
         q_coil = m * cp * (T_sup - T_ret)
         m_draw, delivered = draw_flow(draw_W, draw_T, draw_m, T[nl - 1], T_cold, cp)
-        acc[A_DRAW] += m_draw * cp * (T[nl - 1] - T_cold) * dt
-        acc[A_DELIVERED] += delivered * dt
-        acc[A_DEMAND] += draw_W * dt
+        drawn_J += m_draw * cp * (T[nl - 1] - T_cold) * dt
+        delivered_J += delivered * dt
         if draw_W > 0.0:
-            acc[A_UNMET] += (draw_W - delivered) * dt
+            unmet_J += (draw_W - delivered) * dt
         advection_heat(T, m_draw, T_cold, cp, Q)
-        acc[A_LOSS] += loss_heat(T, pp[P_UA_LOSS], pp[P_T_AMB], Q) * dt
+        loss_J += loss_heat(T, pp[P_UA_LOSS], pp[P_T_AMB], Q) * dt
         for j in range(nl):
-            T[j] += Q[j] * dt / Mcp
+            T[j] += Q[j] * dt_Mcp
         buoyancy_mix(T, wsum, wcnt)
         p_w = pump_power_W(m, dp, pp[P_DP_CIRC], pp[P_Q_REF], pp[P_PUMP_EFF])
         heat_J += q_coil * dt
@@ -187,6 +192,13 @@ def plant_step(s, acc, out, vp, pp, scen, T_set, dp, work):
     s[nl + S_X] = x
     s[nl + S_DIR] = direction
     step = pp[P_DT]
+    acc[A_TRAVEL] += travel
+    acc[A_REV] += reversals
+    acc[A_DRAW] += drawn_J
+    acc[A_DELIVERED] += delivered_J
+    acc[A_DEMAND] += draw_W * step
+    acc[A_UNMET] += unmet_J
+    acc[A_LOSS] += loss_J
     acc[A_SQ] += e2 * dt
     acc[A_ABS] += eabs * dt
     acc[A_TDIS] += short * dt
@@ -211,15 +223,6 @@ def plant_step(s, acc, out, vp, pp, scen, T_set, dp, work):
     out[O_T_SET] = T_set
     p_kw = (heat_J + PRIMARY_ENERGY_FACTOR_ELECTRICITY * pump_J) / step / 1000.0
     return -(pp[P_W_TRACK] * e2 / nsub + pp[P_W_FLOOR] * short / nsub + pp[P_W_ENERGY] * p_kw)
-
-
-@njit(cache=True, parallel=True)
-def plant_step_batch(S, ACC, OUT, VP, PP, SCEN, K, T_SET, DP, WORK, R):
-    """``plant_step`` over N environments: row i of every array is env i;
-    ``SCEN`` is (N, n_steps, 5) and ``K`` the step index of each env."""
-    n = S.shape[0]
-    for i in prange(n):
-        R[i] = plant_step(S[i], ACC[i], OUT[i], VP[i], PP[i], SCEN[i, K[i]], T_SET[i], DP[i], WORK[i])
 
 
 # -- the environments' step: action -> plant_step -> observation --------------
@@ -293,23 +296,59 @@ def env_step(s, acc, out, obs, vp, pp, scen, k, a, bounds, mode, sd, work):
     return r, status
 
 
-def _env_step_batch(S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD,
-                    STEP, WORK):
-    """``env_step`` over N envs (row i of every array is env i) for the envs with ``STEP[i]``.
+@njit(cache=True)
+def _step_block(lo, hi, S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP):
+    """``apply_action``, ``plant_step`` and ``fill_obs`` for envs ``lo .. hi - 1``
+    of the batched step, on local copies of each env's rows."""
+    s = np.empty(S.shape[1])
+    acc = np.empty(ACC.shape[1])
+    out = np.empty(OUT.shape[1])
+    obs = np.empty(OBS.shape[1], np.float32)
+    row = np.empty(RV.shape[2])
+    a = np.empty(A.shape[1])
+    sd = np.empty(2)
+    work = np.empty((3, int(pp[P_NL])))
+    for i in range(lo, hi):
+        if STEP[i]:
+            k = K[i]
+            c = CUR[i]
+            while c + 1 < NRUN[i] and RK[i, c + 1] <= k:
+                c += 1
+            CUR[i] = c
+            s[:] = S[i]
+            acc[:] = ACC[i]
+            row[:] = RV[i, c]
+            a[:] = A[i]
+            sd[SD_SET] = SD[i, SD_SET]
+            sd[SD_DP] = SD[i, SD_DP]
+            apply_action(a, mode, row, sd)
+            R[i] = plant_step(s, acc, out, vp, pp, row, sd[SD_SET], sd[SD_DP], work)
+            K[i] = k + 1
+            fill_obs(obs, out, pp, k + 1, sd[SD_SET])
+            S[i] = s
+            ACC[i] = acc
+            OUT[i] = out
+            OBS[i] = obs
+            SD[i, SD_SET] = sd[SD_SET]
+            SD[i, SD_DP] = sd[SD_DP]
+        INFO[0, i] = OUT[i, O_X]
+        INFO[1, i] = OUT[i, O_FH]
+        INFO[2, i] = OUT[i, O_TG]
+        INFO[3, i] = OUT[i, O_HEAT_W]
+        INFO[4, i] = OUT[i, O_PUMP_W]
+        INFO[5, i] = K[i] * pp[P_DT]
 
-    First every stepping env's action ``A_IN[i]`` is validated: if one is not
-    finite, nothing changes and its index is returned. Then the actions are
-    clipped into ``A`` (``CLIPPED[i]`` set for a stepping env whose action was
-    outside ``bounds``) and each stepping env takes ``apply_action``,
-    ``plant_step`` and ``fill_obs``, exactly as the single env's ``env_step``.
-    ``INFO`` (6, N) receives the info columns x, F_h, T_g, heat, pump and the
-    time (s). Returns -2 if some action was clipped, else -1.
 
-    Each env's scenario is run-length encoded: rows ``RV[i, :NRUN[i]]`` start
-    at step indices ``RK[i, :NRUN[i]]`` (``RK[i, 0] == 0``); ``CUR[i]`` is the
-    run in force, which only moves forward within an episode.
+@njit(cache=True)
+def check_actions(A_IN, bounds, A, CLIPPED, STEP):
+    """Validate and clip the batched actions (as ``env_step`` does for one env).
+
+    If a stepping env's action ``A_IN[i]`` is not finite, nothing changes and
+    ``i`` is returned. Otherwise the actions are clipped into ``A``,
+    ``CLIPPED[i]`` is set for a stepping env whose action was outside
+    ``bounds``, and -2 is returned if some action was clipped, else -1.
     """
-    n = S.shape[0]
+    n = A_IN.shape[0]
     na = A_IN.shape[1]
     for i in range(n):
         if STEP[i]:
@@ -331,31 +370,50 @@ def _env_step_batch(S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_I
         c = c and STEP[i]
         CLIPPED[i] = c
         any_clip = any_clip or c
-    for i in prange(n):
-        if STEP[i]:
-            k = K[i]
-            c = CUR[i]
-            while c + 1 < NRUN[i] and RK[i, c + 1] <= k:
-                c += 1
-            CUR[i] = c
-            row = RV[i, c]
-            apply_action(A[i], mode, row, SD[i])
-            R[i] = plant_step(S[i], ACC[i], OUT[i], vp, pp, row, SD[i, SD_SET], SD[i, SD_DP], WORK[i])
-            K[i] = k + 1
-            fill_obs(OBS[i], OUT[i], pp, k + 1, SD[i, SD_SET])
-        o = OUT[i]
-        INFO[0, i] = o[O_X]
-        INFO[1, i] = o[O_FH]
-        INFO[2, i] = o[O_TG]
-        INFO[3, i] = o[O_HEAT_W]
-        INFO[4, i] = o[O_PUMP_W]
-        INFO[5, i] = K[i] * pp[P_DT]
     return -2 if any_clip else -1
 
 
-# one source, two compilations: threads over envs, and a serial loop for small N
-env_step_batch = njit(cache=True, parallel=True)(_env_step_batch)
-env_step_batch_serial = njit(cache=True)(_env_step_batch)
+@njit(cache=True, parallel=True)
+def env_step_batch(S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP,
+                   nblocks):
+    """``env_step`` over N envs (row i of every array is env i) for the envs
+    with ``STEP[i]``, on numba's threads.
+
+    The actions go through :func:`check_actions` (its return value is
+    returned; nothing is stepped if an action is not finite); then the envs,
+    cut into ``nblocks`` contiguous blocks, each take :func:`_step_block`
+    (``apply_action``, ``plant_step`` and ``fill_obs``, exactly as the single
+    env's ``env_step``). ``INFO`` (6, N) receives the info columns x, F_h, T_g,
+    heat, pump and the time (s).
+
+    Each env's scenario is run-length encoded: rows ``RV[i, :NRUN[i]]`` start
+    at step indices ``RK[i, :NRUN[i]]`` (``RK[i, 0] == 0``); ``CUR[i]`` is the
+    run in force, which only moves forward within an episode.
+
+    A block works on its own copies of each env's rows: views of the shared
+    arrays taken per env update the shared arrays' reference counts atomically
+    from every thread, which cost more than the physics (threads gave 1.0x).
+    """
+    status = check_actions(A_IN, bounds, A, CLIPPED, STEP)
+    if status >= 0:
+        return status
+    n = S.shape[0]
+    block = (n + nblocks - 1) // nblocks
+    for b in prange(nblocks):
+        _step_block(b * block, min(n, (b + 1) * block), S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A,
+                    mode, SD, STEP)
+    return status
+
+
+@njit(cache=True)
+def env_step_batch_serial(S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD,
+                          STEP):
+    """:func:`env_step_batch` in one serial loop (no thread pool: for small N)."""
+    status = check_actions(A_IN, bounds, A, CLIPPED, STEP)
+    if status >= 0:
+        return status
+    _step_block(0, S.shape[0], S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP)
+    return status
 
 
 def reset_outputs(out: np.ndarray, s: np.ndarray, pp: np.ndarray, scen0: np.ndarray, setting: float, dp: float) -> None:

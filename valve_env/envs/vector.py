@@ -41,6 +41,7 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import gymnasium as gym
+import numba
 import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -84,6 +85,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     mode: ClassVar[Mode] = "setting"
     #: from this many envs on, the kernel runs on numba's threads (below, one serial loop)
     parallel_threshold: ClassVar[int] = 64
+    block_size: ClassVar[int] = 64
     _SCEN_CAPACITY: ClassVar[int] = 128
 
     def __init__(
@@ -131,7 +133,6 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._R = np.zeros(n)
         self._K = np.zeros(n, np.int64)
         self._SD = np.zeros((n, 2))
-        self._WORK = np.zeros((n, 3, nl))
         self._CUR = np.zeros(n, np.int64)
         self._NRUN = np.ones(n, np.int64)
         self._RK = np.zeros((n, self._SCEN_CAPACITY), np.int64)
@@ -214,12 +215,18 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         stepping = ~resetting if any_reset else self._all_envs
         A_in = A_in.reshape(n, adim)
         clipped = self._clipped
-        kernel = sim.env_step_batch if n >= self.parallel_threshold else sim.env_step_batch_serial
-        bad = kernel(
+        args = (
             self._S, self._ACC, self._OUT, self._OBS, self._R, self._INFO, self._vp, self._pp, self._RK, self._RV,
             self._CUR, self._NRUN, self._K, A_in, self._bounds, self._A, clipped, self._mode_code, self._SD,
-            stepping, self._WORK,
+            stepping,
         )
+        if n >= self.parallel_threshold:
+            # blocks of ``block_size`` envs handed out to the threads one at a
+            # time (dynamic scheduling): a thread the OS parks does not hold up the step
+            with numba.parallel_chunksize(1):
+                bad = sim.env_step_batch(*args, -(-n // self.block_size))
+        else:
+            bad = sim.env_step_batch_serial(*args)
         if bad >= 0:
             raise ValueError(f"action must be finite, got {A_in[bad].tolist()} for env {bad}")
         truncated = self._K >= self._limit

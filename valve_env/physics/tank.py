@@ -100,12 +100,20 @@ def buoyancy_mix(T, work_sum, work_cnt):
     the same length as ``T``. Returns the number of layers that were mixed.
     """
     n = T.shape[0]
+    stable = True
+    for j in range(n - 1):
+        if T[j] > T[j + 1]:
+            stable = False
+            break
+    if stable:
+        return 0
     nb = 0
     for j in range(n):
         work_sum[nb] = T[j]
         work_cnt[nb] = 1.0
         nb += 1
-        while nb > 1 and work_sum[nb - 2] / work_cnt[nb - 2] > work_sum[nb - 1] / work_cnt[nb - 1]:
+        # block means compared by cross-multiplication (sum_a / n_a > sum_b / n_b)
+        while nb > 1 and work_sum[nb - 2] * work_cnt[nb - 1] > work_sum[nb - 1] * work_cnt[nb - 2]:
             work_sum[nb - 2] += work_sum[nb - 1]
             work_cnt[nb - 2] += work_cnt[nb - 1]
             nb -= 1

@@ -40,12 +40,13 @@ from valve_env.params import (
 MBAR_TO_MPA = 1.0e-4
 BAR_TO_MPA = 0.1
 KELVIN = 273.15
+LN10 = 2.302585092994046  # 10**y = exp(LN10 y), cheaper than pow
 
 
 @register_jitable
 def vapour_pressure(T_C, vp):
     """Bellows charge pressure p_b(T) in MPa (Antoine: log10(p/bar) = A - B/(T/K + C))."""
-    return BAR_TO_MPA * np.power(10.0, vp[I_ANT_A] - vp[I_ANT_B] / (T_C + KELVIN + vp[I_ANT_C]))
+    return BAR_TO_MPA * np.exp(LN10 * (vp[I_ANT_A] - vp[I_ANT_B] / (T_C + KELVIN + vp[I_ANT_C])))
 
 
 @register_jitable
