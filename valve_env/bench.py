@@ -55,6 +55,7 @@ ENV_ID = "ThermoValve-v0"
 SIZES: tuple[int, ...] = (1, 16, 64, 256, 1024, 4096, 16384)
 QUICK_SIZES: tuple[int, ...] = (1, 16, 256, 1024, 4096)
 YEAR_DAYS = 365
+ENV_STEPS_PER_DAY = 2880  # 24 h at the 30 s control step
 #: measure the start-up of a fresh interpreter (cached, and compiling in full runs)
 MEASURE_STARTUP = True
 SYNC_SIZES: tuple[int, ...] = (1, 16, 64, 1024)
@@ -92,6 +93,7 @@ def machine() -> dict[str, Any]:
         "cores_available": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "numba_threads": numba.get_num_threads(),
         "numba_threading_layer": _threading_layer(),
+        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "unset"),
         "load_average_1_5_15min": load,
         "platform": platform.platform(),
         "python": platform.python_version(),
@@ -352,7 +354,9 @@ def bench_evidence(quick: bool) -> dict[str, Any]:
         "serial_ns_per_env_step": 1e9 / rates["serial"],
         "ratio": rates["threads"] / rates["serial"],
     }
-    # 4. numba's on-disk cache: a fresh interpreter building and stepping an env
+    # 4. the sub-steps: the default 3 against a fine reference
+    ev["substeps"] = bench_substeps()
+    # 5. numba's on-disk cache: a fresh interpreter building and stepping an env
     code = (
         "import time; t=time.perf_counter(); import gymnasium as gym, valve_env; "
         "e=gym.make('ThermoValve-v0'); e.reset(seed=0); e.step(e.action_space.sample()); "
@@ -369,6 +373,38 @@ def bench_evidence(quick: bool) -> dict[str, Any]:
         with tempfile.TemporaryDirectory() as tmp:
             ev["startup_s"]["compiled_without_cache"] = _startup(code, tmp)
     return ev
+
+
+def bench_substeps(n_subs: tuple[int, ...] = (1, 3, 10), ref: int = 60) -> list[dict[str, Any]]:
+    """Discretisation error of the plant's sub-steps (``control.n_sub``) against a
+    fine reference: one default day (seed 0) at a fixed setting of 60 degC."""
+    runs: dict[int, tuple[np.ndarray, dict[str, float], float]] = {}
+    for n_sub in (*n_subs, ref):
+        env = gym.make(ENV_ID, control={"n_sub": n_sub})
+        env.reset(seed=0)
+        a = np.array([60.0], np.float32)
+        T_top = np.empty(ENV_STEPS_PER_DAY)
+        t0 = time.perf_counter()
+        for k in range(ENV_STEPS_PER_DAY):
+            obs, _, _, _, info = env.step(a)
+            T_top[k] = obs[0]
+        runs[n_sub] = (T_top, info["kpis"], time.perf_counter() - t0)
+        env.close()
+    T_ref, k_ref, _ = runs[ref]
+    return [
+        {
+            "n_sub": n,
+            "reference_n_sub": ref,
+            "max_abs_dT_top_K": float(np.max(np.abs(T - T_ref))),
+            "rms_dT_top_K": float(np.sqrt(np.mean((T - T_ref) ** 2))),
+            "heat_rel_error": abs(kp["heat_kWh"] - k_ref["heat_kWh"]) / k_ref["heat_kWh"],
+            "rmse_K": kp["rmse_K"],
+            "rmse_K_reference": k_ref["rmse_K"],
+            "day_s": secs,
+        }
+        for n, (T, kp, secs) in runs.items()
+        if n != ref
+    ]
 
 
 @njit(cache=True)
@@ -495,7 +531,8 @@ def markdown(res: dict[str, Any]) -> str:
     m = res["machine"]
     lines = [
         f"Machine: {m['cpu']}, {m['cores_available']} cores available (numba threads {m['numba_threads']}, "
-        f"{m['numba_threading_layer']}), load average {', '.join(f'{v:.1f}' for v in m['load_average_1_5_15min'])}; "
+        f"{m['numba_threading_layer']}, OMP_WAIT_POLICY {m.get('omp_wait_policy', 'unset')}), "
+        f"load average {', '.join(f'{v:.1f}' for v in m['load_average_1_5_15min'])}; "
         f"Python {m['python']}, NumPy {m['numpy']}, numba {m['numba']}, gymnasium {m['gymnasium']}"
         + (" (--quick)" if res["quick"] else ""),
         "",
@@ -557,6 +594,14 @@ def markdown(res: dict[str, Any]) -> str:
         f"| whole batched step at N = {th['num_envs']}, serial loop, ns/env-step | "
         f"{_fmt(th['serial_ns_per_env_step'])} |",
         f"| threads / serial at N = {th['num_envs']} | {_fmt(th['ratio'])} |",
+    ]
+    for v in ev.get("substeps", []):
+        lines.append(
+            f"| n_sub = {v['n_sub']} vs {v['reference_n_sub']} over a day (fixed setting 60 degC): "
+            f"max / rms error of T_top, K; heat error | {_fmt(v['max_abs_dT_top_K'])} / {_fmt(v['rms_dT_top_K'])}; "
+            f"{100 * v['heat_rel_error']:.2f} % |"
+        )
+    lines += [
         f"| start-up (import, make, reset, step; single and N = 64), cached, s | {_fmt(st['cached'])} |",
         f"| start-up, compiling (empty NUMBA_CACHE_DIR), s | {_fmt(st.get('compiled_without_cache'))} |",
     ]

@@ -100,15 +100,18 @@ def buoyancy_mix(T, work_sum, work_cnt):
     the same length as ``T``. Returns the number of layers that were mixed.
     """
     n = T.shape[0]
-    stable = True
+    j0 = -1  # the lowest inversion; below it the profile is already stable
     for j in range(n - 1):
         if T[j] > T[j + 1]:
-            stable = False
+            j0 = j
             break
-    if stable:
+    if j0 < 0:
         return 0
-    nb = 0
-    for j in range(n):
+    for j in range(j0):
+        work_sum[j] = T[j]
+        work_cnt[j] = 1.0
+    nb = j0
+    for j in range(j0, n):
         work_sum[nb] = T[j]
         work_cnt[nb] = 1.0
         nb += 1
