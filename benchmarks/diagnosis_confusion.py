@@ -82,7 +82,7 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
                              effects=case["effects"] or None, T_noise_C=case["T_noise_C"],
                              x_noise_mm=case["x_noise_mm"], jitter=case["jitter"])
     t0 = time.perf_counter()
-    d = diagnose(df)
+    d = diagnose(df, bootstrap_B=int(case.get("bootstrap_B", 16)))
     out = dict(case)
     out.update({"cause": d.cause, "selected": d.selected, "seconds": time.perf_counter() - t0, "n": len(df)})
     if d.cause != "none":
@@ -208,12 +208,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default="docs/diagnosis_confusion.md")
     ap.add_argument("--json", default="", help="also write every run as JSON here")
+    ap.add_argument("--bootstrap", type=int, default=16,
+                    help="bootstrap replicates for the named effects' sd (0: Hessian/HAC sd; the names do not "
+                    "depend on it)")
     a = ap.parse_args(argv)
     cases = make_cases(a.runs, a.seed)
+    for c in cases:
+        c["bootstrap_B"] = a.bootstrap
     t0 = time.perf_counter()
     results = run_study(cases, a.workers)
     c = confusion(results)
     cmd = f"python benchmarks/diagnosis_confusion.py --runs {a.runs} --seed {a.seed} --workers {a.workers}"
+    if a.bootstrap != 16:
+        cmd += f" --bootstrap {a.bootstrap}"
     md = markdown(c, cmd, results)
     print(md)
     print(f"total {time.perf_counter() - t0:.0f} s")

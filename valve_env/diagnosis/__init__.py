@@ -8,6 +8,8 @@ Public API (imported lazily, so that ``thermovalve`` starts fast):
 * :func:`write_report` (markdown + PNG figures)
 * :data:`EFFECTS` (the effect library), :func:`effect_model` (the effects as SDE models for the estimator)
 * :func:`run_bench` (speed of a 24 h diagnosis)
+* :func:`bootstrap` (the parametric bootstrap behind the named effects' sd), :func:`jump_band`
+  (stiction's band from the jumps of the opening)
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ _LAZY = {
     "EFFECTS": "valve_env.diagnosis.effects",
     "effect_model": "valve_env.diagnosis.sde_effects",
     "run_bench": "valve_env.diagnosis.bench",
+    "bootstrap": "valve_env.diagnosis.uncertainty",
+    "jump_band": "valve_env.diagnosis.stiction",
 }
 
 __all__ = sorted(_LAZY)

@@ -41,6 +41,9 @@ def register(subparsers: Any) -> None:
     d.add_argument("--report", default=None, metavar="REPORT.md",
                    help="the human report (default: beside OUT.json, OUT.md with PNG figures)")
     d.add_argument("--no-report", action="store_true", help="write the JSON only")
+    d.add_argument("--bootstrap", type=int, default=16, metavar="B",
+                   help="parametric-bootstrap replicates for the named effects' sd (0: inverse Hessian/HAC, "
+                   "faster but optimistic)")
     d.set_defaults(func=_cmd_diagnose)
 
     e = subparsers.add_parser(
@@ -111,12 +114,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         return _fail(f"--holdout must be in [0.05, 0.5], got {args.holdout}")
     if not 0 < args.alpha < 0.5:
         return _fail(f"--alpha must be in (0, 0.5), got {args.alpha}")
+    if args.bootstrap < 0:
+        return _fail(f"--bootstrap must be >= 0, got {args.bootstrap}")
     effects = None
     if args.effects:
         effects = [s.strip() for s in args.effects.split(",") if s.strip()]
     try:
         result = diagnose_files(args.run, validate=args.validate, holdout=args.holdout, alpha=args.alpha,
-                                effects=effects)
+                                effects=effects, bootstrap_B=args.bootstrap)
     except DiagnosisError as exc:
         return _fail(str(exc))
     except MemoryError:

@@ -181,6 +181,9 @@ class Finding:
     validated: bool = False
     relevant: bool = False
     effect_size_mm: float = 0.0
+    #: how the effect parameters' std were obtained, and the bootstrap's details where it ran
+    std_method: str = "inverse Hessian / HAC sandwich (not calibrated)"
+    uncertainty: dict[str, Any] | None = None
 
     @property
     def accepted(self) -> bool:
@@ -209,6 +212,8 @@ class Finding:
             "relevant": bool(self.relevant),
             "effect_size_mm": float(self.effect_size_mm),
             "on_top_of": list(self.reference),
+            "std_method": self.std_method,
+            "uncertainty": self.uncertainty,
             "all_params": {k: float(v) for k, v in self.fit.params.items()},
             "all_std": {k: float(v) for k, v in self.fit.std.items()},
         }
@@ -373,6 +378,20 @@ def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[
     return refit if refit.loglik > base.loglik else None
 
 
+def _bootstrap_finding(f: Finding, train: RunData, valve: ValveParams, B: int) -> None:
+    """Replace the effect parameters' std of an accepted finding by the parametric bootstrap's."""
+    from valve_env.diagnosis.uncertainty import METHOD, bootstrap
+
+    model = Model(f.fit.effects, valve)
+    b = bootstrap(model, train, f.fit, B=B)
+    f.fit.extra.update({f"hessian_std_{k}": float(f.fit.std.get(k, float("nan"))) for k in b.names})
+    for k, v in b.std.items():
+        f.fit.std[k] = v
+        f.fit.params[k] = b.corrected[k]
+    f.std_method = f"{METHOD} (B={B}; bias-corrected where the bias is clear, else RMS error of the re-estimates)"
+    f.uncertainty = {**b.to_json(), "hessian_std": {k: f.fit.extra[f"hessian_std_{k}"] for k in b.names}}
+
+
 def effect_size(model: Model, data: RunData, values: dict[str, float], effect: str) -> float:
     """How much the effect moves the simulated opening: RMS (mm) of the difference between the
     simulation with the fitted effect and with the effect switched off (everything else equal)."""
@@ -385,7 +404,7 @@ def effect_size(model: Model, data: RunData, values: dict[str, float], effect: s
 def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout: float = 0.25,
              alpha: float = 0.001, effects: list[str] | tuple[str, ...] | None = None,
              valve: ValveParams | None = None, max_effects: int = 2, min_validation_gain: float = 2.0,
-             min_effect_size: float = 1.0, name: str = "run") -> Diagnosis:
+             min_effect_size: float = 1.0, name: str = "run", bootstrap_B: int = 16) -> Diagnosis:
     """Diagnose a measured run (a DataFrame with SPEC section 2 columns). See the module docstring.
 
     ``validate``: an independent run for validation (else the last ``holdout`` fraction of ``df``
@@ -395,7 +414,8 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
     must bring to count as real. ``min_effect_size``: the RMS change of the simulated opening the
     effect must make, in units of the measurement noise sd, to count as relevant (a statistically
     significant but physically negligible effect, such as a lag of a fraction of the sampling
-    interval, is an artefact of the data processing rather than a cause)."""
+    interval, is an artefact of the data processing rather than a cause). ``bootstrap_B``: replicates
+    of the parametric bootstrap that gives the named effects' std (0: keep the Hessian/HAC std)."""
     t0 = time.perf_counter()
     valve = valve if valve is not None else ValveParams()
     cands = check_effects(list(effects) if effects else list(EFFECTS))
@@ -461,12 +481,20 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         ref_fit = best.fit
         ref_val = (best.validation_rms_after_mm, ref_val[1] + best.validation_loglik_gain,
                    best.validation_sim_rms_after_mm)
+    # honest uncertainty of the named effects: a parametric bootstrap of the whole chain (smoothing
+    # of the temperatures included), see valve_env.diagnosis.uncertainty
+    if bootstrap_B > 0:
+        for step in steps:
+            best = step[0]
+            if best.accepted:
+                _bootstrap_finding(best, train, valve, bootstrap_B)
     final = ref_fit
     final_val = ref_val[0]
     diagnostics = residual_diagnostics(base_model, train, base)
     settings = {"validation": mode, "alpha": alpha, "holdout": holdout if validate is None else None,
                 "candidates": list(cands), "min_validation_gain": min_validation_gain,
                 "min_effect_size_noise_sd": min_effect_size,
+                "bootstrap_replicates": bootstrap_B,
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
     return Diagnosis(

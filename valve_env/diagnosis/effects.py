@@ -14,11 +14,10 @@ mixture of chi-square(0) and chi-square(1), Self and Liang 1987).
 | stiction | static friction: the resting stem sticks until the demand is band_mm away, then slips | band_mm | 0 |
 | setpoint_drift | charge ageing: p_b,set(t) = p_b,set + rate t (t in h from the start) | rate_MPa_per_h | 0 (2-sided) |
 
-Stiction is formulated for the simulation (output-error) likelihood of the
-diagnosis, which is what makes it filter friendly: the stuck stem is a
-deterministic function of the demanded opening, so no filter has to track a
-discontinuous state, and the likelihood's roughness in ``band_mm`` is handled
-by profiling it over a grid (see :mod:`valve_env.diagnosis.fitting`). The same
+Stiction's likelihood is that of a stick-slip filter
+(:func:`valve_env.diagnosis.engine.stick_loglik`); it is rough in ``band_mm``,
+so the band itself is measured from the jumps of the opening
+(:mod:`valve_env.diagnosis.stiction`) and the likelihood serves the test. The same
 effects are available as continuous-discrete SDE models for the estimator in
 :mod:`valve_env.diagnosis.sde_effects`.
 

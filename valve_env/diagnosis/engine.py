@@ -40,7 +40,9 @@ _demanded_opening = njit(cache=True)(phys.demanded_opening)
 LOG2PI = math.log(2.0 * math.pi)
 SQRT2 = math.sqrt(2.0)
 #: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
-BAND_SPREAD = 0.25
+BAND_SPREAD = 0.5
+#: sd of the landing position after a slip relative to the band (the demand moves during the slip)
+LANDING_SD = 0.5
 
 
 # --------------------------------------------------------------------------- 1. latent temperatures
@@ -446,34 +448,54 @@ def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float
 
 
 @njit(cache=True)
+def _band_cdf(x: float, band: float, sd: float) -> float:
+    """P(breakaway band <= x) for a band ~ N(band, sd^2)."""
+    if sd <= 0.0:
+        return 1.0 if x >= band else 0.0
+    return 0.5 * (1.0 + math.erf((x - band) / (sd * SQRT2)))
+
+
+@njit(cache=True)
 def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.ndarray, band: float,
                  stroke: float, s_w: float, s_e: float, tau_e: float,
-                 mask: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+                 mask: np.ndarray, spread: float = BAND_SPREAD,
+                 landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
     States: the stem position ``s`` and the model error ``e`` (Ornstein-Uhlenbeck, as in
     :func:`ou_loglik`); observation ``y = s + e + w``. Between samples the stem follows the
     stick-slip rule on the sub-step grid, starting from the filter's estimate of ``s``: where the
-    demanded opening is ``band`` away it slips to it, landing with an uncertainty of band / 2 (sd);
-    where it sticks, ``s`` is unchanged and the measurements pin it down. The breakaway band itself
-    varies (sd ``BAND_SPREAD * band``) and the stem position is uncertain, so the filter slips with
-    the probability that the distance exceeds the band and moment-matches the two outcomes (a
-    first-order generalised pseudo-Bayes filter); this also makes the likelihood continuous in
-    ``band``. Because the resting
-    position is estimated from the data rather than simulated open loop, a small error in the
-    demand does not put the simulated and the measured staircases out of step. With ``band = 0``
-    the stem always slips onto the demand with no uncertainty and the likelihood is exactly that of
-    :func:`ou_loglik` on ``y - x`` (the base model): the models are nested."""
+    demanded opening is ``band`` away it slips to it, landing with an uncertainty of
+    ``landing * band`` (sd); where it sticks, ``s`` is unchanged and the measurements pin it down.
+    The breakaway band itself varies (sd ``spread * band``) and the stem position is
+    uncertain, so the filter slips with the probability of breakaway *in this sub-step* and
+    moment-matches the two outcomes (a first-order generalised pseudo-Bayes filter); this also makes
+    the likelihood continuous in ``band``.
+
+    The breakaway probability is a first-passage hazard: a stem that has stuck while the demand
+    was ``dmax`` away has a band larger than ``dmax``, so it slips in this sub-step with
+    probability ``(F(|d|) - F(dmax)) / (1 - F(dmax))`` (F the distribution of the band), and not at
+    all while ``|d|`` stays below ``dmax``. Applying ``F(|d|)`` afresh in every sub-step, as an
+    earlier version did, lets the filter's stem creep towards the demand before the band is
+    reached; the fitted band then came out up to 2.5 times too large on exact stick-slip data.
+    ``dmax`` restarts after a slip and after a measurement that moves the stem estimate towards the
+    demand.
+
+    Because the resting position is estimated from the data rather than simulated open loop, a
+    small error in the demand does not put the simulated and the measured staircases out of step.
+    With ``band = 0`` the stem always slips onto the demand with no uncertainty and the likelihood
+    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested."""
     n = t.shape[0]
     ve = s_e * s_e
     vw = s_w * s_w
-    vl = 0.25 * band * band
-    vb = (BAND_SPREAD * band) ** 2
+    vl = (landing * band) ** 2
+    vb = (spread * band) ** 2
     me = 0.0
     ms = x_sub[0]
     Pee = ve
     Pes = 0.0
     Pss = 0.0
+    dmax = 0.0
     ll = 0.0
     innov = np.empty(n)
     Sout = np.empty(n)
@@ -489,18 +511,24 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     ms = xd
                     Pss = 0.0
                     Pes = 0.0
+                    dmax = 0.0
                     continue
                 d = xd - ms
+                ad = abs(d)
+                if ad <= dmax:
+                    continue  # stuck before at this distance: the band is larger
                 sd = math.sqrt(vb + Pss)
-                if sd <= 0.0:
-                    pi = 1.0 if abs(d) >= band else 0.0
-                else:
-                    pi = 0.5 * (1.0 + math.erf((abs(d) - band) / (sd * SQRT2)))
+                F0 = _band_cdf(dmax, band, sd)
+                F1 = _band_cdf(ad, band, sd)
+                pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
+                dmax = ad
                 if pi > 1e-12:
                     # moment-matched mixture of "stuck" and "slipped to the demand"
                     ms = ms + pi * d
                     Pss = (1.0 - pi) * Pss + pi * vl + pi * (1.0 - pi) * d * d
                     Pes = (1.0 - pi) * Pes
+                    if pi >= 0.5:
+                        dmax = abs(xd - ms)
         S = Pee + 2.0 * Pes + Pss + vw
         nu = y[k] - ms - me
         innov[k] = nu
@@ -515,4 +543,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             nPes = Pes - ke * (Pes + Pss)
             nPss = Pss - ks * (Pes + Pss)
             Pee, Pes, Pss = nPee, nPes, nPss
+            dk = abs(x_sub[sub_idx[k]] - ms)
+            if dk < dmax:
+                dmax = dk
     return ll, innov, Sout

@@ -5,10 +5,14 @@ simulated from the latent (smoothed) temperatures, and the residual of the
 measured opening is an Ornstein-Uhlenbeck model error plus white noise. Free
 parameters: the paper's Table 4 (``sigma``, ``F_hmax``, ``p_bset``), the
 noise (``s_w``, ``s_e``, ``tau_e``) and the parameters of the effects
-switched on. Standard deviations come from the inverse of the numerical
-Hessian (delta method to the natural scale); for a parameter whose
-likelihood is rough (``band_mm``) from the curvature of its profile
-likelihood.
+switched on. Stiction's band is not fitted by the optimiser: its likelihood
+is rough and trades off against F_hmax, so it is measured from the jumps of
+the opening (:mod:`valve_env.diagnosis.stiction`) and held while the rest is
+fitted. Standard deviations here are the larger of the inverse-Hessian and
+the HAC-sandwich ones (delta method to the natural scale); they ignore the
+smoothing error of the temperatures and are optimistic, so the diagnosis
+replaces them for the named effects by a parametric bootstrap
+(:mod:`valve_env.diagnosis.uncertainty`).
 """
 
 from __future__ import annotations
@@ -22,12 +26,15 @@ from scipy.optimize import least_squares, minimize
 
 from valve_env.diagnosis.effects import EFFECTS, ENGINE_INDEX, EffectParameter
 from valve_env.diagnosis.engine import (
+    BAND_SPREAD,
+    LANDING_SD,
     ou_loglik,
     simulate_valve,
     smooth_temperature,
     stick_loglik,
     stick_simulate,
 )
+from valve_env.diagnosis.stiction import jump_band
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
 
 #: (name, unit, lower, upper) of the base and noise parameters, all on a log scale.
@@ -117,6 +124,9 @@ class Model:
         self.eff_params = [p for e in self.effects for p in EFFECTS[e].parameters]
         self.names = [n for n, *_ in BASE_PARAMS] + [p.name for p in self.eff_params] + [n for n, *_ in NOISE_PARAMS]
         self._vp = self.valve.to_array()
+        #: the stick-slip filter's breakaway spread and landing sd, relative to the band
+        self.band_spread = BAND_SPREAD
+        self.landing_sd = LANDING_SD
 
     # --- the work (optimiser) scale ---------------------------------------------------
     def _spec(self, name: str) -> tuple[str, float, float, float]:
@@ -197,7 +207,8 @@ class Model:
             mask = np.ones(len(data), dtype=np.bool_)
         if stuck:
             return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),
-                                values["s_w"], values["s_e"], values["tau_e"], mask)
+                                values["s_w"], values["s_e"], values["tau_e"], mask, self.band_spread,
+                                self.landing_sd)
         return ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
 
     def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None) -> float:
@@ -234,13 +245,21 @@ class Model:
         """Maximum likelihood from ``start`` (defaults: paper values), keeping ``fixed`` parameters fixed.
 
         Each effect parameter is first scanned over a grid with the other parameters at ``start`` (a
-        robust start: the likelihood can be far from quadratic away from the optimum). A parameter
-        with ``log_grid`` (stiction's band, whose likelihood is rough) is then refined by
-        golden-section search on the log scale alternating with fits of the other parameters, and its
-        standard deviation comes from the curvature of that profile."""
+        robust start: the likelihood can be far from quadratic away from the optimum). Stiction's band
+        is measured from the jumps of the opening (:func:`valve_env.diagnosis.stiction.jump_band`) and
+        held fixed; only where the record has too few jumps is it fitted, by a 1-D profile search
+        alternating with fits of the other parameters (:meth:`_coordinate_ascent`)."""
         cold = start is None
         start = {**self.default_start(data), **(start or {})}
         fixed = dict(fixed or {})
+        # stiction's band is measured from the staircase of the opening (valve_env.diagnosis.stiction):
+        # its likelihood is rough and trades the band off against F_hmax, which traps a joint fit
+        for p in self.eff_params:
+            if p.log_grid and p.name not in fixed and p.name == "band_mm":
+                b, _ = jump_band(data.x, float(self.valve.stroke))
+                if math.isfinite(b) and b > 0:
+                    fixed[p.name] = min(max(b, p.lower), p.upper)
+                    start[p.name] = fixed[p.name]
         if cold:
             # stage 1, from the paper's values: least squares of the simulation error, so that the slowly
             # varying model error cannot absorb a wrong set point or friction and trap the fit (e.g. a
@@ -258,6 +277,7 @@ class Model:
             if p.name not in fixed:
                 start[p.name] = self._scan(data, start, p)
         fit = self._fit_smooth(data, start, fixed, maxiter, False)
+        fit = self._coordinate_ascent(data, fit, fixed, maxiter)
         # a second look: scan each effect parameter again around the fit (the first scan saw the
         # effect against base parameters that had absorbed part of it); refit where it helps
         for _ in range(2):
@@ -287,6 +307,49 @@ class Model:
                 break
         if with_std:
             fit = self._fit_smooth(data, fit.params, fixed, 50, True)
+        return fit
+
+    def profile_1d(self, data: RunData, values: dict[str, float], name: str, centre: float,
+                   lo: float = 0.4, hi: float = 2.5, n: int = 25) -> tuple[float, float]:
+        """Maximise the log-likelihood in one parameter, the others held: a log grid from ``lo`` to
+        ``hi`` times ``centre``, refined once on a finer grid around the best point. Returns (value,
+        log-likelihood)."""
+        c = max(float(centre), 1e-6)
+        grid = c * np.geomspace(lo, hi, n)
+        lls = np.array([self.loglik(data, {**values, name: float(g)}) for g in grid])
+        i = int(np.argmax(lls))
+        a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+        fine = np.geomspace(a, b, 9)
+        llf = np.array([self.loglik(data, {**values, name: float(g)}) for g in fine])
+        j = int(np.argmax(llf))
+        return (float(fine[j]), float(llf[j])) if llf[j] >= lls[i] else (float(grid[i]), float(lls[i]))
+
+    def _coordinate_ascent(self, data: RunData, fit: FitResult, fixed: dict[str, float], maxiter: int,
+                           rounds: int = 6) -> FitResult:
+        """For parameters with a rough likelihood (``log_grid``: stiction's band), which L-BFGS-B cannot
+        move: alternate a 1-D profile search of each with an L-BFGS-B fit of the others (the band
+        trades off against the Dahl friction's F_hmax, so one profile step is not enough)."""
+        rough = [p for p in self.eff_params if p.log_grid and p.name not in fixed]
+        if not rough:
+            return fit
+        for _ in range(rounds):
+            vals = dict(fit.params)
+            moved = False
+            for p in rough:
+                c = float(vals[p.name])
+                if c <= 0.0:
+                    continue
+                b, ll = self.profile_1d(data, vals, p.name, c)
+                if abs(b / c - 1.0) > 0.005:
+                    vals[p.name] = b
+                    moved = True
+            if not moved:
+                break
+            again = self._fit_smooth(data, vals, {**fixed, **{p.name: vals[p.name] for p in rough}}, maxiter,
+                                     False)
+            if again.loglik <= fit.loglik + 0.05:
+                break
+            fit = again
         return fit
 
     def _least_squares(self, data: RunData, start: dict[str, float], fixed: dict[str, float],

@@ -162,8 +162,21 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
         eff = EFFECTS[d.cause]
         pars = ", ".join(f"{k} = {_fmt(v)} ± {_fmt(f.fit.std.get(k, float('nan')))} {UNITS.get(k, '')}"
                          for k, v in f.fit.effect_params.items())
-        L += [f"**Cause: `{d.cause}`** ({eff.title}): {pars}.", "",
-              f"*Physics:* {eff.physics}", "",
+        L += [f"**Cause: `{d.cause}`** ({eff.title}): {pars}.", ""]
+        u = f.uncertainty or {}
+        if u:
+            ci = "; ".join(f"{k} {_fmt(a)} .. {_fmt(b)}" for k, (a, b) in u.get("interval_95", {}).items())
+            corr = u.get("bias_corrected", {})
+            bias = ", ".join(f"{k} {_fmt(v)}{' (corrected)' if corr.get(k) else ''}"
+                             for k, v in u.get("bias", {}).items())
+            hess = ", ".join(f"{k} {_fmt(v)}" for k, v in u.get("hessian_std", {}).items())
+            L += [f"*Uncertainty ({f.std_method}):* the ± is one sd from re-estimating the model on "
+                  f"{u.get('replicates', 0)} runs simulated from the fit with the fitted noise (temperature "
+                  f"smoothing included); bias of the re-estimates {bias}; basic bootstrap 95 % interval {ci}; "
+                  f"for comparison the inverse-Hessian/HAC sd {hess}.", ""]
+        else:
+            L += [f"*Uncertainty:* {f.std_method}.", ""]
+        L += [f"*Physics:* {eff.physics}", "",
               f"*Evidence:* likelihood ratio {f.lr_stat:.1f} (p = {f.p_value:.2g}), delta AIC = "
               f"{f.delta_aic:.1f}, delta BIC = {f.delta_bic:.1f}; on data not used for fitting "
               f"({d.settings['validation']}) the one-step RMS goes from {f.validation_rms_before_mm * 1e3:.2f} "

@@ -1,0 +1,133 @@
+"""Honest uncertainty of the named effect's parameters (issue 6): the stick band estimator, the
+stick-slip filter's bias, and the parametric bootstrap. The >= 30-run coverage study is
+benchmarks/diagnosis_coverage.py (slow test below)."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from valve_env.diagnosis.diagnose import check_run, prepare
+from valve_env.diagnosis.engine import ou_loglik, simulate_valve, stick_loglik, stick_simulate
+from valve_env.diagnosis.fitting import Model
+from valve_env.diagnosis.stiction import jump_band
+from valve_env.diagnosis.uncertainty import bootstrap
+from valve_env.experiment import simulate_experiment
+from valve_env.params import I_STROKE, ValveParams
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize(("band", "dt", "seed"), [(0.012, 5.0, 1), (0.025, 10.0, 2), (0.035, 30.0, 3)])
+def test_jump_band_recovers_the_band(band: float, dt: float, seed: int) -> None:
+    df = simulate_experiment(seed=600 + seed, duration_h=12.0, dt_s=dt, effects={"stiction": {"band_mm": band}},
+                             x_noise_mm=2e-3)
+    b, n_jumps = jump_band(df["x_mm"].to_numpy(), ValveParams().stroke)
+    assert n_jumps >= 20
+    assert abs(b / band - 1.0) < 0.1, (b, band)
+
+
+def test_jump_band_without_jumps_is_nan() -> None:
+    rng = np.random.default_rng(0)
+    x = 0.5 + 0.002 * rng.standard_normal(500)
+    b, n = jump_band(x, 2.0)
+    assert math.isnan(b) and n < 10
+
+
+def test_stick_filter_nested_and_peaks_at_the_band() -> None:
+    """Exact stick-slip data: the filter's likelihood is maximal near the true band (the first-passage
+    hazard; a filter that re-applied the slip probability every sub-step peaked at 2.5 times the band),
+    and equals the base model's at band 0."""
+    df = simulate_experiment(seed=611, duration_h=8.0, dt_s=10.0, T_noise_C=0.0)
+    d = prepare(check_run(df))
+    m = Model(("stiction",))
+    vals = {"sigma": 6.41, "F_hmax": 1.31, "p_bset": m.valve.p_bset, "band_mm": 0.03, "s_w": 2e-3, "s_e": 2e-3,
+            "tau_e": 300.0}
+    vp, e = m._vectors(vals)
+    e[2] = 0.03
+    x, _, _, xs, idx = simulate_valve(d.t, d.T, d.M, d.dp, d.ps, vp, e, 1.0, m.delta(d, vals), True)
+    rng = np.random.default_rng(1)
+    y = stick_simulate(xs, idx, 0.03, float(vp[I_STROKE])) + 2e-3 * rng.standard_normal(len(d))
+    mask = np.ones(len(d), dtype=np.bool_)
+    fs = np.array([0.7, 0.85, 1.0, 1.15, 1.3, 1.6, 2.0, 2.5])
+    ll = [stick_loglik(d.t, y, xs, idx, 0.03 * f, float(vp[I_STROKE]), 2e-3, 2e-3, 300.0, mask)[0] for f in fs]
+    assert 0.85 <= fs[int(np.argmax(ll))] <= 1.15, dict(zip(fs, np.round(np.array(ll) - max(ll), 1), strict=True))
+    base = ou_loglik(d.t, y - x, 2e-3, 2e-3, 300.0, mask)[0]
+    assert stick_loglik(d.t, y, xs, idx, 0.0, float(vp[I_STROKE]), 2e-3, 2e-3, 300.0, mask)[0] == pytest.approx(base)
+
+
+@pytest.mark.parametrize(("effect", "param", "value", "seed"), [
+    ("sensor_lag", "tau_s", 70.0, 21),
+    ("setpoint_drift", "rate_MPa_per_h", -5e-5, 22),
+    ("stiction", "band_mm", 0.02, 23),
+])
+def test_bootstrap_sd_covers_the_truth(effect: str, param: str, value: float, seed: int) -> None:
+    """A fit and its bootstrap on a short run: the truth lies within 3 reported sd, and the sd is
+    neither zero nor absurdly wide (< 25 % of the value)."""
+    df = simulate_experiment(seed=seed, duration_h=8.0, dt_s=20.0, effects={effect: {param: value}},
+                             T_noise_C=0.008, x_noise_mm=2.5e-3, jitter=0.2)
+    d = prepare(check_run(df))
+    m = Model((effect,))
+    fit = m.fit(d, with_std=False)
+    b = bootstrap(m, d, fit, B=8, seed=seed)
+    est, sd = b.estimate[param], b.std[param]
+    assert 0 < sd < 0.25 * abs(value), (est, sd, value)
+    assert abs(est - value) <= 3 * sd, (est, sd, value)
+
+
+def _study():  # type: ignore[no-untyped-def]
+    path = ROOT / "benchmarks" / "diagnosis_coverage.py"
+    spec = importlib.util.spec_from_file_location("diagnosis_coverage", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["diagnosis_coverage"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+SMOOTH = ("sensor_lag", "medium_temperature", "setpoint_drift")
+
+
+@pytest.fixture(scope="module")
+def coverage_303() -> dict:  # type: ignore[type-arg]
+    study = _study()
+    results = study.run_study(study.make_cases(40, seed=303), workers=2, progress=False)
+    return study.coverage(results)  # type: ignore[no-any-return]
+
+
+@pytest.mark.slow
+def test_coverage_study_targets(coverage_303: dict) -> None:  # type: ignore[type-arg]
+    """40 runs (10 per effect) on seed 303, which was not looked at while developing the method.
+
+    Pooled over the named runs of the smooth effects (30), the true parameter lies within 1 reported
+    sd in >= 60 % and within 2 sd in >= 90 % of them (the targets). Per effect, 10 runs cannot
+    resolve 90 %: with honest sd a run falls outside 2 sd with probability 0.046, so asking 9/10
+    per effect would fail an honest method in 7 % of studies per effect. The per-effect bounds
+    allow for that sampling error (binomial, about 2-3 % false alarms each): >= 50 % within 1 sd,
+    >= 80 % within 2 sd, a mean z within 3 of its standard errors (no bias beyond the sd), and each
+    effect named in >= 8 of 10."""
+    c = coverage_303
+    per = c["per_effect"]
+    n = sum(per[e]["n"] for e in SMOOTH)
+    w1 = sum(per[e]["within_1sd"] * per[e]["n"] for e in SMOOTH) / n
+    w2 = sum(per[e]["within_2sd"] * per[e]["n"] for e in SMOOTH) / n
+    assert n >= 27 and w1 >= 0.60 and w2 >= 0.90, per
+    for e, v in per.items():
+        assert v["named"] >= 8, (e, v)
+        if e in SMOOTH:
+            assert v["within_1sd"] >= 0.50, (e, v)
+            assert v["within_2sd"] >= 0.80, (e, v)
+            assert abs(v["mean_z"]) <= 3 * v["bias_se_z"], (e, v)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="stiction's band sd is about 1.7 times too small on the held-out seed 303 "
+                   "(40 % within 1 sd, 70 % within 2 sd; docs/diagnosis.md, known limits)")
+def test_coverage_study_targets_stiction(coverage_303: dict) -> None:  # type: ignore[type-arg]
+    v = coverage_303["per_effect"]["stiction"]
+    assert v["within_1sd"] >= 0.50 and v["within_2sd"] >= 0.80, v
