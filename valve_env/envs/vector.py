@@ -83,8 +83,10 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
 
     metadata: dict[str, Any] = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
     mode: ClassVar[Mode] = "setting"
-    #: from this many envs on, the kernel runs on numba's threads (below, one serial loop)
-    parallel_threshold: ClassVar[int] = 64
+    #: from this many envs on, the kernel runs on numba's threads (below, one serial loop): with
+    #: OpenMP's passive waits (set by ``import valve_env``) waking the threads costs about as much as
+    #: stepping 1024 envs serially on the 2-core machine of docs/speed.md
+    parallel_threshold: ClassVar[int] = 1024
     block_size: ClassVar[int] = 64
     _SCEN_CAPACITY: ClassVar[int] = 128
 
