@@ -24,7 +24,9 @@ from typing import Any
 
 import numpy as np
 
-CLASSES = ("none", "sensor_lag", "medium_temperature", "stiction", "setpoint_drift")
+from valve_env.experiment import STUDY_CLASSES, random_cases
+
+CLASSES = STUDY_CLASSES
 
 #: The randomisation (documented in docs/diagnosis.md).
 RANGES: dict[str, Any] = {
@@ -38,40 +40,6 @@ RANGES: dict[str, Any] = {
     "x_noise_mm": ("uniform", 1.5e-3, 3.0e-3),
     "jitter": ("choice", [0.0, 0.2]),
 }
-
-
-def draw_effect(name: str, rng: np.random.Generator) -> dict[str, dict[str, float]]:
-    if name == "none":
-        return {}
-    if name == "sensor_lag":
-        return {name: {"tau_s": float(math.exp(rng.uniform(math.log(20.0), math.log(180.0))))}}
-    if name == "medium_temperature":
-        return {name: {"beta": float(rng.uniform(0.03, 0.25))}}
-    if name == "stiction":
-        return {name: {"band_mm": float(rng.uniform(0.01, 0.04))}}
-    if name == "setpoint_drift":
-        return {name: {"rate_MPa_per_h": float(rng.choice([-1.0, 1.0]) * rng.uniform(1.5e-5, 6e-5))}}
-    raise ValueError(name)
-
-
-def make_cases(n: int, seed: int, classes: tuple[str, ...] = CLASSES) -> list[dict[str, Any]]:
-    """n cases, the classes in turn (balanced), everything else drawn at random."""
-    rng = np.random.default_rng(seed)
-    cases = []
-    for i in range(n):
-        truth = classes[i % len(classes)]
-        cases.append({
-            "i": i,
-            "truth": truth,
-            "effects": draw_effect(truth, rng),
-            "seed": int(rng.integers(0, 2**31 - 1)),
-            "dt_s": float(rng.choice([5.0, 10.0, 20.0, 30.0])),
-            "duration_h": float(rng.uniform(12.0, 30.0)),
-            "T_noise_C": float(rng.uniform(0.0, 0.01)),
-            "x_noise_mm": float(rng.uniform(1.5e-3, 3.0e-3)),
-            "jitter": float(rng.choice([0.0, 0.2])),
-        })
-    return cases
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
@@ -212,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="bootstrap replicates for the named effects' sd (0: Hessian/HAC sd; the names do not "
                     "depend on it)")
     a = ap.parse_args(argv)
-    cases = make_cases(a.runs, a.seed)
+    cases = random_cases(a.runs, a.seed)
     for c in cases:
         c["bootstrap_B"] = a.bootstrap
     t0 = time.perf_counter()

@@ -30,40 +30,9 @@ from typing import Any
 
 import numpy as np
 
-EFFECT_CLASSES = ("sensor_lag", "medium_temperature", "stiction", "setpoint_drift")
+from valve_env.experiment import STUDY_CLASSES, random_cases
 
-
-def _draw_effect(name: str, rng: np.random.Generator) -> dict[str, dict[str, float]]:
-    if name == "sensor_lag":
-        return {name: {"tau_s": float(math.exp(rng.uniform(math.log(20.0), math.log(180.0))))}}
-    if name == "medium_temperature":
-        return {name: {"beta": float(rng.uniform(0.03, 0.25))}}
-    if name == "stiction":
-        return {name: {"band_mm": float(rng.uniform(0.01, 0.04))}}
-    if name == "setpoint_drift":
-        return {name: {"rate_MPa_per_h": float(rng.choice([-1.0, 1.0]) * rng.uniform(1.5e-5, 6e-5))}}
-    raise ValueError(name)
-
-
-def make_cases(n: int, seed: int, classes: tuple[str, ...] = EFFECT_CLASSES) -> list[dict[str, Any]]:
-    """n cases, the effects in turn (balanced), sizes, sampling and noise drawn at random (as in
-    benchmarks/diagnosis_confusion.py)."""
-    rng = np.random.default_rng(seed)
-    cases = []
-    for i in range(n):
-        truth = classes[i % len(classes)]
-        cases.append({
-            "i": i,
-            "truth": truth,
-            "effects": _draw_effect(truth, rng),
-            "seed": int(rng.integers(0, 2**31 - 1)),
-            "dt_s": float(rng.choice([5.0, 10.0, 20.0, 30.0])),
-            "duration_h": float(rng.uniform(12.0, 30.0)),
-            "T_noise_C": float(rng.uniform(0.0, 0.01)),
-            "x_noise_mm": float(rng.uniform(1.5e-3, 3.0e-3)),
-            "jitter": float(rng.choice([0.0, 0.2])),
-        })
-    return cases
+EFFECT_CLASSES = STUDY_CLASSES[1:]  # every named effect, no 'none' runs
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
@@ -181,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", default="", help="write the summary and every run as JSON here")
     a = ap.parse_args(argv)
     classes = tuple(s for s in a.effects.split(",") if s)
-    cases = make_cases(a.runs, a.seed, classes)
+    cases = random_cases(a.runs, a.seed, classes)
     t0 = time.perf_counter()
     results = run_study(cases, a.workers)
     c = coverage(results)

@@ -349,3 +349,44 @@ def parse_effect(text: str) -> tuple[str, dict[str, float]]:
 
 
 __all__ = ["EFFECTS", "DEFAULT_OPTIONS", "COLUMNS", "simulate_experiment", "parse_effect"]
+
+
+#: the classes of the randomised studies: no effect, then each named effect of SPEC section 3
+STUDY_CLASSES: tuple[str, ...] = ("none", "sensor_lag", "medium_temperature", "stiction", "setpoint_drift")
+
+
+def draw_effect(name: str, rng: np.random.Generator) -> dict[str, dict[str, float]]:
+    """A random size of effect ``name`` (``{}`` for ``"none"``), as the diagnosis studies draw it."""
+    if name == "none":
+        return {}
+    if name == "sensor_lag":
+        return {name: {"tau_s": float(math.exp(rng.uniform(math.log(20.0), math.log(180.0))))}}
+    if name == "medium_temperature":
+        return {name: {"beta": float(rng.uniform(0.03, 0.25))}}
+    if name == "stiction":
+        return {name: {"band_mm": float(rng.uniform(0.01, 0.04))}}
+    if name == "setpoint_drift":
+        return {name: {"rate_MPa_per_h": float(rng.choice([-1.0, 1.0]) * rng.uniform(1.5e-5, 6e-5))}}
+    raise ConfigError(f"unknown effect {name!r}; expected one of {', '.join(STUDY_CLASSES)}")
+
+
+def random_cases(n: int, seed: int, classes: tuple[str, ...] = STUDY_CLASSES) -> list[dict[str, Any]]:
+    """``n`` randomised runs for a diagnosis study: the classes in turn (balanced); the effect's size,
+    the run's seed, sampling interval, length, noise levels and jitter drawn from ``seed``. Each case
+    holds the keyword arguments of :func:`simulate_experiment` plus ``i`` and ``truth``."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    for i in range(n):
+        truth = classes[i % len(classes)]
+        cases.append({
+            "i": i,
+            "truth": truth,
+            "effects": draw_effect(truth, rng),
+            "seed": int(rng.integers(0, 2**31 - 1)),
+            "dt_s": float(rng.choice([5.0, 10.0, 20.0, 30.0])),
+            "duration_h": float(rng.uniform(12.0, 30.0)),
+            "T_noise_C": float(rng.uniform(0.0, 0.01)),
+            "x_noise_mm": float(rng.uniform(1.5e-3, 3.0e-3)),
+            "jitter": float(rng.choice([0.0, 0.2])),
+        })
+    return cases

@@ -2,29 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _study():  # type: ignore[no-untyped-def]
-    path = ROOT / "benchmarks" / "diagnosis_confusion.py"
-    spec = importlib.util.spec_from_file_location("diagnosis_confusion", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["diagnosis_confusion"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+from tests.diagnosis.studies import load_study
+from valve_env.experiment import random_cases
 
 
 @pytest.mark.slow
 def test_confusion_matrix_targets() -> None:
-    study = _study()
-    results = study.run_study(study.make_cases(50, seed=11), workers=1, progress=False)
+    study = load_study("diagnosis_confusion")
+    results = study.run_study(random_cases(50, seed=11), workers=1, progress=False)
     c = study.confusion(results)
     assert c["n"] >= 50
     assert c["correct_rate"] >= 0.95, c

@@ -4,23 +4,19 @@ benchmarks/diagnosis_coverage.py (slow test below)."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tests.diagnosis.studies import load_study
 from valve_env.diagnosis.diagnose import check_run, prepare
 from valve_env.diagnosis.engine import ou_loglik, simulate_valve, stick_loglik, stick_simulate
 from valve_env.diagnosis.fitting import Model
 from valve_env.diagnosis.stiction import jump_band
 from valve_env.diagnosis.uncertainty import bootstrap
-from valve_env.experiment import simulate_experiment
+from valve_env.experiment import random_cases, simulate_experiment
 from valve_env.params import I_STROKE, ValveParams
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.parametrize(("band", "dt", "seed"), [(0.012, 5.0, 1), (0.025, 10.0, 2), (0.035, 30.0, 3)])
@@ -80,23 +76,13 @@ def test_bootstrap_sd_covers_the_truth(effect: str, param: str, value: float, se
     assert abs(est - value) <= 3 * sd, (est, sd, value)
 
 
-def _study():  # type: ignore[no-untyped-def]
-    path = ROOT / "benchmarks" / "diagnosis_coverage.py"
-    spec = importlib.util.spec_from_file_location("diagnosis_coverage", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["diagnosis_coverage"] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 SMOOTH = ("sensor_lag", "medium_temperature", "setpoint_drift")
 
 
 @pytest.fixture(scope="module")
 def coverage_303() -> dict:  # type: ignore[type-arg]
-    study = _study()
-    results = study.run_study(study.make_cases(40, seed=303), workers=2, progress=False)
+    study = load_study("diagnosis_coverage")
+    results = study.run_study(random_cases(40, seed=303, classes=study.EFFECT_CLASSES), workers=2, progress=False)
     return study.coverage(results)  # type: ignore[no-any-return]
 
 
