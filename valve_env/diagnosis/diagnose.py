@@ -45,6 +45,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from valve_env.data_io import DataError, load_run
 from valve_env.diagnosis.effects import EFFECTS, check_effects
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
 from valve_env.params import ValveParams
@@ -65,24 +66,16 @@ class DiagnosisError(ValueError):
 def read_run(path: str | os.PathLike[str]) -> pd.DataFrame:
     """Read and check a measured run (SPEC section 2); raises DiagnosisError with one line.
 
-    Uses :func:`valve_env.data_io.load_run` where it exists (its ``DataError`` becomes a
-    DiagnosisError) and adds the checks the diagnosis needs. The file is only read."""
+    Runs :func:`valve_env.data_io.load_run` first (the estimator's checks: file, columns, values;
+    its ``DataError`` becomes a DiagnosisError), then re-reads the file as written and adds the
+    checks the diagnosis needs (:func:`check_run`: no gaps, not even in x_mm). The file is only read."""
     p = Path(path)
-    if not p.exists():
-        raise DiagnosisError(f"{p}: no such file")
-    if p.is_dir():
-        raise DiagnosisError(f"{p}: is a directory, not a CSV file")
     try:
-        from valve_env import data_io  # the estimation issue's loader (SPEC section 2)
-    except ImportError:
-        data_io = None  # type: ignore[assignment]
-    if data_io is not None and hasattr(data_io, "load_run"):
-        try:
-            data_io.load_run(p)
-        except getattr(data_io, "DataError", ValueError) as exc:
-            raise DiagnosisError(_one_line(f"{p}: {exc}" if str(p) not in str(exc) else str(exc))) from None
-        except Exception:  # noqa: BLE001 - our own checks below name the problem
-            pass
+        load_run(p)
+    except DataError as exc:
+        raise DiagnosisError(_one_line(f"{p}: {exc}" if str(p) not in str(exc) else str(exc))) from None
+    except Exception:  # noqa: BLE001 - our own checks below name the problem
+        pass
     try:
         df = pd.read_csv(p)
     except UnicodeDecodeError:
