@@ -1,6 +1,6 @@
 """The plant simulator: valve + sensor bulb + stratified tank, one control step.
 
-``plant_step`` advances one environment by one control step. Both are compiled by numba from the
+``plant_step`` advances one environment by one control step. It is compiled by numba from the
 pure physics functions in :mod:`valve_env.physics` (cached on disk), so the
 single env, the batched env and the estimator share one model of the valve.
 ``env_step`` is the single env's whole step (action checks, ``apply_action``,
