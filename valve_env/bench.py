@@ -224,7 +224,7 @@ def bench_memory(n: int) -> dict[str, Any]:
     assert isinstance(u, ThermoValveVectorEnv)
     state_bytes = sum(
         getattr(u, name).nbytes
-        for name in ("_S", "_ACC", "_OUT", "_OBS", "_R", "_K", "_SD", "_CUR", "_NRUN", "_RK", "_RV", "_E0")
+        for name in ("_Z", "_OBSZ", "_K", "_SD", "_CUR", "_NRUN", "_RK", "_RV", "_E0")
     )
     dense = n * u.n_steps * sim.N_SCEN * 8
     env.close()
@@ -300,29 +300,35 @@ def bench_year(days: int = YEAR_DAYS) -> dict[str, Any]:
 
 # -- evidence for the means -------------------------------------------------------------
 def _kernel_inputs() -> tuple[Any, ...]:
+    """A block of one env (its state after reset, a fixed scenario row) for ``plant_step``."""
     from valve_env.envs.thermovalve import ThermoValveEnv
 
     env = ThermoValveEnv()
     env.reset(seed=0)
-    return env._s.copy(), env._acc.copy(), env._out.copy(), env._vp, env._pp, env._scen, env._work
+    ns = env._s.shape[0]
+    Z = np.zeros((sim.block_rows(env.cfg.tank.n_layers), 1))
+    Z[:ns, 0] = env._s
+    sim.load_inputs(Z, 0, ns, env._scen[0], 62.0, 100.0)
+    return Z, env._vp, env._pp
 
 
 def bench_evidence(quick: bool) -> dict[str, Any]:
     """The jitted kernel vs its pure-Python py_func and vs NumPy vectorised over envs;
     threads vs the serial loop; numba's on-disk cache vs compiling at start-up."""
-    s, acc, out, vp, pp, scen, work = _kernel_inputs()
+    Z, vp, pp = _kernel_inputs()
     ev: dict[str, Any] = {}
-    # 1. numba vs the same source run by the Python interpreter (physics as plain NumPy)
-    n_py = 100 if quick else 300
+    # 1. numba vs the same source run by the Python interpreter (physics as plain NumPy),
+    #    one env (a block of one column) per call
+    n_py = 30 if quick else 100
     t0 = time.perf_counter()
-    for k in range(n_py):
-        sim.plant_step.py_func(s, acc, out, vp, pp, scen[k], 62.0, 100.0, work)
+    for _ in range(n_py):
+        sim.plant_step.py_func(Z, 0, 1, vp, pp)
     py_us = (time.perf_counter() - t0) / n_py * 1e6
-    s, acc, out, vp, pp, scen, work = _kernel_inputs()
+    Z, vp, pp = _kernel_inputs()
     n_jit = 20000
     t0 = time.perf_counter()
-    for k in range(n_jit):
-        sim.plant_step(s, acc, out, vp, pp, scen[k % 2880], 62.0, 100.0, work)
+    for _ in range(n_jit):
+        sim.plant_step(Z, 0, 1, vp, pp)
     jit_us = (time.perf_counter() - t0) / n_jit * 1e6
     ev["kernel_step_us"] = {
         "numba_jit_call_from_python": jit_us,

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
+from numba.extending import register_jitable
 
 from valve_env.config import EnvConfig
 from valve_env.physics import valve as _valve
@@ -31,6 +32,7 @@ from valve_env.physics.tank import (  # noqa: E402
     advection_heat,
     buoyancy_mix,
     coil_heat,
+    columns,
     draw_flow,
     loss_heat,
     pump_power_W,
@@ -40,8 +42,8 @@ from valve_env.physics.valve import dahl_update, flow_kgh, opening, setpoint_pre
 # plant vector
 (P_NL, P_NC, P_M, P_UA_COIL, P_UA_LOSS, P_T_AMB, P_T_COLD, P_CP, P_PUMP_EFF, P_DP_CIRC, P_Q_REF,
  P_BULB_A, P_BULB_LAYER, P_DT, P_NSUB, P_T_TARGET, P_T_FLOOR, P_W_TRACK, P_W_FLOOR, P_W_ENERGY,
- P_PS) = range(21)
-N_PLANT = 21
+ P_PS, P_CLOCK_N) = range(22)
+N_PLANT = 22  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
 # state offsets after the layers
 S_TG, S_FH, S_X, S_DIR = 0, 1, 2, 3
 N_STATE_EXTRA = 4
@@ -84,6 +86,15 @@ def pack_plant(cfg: EnvConfig) -> np.ndarray:
     pp[P_W_FLOOR] = c.w_floor
     pp[P_W_ENERGY] = c.w_energy
     pp[P_PS] = sc.ps_bar
+    # the time-of-day features of the observation, tabulated when a day is a whole
+    # number of steps (two libm calls per env-step otherwise)
+    per_day = 86400.0 / c.dt_s
+    if per_day == round(per_day) and per_day <= 100_000:
+        n = int(per_day)
+        ang = np.arange(n) * (2.0 * np.pi / n)
+        table = np.column_stack([np.sin(ang), np.cos(ang)]).ravel()
+        pp = np.concatenate([pp, table])
+        pp[P_CLOCK_N] = n
     return pp
 
 
@@ -101,128 +112,218 @@ def initial_state(cfg: EnvConfig, T0: float) -> np.ndarray:
     return s
 
 
-@njit(cache=True)
-def plant_step(s, acc, out, vp, pp, scen, T_set, dp, work):
-    """Advance one environment by one control step; returns the reward.
+# -- the block: envs as columns ------------------------------------------------------
+# ``plant_step`` works on a block ``Z`` of shape (block_rows(n_layers), n_envs), one
+# column per env (structure of arrays), from top to bottom:
+#   the state ``s`` (n_layers + N_STATE_EXTRA rows),
+#   the rows ``Z_*`` below (N_Z: the step's inputs, its reward, its sums, scratch),
+#   the heat flows Q (n_layers rows),
+#   the accumulators ``acc`` (N_ACC rows, from ``acc_row(n_layers)``),
+#   the step outputs ``out`` (N_OUT rows, from ``out_row(n_layers)``).
+# Every physics function runs as a loop over the block's envs, which the compiler
+# vectorises. The batched env keeps all its envs in one block; a single env is a block
+# of one column.
+(Z_DRAW_W, Z_DRAW_T, Z_TAP_M, Z_T_SUP, Z_T_SET, Z_DP,  # inputs of the step
+ Z_REWARD,  # output
+ # sums over the step's sub-steps
+ Z_TRAVEL, Z_REV, Z_DRAWN, Z_DELIVERED, Z_UNMET, Z_LOSS, Z_SQ, Z_ABS, Z_SHORT, Z_HEAT, Z_PUMP, Z_RET, Z_MASS,
+ Z_DRAW_MASS,
+ # scratch of a sub-step
+ Z_PB, Z_M, Z_X_NEW, Z_T_RET, Z_EPS, Z_M_DRAW, Z_Q_DELIV, Z_Q_LOSS, Z_FLAG) = range(30)
+N_Z = 30
 
-    ``s``, ``acc`` and ``out`` are updated in place. ``scen`` is this step's
-    scenario row, ``T_set`` the valve's temperature setting (degC), ``dp`` the
-    differential pressure across the valve (mbar), ``work`` a (3, n_layers)
-    scratch array.
+
+@register_jitable
+def acc_row(n_layers: int) -> int:
+    """The first accumulator row of a block (``A_*`` are offsets from it)."""
+    return 2 * n_layers + N_STATE_EXTRA + N_Z
+
+
+@register_jitable
+def out_row(n_layers: int) -> int:
+    """The first step-output row of a block (``O_*`` are offsets from it)."""
+    return acc_row(n_layers) + N_ACC
+
+
+@register_jitable
+def block_rows(n_layers: int) -> int:
+    """Rows of a block ``Z`` for a tank of ``n_layers`` layers."""
+    return out_row(n_layers) + N_OUT
+
+
+@njit(cache=True, error_model="numpy")
+def plant_step(Z, lo, hi, vp, pp):
+    """Advance the envs in columns ``lo .. hi - 1`` of the block ``Z`` by one control step.
+
+    Before the call each column holds an env's state, accumulators and step
+    inputs (the scenario row's draw power, draw temperature, tap flow and
+    supply temperature, the setting in force and the differential pressure);
+    after it, the new state, the step's sums (``Z_TRAVEL`` .. ``Z_DRAW_MASS``)
+    added to the accumulators, the step outputs and the reward (``Z_REWARD``).
+
+    Compiled with NumPy's error model (a division by zero gives inf or NaN
+    instead of raising): the raising checks are branches that stop the
+    compiler from vectorising the loops over envs, and no division here can be
+    by zero.
     """
     nl = int(pp[P_NL])
     nc = int(pp[P_NC])
+    b0 = nl + N_STATE_EXTRA
+    c0, c1 = columns(lo, hi, Z.shape[1])
     nsub = int(pp[P_NSUB])
     dt = pp[P_DT] / nsub
     cp = pp[P_CP]
-    Mcp = pp[P_M] * cp
+    dt_Mcp = dt / (pp[P_M] * cp)
     T_cold = pp[P_T_COLD]
-    bl = int(pp[P_BULB_LAYER])
+    T_target = pp[P_T_TARGET]
+    T_floor = pp[P_T_FLOOR]
     a_b = pp[P_BULB_A]
-    T = s[:nl]
-    Q = work[0]
-    wsum = work[1]
-    wcnt = work[2]
-    p_bset = setpoint_pressure(T_set, vp)
-    draw_W = scen[0]
-    draw_T = scen[1]
-    draw_m = scen[2]
-    T_sup = scen[3]
     ps = pp[P_PS]
-    T_g = s[nl + S_TG]
-    F_h = s[nl + S_FH]
-    x = s[nl + S_X]
-    direction = s[nl + S_DIR]
-    dt_Mcp = dt / Mcp
-    e2 = 0.0
-    eabs = 0.0
-    short = 0.0
-    heat_J = 0.0
-    travel = 0.0
-    reversals = 0.0
-    drawn_J = 0.0
-    delivered_J = 0.0
-    unmet_J = 0.0
-    loss_J = 0.0
-    pump_J = 0.0
-    ret_mass = 0.0
-    mass = 0.0
-    draw_mass = 0.0
+    T = Z[:nl]
+    Tb = Z[int(pp[P_BULB_LAYER])]
+    T_top = Z[nl - 1]
+    T_g = Z[nl + S_TG]
+    F_h = Z[nl + S_FH]
+    X = Z[nl + S_X]
+    direction = Z[nl + S_DIR]
+    draw_W = Z[b0 + Z_DRAW_W]
+    draw_T = Z[b0 + Z_DRAW_T]
+    tap_m = Z[b0 + Z_TAP_M]
+    T_sup = Z[b0 + Z_T_SUP]
+    T_set = Z[b0 + Z_T_SET]
+    dp = Z[b0 + Z_DP]
+    travel = Z[b0 + Z_TRAVEL]
+    rev = Z[b0 + Z_REV]
+    drawn = Z[b0 + Z_DRAWN]
+    deliv = Z[b0 + Z_DELIVERED]
+    unmet = Z[b0 + Z_UNMET]
+    loss = Z[b0 + Z_LOSS]
+    e2 = Z[b0 + Z_SQ]
+    eabs = Z[b0 + Z_ABS]
+    short = Z[b0 + Z_SHORT]
+    heat = Z[b0 + Z_HEAT]
+    pump = Z[b0 + Z_PUMP]
+    ret = Z[b0 + Z_RET]
+    mass = Z[b0 + Z_MASS]
+    draw_mass = Z[b0 + Z_DRAW_MASS]
+    p_bset = Z[b0 + Z_PB]
+    m = Z[b0 + Z_M]
+    x_new = Z[b0 + Z_X_NEW]
+    T_ret = Z[b0 + Z_T_RET]
+    eps = Z[b0 + Z_EPS]
+    m_draw = Z[b0 + Z_M_DRAW]
+    q_deliv = Z[b0 + Z_Q_DELIV]
+    q_loss = Z[b0 + Z_Q_LOSS]
+    flag = Z[b0 + Z_FLAG]
+    Q = Z[b0 + N_Z:b0 + N_Z + nl]
+    work_sum = np.empty(nl)
+    work_cnt = np.empty(nl)
+    for r in range(Z_TRAVEL, Z_DRAW_MASS + 1):
+        for i in range(c0, c1):
+            Z[b0 + r, i] = 0.0
+    for i in range(c0, c1):
+        p_bset[i] = setpoint_pressure(T_set[i], vp)
     for _ in range(nsub):
-        # sensor bulb: exact first-order lag towards the pocket's layer
-        T_g_new = T[bl] + (T_g - T[bl]) * a_b
-        F_h = dahl_update(F_h, T_g_new - T_g, vp)
-        T_g = T_g_new
-        x_new = opening(T_g, F_h, dp, ps, p_bset, vp)
-        dx = x_new - x
-        if dx > 1e-9 or dx < -1e-9:
-            travel += abs(dx)
+        # sensor bulb: exact first-order lag towards the pocket's layer; Dahl friction;
+        # the force balance's opening; the flow it passes
+        for i in range(c0, c1):
+            Tg1 = Tb[i] + (T_g[i] - Tb[i]) * a_b
+            F = dahl_update(F_h[i], Tg1 - T_g[i], vp)
+            T_g[i] = Tg1
+            F_h[i] = F
+            x = opening(Tg1, F, dp[i], ps, p_bset[i], vp)
+            x_new[i] = x
+            m[i] = flow_kgh(x, dp[i], vp) / 3600.0
+        # stem travel and reversals
+        for i in range(c0, c1):
+            dx = x_new[i] - X[i]
+            moved = dx > 1e-9 or dx < -1e-9
             d = 1.0 if dx > 0 else -1.0
-            if direction != 0.0 and d != direction:
-                reversals += 1.0
-            direction = d
-        x = x_new
-        m = flow_kgh(x, dp, vp) / 3600.0
-        T_ret = coil_heat(T, nc, m, T_sup, pp[P_UA_COIL], cp, Q)
-        q_coil = m * cp * (T_sup - T_ret)
-        m_draw, delivered = draw_flow(draw_W, draw_T, draw_m, T[nl - 1], T_cold, cp)
-        drawn_J += m_draw * cp * (T[nl - 1] - T_cold) * dt
-        delivered_J += delivered * dt
-        if draw_W > 0.0:
-            unmet_J += (draw_W - delivered) * dt
-        advection_heat(T, m_draw, T_cold, cp, Q)
-        loss_J += loss_heat(T, pp[P_UA_LOSS], pp[P_T_AMB], Q) * dt
+            travel[i] += abs(dx) if moved else 0.0
+            rev[i] += 1.0 if moved and direction[i] != 0.0 and d != direction[i] else 0.0
+            direction[i] = d if moved else direction[i]
+            X[i] = x_new[i]
+        coil_heat(T, nc, m, T_sup, pp[P_UA_COIL], cp, Q, T_ret, eps, lo, hi)
+        draw_flow(draw_W, draw_T, tap_m, T_top, T_cold, cp, m_draw, q_deliv, lo, hi)
+        for i in range(c0, c1):
+            drawn[i] += m_draw[i] * cp * (T_top[i] - T_cold) * dt
+            deliv[i] += q_deliv[i] * dt
+            unmet[i] += (draw_W[i] - q_deliv[i]) * dt if draw_W[i] > 0.0 else 0.0
+        advection_heat(T, m_draw, T_cold, cp, Q, lo, hi)
+        loss_heat(T, pp[P_UA_LOSS], pp[P_T_AMB], Q, q_loss, lo, hi)
         for j in range(nl):
-            T[j] += Q[j] * dt_Mcp
-        buoyancy_mix(T, wsum, wcnt)
-        p_w = pump_power_W(m, dp, pp[P_DP_CIRC], pp[P_Q_REF], pp[P_PUMP_EFF])
-        heat_J += q_coil * dt
-        pump_J += p_w * dt
-        ret_mass += m * T_ret * dt
-        mass += m * dt
-        draw_mass += m_draw * dt
-        e = T[nl - 1] - pp[P_T_TARGET]
-        e2 += e * e
-        eabs += abs(e)
-        sh = pp[P_T_FLOOR] - T[nl - 1]
-        if sh > 0.0:
-            short += sh
-    s[nl + S_TG] = T_g
-    s[nl + S_FH] = F_h
-    s[nl + S_X] = x
-    s[nl + S_DIR] = direction
+            for i in range(c0, c1):
+                T[j, i] += Q[j, i] * dt_Mcp
+        buoyancy_mix(T, work_sum, work_cnt, flag, lo, hi)
+        for i in range(c0, c1):
+            mi = m[i]
+            loss[i] += q_loss[i] * dt
+            heat[i] += mi * cp * (T_sup[i] - T_ret[i]) * dt
+            pump[i] += pump_power_W(mi, dp[i], pp[P_DP_CIRC], pp[P_Q_REF], pp[P_PUMP_EFF]) * dt
+            ret[i] += mi * T_ret[i] * dt
+            mass[i] += mi * dt
+            draw_mass[i] += m_draw[i] * dt
+            e = T_top[i] - T_target
+            e2[i] += e * e
+            eabs[i] += abs(e)
+            sh = T_floor - T_top[i]
+            short[i] += sh if sh > 0.0 else 0.0
     step = pp[P_DT]
-    acc[A_TRAVEL] += travel
-    acc[A_REV] += reversals
-    acc[A_DRAW] += drawn_J
-    acc[A_DELIVERED] += delivered_J
-    acc[A_DEMAND] += draw_W * step
-    acc[A_UNMET] += unmet_J
-    acc[A_LOSS] += loss_J
-    acc[A_SQ] += e2 * dt
-    acc[A_ABS] += eabs * dt
-    acc[A_TDIS] += short * dt
-    acc[A_HEAT] += heat_J
-    acc[A_PUMP] += pump_J
-    acc[A_RET] += ret_mass
-    acc[A_MASS] += mass
-    acc[A_TIME] += step
-    out[O_T_TOP] = T[nl - 1]
-    out[O_T_POCKET] = T[bl]
-    out[O_T_BOTTOM] = T[0]
-    out[O_T_SUP] = T_sup
-    out[O_T_RET] = ret_mass / mass if mass > 1e-12 else T[0]
-    out[O_Q_KGH] = mass / step * 3600.0
-    out[O_DP] = dp
-    out[O_DRAW_LMIN] = draw_mass / step * 60.0
-    out[O_HEAT_W] = heat_J / step
-    out[O_PUMP_W] = pump_J / step
-    out[O_X] = x
-    out[O_FH] = F_h
-    out[O_TG] = T_g
-    out[O_T_SET] = T_set
-    p_kw = (heat_J + PRIMARY_ENERGY_FACTOR_ELECTRICITY * pump_J) / step / 1000.0
-    return -(pp[P_W_TRACK] * e2 / nsub + pp[P_W_FLOOR] * short / nsub + pp[P_W_ENERGY] * p_kw)
+    reward = Z[b0 + Z_REWARD]
+    for i in range(c0, c1):
+        p_kw = (heat[i] + PRIMARY_ENERGY_FACTOR_ELECTRICITY * pump[i]) / step / 1000.0
+        reward[i] = -(pp[P_W_TRACK] * e2[i] / nsub + pp[P_W_FLOOR] * short[i] / nsub + pp[P_W_ENERGY] * p_kw)
+    # the step's sums into the accumulators
+    a0 = acc_row(nl)
+    _add_row(Z[a0 + A_TRAVEL], travel, 1.0, lo, hi)
+    _add_row(Z[a0 + A_REV], rev, 1.0, lo, hi)
+    _add_row(Z[a0 + A_DRAW], drawn, 1.0, lo, hi)
+    _add_row(Z[a0 + A_DELIVERED], deliv, 1.0, lo, hi)
+    _add_row(Z[a0 + A_DEMAND], draw_W, step, lo, hi)
+    _add_row(Z[a0 + A_UNMET], unmet, 1.0, lo, hi)
+    _add_row(Z[a0 + A_LOSS], loss, 1.0, lo, hi)
+    _add_row(Z[a0 + A_SQ], e2, dt, lo, hi)
+    _add_row(Z[a0 + A_ABS], eabs, dt, lo, hi)
+    _add_row(Z[a0 + A_TDIS], short, dt, lo, hi)
+    _add_row(Z[a0 + A_HEAT], heat, 1.0, lo, hi)
+    _add_row(Z[a0 + A_PUMP], pump, 1.0, lo, hi)
+    _add_row(Z[a0 + A_RET], ret, 1.0, lo, hi)
+    _add_row(Z[a0 + A_MASS], mass, 1.0, lo, hi)
+    time_acc = Z[a0 + A_TIME]
+    for i in range(c0, c1):
+        time_acc[i] += step
+    # the step outputs
+    o0 = out_row(nl)
+    _copy_row(Z[o0 + O_T_TOP], T_top, 1.0, lo, hi)
+    _copy_row(Z[o0 + O_T_POCKET], Tb, 1.0, lo, hi)
+    _copy_row(Z[o0 + O_T_BOTTOM], Z[0], 1.0, lo, hi)
+    _copy_row(Z[o0 + O_T_SUP], T_sup, 1.0, lo, hi)
+    _copy_row(Z[o0 + O_Q_KGH], mass, 3600.0 / step, lo, hi)
+    _copy_row(Z[o0 + O_DP], dp, 1.0, lo, hi)
+    _copy_row(Z[o0 + O_DRAW_LMIN], draw_mass, 60.0 / step, lo, hi)
+    _copy_row(Z[o0 + O_HEAT_W], heat, 1.0 / step, lo, hi)
+    _copy_row(Z[o0 + O_PUMP_W], pump, 1.0 / step, lo, hi)
+    _copy_row(Z[o0 + O_X], X, 1.0, lo, hi)
+    _copy_row(Z[o0 + O_FH], F_h, 1.0, lo, hi)
+    _copy_row(Z[o0 + O_TG], T_g, 1.0, lo, hi)
+    _copy_row(Z[o0 + O_T_SET], T_set, 1.0, lo, hi)
+    T_ret_out = Z[o0 + O_T_RET]
+    for i in range(c0, c1):
+        T_ret_out[i] = ret[i] / mass[i] if mass[i] > 1e-12 else Z[0, i]
+
+
+@register_jitable
+def _add_row(dst, src, scale, lo, hi):
+    c0, c1 = columns(lo, hi, dst.shape[0])
+    for i in range(c0, c1):
+        dst[i] += src[i] * scale
+
+
+@register_jitable
+def _copy_row(dst, src, scale, lo, hi):
+    c0, c1 = columns(lo, hi, dst.shape[0])
+    for i in range(c0, c1):
+        dst[i] = src[i] * scale
 
 
 # -- the environments' step: action -> plant_step -> observation --------------
@@ -239,14 +340,23 @@ N_OBS = 12
 SD_SET, SD_DP = 0, 1
 
 
+@register_jitable
+def clock(k, pp):
+    """The time-of-day features (sin, cos) of step index ``k`` (from the plant vector's table if it has one)."""
+    n = int(pp[P_CLOCK_N])
+    if n > 0:
+        j = N_PLANT + 2 * (k % n)
+        return pp[j], pp[j + 1]
+    ang = k * (2.0 * np.pi * pp[P_DT] / 86400.0)
+    return np.sin(ang), np.cos(ang)
+
+
 @njit(cache=True)
 def fill_obs(obs, out, pp, k, T_set):
     """Write the float32 observation of step index ``k`` from the step outputs."""
     for j in range(8):
         obs[j] = out[OBS_FROM_OUT[j]]
-    ang = k * (2.0 * np.pi * pp[P_DT] / 86400.0)
-    obs[8] = np.sin(ang)
-    obs[9] = np.cos(ang)
+    obs[8], obs[9] = clock(k, pp)
     obs[10] = T_set
     obs[11] = pp[P_T_TARGET]
 
@@ -273,8 +383,9 @@ def env_step(s, acc, out, obs, vp, pp, scen, k, a, bounds, mode, sd, work):
 
     ``scen`` is the episode's (n_steps, 5) scenario, ``k`` the step index,
     ``a`` the action (float64, overwritten by its clipped value), ``bounds``
-    (2, act_dim) the action box, ``sd`` the action memory (setting, dp).
-    Returns (reward, status): status -1 if the action is not finite (nothing
+    (2, act_dim) the action box, ``sd`` the action memory (setting, dp),
+    ``work`` a block of one column (``block_rows(n_layers)``, 1) that
+    :func:`plant_step` steps. Returns (reward, status): status -1 if the action is not finite (nothing
     is changed), 1 if it was clipped, else 0.
     """
     na = a.shape[0]
@@ -291,51 +402,99 @@ def env_step(s, acc, out, obs, vp, pp, scen, k, a, bounds, mode, sd, work):
             status = 1
     row = scen[k]
     apply_action(a, mode, row, sd)
-    r = plant_step(s, acc, out, vp, pp, row, sd[SD_SET], sd[SD_DP], work)
+    ns = s.shape[0]
+    nl = int(pp[P_NL])
+    a0 = acc_row(nl)
+    o0 = out_row(nl)
+    for q in range(ns):
+        work[q, 0] = s[q]
+    for q in range(N_ACC):
+        work[a0 + q, 0] = acc[q]
+    load_inputs(work, 0, ns, row, sd[SD_SET], sd[SD_DP])
+    plant_step(work, 0, 1, vp, pp)
+    for q in range(ns):
+        s[q] = work[q, 0]
+    for q in range(N_ACC):
+        acc[q] = work[a0 + q, 0]
+    for q in range(N_OUT):
+        out[q] = work[o0 + q, 0]
     fill_obs(obs, out, pp, k + 1, sd[SD_SET])
-    return r, status
+    return work[ns + Z_REWARD, 0], status
 
 
 @njit(cache=True)
-def _step_block(lo, hi, S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP):
-    """``apply_action``, ``plant_step`` and ``fill_obs`` for envs ``lo .. hi - 1``
-    of the batched step, on local copies of each env's rows."""
-    s = np.empty(S.shape[1])
-    acc = np.empty(ACC.shape[1])
-    out = np.empty(OUT.shape[1])
-    obs = np.empty(OBS.shape[1], np.float32)
+def load_inputs(Z, i, ns, row, T_set, dp):
+    """Column ``i``'s step inputs: the scenario row (draw power, draw
+    temperature, tap flow, supply temperature), the setting and dp in force."""
+    Z[ns + Z_DRAW_W, i] = row[0]
+    Z[ns + Z_DRAW_T, i] = row[1]
+    Z[ns + Z_TAP_M, i] = row[2]
+    Z[ns + Z_T_SUP, i] = row[3]
+    Z[ns + Z_T_SET, i] = T_set
+    Z[ns + Z_DP, i] = dp
+
+
+@njit(cache=True)
+def _step_block(lo, hi, Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP):
+    """``apply_action``, ``plant_step`` and the observation for the envs in
+    columns ``lo .. hi - 1`` of the batched env's block ``Z`` (observations in
+    the columns of ``OBSZ``). Envs with ``STEP[i]`` false are left exactly as
+    they were."""
+    nl = int(pp[P_NL])
+    ns = nl + N_STATE_EXTRA
+    o0 = out_row(nl)
+    c0, c1 = columns(lo, hi, Z.shape[1])
     row = np.empty(RV.shape[2])
     a = np.empty(A.shape[1])
     sd = np.empty(2)
-    work = np.empty((3, int(pp[P_NL])))
-    for i in range(lo, hi):
+    held = 0
+    for i in range(c0, c1):
         if STEP[i]:
             k = K[i]
-            c = CUR[i]
-            while c + 1 < NRUN[i] and RK[i, c + 1] <= k:
-                c += 1
-            CUR[i] = c
-            s[:] = S[i]
-            acc[:] = ACC[i]
-            row[:] = RV[i, c]
-            a[:] = A[i]
+            cur = CUR[i]
+            while cur + 1 < NRUN[i] and RK[i, cur + 1] <= k:
+                cur += 1
+            CUR[i] = cur
+            for q in range(row.shape[0]):
+                row[q] = RV[i, cur, q]
+            for q in range(a.shape[0]):
+                a[q] = A[i, q]
             sd[SD_SET] = SD[i, SD_SET]
             sd[SD_DP] = SD[i, SD_DP]
             apply_action(a, mode, row, sd)
-            R[i] = plant_step(s, acc, out, vp, pp, row, sd[SD_SET], sd[SD_DP], work)
-            K[i] = k + 1
-            fill_obs(obs, out, pp, k + 1, sd[SD_SET])
-            S[i] = s
-            ACC[i] = acc
-            OUT[i] = out
-            OBS[i] = obs
             SD[i, SD_SET] = sd[SD_SET]
             SD[i, SD_DP] = sd[SD_DP]
-        INFO[0, i] = OUT[i, O_X]
-        INFO[1, i] = OUT[i, O_FH]
-        INFO[2, i] = OUT[i, O_TG]
-        INFO[3, i] = OUT[i, O_HEAT_W]
-        INFO[4, i] = OUT[i, O_PUMP_W]
+            load_inputs(Z, i, ns, row, sd[SD_SET], sd[SD_DP])
+        else:
+            held += 1
+    # the block is stepped whole (vectorised); envs that do not step are put back
+    kept = np.empty((held, Z.shape[0]))
+    c = 0
+    for i in range(c0, c1):
+        if not STEP[i]:
+            for q in range(Z.shape[0]):
+                kept[c, q] = Z[q, i]
+            c += 1
+    plant_step(Z, lo, hi, vp, pp)
+    c = 0
+    for i in range(c0, c1):
+        if STEP[i]:
+            K[i] += 1
+            k = K[i]
+            for j in range(8):
+                OBSZ[j, i] = Z[o0 + OBS_FROM_OUT[j], i]
+            OBSZ[8, i], OBSZ[9, i] = clock(k, pp)
+            OBSZ[10, i] = Z[o0 + O_T_SET, i]
+            OBSZ[11, i] = pp[P_T_TARGET]
+        else:
+            for q in range(Z.shape[0]):
+                Z[q, i] = kept[c, q]
+            c += 1
+        INFO[0, i] = Z[o0 + O_X, i]
+        INFO[1, i] = Z[o0 + O_FH, i]
+        INFO[2, i] = Z[o0 + O_TG, i]
+        INFO[3, i] = Z[o0 + O_HEAT_W, i]
+        INFO[4, i] = Z[o0 + O_PUMP_W, i]
         INFO[5, i] = K[i] * pp[P_DT]
 
 
@@ -374,45 +533,40 @@ def check_actions(A_IN, bounds, A, CLIPPED, STEP):
 
 
 @njit(cache=True, parallel=True)
-def env_step_batch(S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP,
-                   nblocks):
-    """``env_step`` over N envs (row i of every array is env i) for the envs
-    with ``STEP[i]``, on numba's threads.
+def env_step_batch(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP, nblocks):
+    """``env_step`` over the N envs in the columns of the block ``Z`` for the
+    envs with ``STEP[i]``, on numba's threads.
 
-    The actions go through :func:`check_actions` (its return value is
-    returned; nothing is stepped if an action is not finite); then the envs,
-    cut into ``nblocks`` contiguous blocks, each take :func:`_step_block`
-    (``apply_action``, ``plant_step`` and ``fill_obs``, exactly as the single
-    env's ``env_step``). ``INFO`` (6, N) receives the info columns x, F_h, T_g,
-    heat, pump and the time (s).
+    The actions (row i for env i) go through :func:`check_actions` (its
+    return value is returned; nothing is stepped if an action is not finite);
+    then the envs, cut into ``nblocks`` contiguous column ranges, each take
+    :func:`_step_block` (``apply_action``, ``plant_step`` and the observation,
+    as the single env's ``env_step``). Observations go to the columns of
+    ``OBSZ`` (N_OBS, N); ``INFO`` (6, N) receives the info columns x, F_h,
+    T_g, heat, pump and the time (s).
 
     Each env's scenario is run-length encoded: rows ``RV[i, :NRUN[i]]`` start
     at step indices ``RK[i, :NRUN[i]]`` (``RK[i, 0] == 0``); ``CUR[i]`` is the
     run in force, which only moves forward within an episode.
-
-    A block works on its own copies of each env's rows: views of the shared
-    arrays taken per env update the shared arrays' reference counts atomically
-    from every thread, which cost more than the physics (threads gave 1.0x).
     """
     status = check_actions(A_IN, bounds, A, CLIPPED, STEP)
     if status >= 0:
         return status
-    n = S.shape[0]
+    n = Z.shape[1]
     block = (n + nblocks - 1) // nblocks
     for b in prange(nblocks):
-        _step_block(b * block, min(n, (b + 1) * block), S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A,
-                    mode, SD, STEP)
+        _step_block(b * block, min(n, (b + 1) * block), Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD,
+                    STEP)
     return status
 
 
 @njit(cache=True)
-def env_step_batch_serial(S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD,
-                          STEP):
+def env_step_batch_serial(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP):
     """:func:`env_step_batch` in one serial loop (no thread pool: for small N)."""
     status = check_actions(A_IN, bounds, A, CLIPPED, STEP)
     if status >= 0:
         return status
-    _step_block(0, S.shape[0], S, ACC, OUT, OBS, R, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP)
+    _step_block(0, Z.shape[1], Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP)
     return status
 
 

@@ -215,9 +215,11 @@ def test_one_kernel_for_single_and_batched_envs() -> None:
     # threaded and serial batched steps both run _step_block, which calls the single env's functions
     for kernel in (sim.env_step_batch, sim.env_step_batch_serial):
         assert {"check_actions", "_step_block"} <= set(kernel.py_func.__code__.co_names)
+    # the same block kernel (the single env is a block of one column), inputs and clock
     names = sim._step_block.py_func.__code__.co_names
-    assert {"plant_step", "fill_obs", "apply_action"} <= set(names)
-    assert {"plant_step", "fill_obs", "apply_action"} <= set(sim.env_step.py_func.__code__.co_names)
+    assert {"plant_step", "load_inputs", "apply_action", "clock"} <= set(names)
+    assert {"plant_step", "load_inputs", "apply_action", "fill_obs"} <= set(sim.env_step.py_func.__code__.co_names)
+    assert "clock" in sim.fill_obs.py_func.__code__.co_names
 
 
 def test_large_batch_uses_threads_and_still_matches() -> None:

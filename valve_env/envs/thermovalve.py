@@ -167,7 +167,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         self._vp = self.cfg.valve.to_array()
         self._pp = sim.pack_plant(self.cfg)
         nl = self.cfg.tank.n_layers
-        self._work = np.zeros((3, nl))
+        self._work = np.zeros((sim.block_rows(nl), 1))  # a block of one env for sim.plant_step
         lo, hi = [], []
         if self.mode in ("setting", "dual"):
             lo.append(c.setting_min_C)

@@ -128,11 +128,16 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._dt_s = c.dt_s
         n, nl = self.num_envs, self.cfg.tank.n_layers
         self._nl = nl
-        self._S = np.zeros((n, nl + sim.N_STATE_EXTRA))
-        self._ACC = np.zeros((n, sim.N_ACC))
-        self._OUT = np.zeros((n, sim.N_OUT))
-        self._OBS = np.zeros((n, sim.N_OBS), np.float32)
-        self._R = np.zeros(n)
+        # all envs live in one block (structure of arrays: a column per env) that the
+        # kernel steps in place; _S, _ACC, _OUT and _OBS are (N, ...) views of it
+        ns = nl + sim.N_STATE_EXTRA
+        self._Z = np.zeros((sim.block_rows(nl), n))
+        self._OBSZ = np.zeros((sim.N_OBS, n), np.float32)
+        self._S = self._Z[:ns].T
+        self._ACC = self._Z[sim.acc_row(nl) : sim.acc_row(nl) + sim.N_ACC].T
+        self._OUT = self._Z[sim.out_row(nl) : sim.out_row(nl) + sim.N_OUT].T
+        self._OBS = self._OBSZ.T
+        self._R = self._Z[ns + sim.Z_REWARD]
         self._K = np.zeros(n, np.int64)
         self._SD = np.zeros((n, 2))
         self._CUR = np.zeros(n, np.int64)
@@ -218,9 +223,8 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         A_in = A_in.reshape(n, adim)
         clipped = self._clipped
         args = (
-            self._S, self._ACC, self._OUT, self._OBS, self._R, self._INFO, self._vp, self._pp, self._RK, self._RV,
-            self._CUR, self._NRUN, self._K, A_in, self._bounds, self._A, clipped, self._mode_code, self._SD,
-            stepping,
+            self._Z, self._OBSZ, self._INFO, self._vp, self._pp, self._RK, self._RV, self._CUR, self._NRUN, self._K,
+            A_in, self._bounds, self._A, clipped, self._mode_code, self._SD, stepping,
         )
         if n >= self.parallel_threshold:
             # blocks of ``block_size`` envs handed out to the threads one at a
