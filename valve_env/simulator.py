@@ -1,16 +1,19 @@
 """The plant simulator: valve + sensor bulb + stratified tank, one control step.
 
-``plant_step`` advances one environment by one control step. It is compiled by numba from the
+``plant_step`` advances a block of environments (the columns of an array ``Z``,
+see "the block" below) by one control step. It is compiled by numba from the
 pure physics functions in :mod:`valve_env.physics` (cached on disk), so the
-single env, the batched env and the estimator share one model of the valve.
+single env, the batched env and the estimator share one model of the valve;
+its loops over envs are vectorised by the compiler (docs/speed.md).
 ``env_step`` is the single env's whole step (action checks, ``apply_action``,
-``plant_step``, ``fill_obs``) in one call; ``env_step_batch`` runs the same
-functions over N envs for the batched env (valve_env.envs.vector).
+``plant_step`` on a block of one column, ``fill_obs``) in one call;
+``env_step_batch`` runs the same functions over the N columns of the batched
+env's block (valve_env.envs.vector).
 
 Packed arrays (float64):
 
 * valve vector ``vp``: :meth:`ValveParams.to_array` (indices ``params.I_*``)
-* plant vector ``pp``: :func:`pack_plant` (indices ``P_*`` below)
+* plant vector ``pp``: :func:`pack_plant` (indices ``P_*`` below, then the clock table)
 * state ``s``: layer temperatures (bottom .. top), then T_g, F_h, x, direction
 * accumulators ``acc``: KPI integrals and the energy account (``A_*``)
 * step outputs ``out``: what the env turns into observations and info (``O_*``)

@@ -4,8 +4,9 @@ Everything here is a pure function of floats (or NumPy arrays of floats) and
 of a packed parameter vector ``vp`` (see :class:`valve_env.params.ValveParams`
 and :meth:`~valve_env.params.ValveParams.to_array`). The same source is used
 three ways: as plain NumPy by the estimator and by users, and compiled by
-numba inside the simulator kernel (scalar) that both the single and the
-batched environments step. There is one model of the valve.
+numba inside the simulator's block kernel, which calls them in loops over
+envs, for the single and the batched environments alike. There is one model
+of the valve.
 
 Units inside the model: mm, N, MPa (= N/mm^2), degC, s. Differential
 pressures enter in mbar at the public functions and are converted here
@@ -36,7 +37,6 @@ from valve_env.params import (
     I_SIGMA,
     I_STROKE,
 )
-from valve_env.physics.fexp import fexp
 
 MBAR_TO_MPA = 1.0e-4
 BAR_TO_MPA = 0.1
@@ -47,7 +47,7 @@ LN10 = 2.302585092994046  # 10**y = exp(LN10 y), cheaper than pow
 @register_jitable
 def vapour_pressure(T_C, vp):
     """Bellows charge pressure p_b(T) in MPa (Antoine: log10(p/bar) = A - B/(T/K + C))."""
-    return BAR_TO_MPA * fexp(LN10 * (vp[I_ANT_A] - vp[I_ANT_B] / (T_C + KELVIN + vp[I_ANT_C])))
+    return BAR_TO_MPA * np.exp(LN10 * (vp[I_ANT_A] - vp[I_ANT_B] / (T_C + KELVIN + vp[I_ANT_C])))
 
 
 @register_jitable
@@ -100,7 +100,7 @@ def dahl_update(F_h_N, dT_K, vp):
     """
     s = np.sign(dT_K)
     Fm = vp[I_F_HMAX]
-    return s * Fm + (F_h_N - s * Fm) * fexp(-vp[I_SIGMA] * np.abs(dT_K) / Fm)
+    return s * Fm + (F_h_N - s * Fm) * np.exp(-vp[I_SIGMA] * np.abs(dT_K) / Fm)
 
 
 @register_jitable
