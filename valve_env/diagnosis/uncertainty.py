@@ -38,7 +38,7 @@ import numpy as np
 
 from valve_env.diagnosis.effects import EFFECTS
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
-from valve_env.diagnosis.stiction import jump_band, noise_sd
+from valve_env.diagnosis.stiction import jump_band, resting_noise_sd
 
 #: Name of the method, as written into the JSON.
 METHOD = "parametric bootstrap"
@@ -80,20 +80,60 @@ def _ou_path(t: np.ndarray, s_e: float, tau_e: float, rng: np.random.Generator) 
 
 
 def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np.random.Generator,
-                  truth_step_s: float = 1.0) -> RunData:
-    """One parametric-bootstrap replicate of ``data`` under ``values`` (see the module docstring)."""
-    fine = Model(model.effects, model.valve, max_step_s=min(truth_step_s, model.max_step_s))
-    x_true, _, _ = fine.simulate(data, values)
+                  truth_step_s: float = 1.0, x_noise_sd: float | None = None,
+                  x_true: np.ndarray | None = None) -> RunData:
+    """One parametric-bootstrap replicate of ``data`` under ``values`` (see the module docstring).
+
+    ``x_true``: the bootstrap world's true opening, if already simulated (:func:`world_opening`).
+    ``x_noise_sd``: with stiction, the sd of the white noise on the opening (default:
+    :func:`valve_env.diagnosis.stiction.resting_noise_sd` of ``data``)."""
+    if x_true is None:
+        x_true = world_opening(model, data, values, truth_step_s)
     n = len(data)
     if "stiction" in model.effects:
         # the band is measured from the steps of the opening: their noise is measured directly on the
-        # resting steps (the filter's s_w and s_e also absorb its misfit and would overstate it)
-        y = x_true + noise_sd(data.x) * rng.standard_normal(n)
+        # resting steps, the slips set apart (the filter's s_w and s_e also absorb its misfit and would
+        # overstate it; so would the median of all steps, slips included, at coarse sampling)
+        if x_noise_sd is None:
+            x_noise_sd = resting_noise_sd(data.x, float(model.valve.stroke), values.get("band_mm"))
+        y = x_true + x_noise_sd * rng.standard_normal(n)
     else:
         y = x_true + values["s_w"] * rng.standard_normal(n) + _ou_path(data.t, values["s_e"], values["tau_e"], rng)
     T = data.T + data.s_T * rng.standard_normal(n)
     M = data.M + data.s_M * rng.standard_normal(n)
     return RunData.from_arrays(data.t, T, M, y, data.dp, data.ps, name=f"{data.name} (bootstrap)")
+
+
+def world_opening(model: Model, data: RunData, values: dict[str, float], truth_step_s: float = 1.0) -> np.ndarray:
+    """The bootstrap world's true opening: the valve simulated from the smoothed temperatures with
+    ``values`` on sub-steps of at most ``truth_step_s``."""
+    step = min(truth_step_s, model.max_step_s)
+    if "stiction" in model.effects:
+        step = _mean_substep(data.t, step)
+    fine = Model(model.effects, model.valve, max_step_s=step)
+    x_true, _, _ = fine.simulate(data, values)
+    return x_true
+
+
+def _mean_substep(t: np.ndarray, step: float) -> float:
+    """The sub-step cap whose sub-steps last ``step`` on average over the record.
+
+    The stem slips at the first sub-step where the demand is the band away, so a slip overshoots the
+    band by up to the demand's motion over one sub-step; the jumps' bias (which the bootstrap
+    corrects) scales with the sub-step. The simulation splits each sample interval into equal
+    sub-steps of at most the cap, which for uneven sampling makes them shorter than the cap (0.87 s
+    on average for a cap of 1 s at 5 s +- 20 % jitter); the cap is raised until they last ``step``
+    on average, like the fixed clock of the truth."""
+    h = np.diff(np.asarray(t, dtype=float))
+    h = h[h > 0]
+    if h.size == 0:
+        return step
+    best, err = step, math.inf
+    for c in step * (1.0 + 0.01 * np.arange(101)):
+        e = abs(float(h.sum()) / float(np.ceil(h / c - 1e-9).sum()) - step)
+        if e < err:
+            best, err = float(c), e
+    return best
 
 
 def _refit(model: Model, rep: RunData, values: dict[str, float]) -> dict[str, float]:
@@ -111,34 +151,53 @@ def _refit(model: Model, rep: RunData, values: dict[str, float]) -> dict[str, fl
     return out
 
 
+def _band_replicate(model: Model, x_true: np.ndarray, s_x: float, rng: np.random.Generator,
+                    band: float) -> float:
+    """The band re-estimated from the jumps of one replicate opening of the bootstrap world."""
+    b, _ = jump_band(x_true + s_x * rng.standard_normal(x_true.shape[0]), float(model.valve.stroke))
+    return b if math.isfinite(b) else float(band)
+
+
 def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: int = 0,
-              truth_step_s: float = 1.0, bias_z: float = 2.0) -> BootstrapResult:
-    """Parametric bootstrap of the effect parameters of ``fit`` (a fit of ``model`` to ``data``)."""
+              truth_step_s: float = 1.0, bias_z: float = 2.0, band_B: int = 48) -> BootstrapResult:
+    """Parametric bootstrap of the effect parameters of ``fit`` (a fit of ``model`` to ``data``).
+
+    ``B`` replicates re-estimate every effect parameter; stiction's band, which needs no refit, is
+    re-estimated on ``band_B`` replicates in all (the ``B`` plus replicate openings alone)."""
     rng = np.random.default_rng(seed)
     names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
     reps = np.empty((B, len(names)))
+    x_true = world_opening(model, data, fit.params, truth_step_s)
+    stuck = "stiction" in model.effects
+    s_x = resting_noise_sd(data.x, float(model.valve.stroke), fit.params.get("band_mm")) if stuck else None
     for b in range(B):
-        rep = replicate_run(model, data, fit.params, rng, truth_step_s)
+        rep = replicate_run(model, data, fit.params, rng, truth_step_s, s_x, x_true)
         pr = _refit(model, rep, fit.params)
         reps[b] = [pr[k] for k in names]
     est = {k: float(fit.params[k]) for k in names}
-    mean = reps.mean(axis=0)
-    sd = reps.std(axis=0, ddof=1)
+    # the band's re-estimates need no refit (only the jumps of a replicate opening): more of them, so
+    # that the Monte Carlo error of the band's bias and spread (the jumps' estimate is heavy-tailed)
+    # does not dominate its sd
+    extra = [_band_replicate(model, x_true, s_x, rng, fit.params["band_mm"]) for _ in range(max(band_B - B, 0))
+             ] if stuck and s_x is not None else []
     bias, std, ci, corrected, flag = {}, {}, {}, {}, {}
     for i, k in enumerate(names):
-        bias[k] = float(mean[i] - est[k])
-        se = float(sd[i] / math.sqrt(B))
+        r = np.concatenate([reps[:, i], extra]) if k == "band_mm" else reps[:, i]
+        m_i, sd_i = float(r.mean()), float(r.std(ddof=1))
+        bias[k] = m_i - est[k]
+        se = sd_i / math.sqrt(r.size)
         flag[k] = bool(se > 0 and abs(bias[k]) > bias_z * se)
         if flag[k]:
             # a bias the replicates show clearly (e.g. the band's jumps overshoot a little): corrected,
             # and the sd includes the uncertainty of the correction (the mean of B replicates)
             corrected[k] = est[k] - bias[k]
-            std[k] = float(math.sqrt(sd[i] ** 2 + se**2))
+            std[k] = float(math.sqrt(sd_i**2 + se**2))
         else:
             # no clear bias: root-mean-square error about the estimate (spread and bias together)
             corrected[k] = est[k]
-            std[k] = float(math.sqrt(sd[i] ** 2 + bias[k] ** 2))
-        lo, hi = np.percentile(reps[:, i], [2.5, 97.5])
+            std[k] = float(math.sqrt(sd_i**2 + bias[k] ** 2))
+        lo, hi = np.percentile(r, [2.5, 97.5])
         # basic bootstrap interval (reflected about the estimate)
         ci[k] = (float(2 * est[k] - hi), float(2 * est[k] - lo))
     return BootstrapResult(names, reps, est, std, bias, ci, B, corrected, flag)
+
