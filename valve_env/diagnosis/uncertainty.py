@@ -57,13 +57,15 @@ class BootstrapResult:
     B: int = 0
     corrected: dict[str, float] = field(default_factory=dict)
     bias_corrected: dict[str, bool] = field(default_factory=dict)
+    #: sd of the re-estimates each parameter's sd was built from (the band's include its extra replicates)
+    spread: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, object]:
         return {"method": METHOD, "replicates": int(self.B),
                 "bias": {k: float(v) for k, v in self.bias.items()},
                 "bias_corrected": {k: bool(v) for k, v in self.bias_corrected.items()},
                 "uncorrected_estimate": {k: float(v) for k, v in self.estimate.items()},
-                "spread": {k: float(v) for k, v in zip(self.names, self.replicates.std(axis=0, ddof=1), strict=True)},
+                "spread": {k: float(v) for k, v in self.spread.items()},
                 "interval_95": {k: [float(a), float(b)] for k, (a, b) in self.interval_95.items()}}
 
 
@@ -144,17 +146,15 @@ def _refit(model: Model, rep: RunData, values: dict[str, float]) -> dict[str, fl
     fixed: dict[str, float] = {}
     for p in model.eff_params:
         if p.name == "band_mm":
-            b, _ = jump_band(rep.x, float(model.valve.stroke))
-            fixed[p.name] = out[p.name] = b if math.isfinite(b) else float(values[p.name])
+            fixed[p.name] = out[p.name] = _band_from(model, rep.x, values[p.name])
     if len(fixed) < len(model.eff_params):
         out = model._fit_smooth(rep, out, fixed, 200, False).params
     return out
 
 
-def _band_replicate(model: Model, x_true: np.ndarray, s_x: float, rng: np.random.Generator,
-                    band: float) -> float:
-    """The band re-estimated from the jumps of one replicate opening of the bootstrap world."""
-    b, _ = jump_band(x_true + s_x * rng.standard_normal(x_true.shape[0]), float(model.valve.stroke))
+def _band_from(model: Model, x: np.ndarray, band: float) -> float:
+    """The band re-estimated from the jumps of a replicate opening ``x`` (``band`` if too few jumps)."""
+    b, _ = jump_band(x, float(model.valve.stroke))
     return b if math.isfinite(b) else float(band)
 
 
@@ -178,12 +178,13 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     # the band's re-estimates need no refit (only the jumps of a replicate opening): more of them, so
     # that the Monte Carlo error of the band's bias and spread (the jumps' estimate is heavy-tailed)
     # does not dominate its sd
-    extra = [_band_replicate(model, x_true, s_x, rng, fit.params["band_mm"]) for _ in range(max(band_B - B, 0))
-             ] if stuck and s_x is not None else []
-    bias, std, ci, corrected, flag = {}, {}, {}, {}, {}
+    extra = [_band_from(model, x_true + s_x * rng.standard_normal(x_true.shape[0]), fit.params["band_mm"])
+             for _ in range(max(band_B - B, 0))] if stuck and s_x is not None else []
+    bias, std, ci, corrected, flag, spread = {}, {}, {}, {}, {}, {}
     for i, k in enumerate(names):
         r = np.concatenate([reps[:, i], extra]) if k == "band_mm" else reps[:, i]
         m_i, sd_i = float(r.mean()), float(r.std(ddof=1))
+        spread[k] = sd_i
         bias[k] = m_i - est[k]
         se = sd_i / math.sqrt(r.size)
         flag[k] = bool(se > 0 and abs(bias[k]) > bias_z * se)
@@ -199,5 +200,5 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
         lo, hi = np.percentile(r, [2.5, 97.5])
         # basic bootstrap interval (reflected about the estimate)
         ci[k] = (float(2 * est[k] - hi), float(2 * est[k] - lo))
-    return BootstrapResult(names, reps, est, std, bias, ci, B, corrected, flag)
+    return BootstrapResult(names, reps, est, std, bias, ci, B, corrected, flag, spread)
 
