@@ -4,9 +4,10 @@
 ``vectorization_mode="vector_entry_point"``) returns a
 :class:`ThermoValveVectorEnv`: N independent copies of the single env stepped
 by one call of the shared numba kernel :func:`valve_env.simulator.env_step_batch`
-(threads over envs), which runs the same ``apply_action``, ``plant_step`` and
-``fill_obs`` as the single env's :func:`valve_env.simulator.env_step`. There
-is one model; the batched env is not a second copy of it.
+(threads over ranges of envs), which runs the same ``apply_action`` and block
+kernel ``plant_step`` as the single env's :func:`valve_env.simulator.env_step`
+(the single env is a block of one column, this env a block of N). There is
+one model; the batched env is not a second copy of it.
 
 It behaves like ``gymnasium.vector.SyncVectorEnv`` over ``gym.make(id, ...)``
 with the same seed, to floating-point rounding:
