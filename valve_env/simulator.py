@@ -332,7 +332,10 @@ def _copy_row(dst, src, scale, lo, hi):
 # -- the environments' step: action -> plant_step -> observation --------------
 # Shared by the single env (``env_step``) and the batched env
 # (``env_step_batch``): both call the same ``apply_action``, ``plant_step`` and
-# ``fill_obs``, so the two cannot drift apart.
+# ``clock``. The batched step writes each observation column with the same
+# eight copies as ``fill_obs`` does, element by element (a view of a column of
+# the shared block per env would update its reference count atomically from
+# every thread); tests/envs/test_vector.py holds the two bit-identical.
 
 MODE_SETTING, MODE_PRESSURE, MODE_DUAL = 0, 1, 2
 MODE_CODES: dict[str, int] = {"setting": MODE_SETTING, "pressure": MODE_PRESSURE, "dual": MODE_DUAL}
