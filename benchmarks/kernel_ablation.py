@@ -32,7 +32,7 @@ from valve_env.scenario import make_scenario
 
 VARIANTS: dict[str, list[tuple[str, str]]] = {
     "full kernel": [],
-    "no buoyancy mixing": [("        buoyancy_mix(T, work_sum, work_cnt, flag, lo, hi)\n", "")],
+    "no buoyancy mixing": [("        buoyancy_mix(T, mix_S, mix_R, mix_M, flag, lo, hi)\n", "")],
     "no valve update (Dahl + opening)": [
         ("            F = dahl_update(F_h[i], Tg1 - T_g[i], vp)\n", "            F = F_h[i]\n"),
         ("            x = opening(Tg1, F, dp[i], ps, p_bset[i], vp)\n", "            x = X[i] + 0.0\n"),

@@ -219,8 +219,10 @@ def plant_step(Z, lo, hi, vp, pp):
     q_loss = Z[b0 + Z_Q_LOSS]
     flag = Z[b0 + Z_FLAG]
     Q = Z[b0 + N_Z:b0 + N_Z + nl]
-    work_sum = np.empty(nl)
-    work_cnt = np.empty(nl)
+    w = int(c1 - c0)
+    mix_S = np.empty((nl + 1, w))
+    mix_R = np.empty((nl, w))
+    mix_M = np.empty(w)
     for r in range(Z_TRAVEL, Z_DRAW_MASS + 1):
         for i in range(c0, c1):
             Z[b0 + r, i] = 0.0
@@ -257,7 +259,7 @@ def plant_step(Z, lo, hi, vp, pp):
         for j in range(nl):
             for i in range(c0, c1):
                 T[j, i] += Q[j, i] * dt_Mcp
-        buoyancy_mix(T, work_sum, work_cnt, flag, lo, hi)
+        buoyancy_mix(T, mix_S, mix_R, mix_M, flag, lo, hi)
         for i in range(c0, c1):
             mi = m[i]
             loss[i] += q_loss[i] * dt
@@ -567,12 +569,16 @@ def env_step_batch(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A,
 
 
 @njit(cache=True)
-def env_step_batch_serial(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP):
-    """:func:`env_step_batch` in one serial loop (no thread pool: for small N)."""
+def env_step_batch_serial(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP, block):
+    """:func:`env_step_batch` in one serial loop (no thread pool: for small N),
+    over column ranges of at most ``block`` envs (a range's rows stay in cache
+    while its sub-steps pass over them)."""
     status = check_actions(A_IN, bounds, A, CLIPPED, STEP)
     if status >= 0:
         return status
-    _step_block(0, Z.shape[1], Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP)
+    n = Z.shape[1]
+    for lo in range(0, n, block):
+        _step_block(lo, min(n, lo + block), Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP)
     return status
 
 

@@ -15,8 +15,29 @@ from valve_env.physics import tank
 
 
 def _mix(T: np.ndarray) -> int:
-    n = T.shape[0]
-    return int(tank.buoyancy_mix(T, np.zeros(n), np.zeros(n), np.zeros(T.shape[1])))
+    n, w = T.shape
+    return int(tank.buoyancy_mix(T, np.zeros((n + 1, w)), np.zeros((n, w)), np.zeros(w), np.zeros(w)))
+
+
+def _pool_adjacent_violators(t: np.ndarray) -> np.ndarray:
+    """The isotonic regression of one tank's layers by pool-adjacent-violators (test oracle)."""
+    blocks: list[list[float]] = []  # [sum, count]
+    for v in t:
+        blocks.append([float(v), 1.0])
+        while len(blocks) > 1 and blocks[-2][0] / blocks[-2][1] > blocks[-1][0] / blocks[-1][1]:
+            s, c = blocks.pop()
+            blocks[-1][0] += s
+            blocks[-1][1] += c
+    return np.concatenate([np.full(int(c), s / c) for s, c in blocks])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(0.0, 100.0, allow_nan=False), min_size=6, max_size=12))
+def test_buoyancy_mixing_is_the_pool_adjacent_violators_profile(temps):
+    T = np.array(temps)[:, None]
+    expected = _pool_adjacent_violators(T[:, 0])
+    _mix(T)
+    np.testing.assert_allclose(T[:, 0], expected, rtol=1e-12, atol=1e-10)
 
 
 @settings(max_examples=200, deadline=None)

@@ -42,7 +42,6 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import gymnasium as gym
-import numba
 import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -71,6 +70,16 @@ _INFO_KEYS: tuple[tuple[str, int], ...] = (
     ("pump_W", sim.O_PUMP_W),
 )
 _ENERGY_KEYS: tuple[str, ...] = ("heat_in_J", "stored_J", "losses_J", "draws_J")
+
+
+
+def _aligned_zeros(shape: int | tuple[int, ...], dtype: Any = np.float64, align: int = 4096) -> np.ndarray:
+    """``np.zeros(shape, dtype)`` whose data start on an ``align``-byte boundary."""
+    dt = np.dtype(dtype)
+    size = int(np.prod(shape)) * dt.itemsize
+    buf = np.zeros(size + align, np.uint8)
+    off = -buf.ctypes.data % align
+    return buf[off : off + size].view(dt).reshape(shape)
 
 
 class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
@@ -134,16 +143,18 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         # all envs live in one block (structure of arrays: a column per env) that the
         # kernel steps in place; _S, _ACC, _OUT and _OBS are (N, ...) views of it
         ns = nl + sim.N_STATE_EXTRA
-        self._Z = np.zeros((sim.block_rows(nl), n))
-        self._OBSZ = np.zeros((sim.N_OBS, n), np.float32)
+        # page-aligned, so that the threads' column ranges (multiples of 16 envs)
+        # share no cache line in any row (false sharing cost more than a second core gave)
+        self._Z = _aligned_zeros((sim.block_rows(nl), n))
+        self._OBSZ = _aligned_zeros((sim.N_OBS, n), np.float32)
         self._S = self._Z[:ns].T
         self._ACC = self._Z[sim.acc_row(nl) : sim.acc_row(nl) + sim.N_ACC].T
         self._OUT = self._Z[sim.out_row(nl) : sim.out_row(nl) + sim.N_OUT].T
         self._OBS = self._OBSZ.T
         self._R = self._Z[ns + sim.Z_REWARD]
-        self._K = np.zeros(n, np.int64)
-        self._SD = np.zeros((n, 2))
-        self._CUR = np.zeros(n, np.int64)
+        self._K = _aligned_zeros(n, np.int64)
+        self._SD = _aligned_zeros((n, 2))
+        self._CUR = _aligned_zeros(n, np.int64)
         self._NRUN = np.ones(n, np.int64)
         self._RK = np.zeros((n, self._SCEN_CAPACITY), np.int64)
         self._RV = np.zeros((n, self._SCEN_CAPACITY, sim.N_SCEN))
@@ -158,7 +169,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._A = np.zeros((n, self._a_lo.shape[0]))
         self._clipped = np.zeros(n, bool)
         self._bounds = proto._bounds
-        self._INFO = np.zeros((len(_INFO_KEYS) + 1, n))
+        self._INFO = _aligned_zeros((len(_INFO_KEYS) + 1, n))
         self._info_cols = np.array([col for _, col in _INFO_KEYS])
         self._info_names = [key for key, _ in _INFO_KEYS] + ["t_s"]
         self._mask_names = ["_" + key for key in self._info_names]
@@ -230,12 +241,12 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             A_in, self._bounds, self._A, clipped, self._mode_code, self._SD, stepping,
         )
         if n >= self.parallel_threshold:
-            # blocks of ``block_size`` envs handed out to the threads one at a
-            # time (dynamic scheduling): a thread the OS parks does not hold up the step
-            with numba.parallel_chunksize(1):
-                bad = sim.env_step_batch(*args, -(-n // self.block_size))
+            # blocks of ``block_size`` envs, scheduled statically: each thread gets
+            # the same blocks every step, so their rows stay in its core's cache
+            # (dynamic scheduling moved blocks between cores: 5-10 % slower)
+            bad = sim.env_step_batch(*args, -(-n // self.block_size))
         else:
-            bad = sim.env_step_batch_serial(*args)
+            bad = sim.env_step_batch_serial(*args, self.block_size)
         if bad >= 0:
             raise ValueError(f"action must be finite, got {A_in[bad].tolist()} for env {bad}")
         truncated = self._K >= self._limit

@@ -133,49 +133,65 @@ def stratification_breaks(T, flag_out, lo=0, hi=-1):
 
 
 @register_jitable
-def buoyancy_mix(T, work_sum, work_cnt, flag, lo=0, hi=-1):
-    """Mix any layer that is warmer than the one above it (buoyancy).
+def buoyancy_mix(T, S, R, M, flag, lo=0, hi=-1):
+    """Mix any layer that is warmer than the one above it (buoyancy); returns
+    the number of tanks that were mixed.
 
-    Equal-mass layers are pooled into blocks with their mean temperature by the
-    pool-adjacent-violators algorithm: the result is the closest stably
-    stratified profile (non-decreasing upwards) and conserves the energy of
-    every mixed block exactly. ``work_sum``/``work_cnt`` are scratch vectors of
-    length n_layers, ``flag`` one of length n_envs (see
-    :func:`stratification_breaks`: only the tanks it flags are visited).
-    Returns the number of layers that were mixed, over all tanks.
+    Equal-mass layers are pooled into blocks with their mean temperature: the
+    result is the closest stably stratified profile (non-decreasing upwards,
+    the isotonic regression of the layers), which conserves the energy of every
+    mixed block. It is computed in its min-max form,
+
+        T_j <- max_{a <= j} min_{b >= j} mean(T_a .. T_b),
+
+    with the block means from prefix sums: for each lowest layer ``a`` a running
+    minimum over the top layer ``b`` (from the top down) updates every layer
+    ``b`` at once, n (n + 1) / 2 passes over the envs that the compiler
+    vectorises (the pool-adjacent-violators algorithm gives the same profile,
+    but one tank at a time with branches that cannot be vectorised). Only the
+    tanks that :func:`stratification_breaks` flags are written, so a stable
+    tank is left exactly as it was; a block of stable tanks costs one pass.
+
+    ``S`` (n_layers + 1, w), ``R`` (n_layers, w) and ``M`` (w,) are scratch with
+    ``w >= hi - lo``; ``flag`` (n_envs,) receives the flags.
     """
     n = T.shape[0]
     c0, c1 = columns(lo, hi, T.shape[1])
     stratification_breaks(T, flag, lo, hi)
-    mixed = 0
+    k = 0
     for i in range(c0, c1):
-        if flag[i] == 0.0:
-            continue
-        j0 = 0  # the lowest inversion; below it the profile is already stable
-        while T[j0, i] <= T[j0 + 1, i]:
-            j0 += 1
-        for j in range(j0):
-            work_sum[j] = T[j, i]
-            work_cnt[j] = 1.0
-        nb = j0
-        for j in range(j0, n):
-            work_sum[nb] = T[j, i]
-            work_cnt[nb] = 1.0
-            nb += 1
-            # block means compared by cross-multiplication (sum_a / n_a > sum_b / n_b)
-            while nb > 1 and work_sum[nb - 2] * work_cnt[nb - 1] > work_sum[nb - 1] * work_cnt[nb - 2]:
-                work_sum[nb - 2] += work_sum[nb - 1]
-                work_cnt[nb - 2] += work_cnt[nb - 1]
-                nb -= 1
-        j = 0
-        for b in range(nb):
-            c = int(work_cnt[b])
-            mean = work_sum[b] / work_cnt[b]
-            for _ in range(c):
-                T[j, i] = mean
-                j += 1
-        mixed += n - nb
-    return mixed
+        k += 1 if flag[i] != 0.0 else 0
+    if k == 0:
+        return 0
+    for i in range(c0, c1):
+        S[0, i - c0] = 0.0
+        M[i - c0] = 0.0
+    for j in range(n):
+        for i in range(c0, c1):  # the running sum in M: rows j and j + 1 of S would look dependent
+            M[i - c0] += T[j, i]
+            S[j + 1, i - c0] = M[i - c0]
+            R[j, i - c0] = -np.inf
+    for a in range(n):
+        for i in range(c0, c1):
+            M[i - c0] = np.inf
+        for b in range(n - 1, a, -1):
+            w = 1.0 / (b - a + 1)
+            for i in range(c0, c1):  # (comparisons, not min/max: numba's min/max do not vectorise)
+                mean = (S[b + 1, i - c0] - S[a, i - c0]) * w
+                m = mean if mean < M[i - c0] else M[i - c0]
+                M[i - c0] = m
+                r = R[b, i - c0]
+                R[b, i - c0] = m if m > r else r
+        for i in range(c0, c1):  # the block of layer a alone: its own temperature, exactly
+            t = T[a, i]
+            m = t if t < M[i - c0] else M[i - c0]
+            r = R[a, i - c0]
+            R[a, i - c0] = m if m > r else r
+    for j in range(n):
+        for i in range(c0, c1):
+            t = T[j, i]
+            T[j, i] = R[j, i - c0] if flag[i] != 0.0 else t
+    return k
 
 
 @register_jitable
