@@ -42,15 +42,15 @@ def test_diagnose_writes_spec_json_and_report(good: Path, tmp_path: Path, capsys
                 "validation_rms_before_mm", "validation_rms_after_mm"):
         assert isinstance(f0[key], float)
     assert len(j["findings"]) == 4
-    # the named effect's sd come from the parametric bootstrap, and the document says so
-    assert f0["std_method"].startswith("parametric bootstrap")
+    # the named effect's sd come from the model-based bootstrap, and the document says so
+    assert f0["std_method"].startswith("model-based bootstrap")
     assert f0["uncertainty"]["replicates"] == 16 and set(f0["uncertainty"]["interval_95"]) == {"beta"}
     assert 0 < f0["std"]["beta"] < 0.25 * f0["params"]["beta"]
     assert j["findings"][1]["uncertainty"] is None
     report = tmp_path / "out.md"
     text = report.read_text()
     assert "Cause: `medium_temperature`" in text
-    assert "parametric bootstrap" in text
+    assert "model-based bootstrap" in text
     for png in ("out_fit.png", "out_phase.png", "out_residuals.png"):
         assert (tmp_path / png).stat().st_size > 1000
         assert png in text

@@ -58,7 +58,7 @@ def test_hidden_effect_is_named(results, truth: str) -> None:  # type: ignore[no
 def test_parameters_within_reported_uncertainty(results, truth: str) -> None:  # type: ignore[no-untyped-def]
     _, d = results[truth]
     f = d.findings[0]
-    assert f.std_method.startswith("parametric bootstrap"), f.std_method
+    assert f.std_method.startswith("model-based bootstrap"), f.std_method
     assert f.uncertainty is not None and f.uncertainty["replicates"] == 16
     for k, true in CASES[truth][truth].items():  # type: ignore[index]
         est, sd = f.fit.params[k], f.fit.std[k]

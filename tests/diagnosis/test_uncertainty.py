@@ -1,5 +1,5 @@
 """Honest uncertainty of the named effect's parameters (issue 6): the stick band estimator, the
-stick-slip filter's bias, and the parametric bootstrap. The >= 30-run coverage study is
+stick-slip filter's bias, and the model-based bootstrap. The >= 30-run coverage study is
 benchmarks/diagnosis_coverage.py (slow test below)."""
 
 from __future__ import annotations
@@ -119,3 +119,26 @@ def test_coverage_study_targets(coverage_303: dict) -> None:  # type: ignore[typ
 def test_coverage_study_targets_stiction(coverage_303: dict) -> None:  # type: ignore[type-arg]
     v = coverage_303["per_effect"]["stiction"]
     assert v["within_1sd"] >= 0.50 and v["within_2sd"] >= 0.80, v
+
+
+def test_residual_blocks_keep_the_memory_of_the_residuals() -> None:
+    """The opening's bootstrap noise: white residuals get short blocks, slowly correlated ones long
+    blocks, and a resample keeps the slow correlation (the fitted OU model error forgot it)."""
+    from statsmodels.tsa.stattools import acf
+
+    from valve_env.diagnosis.uncertainty import block_resample, residual_block_length
+
+    rng = np.random.default_rng(4)
+    n = 3000
+    white = rng.standard_normal(n)
+    slow = np.empty(n)
+    slow[0] = 0.0
+    for k in range(1, n):
+        slow[k] = 0.98 * slow[k - 1] + rng.standard_normal()
+    assert residual_block_length(white) <= 5
+    L = residual_block_length(slow)
+    assert 20 <= L <= n // 4
+    draw = block_resample(slow, L, rng)
+    assert draw.shape == slow.shape
+    assert set(np.round(draw, 12)) <= set(np.round(slow, 12))  # values of the residuals only
+    assert acf(draw, nlags=10)[10] > 0.5 * acf(slow, nlags=10)[10] > 0.3

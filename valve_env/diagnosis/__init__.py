@@ -8,7 +8,7 @@ Public API (imported lazily, so that ``thermovalve`` starts fast):
 * :func:`write_report` (markdown + PNG figures)
 * :data:`EFFECTS` (the effect library), :func:`effect_model` (the effects as SDE models for the estimator)
 * :func:`run_bench` (speed of a 24 h diagnosis)
-* :func:`bootstrap` (the parametric bootstrap behind the named effects' sd), :func:`jump_band`
+* :func:`bootstrap` (the model-based bootstrap behind the named effects' sd), :func:`jump_band`
   (stiction's band from the jumps of the opening)
 """
 

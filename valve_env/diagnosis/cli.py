@@ -42,7 +42,7 @@ def register(subparsers: Any) -> None:
                    help="the human report (default: beside OUT.json, OUT.md with PNG figures)")
     d.add_argument("--no-report", action="store_true", help="write the JSON only")
     d.add_argument("--bootstrap", type=int, default=16, metavar="B",
-                   help="parametric-bootstrap replicates for the named effects' sd (0: inverse Hessian/HAC, "
+                   help="bootstrap replicates for the named effects' sd (0: inverse Hessian/HAC, "
                    "faster but optimistic)")
     d.set_defaults(func=_cmd_diagnose)
 

@@ -372,7 +372,7 @@ def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[
 
 
 def _bootstrap_finding(f: Finding, train: RunData, valve: ValveParams, B: int) -> None:
-    """Replace the effect parameters' std of an accepted finding by the parametric bootstrap's."""
+    """Replace the effect parameters' std of an accepted finding by the model-based bootstrap's."""
     from valve_env.diagnosis.uncertainty import METHOD, bootstrap
 
     model = Model(f.fit.effects, valve)
@@ -408,7 +408,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
     effect must make, in units of the measurement noise sd, to count as relevant (a statistically
     significant but physically negligible effect, such as a lag of a fraction of the sampling
     interval, is an artefact of the data processing rather than a cause). ``bootstrap_B``: replicates
-    of the parametric bootstrap that gives the named effects' std (0: keep the Hessian/HAC std)."""
+    of the model-based bootstrap that gives the named effects' std (0: keep the Hessian/HAC std)."""
     t0 = time.perf_counter()
     valve = valve if valve is not None else ValveParams()
     cands = check_effects(list(effects) if effects else list(EFFECTS))
@@ -474,7 +474,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         ref_fit = best.fit
         ref_val = (best.validation_rms_after_mm, ref_val[1] + best.validation_loglik_gain,
                    best.validation_sim_rms_after_mm)
-    # honest uncertainty of the named effects: a parametric bootstrap of the whole chain (smoothing
+    # honest uncertainty of the named effects: a model-based bootstrap of the whole chain (smoothing
     # of the temperatures included), see valve_env.diagnosis.uncertainty
     if bootstrap_B > 0:
         for step in steps:

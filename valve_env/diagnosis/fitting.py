@@ -11,7 +11,7 @@ the opening (:mod:`valve_env.diagnosis.stiction`) and held while the rest is
 fitted. Standard deviations here are the larger of the inverse-Hessian and
 the HAC-sandwich ones (delta method to the natural scale); they ignore the
 smoothing error of the temperatures and are optimistic, so the diagnosis
-replaces them for the named effects by a parametric bootstrap
+replaces them for the named effects by a model-based bootstrap
 (:mod:`valve_env.diagnosis.uncertainty`).
 """
 

@@ -1,4 +1,4 @@
-"""Honest uncertainty of a named effect's parameters: a parametric bootstrap of the whole chain.
+"""Honest uncertainty of a named effect's parameters: a model-based bootstrap of the whole chain.
 
 Why not the Hessian: the output-error likelihood of :mod:`valve_env.diagnosis.fitting`
 conditions on the *smoothed* temperatures as if they were exact. Their smoothing error is an
@@ -14,10 +14,16 @@ truth (Efron and Tibshirani 1993, ch. 6; for grey-box models e.g. Ljung 1999, se
 1. the latent temperatures as smoothed from the run are the true temperatures; the valve is
    simulated from them with the fitted parameters on a fine grid (``truth_step_s``, finer
    than the estimator's sub-steps, so the estimator's discretisation counts too);
-2. a replicate run: white noise of the measured sd on both temperature channels, the fitted
-   noise model (white ``s_w`` plus the Ornstein-Uhlenbeck model error ``s_e``, ``tau_e``) on
-   the opening (with stiction: white noise of the sd measured on the resting steps, see
-   :func:`replicate_run`);
+2. a replicate run: white noise of the measured sd on both temperature channels; on the
+   opening, the run's own residuals about the bootstrap world's opening, resampled in circular
+   blocks (Politis and Romano 1992) of the length that Politis and White (2004) select for
+   them (``arch.bootstrap.optimal_block_length``). The residuals keep the memory of the real
+   model error: the fitted Ornstein-Uhlenbeck error model (``tau_e`` at most 900 s) forgets
+   it, and a drift of the set point, itself slow, was then re-estimated ten times too
+   precisely (setpoint_drift, one run 7.4 sd off on seed 505). With stiction the opening
+   gets white noise of the sd measured on the resting steps instead (see
+   :func:`replicate_run`): its band is measured from the jumps, which resampled residuals
+   would blur;
 3. the replicate is prepared exactly as a measured run (temperatures smoothed again) and the
    model re-estimated the way the estimate was made: maximum likelihood from the estimate,
    stiction's band from the jumps of the replicate's opening;
@@ -35,13 +41,14 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from arch.bootstrap import optimal_block_length
 
 from valve_env.diagnosis.effects import EFFECTS
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
 from valve_env.diagnosis.stiction import jump_band, resting_noise_sd
 
 #: Name of the method, as written into the JSON.
-METHOD = "parametric bootstrap"
+METHOD = "model-based bootstrap (residual blocks)"
 
 
 @dataclass
@@ -81,14 +88,35 @@ def _ou_path(t: np.ndarray, s_e: float, tau_e: float, rng: np.random.Generator) 
     return out
 
 
+def residual_block_length(resid: np.ndarray) -> int:
+    """Block length for a circular block bootstrap of ``resid``: Politis and White's (2004)
+    selection (with Patton, Politis and White's 2009 correction), within 1 .. n / 4."""
+    n = resid.shape[0]
+    L = float(optimal_block_length(resid)["circular"].iloc[0])
+    return int(min(max(round(L), 1) if math.isfinite(L) else 1, max(n // 4, 1)))
+
+
+def block_resample(resid: np.ndarray, block: int, rng: np.random.Generator) -> np.ndarray:
+    """A circular block bootstrap draw of ``resid``: blocks of ``block`` consecutive values from
+    random starts, wrapping around the end (every value is equally likely)."""
+    n = resid.shape[0]
+    starts = rng.integers(0, n, size=n // block + 1)
+    idx = (starts[:, None] + np.arange(block)[None, :]).ravel()[:n] % n
+    return resid[idx]
+
+
 def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np.random.Generator,
                   truth_step_s: float = 1.0, x_noise_sd: float | None = None,
-                  x_true: np.ndarray | None = None) -> RunData:
-    """One parametric-bootstrap replicate of ``data`` under ``values`` (see the module docstring).
+                  x_true: np.ndarray | None = None, resid_block: int | None = None) -> RunData:
+    """One bootstrap replicate of ``data`` under ``values`` (see the module docstring).
 
     ``x_true``: the bootstrap world's true opening, if already simulated (:func:`world_opening`).
     ``x_noise_sd``: with stiction, the sd of the white noise on the opening (default:
-    :func:`valve_env.diagnosis.stiction.resting_noise_sd` of ``data``)."""
+    :func:`valve_env.diagnosis.stiction.resting_noise_sd` of ``data``).
+    ``resid_block``: without stiction, the opening's noise is the residuals ``data.x - x_true``
+    resampled in circular blocks of this length (default: :func:`residual_block_length`); 0
+    draws the fitted noise model instead (white ``s_w`` plus the Ornstein-Uhlenbeck ``s_e``,
+    ``tau_e``), a purely parametric bootstrap."""
     if x_true is None:
         x_true = world_opening(model, data, values, truth_step_s)
     n = len(data)
@@ -99,8 +127,12 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
         if x_noise_sd is None:
             x_noise_sd = resting_noise_sd(data.x, float(model.valve.stroke), values.get("band_mm"))
         y = x_true + x_noise_sd * rng.standard_normal(n)
-    else:
+    elif resid_block == 0:
         y = x_true + values["s_w"] * rng.standard_normal(n) + _ou_path(data.t, values["s_e"], values["tau_e"], rng)
+    else:
+        resid = data.x - x_true
+        block = resid_block if resid_block is not None else residual_block_length(resid)
+        y = x_true + block_resample(resid, block, rng)
     T = data.T + data.s_T * rng.standard_normal(n)
     M = data.M + data.s_M * rng.standard_normal(n)
     return RunData.from_arrays(data.t, T, M, y, data.dp, data.ps, name=f"{data.name} (bootstrap)")
@@ -170,8 +202,9 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     x_true = world_opening(model, data, fit.params, truth_step_s)
     stuck = "stiction" in model.effects
     s_x = resting_noise_sd(data.x, float(model.valve.stroke), fit.params.get("band_mm")) if stuck else None
+    block = None if stuck else residual_block_length(data.x - x_true)
     for b in range(B):
-        rep = replicate_run(model, data, fit.params, rng, truth_step_s, s_x, x_true)
+        rep = replicate_run(model, data, fit.params, rng, truth_step_s, s_x, x_true, block)
         pr = _refit(model, rep, fit.params)
         reps[b] = [pr[k] for k in names]
     est = {k: float(fit.params[k]) for k in names}
