@@ -541,13 +541,14 @@ def check_actions(A_IN, bounds, A, CLIPPED, STEP):
 
 
 @njit(cache=True, parallel=True)
-def env_step_batch(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP, nblocks):
+def env_step_batch(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP, block):
     """``env_step`` over the N envs in the columns of the block ``Z`` for the
     envs with ``STEP[i]``, on numba's threads.
 
     The actions (row i for env i) go through :func:`check_actions` (its
     return value is returned; nothing is stepped if an action is not finite);
-    then the envs, cut into ``nblocks`` contiguous column ranges, each take
+    then the envs, cut into contiguous column ranges of ``block`` envs (the
+    last may be shorter), each take
     :func:`_step_block` (``apply_action``, ``plant_step`` and the observation,
     as the single env's ``env_step``). Observations go to the columns of
     ``OBSZ`` (N_OBS, N); ``INFO`` (6, N) receives the info columns x, F_h,
@@ -561,8 +562,7 @@ def env_step_batch(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A,
     if status >= 0:
         return status
     n = Z.shape[1]
-    block = (n + nblocks - 1) // nblocks
-    for b in prange(nblocks):
+    for b in prange((n + block - 1) // block):
         _step_block(b * block, min(n, (b + 1) * block), Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD,
                     STEP)
     return status

@@ -72,7 +72,6 @@ _INFO_KEYS: tuple[tuple[str, int], ...] = (
 _ENERGY_KEYS: tuple[str, ...] = ("heat_in_J", "stored_J", "losses_J", "draws_J")
 
 
-
 def _aligned_zeros(shape: int | tuple[int, ...], dtype: Any = np.float64, align: int = 4096) -> np.ndarray:
     """``np.zeros(shape, dtype)`` whose data start on an ``align``-byte boundary."""
     dt = np.dtype(dtype)
@@ -244,7 +243,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             # blocks of ``block_size`` envs, scheduled statically: each thread gets
             # the same blocks every step, so their rows stay in its core's cache
             # (dynamic scheduling moved blocks between cores: 5-10 % slower)
-            bad = sim.env_step_batch(*args, -(-n // self.block_size))
+            bad = sim.env_step_batch(*args, self.block_size)
         else:
             bad = sim.env_step_batch_serial(*args, self.block_size)
         if bad >= 0:
