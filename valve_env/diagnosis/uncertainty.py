@@ -192,7 +192,7 @@ def _band_from(model: Model, x: np.ndarray, band: float) -> float:
 
 def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: int = 0,
               truth_step_s: float = 1.0, bias_z: float = 2.0, band_B: int = 48) -> BootstrapResult:
-    """Parametric bootstrap of the effect parameters of ``fit`` (a fit of ``model`` to ``data``).
+    """Model-based bootstrap (module docstring) of the effect parameters of ``fit``, a fit of ``model`` to ``data``.
 
     ``B`` replicates re-estimate every effect parameter; stiction's band, which needs no refit, is
     re-estimated on ``band_B`` replicates in all (the ``B`` plus replicate openings alone)."""
