@@ -53,6 +53,9 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     out["std"] = js["std"]
     out["std_method"] = js.get("std_method", "")
     out["interval"] = js.get("interval", {})
+    unc = js.get("uncertainty") or {}
+    out["hessian_std"] = unc.get("hessian_std", {})
+    out["bootstrap_std"] = {k: float(v) for k, v in (unc.get("bootstrap_std") or {}).items()}
     return out
 
 

@@ -142,3 +142,42 @@ def test_residual_blocks_keep_the_memory_of_the_residuals() -> None:
     assert draw.shape == slow.shape
     assert set(np.round(draw, 12)) <= set(np.round(slow, 12))  # values of the residuals only
     assert acf(draw, nlags=10)[10] > 0.5 * acf(slow, nlags=10)[10] > 0.3
+
+
+def test_failed_refits_are_set_aside_and_honest_spreads_kept() -> None:
+    """A replicate whose refit ran away (here: beta at its bound, the drift far off) is set aside;
+    many draws of honest, normal re-estimates lose none; a spread that is mostly ties is left alone."""
+    from valve_env.diagnosis.uncertainty import failed_refits
+
+    rng = np.random.default_rng(5)
+    reps = np.column_stack([0.126 + 1e-3 * rng.standard_normal(16), 5e-5 + 2e-6 * rng.standard_normal(16)])
+    reps[7] = [0.9, 4e-3]
+    bad = failed_refits(reps)
+    assert bad.tolist() == [i == 7 for i in range(16)]
+    kept = reps[~bad]
+    assert kept[:, 0].std(ddof=1) < 2e-3  # the spread without it: that of the honest replicates
+    assert reps[:, 0].std(ddof=1) > 0.15  # with it: the absurd sd of seed 303
+    honest = sum(int(failed_refits(rng.standard_normal((16, 2))).sum()) for _ in range(500))
+    assert honest == 0
+    ties = np.zeros((16, 1))
+    ties[3] = 1.0  # Qn scale 0: nothing to measure distance in
+    assert not failed_refits(ties).any()
+    half = np.concatenate([np.zeros(8), 1e3 + rng.standard_normal(8)])[:, None]
+    assert not failed_refits(half).any()  # two clusters: no majority to call the other failed
+
+
+def test_curved_world_passes_through_the_samples_and_turns_between_them() -> None:
+    """The optional curved bootstrap world: a dense grid holding every sample time, splines through the
+    smoothed temperatures there, and a peak between two samples higher than both (straight lines
+    would peak on a sample)."""
+    from valve_env.diagnosis.fitting import RunData
+    from valve_env.diagnosis.uncertainty import curved_world
+
+    t = np.arange(0.0, 600.0, 30.0)
+    T = 50.0 + 5.0 * np.sin(2 * np.pi * (t + 7.0) / 600.0)  # its peak falls between samples
+    d = RunData.from_arrays(t, T, T + 10.0, np.zeros_like(t), np.full_like(t, 100.0), np.full_like(t, 1.0))
+    dense, idx = curved_world(d, 1.0)
+    assert np.array_equal(dense.t[idx], d.t) and np.allclose(dense.T[idx], d.T) and np.allclose(dense.M[idx], d.M)
+    assert np.all(np.diff(dense.t) > 0) and np.max(np.diff(dense.t)) <= 1.0 + 1e-9
+    assert dense.T.max() > d.T.max() + 1e-3
+    assert dense.s_T == d.s_T and len(dense) == dense.T.shape[0] == dense.dp.shape[0]

@@ -378,11 +378,21 @@ def _bootstrap_finding(f: Finding, train: RunData, valve: ValveParams, B: int) -
     model = Model(f.fit.effects, valve)
     b = bootstrap(model, train, f.fit, B=B)
     f.fit.extra.update({f"hessian_std_{k}": float(f.fit.std.get(k, float("nan"))) for k in b.names})
+    # the inverse-Hessian/HAC sd is a floor: where the likelihood is flat along a ridge (a slow drift of
+    # the set point against a slow model error), refits started at the bootstrap world's truth stop near
+    # it and the replicates understate the spread the ridge allows
+    source = {}
     for k, v in b.std.items():
-        f.fit.std[k] = v
+        h = f.fit.extra[f"hessian_std_{k}"]
+        floor = math.isfinite(h) and h > v
+        f.fit.std[k] = h if floor else v
+        source[k] = "hessian" if floor else "bootstrap"
         f.fit.params[k] = b.corrected[k]
-    f.std_method = f"{METHOD} (B={B}; bias-corrected where the bias is clear, else RMS error of the re-estimates)"
-    f.uncertainty = {**b.to_json(), "hessian_std": {k: f.fit.extra[f"hessian_std_{k}"] for k in b.names}}
+    aside = f", {b.dropped} failed refit(s) set aside" if b.dropped else ""
+    f.std_method = (f"{METHOD} (B={B}{aside}; bias-corrected where the bias is clear, else RMS error of the "
+                    "re-estimates; at least the inverse-Hessian/HAC sd)")
+    f.uncertainty = {**b.to_json(), "bootstrap_std": {k: float(v) for k, v in b.std.items()},
+                     "hessian_std": {k: f.fit.extra[f"hessian_std_{k}"] for k in b.names}, "std_from": source}
 
 
 def effect_size(model: Model, data: RunData, values: dict[str, float], effect: str) -> float:

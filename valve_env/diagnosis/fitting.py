@@ -273,9 +273,12 @@ class Model:
                 start.update(self._least_squares(data, start, fixed, smooth))
             xs, _, _ = self.simulate(data, start)
             start["s_e"] = max(float(np.sqrt(np.mean((data.x - xs) ** 2))), 1e-4)
+        # a warm start (an earlier fit) keeps its value unless a grid value is better (a refit from a good
+        # estimate once ended 6 log-likelihood units lower); a cold fit takes the best grid value: its
+        # least-squares value can sit in the basin of a worse optimum (11 units lower on one run)
         for p in self.eff_params:
             if p.name not in fixed:
-                start[p.name] = self._scan(data, start, p)
+                start[p.name] = self._scan(data, start, p, keep_start=not cold)
         fit = self._fit_smooth(data, start, fixed, maxiter, False)
         fit = self._coordinate_ascent(data, fit, fixed, maxiter)
         # a second look: scan each effect parameter again around the fit (the first scan saw the
@@ -390,8 +393,12 @@ class Model:
         span = np.array([0.0, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0]) * p.scale
         return np.clip(np.unique(np.concatenate([-span, span])), p.lower, p.upper)
 
-    def _scan(self, data: RunData, start: dict[str, float], p: EffectParameter) -> float:
-        best, best_ll = start[p.name], -math.inf
+    def _scan(self, data: RunData, start: dict[str, float], p: EffectParameter, keep_start: bool = False) -> float:
+        """The value of ``p`` with the highest likelihood on its grid (the other parameters at
+        ``start``); with ``keep_start``, the value in ``start`` competes too, so that a warm start is
+        only left for a better grid value."""
+        ll0 = self.loglik(data, start) if keep_start else -math.inf
+        best, best_ll = start[p.name], (ll0 if math.isfinite(ll0) else -math.inf)
         for g in self._grid(data, p):
             vals = {**start, p.name: float(g)}
             ll = self.loglik(data, vals)
