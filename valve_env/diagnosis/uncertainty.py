@@ -159,9 +159,9 @@ def world_opening(model: Model, data: RunData, values: dict[str, float], truth_s
     """The bootstrap world's true opening: the valve simulated from the smoothed temperatures with
     ``values`` on sub-steps of at most ``truth_step_s``.
 
-    ``curved`` (without stiction): the world's temperatures between the samples follow a cubic
-    spline through the smoothed ones, on a grid of ``truth_step_s``, and the valve feels every
-    reversal of them (:func:`curved_world`); else they are the estimator's own straight lines."""
+    ``curved`` (without stiction): the world's temperatures between the samples follow cubic
+    splines through the smoothed ones, on a grid of ``truth_step_s``, so that they can turn between
+    the samples (:func:`curved_world`); else they are the estimator's own straight lines."""
     step = min(truth_step_s, model.max_step_s)
     if "stiction" in model.effects:
         step = _mean_substep(data.t, step)
@@ -184,9 +184,10 @@ def curved_world(data: RunData, step: float) -> tuple[RunData, np.ndarray]:
     Why: the estimator sees the temperatures at the samples only and goes from one to the next in
     a straight line, freed of reversals smaller than its noise threshold. The real temperatures turn
     between the samples (a peak lies between two samples, not on one, and is higher than both), and
-    the friction turns with them; at 20-30 s sampling this moved beta by 4 sd of a bootstrap whose world ran on the
-    estimator's straight lines (medium_temperature, seed 808). A spline turns between the samples
-    as smooth temperatures do, so the replicates carry that error of the inputs too.
+    the friction turns with them; at 20-30 s sampling this moved beta by 4 sd of a bootstrap whose
+    world ran on the estimator's straight lines (medium_temperature, seed 808). A spline turns
+    between the samples as smooth temperatures do, so the replicates carry that error of the inputs
+    too.
 
     Not the default (``curved=False`` in :func:`bootstrap`), by measurement: it brought those two runs
     to 2.0 sd, but on seed 909 it made half of the 16 refits of one setpoint_drift run (30 s sampling)
