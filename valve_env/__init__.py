@@ -10,11 +10,17 @@ from __future__ import annotations
 
 import os
 
-# The batched env runs on numba's threads. With OpenMP's default busy-waiting,
-# a step on a machine whose cores are busy with other work waits for a parked
-# thread and ran 10x slower than serial here; sleeping waiters do not
-# (docs/speed.md). A default only: a value the user set is kept.
+# The batched env runs on numba's threads (OpenMP, GNU libgomp). With
+# libgomp's default busy-waiting (3 ms), a step on a machine whose cores are
+# busy with other work waits for a parked thread and ran 10x slower than
+# serial here; so waiters sleep (passive), but only after a short spin
+# (GOMP_SPINCOUNT 30 000, about 0.3 ms): a thread that sleeps between two
+# steps costs a futex wake-up in every step, which made the threads slower
+# than one core below N = 4096; with the spin they win from N = 1024, and on
+# a machine with both cores busy they did not collapse (docs/speed.md).
+# Defaults only: a value the user set is kept.
 os.environ.setdefault("OMP_WAIT_POLICY", "passive")
+os.environ.setdefault("GOMP_SPINCOUNT", "30000")
 
 from gymnasium.envs.registration import register, registry  # noqa: E402
 

@@ -94,6 +94,7 @@ def machine() -> dict[str, Any]:
         "numba_threads": numba.get_num_threads(),
         "numba_threading_layer": _threading_layer(),
         "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "unset"),
+        "gomp_spincount": os.environ.get("GOMP_SPINCOUNT", "unset"),
         "load_average_1_5_15min": load,
         "platform": platform.platform(),
         "python": platform.python_version(),
@@ -343,15 +344,18 @@ def bench_evidence(quick: bool) -> dict[str, Any]:
     env = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point")
     env.reset(seed=0)
     a = np.full((n, 1), 60.0, np.float32)
-    rates = {}
-    reps = 30
-    for label, thr in (("serial", 10**9), ("threads", 1)):
-        env.unwrapped.parallel_threshold = thr  # type: ignore[attr-defined]
-        env.step(a)
-        t0 = time.perf_counter()
-        for _ in range(reps):
+    # interleaved rounds, medians: a single timing of 30 steps (about 10 ms) was too short to read
+    reps, rounds = 60, 7
+    per: dict[str, list[float]] = {"serial": [], "threads": []}
+    for _ in range(rounds):
+        for label, thr in (("serial", 10**9), ("threads", 1)):
+            env.unwrapped.parallel_threshold = thr  # type: ignore[attr-defined]
             env.step(a)
-        rates[label] = n * reps / (time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            for _ in range(reps):
+                env.step(a)
+            per[label].append(n * reps / (time.perf_counter() - t0))
+    rates = {label: float(np.median(v)) for label, v in per.items()}
     env.close()
     ev["threads_vs_serial"] = {
         "num_envs": n,
@@ -537,7 +541,8 @@ def markdown(res: dict[str, Any]) -> str:
     m = res["machine"]
     lines = [
         f"Machine: {m['cpu']}, {m['cores_available']} cores available (numba threads {m['numba_threads']}, "
-        f"{m['numba_threading_layer']}, OMP_WAIT_POLICY {m.get('omp_wait_policy', 'unset')}), "
+        f"{m['numba_threading_layer']}, OMP_WAIT_POLICY {m.get('omp_wait_policy', 'unset')}, "
+        f"GOMP_SPINCOUNT {m.get('gomp_spincount', 'unset')}), "
         f"load average {', '.join(f'{v:.1f}' for v in m['load_average_1_5_15min'])}; "
         f"Python {m['python']}, NumPy {m['numpy']}, numba {m['numba']}, gymnasium {m['gymnasium']}"
         + (" (--quick)" if res["quick"] else ""),

@@ -241,3 +241,19 @@ def test_large_batch_uses_threads_and_still_matches() -> None:
                 o, r, te, tr, _ = single.step(acts[i])
                 done = te or tr
         np.testing.assert_allclose(o1[i], o, rtol=RTOL)
+
+
+def test_openmp_waiting_defaults_keep_what_the_user_set() -> None:
+    """``import valve_env`` sets OpenMP's waiting (passive after a short spin) before numba starts its
+    threads, unless the user chose: a fresh interpreter with and without the user's values."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import os, valve_env; print(os.environ['OMP_WAIT_POLICY'], os.environ['GOMP_SPINCOUNT'])"
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["passive", "30000"]
+    env.update(OMP_WAIT_POLICY="active", GOMP_SPINCOUNT="7")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["active", "7"]

@@ -93,9 +93,10 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     metadata: dict[str, Any] = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
     mode: ClassVar[Mode] = "setting"
     #: from this many envs on, the kernel runs on numba's threads (below, a serial loop): on the
-    #: 2-core machine of docs/speed.md threads were 0.55x serial at 1024 envs (moving the ranges'
-    #: data between the cores costs more than the second core gives) and 1.2-1.5x from 2048 on
-    parallel_threshold: ClassVar[int] = 2048
+    #: 2-core machine of docs/speed.md, with the threads spinning briefly between steps
+    #: (GOMP_SPINCOUNT, valve_env/__init__.py), threads/serial was 0.95 at 256-512 envs and
+    #: 1.2-1.35 at 1024 (env.step with random actions)
+    parallel_threshold: ClassVar[int] = 1024
     #: envs per range of columns handed to a thread: 512 stepped 1024 and 4096 envs 20 to 45 % faster
     #: than 64 to 256 in one A/B run (each call of the kernel pays a fixed cost per range)
     block_size: ClassVar[int] = 512
