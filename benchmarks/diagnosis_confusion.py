@@ -18,13 +18,12 @@ import math
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from valve_env.experiment import STUDY_CLASSES, random_cases
+from valve_env.experiment import STUDY_CLASSES, random_cases, run_cases, simulate_case
 
 CLASSES = STUDY_CLASSES
 
@@ -44,11 +43,8 @@ RANGES: dict[str, Any] = {
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
     from valve_env.diagnosis.diagnose import diagnose
-    from valve_env.experiment import simulate_experiment
 
-    df = simulate_experiment(seed=case["seed"], duration_h=case["duration_h"], dt_s=case["dt_s"],
-                             effects=case["effects"] or None, T_noise_C=case["T_noise_C"],
-                             x_noise_mm=case["x_noise_mm"], jitter=case["jitter"])
+    df = simulate_case(case)
     t0 = time.perf_counter()
     d = diagnose(df, bootstrap_B=int(case.get("bootstrap_B", 16)))
     out = dict(case)
@@ -67,22 +63,11 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_study(cases: list[dict[str, Any]], workers: int = 1, progress: bool = True) -> list[dict[str, Any]]:
-    results: list[dict[str, Any]] = []
-    if workers <= 1:
-        for c in cases:
-            r = run_case(c)
-            results.append(r)
-            if progress:
-                print(f"[{len(results)}/{len(cases)}] truth={r['truth']:<18} cause={r['cause']:<18} "
-                      f"dt={r['dt_s']:g}s {r['duration_h']:.1f}h {r['seconds']:.1f}s", flush=True)
-        return results
-    with ProcessPoolExecutor(max_workers=workers) as ex:
-        for r in ex.map(run_case, cases):
-            results.append(r)
-            if progress:
-                print(f"[{len(results)}/{len(cases)}] truth={r['truth']:<18} cause={r['cause']:<18} "
-                      f"dt={r['dt_s']:g}s {r['duration_h']:.1f}h {r['seconds']:.1f}s", flush=True)
-    return results
+    def show(r: dict[str, Any], done: int) -> None:
+        print(f"[{done}/{len(cases)}] truth={r['truth']:<18} cause={r['cause']:<18} "
+              f"dt={r['dt_s']:g}s {r['duration_h']:.1f}h {r['seconds']:.1f}s", flush=True)
+
+    return run_cases(run_case, cases, workers, show if progress else None)
 
 
 def confusion(results: list[dict[str, Any]]) -> dict[str, Any]:

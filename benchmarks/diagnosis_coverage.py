@@ -24,24 +24,20 @@ import math
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from valve_env.experiment import STUDY_CLASSES, random_cases
+from valve_env.experiment import STUDY_CLASSES, random_cases, run_cases, simulate_case
 
 EFFECT_CLASSES = STUDY_CLASSES[1:]  # every named effect, no 'none' runs
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
     from valve_env.diagnosis.diagnose import diagnose
-    from valve_env.experiment import simulate_experiment
 
-    df = simulate_experiment(seed=case["seed"], duration_h=case["duration_h"], dt_s=case["dt_s"],
-                             effects=case["effects"], T_noise_C=case["T_noise_C"],
-                             x_noise_mm=case["x_noise_mm"], jitter=case["jitter"])
+    df = simulate_case(case)
     t0 = time.perf_counter()
     d = diagnose(df)
     out = dict(case)
@@ -60,27 +56,15 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_study(cases: list[dict[str, Any]], workers: int = 1, progress: bool = True) -> list[dict[str, Any]]:
-    results: list[dict[str, Any]] = []
+    def show(r: dict[str, Any], done: int) -> None:
+        k, v = next(iter(r["estimate"].items()))
+        true = r["effects"][r["truth"]][k]
+        s = r["std"][k]
+        print(f"[{done}/{len(cases)}] {r['truth']:<18} cause={r['cause']:<18} {k}={true:.4g} "
+              f"est={v:.4g}±{s:.2g} z={(v - true) / s if s else float('nan'):+.2f} dt={r['dt_s']:g}s "
+              f"{r['duration_h']:.1f}h {r['seconds']:.1f}s", flush=True)
 
-    def show(r: dict[str, Any]) -> None:
-        if progress:
-            k, v = next(iter(r["estimate"].items()))
-            true = r["effects"][r["truth"]][k]
-            s = r["std"][k]
-            print(f"[{len(results)}/{len(cases)}] {r['truth']:<18} cause={r['cause']:<18} {k}={true:.4g} "
-                  f"est={v:.4g}±{s:.2g} z={(v - true) / s if s else float('nan'):+.2f} dt={r['dt_s']:g}s "
-                  f"{r['duration_h']:.1f}h {r['seconds']:.1f}s", flush=True)
-
-    if workers <= 1:
-        for c in cases:
-            results.append(run_case(c))
-            show(results[-1])
-        return results
-    with ProcessPoolExecutor(max_workers=workers) as ex:
-        for r in ex.map(run_case, cases):
-            results.append(r)
-            show(r)
-    return results
+    return run_cases(run_case, cases, workers, show if progress else None)
 
 
 def coverage(results: list[dict[str, Any]], named_only: bool = True) -> dict[str, Any]:

@@ -169,3 +169,18 @@ def test_experiment_cli_subprocess(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert "unknown effect 'bogus'" in r.stderr
+
+
+def test_study_cases_run_in_order_in_process_and_on_a_pool() -> None:
+    """The studies' runner: the same results in the cases' order with one or two workers, each
+    reported as it arrives; a case's run is the generator's with the case's settings."""
+    from valve_env.experiment import random_cases, run_cases, simulate_case, simulate_experiment
+
+    cases = random_cases(4, seed=5)
+    seen: list[int] = []
+    one = run_cases(dict, cases, 1, lambda r, k: seen.append(k))
+    assert one == run_cases(dict, cases, 2) == [dict(c) for c in cases]
+    assert seen == [1, 2, 3, 4]
+    c = next(c for c in cases if c["truth"] != "none")
+    kw = {k: c[k] for k in ("seed", "duration_h", "dt_s", "effects", "T_noise_C", "x_noise_mm", "jitter")}
+    assert simulate_case(c).equals(simulate_experiment(**kw))

@@ -31,7 +31,9 @@ Everything is seeded with a :class:`numpy.random.Generator` and deterministic.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import ExitStack
 from typing import Any
 
 import numpy as np
@@ -348,9 +350,6 @@ def parse_effect(text: str) -> tuple[str, dict[str, float]]:
     return name, pars
 
 
-__all__ = ["EFFECTS", "DEFAULT_OPTIONS", "COLUMNS", "simulate_experiment", "parse_effect"]
-
-
 #: the classes of the randomised studies: no effect, then each named effect of SPEC section 3
 STUDY_CLASSES: tuple[str, ...] = ("none", "sensor_lag", "medium_temperature", "stiction", "setpoint_drift")
 
@@ -390,3 +389,29 @@ def random_cases(n: int, seed: int, classes: tuple[str, ...] = STUDY_CLASSES) ->
             "jitter": float(rng.choice([0.0, 0.2])),
         })
     return cases
+
+
+def simulate_case(case: Mapping[str, Any]) -> pd.DataFrame:
+    """The generated run of a study case (one of :func:`random_cases`)."""
+    return simulate_experiment(seed=case["seed"], duration_h=case["duration_h"], dt_s=case["dt_s"],
+                               effects=case["effects"] or None, T_noise_C=case["T_noise_C"],
+                               x_noise_mm=case["x_noise_mm"], jitter=case["jitter"])
+
+
+def run_cases(fn: Callable[[dict[str, Any]], dict[str, Any]], cases: list[dict[str, Any]], workers: int = 1,
+              on_result: Callable[[dict[str, Any], int], None] | None = None) -> list[dict[str, Any]]:
+    """``fn`` over the study ``cases``, in order, in this process (``workers <= 1``) or on a pool of
+    ``workers`` processes (``fn`` must then be importable by name); ``on_result(result, done)`` is
+    called as each result arrives."""
+    results: list[dict[str, Any]] = []
+    with ExitStack() as stack:
+        mapper = map if workers <= 1 else stack.enter_context(ProcessPoolExecutor(max_workers=workers)).map
+        for r in mapper(fn, cases):
+            results.append(r)
+            if on_result is not None:
+                on_result(r, len(results))
+    return results
+
+
+__all__ = ["EFFECTS", "DEFAULT_OPTIONS", "COLUMNS", "simulate_experiment", "parse_effect", "STUDY_CLASSES",
+           "draw_effect", "random_cases", "simulate_case", "run_cases"]
