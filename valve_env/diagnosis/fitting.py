@@ -255,7 +255,7 @@ class Model:
         # stiction's band is measured from the staircase of the opening (valve_env.diagnosis.stiction):
         # its likelihood is rough and trades the band off against F_hmax, which traps a joint fit
         for p in self.eff_params:
-            if p.log_grid and p.name not in fixed and p.name == "band_mm":
+            if p.name == "band_mm" and p.name not in fixed:
                 b, _ = jump_band(data.x, float(self.valve.stroke))
                 if math.isfinite(b) and b > 0:
                     fixed[p.name] = min(max(b, p.lower), p.upper)

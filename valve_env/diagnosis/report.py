@@ -171,9 +171,10 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
                              for k, v in u.get("bias", {}).items())
             hess = ", ".join(f"{k} {_fmt(v)}" for k, v in u.get("hessian_std", {}).items())
             L += [f"*Uncertainty ({f.std_method}):* the ± is one sd from re-estimating the model on "
-                  f"{u.get('replicates', 0)} runs simulated from the fit with the fitted noise (temperature "
-                  f"smoothing included); bias of the re-estimates {bias}; basic bootstrap 95 % interval {ci}; "
-                  f"for comparison the inverse-Hessian/HAC sd {hess}.", ""]
+                  f"{u.get('replicates', 0)} runs simulated from the fit (the run's own residuals resampled in "
+                  f"blocks as the opening's noise, white resting noise with stiction; temperature smoothing "
+                  f"included), or the inverse-Hessian/HAC sd where that is larger; bias of the re-estimates "
+                  f"{bias}; basic bootstrap 95 % interval {ci}; inverse-Hessian/HAC sd {hess}.", ""]
         else:
             L += [f"*Uncertainty:* {f.std_method}.", ""]
         L += [f"*Physics:* {eff.physics}", "",

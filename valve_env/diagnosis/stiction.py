@@ -32,6 +32,12 @@ def _responsibilities(a: np.ndarray, b: float, sig: float, w: np.ndarray,
     return R, R.sum(axis=1) / a.size
 
 
+def _away_from_stops(x: np.ndarray, stroke: float, edge_mm: float) -> np.ndarray:
+    """Mask of the steps of ``x`` whose both ends lie more than ``edge_mm`` from the end stops."""
+    lo, hi = edge_mm, stroke - edge_mm
+    return (x[:-1] > lo) & (x[1:] > lo) & (x[:-1] < hi) & (x[1:] < hi)
+
+
 def noise_sd(x: np.ndarray) -> float:
     """sd of the white noise on the opening from the resting steps (median absolute difference)."""
     d = np.abs(np.diff(x))
@@ -54,7 +60,7 @@ def resting_noise_sd(x: np.ndarray, stroke: float, band: float | None = None, ed
     if not (math.isfinite(b) and b > 0 and s0 > 0):
         return s0
     d = np.diff(x)
-    inside = (x[:-1] > edge_mm) & (x[1:] > edge_mm) & (x[:-1] < stroke - edge_mm) & (x[1:] < stroke - edge_mm)
+    inside = _away_from_stops(x, stroke, edge_mm)
     a = np.abs(d[inside])
     if a.size < 20:
         return s0
@@ -84,7 +90,7 @@ def jump_band(x: np.ndarray, stroke: float, s_w: float | None = None, z: float =
     x = np.asarray(x, dtype=float)
     s = noise_sd(x) if s_w is None else float(s_w)
     d = np.diff(x)
-    inside = (x[:-1] > edge_mm) & (x[1:] > edge_mm) & (x[:-1] < stroke - edge_mm) & (x[1:] < stroke - edge_mm)
+    inside = _away_from_stops(x, stroke, edge_mm)
     J = np.abs(d[inside & (np.abs(d) > z * math.sqrt(2.0) * max(s, 1e-6))])
     if J.size < min_jumps:
         return float("nan"), int(J.size)
