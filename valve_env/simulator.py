@@ -344,6 +344,8 @@ MODE_CODES: dict[str, int] = {"setting": MODE_SETTING, "pressure": MODE_PRESSURE
 # the observation (valve_env.envs.thermovalve.OBS_NAMES) from the step outputs
 OBS_FROM_OUT = (O_T_TOP, O_T_POCKET, O_T_BOTTOM, O_T_SUP, O_T_RET, O_Q_KGH, O_DP, O_DRAW_LMIN)
 N_OBS = 12
+# the info columns of the batched step (INFO rows 0-4; row 5 is the time), from the step outputs
+INFO_FROM_OUT = (O_X, O_FH, O_TG, O_HEAT_W, O_PUMP_W)
 # the env's action memory ``sd``: the setting in force (degC), the dp in force (mbar)
 SD_SET, SD_DP = 0, 1
 
@@ -369,20 +371,21 @@ def fill_obs(obs, out, pp, k, T_set):
     obs[11] = pp[P_T_TARGET]
 
 
-@njit(cache=True)
-def apply_action(a, mode, scen, sd):
-    """Put a (validated, clipped) action in force: ``sd`` <- (setting, dp).
+@register_jitable
+def apply_action(mode, a0, a1, scen_dp, setting, dp):
+    """The (setting degC, dp mbar) in force after a (validated, clipped) action
+    ``(a0, a1)`` (``a1`` is read in dual mode only), from the scenario's dp
+    ``scen_dp`` and the (setting, dp) in force before.
 
     setting mode: the setting is the action, dp the scenario's; pressure mode:
-    dp is the action, the setting stays; dual: both."""
+    dp is the action, the setting stays; dual: both. Scalars in and out: called
+    once per env in the batched step, where a call with array arguments cost
+    35 ns per env-step in reference counting (docs/speed.md)."""
     if mode == MODE_SETTING:
-        sd[SD_SET] = a[0]
-        sd[SD_DP] = scen[4]
-    elif mode == MODE_PRESSURE:
-        sd[SD_DP] = a[0]
-    else:
-        sd[SD_SET] = a[0]
-        sd[SD_DP] = a[1]
+        return a0, scen_dp
+    if mode == MODE_PRESSURE:
+        return setting, a0
+    return a0, a1
 
 
 @njit(cache=True)
@@ -409,7 +412,7 @@ def env_step(s, acc, out, obs, vp, pp, scen, k, a, bounds, mode, sd, work):
             a[j] = bounds[1, j]
             status = 1
     row = scen[k]
-    apply_action(a, mode, row, sd)
+    sd[SD_SET], sd[SD_DP] = apply_action(mode, a[0], a[na - 1], row[4], sd[SD_SET], sd[SD_DP])
     ns = s.shape[0]
     nl = int(pp[P_NL])
     a0 = acc_row(nl)
@@ -443,36 +446,43 @@ def load_inputs(Z, i, ns, row, T_set, dp):
 
 
 @njit(cache=True)
-def _step_block(lo, hi, Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP):
+def _next_run(i, k, RK, RV, CUR, NRUN, ROW, NEXT):
+    """Env ``i`` at step ``k`` has reached ``NEXT[i]``: move ``CUR[i]`` to the run in
+    force, copy its scenario row into ``ROW[i]`` and set ``NEXT[i]`` to the step
+    where the following run starts (the largest int64 after the last run)."""
+    cur = CUR[i]
+    while cur + 1 < NRUN[i] and RK[i, cur + 1] <= k:
+        cur += 1
+    CUR[i] = cur
+    for q in range(ROW.shape[1]):
+        ROW[i, q] = RV[i, cur, q]
+    NEXT[i] = RK[i, cur + 1] if cur + 1 < NRUN[i] else np.iinfo(np.int64).max
+
+
+@njit(cache=True)
+def _step_block(lo, hi, Z, OBS, INFO, vp, pp, RK, RV, CUR, NRUN, ROW, NEXT, K, A, mode, SD, STEP):
     """``apply_action``, ``plant_step`` and the observation for the envs in
     columns ``lo .. hi - 1`` of the batched env's block ``Z`` (observations in
-    the columns of ``OBSZ``). Envs with ``STEP[i]`` false are left exactly as
+    the rows of ``OBS``). Envs with ``STEP[i]`` false are left exactly as
     they were."""
     nl = int(pp[P_NL])
     ns = nl + N_STATE_EXTRA
     o0 = out_row(nl)
     c0, c1 = columns(lo, hi, Z.shape[1])
     row = np.empty(RV.shape[2])
-    a = np.empty(A.shape[1])
-    sd = np.empty(2)
+    na = A.shape[1]
     held = 0
     for i in range(c0, c1):
         if STEP[i]:
             k = K[i]
-            cur = CUR[i]
-            while cur + 1 < NRUN[i] and RK[i, cur + 1] <= k:
-                cur += 1
-            CUR[i] = cur
+            if k >= NEXT[i]:  # a new run of the scenario starts (every ~30 steps)
+                _next_run(i, k, RK, RV, CUR, NRUN, ROW, NEXT)
             for q in range(row.shape[0]):
-                row[q] = RV[i, cur, q]
-            for q in range(a.shape[0]):
-                a[q] = A[i, q]
-            sd[SD_SET] = SD[i, SD_SET]
-            sd[SD_DP] = SD[i, SD_DP]
-            apply_action(a, mode, row, sd)
-            SD[i, SD_SET] = sd[SD_SET]
-            SD[i, SD_DP] = sd[SD_DP]
-            load_inputs(Z, i, ns, row, sd[SD_SET], sd[SD_DP])
+                row[q] = ROW[i, q]
+            T_set, dp = apply_action(mode, A[i, 0], A[i, na - 1], row[4], SD[i, SD_SET], SD[i, SD_DP])
+            SD[i, SD_SET] = T_set
+            SD[i, SD_DP] = dp
+            load_inputs(Z, i, ns, row, T_set, dp)
         else:
             held += 1
     # the block is stepped whole (vectorised); envs that do not step are put back
@@ -484,26 +494,27 @@ def _step_block(lo, hi, Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD
                 kept[c, q] = Z[q, i]
             c += 1
     plant_step(Z, lo, hi, vp, pp)
-    c = 0
+    if held > 0:
+        c = 0
+        for i in range(c0, c1):
+            if not STEP[i]:
+                for q in range(Z.shape[0]):
+                    Z[q, i] = kept[c, q]
+                c += 1
+    for i in range(c0, c1):
+        K[i] += 1 if STEP[i] else 0
+    # the observations, env by env (a row of ``OBS`` each, as the agent gets them)
     for i in range(c0, c1):
         if STEP[i]:
-            K[i] += 1
-            k = K[i]
             for j in range(8):
-                OBSZ[j, i] = Z[o0 + OBS_FROM_OUT[j], i]
-            OBSZ[8, i], OBSZ[9, i] = clock(k, pp)
-            OBSZ[10, i] = Z[o0 + O_T_SET, i]
-            OBSZ[11, i] = pp[P_T_TARGET]
-        else:
-            for q in range(Z.shape[0]):
-                Z[q, i] = kept[c, q]
-            c += 1
-        INFO[0, i] = Z[o0 + O_X, i]
-        INFO[1, i] = Z[o0 + O_FH, i]
-        INFO[2, i] = Z[o0 + O_TG, i]
-        INFO[3, i] = Z[o0 + O_HEAT_W, i]
-        INFO[4, i] = Z[o0 + O_PUMP_W, i]
-        INFO[5, i] = K[i] * pp[P_DT]
+                OBS[i, j] = Z[o0 + OBS_FROM_OUT[j], i]
+            OBS[i, 8], OBS[i, 9] = clock(K[i], pp)
+            OBS[i, 10] = Z[o0 + O_T_SET, i]
+            OBS[i, 11] = pp[P_T_TARGET]
+    # the info rows row by row: loops over envs that the compiler vectorises
+    for j in range(5):
+        _copy_row(INFO[j], Z[o0 + INFO_FROM_OUT[j]], 1.0, lo, hi)
+    _copy_row(INFO[5], K, pp[P_DT], lo, hi)
 
 
 @njit(cache=True)
@@ -541,7 +552,8 @@ def check_actions(A_IN, bounds, A, CLIPPED, STEP):
 
 
 @njit(cache=True, parallel=True)
-def env_step_batch(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP, block):
+def env_step_batch(Z, OBS, INFO, vp, pp, RK, RV, CUR, NRUN, ROW, NEXT, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP,
+                   block):
     """``env_step`` over the N envs in the columns of the block ``Z`` for the
     envs with ``STEP[i]``, on numba's threads.
 
@@ -550,26 +562,29 @@ def env_step_batch(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A,
     then the envs, cut into contiguous column ranges of ``block`` envs (the
     last may be shorter), each take
     :func:`_step_block` (``apply_action``, ``plant_step`` and the observation,
-    as the single env's ``env_step``). Observations go to the columns of
-    ``OBSZ`` (N_OBS, N); ``INFO`` (6, N) receives the info columns x, F_h,
+    as the single env's ``env_step``). Observations go to the rows of
+    ``OBS`` (N, N_OBS), the env's observation array; ``INFO`` (6, N) receives the info columns x, F_h,
     T_g, heat, pump and the time (s).
 
     Each env's scenario is run-length encoded: rows ``RV[i, :NRUN[i]]`` start
     at step indices ``RK[i, :NRUN[i]]`` (``RK[i, 0] == 0``); ``CUR[i]`` is the
-    run in force, which only moves forward within an episode.
+    run in force, which only moves forward within an episode, ``ROW[i]`` its
+    row and ``NEXT[i]`` the step index where the next run starts (0 after a
+    reset, so the first step loads run 0).
     """
     status = check_actions(A_IN, bounds, A, CLIPPED, STEP)
     if status >= 0:
         return status
     n = Z.shape[1]
     for b in prange((n + block - 1) // block):
-        _step_block(b * block, min(n, (b + 1) * block), Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD,
-                    STEP)
+        _step_block(b * block, min(n, (b + 1) * block), Z, OBS, INFO, vp, pp, RK, RV, CUR, NRUN, ROW, NEXT, K, A,
+                    mode, SD, STEP)
     return status
 
 
 @njit(cache=True)
-def env_step_batch_serial(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bounds, A, CLIPPED, mode, SD, STEP, block):
+def env_step_batch_serial(Z, OBS, INFO, vp, pp, RK, RV, CUR, NRUN, ROW, NEXT, K, A_IN, bounds, A, CLIPPED, mode, SD,
+                          STEP, block):
     """:func:`env_step_batch` in one serial loop (no thread pool: for small N),
     over column ranges of at most ``block`` envs (a range's rows stay in cache
     while its sub-steps pass over them)."""
@@ -578,7 +593,8 @@ def env_step_batch_serial(Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A_IN, bou
         return status
     n = Z.shape[1]
     for lo in range(0, n, block):
-        _step_block(lo, min(n, lo + block), Z, OBSZ, INFO, vp, pp, RK, RV, CUR, NRUN, K, A, mode, SD, STEP)
+        _step_block(lo, min(n, lo + block), Z, OBS, INFO, vp, pp, RK, RV, CUR, NRUN, ROW, NEXT, K, A, mode, SD,
+                    STEP)
     return status
 
 

@@ -94,12 +94,12 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     mode: ClassVar[Mode] = "setting"
     #: from this many envs on, the kernel runs on numba's threads (below, a serial loop): on the
     #: 2-core machine of docs/speed.md, with the threads spinning briefly between steps
-    #: (GOMP_SPINCOUNT, valve_env/__init__.py), threads/serial was 0.95 at 256-512 envs and
-    #: 1.2-1.35 at 1024 (env.step with random actions)
-    parallel_threshold: ClassVar[int] = 1024
-    #: envs per range of columns handed to a thread: 512 stepped 1024 and 4096 envs 20 to 45 % faster
-    #: than 64 to 256 in one A/B run (each call of the kernel pays a fixed cost per range)
-    block_size: ClassVar[int] = 512
+    #: (GOMP_SPINCOUNT, valve_env/__init__.py), env.step at 512 envs ran 4.5-5.4 M env-steps/s
+    #: on threads against 4.4 M serially, and at 256 envs 3.7 against 4.1 M
+    parallel_threshold: ClassVar[int] = 512
+    #: envs per range of columns handed to a thread: 256 stepped 512 to 4096 envs 5-15 % faster than
+    #: 512 in interleaved A/B runs (equal at 16 384); 128 was no better
+    block_size: ClassVar[int] = 256
     _SCEN_CAPACITY: ClassVar[int] = 128
 
     def __init__(
@@ -141,20 +141,26 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         n, nl = self.num_envs, self.cfg.tank.n_layers
         self._nl = nl
         # all envs live in one block (structure of arrays: a column per env) that the
-        # kernel steps in place; _S, _ACC and _OUT are (N, ...) views of it, _OBS of _OBSZ
+        # kernel steps in place; _S, _ACC and _OUT are (N, ...) views of it. The kernel writes
+        # the observations into _OBS (N, 12) as they are returned (a transposed copy of a
+        # (12, N) array cost 5 us per step at N = 1024)
         ns = nl + sim.N_STATE_EXTRA
         # page-aligned, so that the threads' column ranges (multiples of 16 envs) share no
         # cache line in any row (no measurable change on its own in one A/B run; it costs nothing)
         self._Z = _aligned_zeros((sim.block_rows(nl), n))
-        self._OBSZ = _aligned_zeros((sim.N_OBS, n), np.float32)
+        self._OBS = _aligned_zeros((n, sim.N_OBS), np.float32)
         self._S = self._Z[:ns].T
         self._ACC = self._Z[sim.acc_row(nl) : sim.acc_row(nl) + sim.N_ACC].T
         self._OUT = self._Z[sim.out_row(nl) : sim.out_row(nl) + sim.N_OUT].T
-        self._OBS = self._OBSZ.T
         self._R = self._Z[ns + sim.Z_REWARD]
         self._K = _aligned_zeros(n, np.int64)
         self._SD = _aligned_zeros((n, 2))
         self._CUR = _aligned_zeros(n, np.int64)
+        # the scenario row in force and the step where the next run starts: the kernel reads
+        # these compact rows at every step and RK/RV (an env's runs are 5 kB apart) only
+        # when a run changes; reading RV at every step cost 50 ns per env-step in misses
+        self._ROW = _aligned_zeros((n, sim.N_SCEN))
+        self._NEXT = _aligned_zeros(n, np.int64)
         self._NRUN = np.ones(n, np.int64)
         self._RK = np.zeros((n, self._SCEN_CAPACITY), np.int64)
         self._RV = np.zeros((n, self._SCEN_CAPACITY, sim.N_SCEN))
@@ -237,7 +243,8 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         A_in = A_in.reshape(n, adim)
         clipped = self._clipped
         args = (
-            self._Z, self._OBSZ, self._INFO, self._vp, self._pp, self._RK, self._RV, self._CUR, self._NRUN, self._K,
+            self._Z, self._OBS, self._INFO, self._vp, self._pp, self._RK, self._RV, self._CUR, self._NRUN, self._ROW,
+            self._NEXT, self._K,
             A_in, self._bounds, self._A, clipped, self._mode_code, self._SD, stepping,
         )
         if n >= self.parallel_threshold:
@@ -360,6 +367,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._ACC[i] = 0.0
         self._K[i] = 0
         self._CUR[i] = 0
+        self._NEXT[i] = 0  # the first step loads run 0 into _ROW
         sd = self._SD[i]
         sd[sim.SD_SET] = cfg.control.setting_C
         sd[sim.SD_DP] = float(scen[0, 4])
