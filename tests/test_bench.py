@@ -82,3 +82,36 @@ def test_year_harness_takes_any_predict_controller() -> None:
 def test_external_figures_are_never_silently_missing() -> None:
     res = bench._external("valve_env.no_such_module_for_bench")
     assert "not available" in res and "no_such_module_for_bench" in res["not available"]
+
+
+class _SlowResetVecEnv:
+    """A stand-in vector env: every 5th step ends the episode, and the step after it
+    (the autoreset) takes 20 ms where a plain step takes none."""
+
+    num_envs = 4
+
+    def __init__(self) -> None:
+        import gymnasium as gym
+
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (4, 1))
+        self.k = 0
+        self.reset_steps = 0
+
+    def step(self, _a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        import time
+
+        self.k += 1
+        if self.k % 5 == 1 and self.k > 1:  # the step after an end: the autoreset
+            self.reset_steps += 1
+            time.sleep(0.02)
+        end = np.full(4, self.k % 5 == 0)
+        return np.zeros((4, 1)), np.zeros(4), np.zeros(4, bool), end, {}
+
+
+def test_vector_rate_times_stepping_only() -> None:
+    # the autoreset steps are run but not timed (resets count once, from env.reset)
+    env = _SlowResetVecEnv()
+    rate, steps = bench._vector_rate(env, seconds=0.1, min_steps=20)  # type: ignore[arg-type]
+    assert env.reset_steps >= 3
+    assert steps >= 20
+    assert rate > 4 * steps / 0.02  # one timed reset step of 20 ms would have capped the rate there
