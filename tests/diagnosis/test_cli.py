@@ -47,6 +47,7 @@ def test_diagnose_writes_spec_json_and_report(good: Path, tmp_path: Path, capsys
     assert f0["uncertainty"]["replicates"] == 16 and set(f0["uncertainty"]["interval_95"]) == {"beta"}
     u = f0["uncertainty"]
     assert 0 <= u["dropped_replicates"] <= 8 and "band_replicates" not in u
+    assert u["split_replicates"] is False
     # the reported sd: the bootstrap's, with the inverse-Hessian/HAC sd as a floor
     src = u["std_from"]["beta"]
     assert f0["std"]["beta"] == u[f"{src}_std"]["beta"] == max(u["bootstrap_std"]["beta"], u["hessian_std"]["beta"])

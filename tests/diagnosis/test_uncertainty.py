@@ -181,3 +181,29 @@ def test_curved_world_passes_through_the_samples_and_turns_between_them() -> Non
     assert np.all(np.diff(dense.t) > 0) and np.max(np.diff(dense.t)) <= 1.0 + 1e-9
     assert dense.T.max() > d.T.max() + 1e-3
     assert dense.s_T == d.s_T and len(dense) == dense.T.shape[0] == dense.dp.shape[0]
+
+
+def test_split_replicates_are_not_bias_corrected() -> None:
+    """Half of the refits ran away to one far value (a bound): the re-estimates have split, none is
+    set aside, and the estimate is not moved by a 'bias' that is the gap between the two groups; a
+    clear bias of honest replicates is still corrected."""
+    from valve_env.diagnosis.uncertainty import failed_refits, replicates_split, summarise
+
+    rng = np.random.default_rng(11)
+    est = 6e-5
+    near = est * (1 + 0.01 * rng.standard_normal(8))
+    far = 60 * est * (1 + 1e-3 * rng.standard_normal(8))
+    reps = np.concatenate([near, far])
+    assert replicates_split(reps[:, None]) and not failed_refits(reps[:, None]).any()
+    names = ["drift"]
+    std, bias, _, corrected, flag, _ = summarise(names, {"drift": est}, {"drift": reps}, no_correction={"drift"})
+    assert corrected["drift"] == est and not flag["drift"]
+    assert std["drift"] > 20 * est  # the sd shows the split: root-mean-square error about the estimate
+    # without the guard the same replicates would have moved the estimate far below zero
+    _, _, _, moved, flag_moved, _ = summarise(names, {"drift": est}, {"drift": reps})
+    assert flag_moved["drift"] and moved["drift"] < -20 * est
+    # honest replicates with a clear bias (the mean about 6 se off): no split, corrected
+    honest = est + 1e-6 * (1.5 + rng.standard_normal(16))
+    assert not replicates_split(honest[:, None])
+    _, _, _, corr, fl, _ = summarise(names, {"drift": est}, {"drift": honest})
+    assert fl["drift"] and corr["drift"] < est

@@ -389,6 +389,7 @@ def _bootstrap_finding(f: Finding, train: RunData, valve: ValveParams, B: int) -
         source[k] = "hessian" if floor else "bootstrap"
         f.fit.params[k] = b.corrected[k]
     aside = f", {b.dropped} failed refit(s) set aside" if b.dropped else ""
+    aside += "; the re-estimates split into groups, not bias-corrected" if b.split else ""
     f.std_method = (f"{METHOD} (B={B}{aside}; bias-corrected where the bias is clear, else RMS error of the "
                     "re-estimates; at least the inverse-Hessian/HAC sd)")
     f.uncertainty = {**b.to_json(), "bootstrap_std": {k: float(v) for k, v in b.std.items()},

@@ -40,7 +40,12 @@ twice the estimate (beta 0.126 +- 0.22 on seed 303). Replicates with a re-estima
 ``GROSS_Z`` robust sd (Rousseeuw and Croux's Qn, from statsmodels) from the median of the
 re-estimates are set aside before the summary, and their number is reported
 (``dropped_replicates``). Under normality a replicate is set aside with probability about 2e-9,
-so an honest spread is left as it is.
+so an honest spread is left as it is. If more than half of them are that far from the median,
+the re-estimates have split into groups with no majority: none is set aside, and none of the
+refitted parameters is bias-corrected (the mean of two groups lies between them; with a world
+that made half of the refits run away, the correction had moved one drift estimate 33-fold). The
+sd is then the root-mean-square error about the estimate, which shows the split, and
+``split_replicates`` says so.
 """
 
 from __future__ import annotations
@@ -81,10 +86,13 @@ class BootstrapResult:
     dropped: int = 0
     #: re-estimates of stiction's band in all (the ``B`` refits plus replicate openings alone), else 0
     band_B: int = 0
+    #: more than half of the refits were gross (:func:`gross_refits`): none set aside, none bias-corrected
+    split: bool = False
 
     def to_json(self) -> dict[str, object]:
         extra: dict[str, object] = {"band_replicates": int(self.band_B)} if self.band_B else {}
         return {"method": METHOD, "replicates": int(self.B), **extra, "dropped_replicates": int(self.dropped),
+                "split_replicates": bool(self.split),
                 "bias": {k: float(v) for k, v in self.bias.items()},
                 "bias_corrected": {k: bool(v) for k, v in self.bias_corrected.items()},
                 "uncorrected_estimate": {k: float(v) for k, v in self.estimate.items()},
@@ -229,11 +237,11 @@ def _mean_substep(t: np.ndarray, step: float) -> float:
     return best
 
 
-def failed_refits(reps: np.ndarray, z: float = GROSS_Z) -> np.ndarray:
+def gross_refits(reps: np.ndarray, z: float = GROSS_Z) -> np.ndarray:
     """Mask of the replicates (rows of ``reps``, one column per parameter) whose re-estimate of some
     parameter lies more than ``z`` robust sd (Rousseeuw and Croux's Qn scale) from the median of that
-    parameter's re-estimates. Nothing is set aside if that would leave fewer than half of them, or
-    where the Qn scale is zero (re-estimates that mostly agree exactly)."""
+    parameter's re-estimates, or is not finite (nothing where the Qn scale is zero: re-estimates that
+    mostly agree exactly)."""
     bad = np.zeros(reps.shape[0], dtype=bool)
     if reps.shape[0] < 4:
         return bad
@@ -242,6 +250,19 @@ def failed_refits(reps: np.ndarray, z: float = GROSS_Z) -> np.ndarray:
         if math.isfinite(s) and s > 0:
             bad |= np.abs(col - np.median(col)) > z * s
         bad |= ~np.isfinite(col)
+    return bad
+
+
+def replicates_split(reps: np.ndarray, z: float = GROSS_Z) -> bool:
+    """Whether more than half of the replicates are gross (:func:`gross_refits`): the re-estimates
+    have split into groups, none of them a majority (e.g. half of the refits ran away to a bound)."""
+    return bool(gross_refits(reps, z).sum() > reps.shape[0] // 2)
+
+
+def failed_refits(reps: np.ndarray, z: float = GROSS_Z) -> np.ndarray:
+    """:func:`gross_refits`, unless that would set aside more than half of the replicates (then
+    none: the re-estimates have split, see :func:`summarise`)."""
+    bad = gross_refits(reps, z)
     return bad if bad.sum() <= reps.shape[0] // 2 else np.zeros(reps.shape[0], dtype=bool)
 
 
@@ -293,14 +314,38 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     # does not dominate its sd
     extra = [_band_from(model, x_true + s_x * rng.standard_normal(x_true.shape[0]), fit.params["band_mm"])
              for _ in range(max(band_B - B, 0))] if stuck and s_x is not None else []
-    bias, std, ci, corrected, flag, spread = {}, {}, {}, {}, {}, {}
-    for i, k in enumerate(names):
-        r = np.concatenate([reps[:, i], extra]) if k == "band_mm" else kept[:, i]
+    # re-estimates split into groups with no majority: no bias correction (the mean lies between them)
+    split = bool(refitted) and replicates_split(reps[:, refitted])
+    by_name = {k: (np.concatenate([reps[:, i], extra]) if k == "band_mm" else kept[:, i]) for i, k in enumerate(names)}
+    std, bias, ci, corrected, flag, spread = summarise(
+        names, est, by_name, bias_z, no_correction=set(names) - {"band_mm"} if split else set())
+    return BootstrapResult(names, reps, est, std, bias, ci, B, corrected, flag, spread, int(dropped.sum()),
+                           B + len(extra) if stuck else 0, split)
+
+
+Summary = tuple[dict[str, float], dict[str, float], dict[str, tuple[float, float]], dict[str, float],
+                dict[str, bool], dict[str, float]]
+
+
+def summarise(names: list[str], est: dict[str, float], reps: dict[str, np.ndarray], bias_z: float = 2.0,
+              no_correction: set[str] | frozenset[str] = frozenset()) -> Summary:
+    """The summary of each parameter's re-estimates ``reps[k]`` about its estimate ``est[k]``
+    (module docstring, step 4): (sd, bias, 95 % interval, corrected estimate, bias-corrected flag,
+    spread). Parameters in ``no_correction`` are never bias-corrected: their sd is the
+    root-mean-square error about the estimate."""
+    bias: dict[str, float] = {}
+    std: dict[str, float] = {}
+    ci: dict[str, tuple[float, float]] = {}
+    corrected: dict[str, float] = {}
+    flag: dict[str, bool] = {}
+    spread: dict[str, float] = {}
+    for k in names:
+        r = np.asarray(reps[k], dtype=float)
         m_i, sd_i = float(r.mean()), float(r.std(ddof=1))
         spread[k] = sd_i
         bias[k] = m_i - est[k]
         se = sd_i / math.sqrt(r.size)
-        flag[k] = bool(se > 0 and abs(bias[k]) > bias_z * se)
+        flag[k] = bool(se > 0 and abs(bias[k]) > bias_z * se and k not in no_correction)
         if flag[k]:
             # a bias the replicates show clearly (e.g. the band's jumps overshoot a little): corrected,
             # and the sd includes the uncertainty of the correction (the mean of B replicates)
@@ -313,6 +358,5 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
         lo, hi = np.percentile(r, [2.5, 97.5])
         # basic bootstrap interval (reflected about the estimate)
         ci[k] = (float(2 * est[k] - hi), float(2 * est[k] - lo))
-    return BootstrapResult(names, reps, est, std, bias, ci, B, corrected, flag, spread, int(dropped.sum()),
-                           B + len(extra) if stuck else 0)
+    return std, bias, ci, corrected, flag, spread
 
