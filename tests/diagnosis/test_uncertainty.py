@@ -147,7 +147,10 @@ def test_residual_blocks_keep_the_memory_of_the_residuals() -> None:
 def test_failed_refits_are_set_aside_and_honest_spreads_kept() -> None:
     """A replicate whose refit ran away (here: beta at its bound, the drift far off) is set aside;
     many draws of honest, normal re-estimates lose none; a spread that is mostly ties is left alone."""
-    from valve_env.diagnosis.uncertainty import failed_refits
+    from valve_env.diagnosis.uncertainty import screen_refits
+
+    def failed_refits(reps: np.ndarray) -> np.ndarray:
+        return screen_refits(reps)[0]
 
     rng = np.random.default_rng(5)
     reps = np.column_stack([0.126 + 1e-3 * rng.standard_normal(16), 5e-5 + 2e-6 * rng.standard_normal(16)])
@@ -187,14 +190,15 @@ def test_split_replicates_are_not_bias_corrected() -> None:
     """Half of the refits ran away to one far value (a bound): the re-estimates have split, none is
     set aside, and the estimate is not moved by a 'bias' that is the gap between the two groups; a
     clear bias of honest replicates is still corrected."""
-    from valve_env.diagnosis.uncertainty import failed_refits, replicates_split, summarise
+    from valve_env.diagnosis.uncertainty import screen_refits, summarise
 
     rng = np.random.default_rng(11)
     est = 6e-5
     near = est * (1 + 0.01 * rng.standard_normal(8))
     far = 60 * est * (1 + 1e-3 * rng.standard_normal(8))
     reps = np.concatenate([near, far])
-    assert replicates_split(reps[:, None]) and not failed_refits(reps[:, None]).any()
+    failed, split = screen_refits(reps[:, None])
+    assert split and not failed.any()
     names = ["drift"]
     std, bias, _, corrected, flag, _ = summarise(names, {"drift": est}, {"drift": reps}, no_correction={"drift"})
     assert corrected["drift"] == est and not flag["drift"]
@@ -204,6 +208,6 @@ def test_split_replicates_are_not_bias_corrected() -> None:
     assert flag_moved["drift"] and moved["drift"] < -20 * est
     # honest replicates with a clear bias (the mean about 6 se off): no split, corrected
     honest = est + 1e-6 * (1.5 + rng.standard_normal(16))
-    assert not replicates_split(honest[:, None])
+    assert not screen_refits(honest[:, None])[1]
     _, _, _, corr, fl, _ = summarise(names, {"drift": est}, {"drift": honest})
     assert fl["drift"] and corr["drift"] < est

@@ -82,11 +82,11 @@ class BootstrapResult:
     bias_corrected: dict[str, bool] = field(default_factory=dict)
     #: sd of the re-estimates each parameter's sd was built from (the band's include its extra replicates)
     spread: dict[str, float] = field(default_factory=dict)
-    #: replicates set aside as failed refits (:func:`failed_refits`)
+    #: replicates set aside as failed refits (:func:`screen_refits`)
     dropped: int = 0
     #: re-estimates of stiction's band in all (the ``B`` refits plus replicate openings alone), else 0
     band_B: int = 0
-    #: more than half of the refits were gross (:func:`gross_refits`): none set aside, none bias-corrected
+    #: more than half of the refits were gross (:func:`screen_refits`): none set aside, none bias-corrected
     split: bool = False
 
     def to_json(self) -> dict[str, object]:
@@ -253,17 +253,16 @@ def gross_refits(reps: np.ndarray, z: float = GROSS_Z) -> np.ndarray:
     return bad
 
 
-def replicates_split(reps: np.ndarray, z: float = GROSS_Z) -> bool:
-    """Whether more than half of the replicates are gross (:func:`gross_refits`): the re-estimates
-    have split into groups, none of them a majority (e.g. half of the refits ran away to a bound)."""
-    return bool(gross_refits(reps, z).sum() > reps.shape[0] // 2)
+def screen_refits(reps: np.ndarray, z: float = GROSS_Z) -> tuple[np.ndarray, bool]:
+    """The failed refits among the replicates (rows of ``reps``) and whether the re-estimates split.
 
-
-def failed_refits(reps: np.ndarray, z: float = GROSS_Z) -> np.ndarray:
-    """:func:`gross_refits`, unless that would set aside more than half of the replicates (then
-    none: the re-estimates have split, see :func:`summarise`)."""
+    The gross replicates (:func:`gross_refits`) are the failed refits, unless more than half of them
+    are gross: then the re-estimates have split into groups, none of them a majority (e.g. half of the
+    refits ran away to a bound), nothing is set aside, and ``split`` is true (no bias correction,
+    see :func:`summarise`)."""
     bad = gross_refits(reps, z)
-    return bad if bad.sum() <= reps.shape[0] // 2 else np.zeros(reps.shape[0], dtype=bool)
+    split = bool(bad.sum() > reps.shape[0] // 2)
+    return (np.zeros(reps.shape[0], dtype=bool) if split else bad), split
 
 
 def _refit(model: Model, rep: RunData, values: dict[str, float]) -> dict[str, float]:
@@ -307,16 +306,15 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     est = {k: float(fit.params[k]) for k in names}
     # failed refits (a refit that ran away) are set aside; the band's re-estimates need no refit
     refitted = [i for i, k in enumerate(names) if k != "band_mm"]
-    dropped = failed_refits(reps[:, refitted]) if refitted else np.zeros(B, dtype=bool)
+    dropped, split = screen_refits(reps[:, refitted]) if refitted else (np.zeros(B, dtype=bool), False)
     kept = reps[~dropped]
     # the band's re-estimates need no refit (only the jumps of a replicate opening): more of them, so
     # that the Monte Carlo error of the band's bias and spread (the jumps' estimate is heavy-tailed)
     # does not dominate its sd
     extra = [_band_from(model, x_true + s_x * rng.standard_normal(x_true.shape[0]), fit.params["band_mm"])
              for _ in range(max(band_B - B, 0))] if stuck and s_x is not None else []
-    # re-estimates split into groups with no majority: no bias correction (the mean lies between them)
-    split = bool(refitted) and replicates_split(reps[:, refitted])
     by_name = {k: (np.concatenate([reps[:, i], extra]) if k == "band_mm" else kept[:, i]) for i, k in enumerate(names)}
+    # re-estimates split into groups with no majority: no bias correction (the mean lies between them)
     std, bias, ci, corrected, flag, spread = summarise(
         names, est, by_name, bias_z, no_correction=set(names) - {"band_mm"} if split else set())
     return BootstrapResult(names, reps, est, std, bias, ci, B, corrected, flag, spread, int(dropped.sum()),
