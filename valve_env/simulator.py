@@ -334,10 +334,10 @@ def _copy_row(dst, src, scale, lo, hi):
 # -- the environments' step: action -> plant_step -> observation --------------
 # Shared by the single env (``env_step``) and the batched env
 # (``env_step_batch``): both call the same ``apply_action``, ``plant_step`` and
-# ``clock``. The batched step writes each observation column with the same
-# eight copies as ``fill_obs`` does, element by element (a view of a column of
-# the shared block per env would update its reference count atomically from
-# every thread); tests/envs/test_vector.py holds the two bit-identical.
+# ``clock``. The batched step writes each env's observation row with the same
+# copies as ``fill_obs`` does, element by element (a view of a column of the
+# shared block per env would update its reference count atomically from every
+# thread); tests/envs/test_vector.py holds the two bit-identical.
 
 MODE_SETTING, MODE_PRESSURE, MODE_DUAL = 0, 1, 2
 MODE_CODES: dict[str, int] = {"setting": MODE_SETTING, "pressure": MODE_PRESSURE, "dual": MODE_DUAL}
@@ -459,6 +459,21 @@ def _next_run(i, k, RK, RV, CUR, NRUN, ROW, NEXT):
     NEXT[i] = RK[i, cur + 1] if cur + 1 < NRUN[i] else np.iinfo(np.int64).max
 
 
+@register_jitable
+def _hold_columns(Z, kept, STEP, c0, c1, restore):
+    """Copy the columns of the envs that do not step (``STEP[i]`` false) into the rows of
+    ``kept``, or back into ``Z`` with ``restore``."""
+    c = 0
+    for i in range(c0, c1):
+        if not STEP[i]:
+            for q in range(Z.shape[0]):
+                if restore:
+                    Z[q, i] = kept[c, q]
+                else:
+                    kept[c, q] = Z[q, i]
+            c += 1
+
+
 @njit(cache=True)
 def _step_block(lo, hi, Z, OBS, INFO, vp, pp, RK, RV, CUR, NRUN, ROW, NEXT, K, A, mode, SD, STEP):
     """``apply_action``, ``plant_step`` and the observation for the envs in
@@ -487,20 +502,11 @@ def _step_block(lo, hi, Z, OBS, INFO, vp, pp, RK, RV, CUR, NRUN, ROW, NEXT, K, A
             held += 1
     # the block is stepped whole (vectorised); envs that do not step are put back
     kept = np.empty((held, Z.shape[0]))
-    c = 0
-    for i in range(c0, c1):
-        if not STEP[i]:
-            for q in range(Z.shape[0]):
-                kept[c, q] = Z[q, i]
-            c += 1
+    if held > 0:
+        _hold_columns(Z, kept, STEP, c0, c1, False)
     plant_step(Z, lo, hi, vp, pp)
     if held > 0:
-        c = 0
-        for i in range(c0, c1):
-            if not STEP[i]:
-                for q in range(Z.shape[0]):
-                    Z[q, i] = kept[c, q]
-                c += 1
+        _hold_columns(Z, kept, STEP, c0, c1, True)
     for i in range(c0, c1):
         K[i] += 1 if STEP[i] else 0
     # the observations, env by env (a row of ``OBS`` each, as the agent gets them)
