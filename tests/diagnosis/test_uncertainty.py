@@ -35,6 +35,36 @@ def test_jump_band_without_jumps_is_nan() -> None:
     assert math.isnan(b) and n < 10
 
 
+def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -> None:
+    """The jump estimator's sampling distribution on a known opening (``band_sampling``) is centred a
+    little above the band (the jumps overshoot while the demand moves on) and about normal; the
+    bootstrap, which sees only the measured run, finds that spread and that overshoot. Bad noise
+    levels and draw counts are refused."""
+    from scipy.stats import shapiro
+
+    from valve_env.diagnosis.stiction import band_sampling
+
+    band = 0.025
+    df = simulate_experiment(seed=631, duration_h=10.0, dt_s=10.0, effects={"stiction": {"band_mm": band}},
+                             T_noise_C=0.005, x_noise_mm=2.5e-3)
+    stroke = float(ValveParams().stroke)
+    o = band_sampling(df["true_x_mm"].to_numpy(), 2.5e-3, stroke, draws=120, seed=1)
+    assert np.isfinite(o).all()
+    assert 1.0 < o.mean() / band < 1.08 and 0.002 < o.std() / band < 0.03, (o.mean(), o.std())
+    assert shapiro(o).pvalue > 1e-3
+    d = prepare(check_run(df))
+    m = Model(("stiction",))
+    fit = m.fit(d, with_std=False)
+    b = bootstrap(m, d, fit, B=4, band_B=60, seed=2)
+    assert 0.7 <= b.spread["band_mm"] / o.std(ddof=1) <= 1.4, (b.spread, o.std(ddof=1))
+    # the bootstrap's bias against the estimator's true overshoot (here 0.2 sampling sd), within 1 sampling sd
+    assert abs(b.bias["band_mm"] - (o.mean() - band)) <= o.std(ddof=1), (b.bias, o.mean() - band)
+    with pytest.raises(ValueError, match="noise_sd_mm"):
+        band_sampling(df["true_x_mm"].to_numpy(), float("nan"), stroke)
+    with pytest.raises(ValueError, match="draws"):
+        band_sampling(df["true_x_mm"].to_numpy(), 2.5e-3, stroke, draws=1)
+
+
 def test_stick_filter_nested_and_peaks_at_the_band() -> None:
     """Exact stick-slip data: the filter's likelihood is maximal near the true band (the first-passage
     hazard; a filter that re-applied the slip probability every sub-step peaked at 2.5 times the band),
@@ -113,12 +143,24 @@ def test_coverage_study_targets(coverage_303: dict) -> None:  # type: ignore[typ
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="stiction's band sd is still too small on seed 303: 2/10 within 1 sd, 8/10 "
-                   "within 2 sd (RMS z 1.69) with this round's code; 4/9 and 9/9 on seed 505, 62 % and 88 % "
-                   "on seed 808 (docs/diagnosis.md)")
-def test_coverage_study_targets_stiction(coverage_303: dict) -> None:  # type: ignore[type-arg]
+def test_coverage_study_stiction_band_sd_is_its_sampling_sd(coverage_303: dict) -> None:  # type: ignore[type-arg]
+    """Stiction's band on seed 303, against the jump estimator's own sampling distribution on each
+    named run (``band_oracle``: the run's true opening plus fresh noise of its size, 200 draws).
+
+    The reported sd is that sampling sd (median ratio within 0.8-1.25, none outside 0.6-1.7), the
+    bootstrap's bias correction leaves at most 0.6 sampling sd RMS of error, and 8 of 10 estimates lie
+    within 2 reported sd. Counting estimates within 1 sd is no test of the method on this seed: its
+    noise realisation put 7 of the 10 *raw* estimates more than 1 sampling sd from the centre of
+    their own distribution (3 or fewer of 10 has probability 0.016), so even exact sd would have put
+    only 3 of 10 within 1 sd. Over 68 named stiction runs of five other held-out seeds (505, 808,
+    909, 1111, 1212) the z lie within 1 / 2 reported sd in 65 % / 96 % (docs/diagnosis.md)."""
     v = coverage_303["per_effect"]["stiction"]
-    assert v["within_1sd"] >= 0.50 and v["within_2sd"] >= 0.80, v
+    o = v["oracle"]
+    assert o["n"] >= 8 and o["draws_min"] >= 150, o
+    assert 0.8 <= o["median_sd_ratio"] <= 1.25, o
+    assert o["min_sd_ratio"] >= 0.6 and o["max_sd_ratio"] <= 1.7, o
+    assert o["rms_bias_error"] <= 0.6 and abs(o["mean_bias_error"]) <= 0.4, o
+    assert v["within_2sd"] >= 0.80, v
 
 
 def test_residual_blocks_keep_the_memory_of_the_residuals() -> None:
@@ -200,14 +242,41 @@ def test_split_replicates_are_not_bias_corrected() -> None:
     failed, split = screen_refits(reps[:, None])
     assert split and not failed.any()
     names = ["drift"]
-    std, bias, _, corrected, flag, _ = summarise(names, {"drift": est}, {"drift": reps}, no_correction={"drift"})
-    assert corrected["drift"] == est and not flag["drift"]
-    assert std["drift"] > 20 * est  # the sd shows the split: root-mean-square error about the estimate
-    # without the guard the same replicates would have moved the estimate far below zero
-    _, _, _, moved, flag_moved, _ = summarise(names, {"drift": est}, {"drift": reps})
-    assert flag_moved["drift"] and moved["drift"] < -20 * est
+    sm = summarise(names, {"drift": est}, {"drift": reps}, no_correction={"drift"})
+    assert sm.corrected["drift"] == est and not sm.bias_corrected["drift"]
+    assert sm.std["drift"] > 20 * est  # the sd shows the split: root-mean-square error about the estimate
+    # without either guard the same replicates would have moved the estimate far below zero
+    moved = summarise(names, {"drift": est}, {"drift": reps}, normal_p=0.0)
+    assert moved.bias_corrected["drift"] and moved.corrected["drift"] < -20 * est
+    # the normality check alone also refuses to correct by the mean of two groups
+    assert summarise(names, {"drift": est}, {"drift": reps}).corrected["drift"] == est
     # honest replicates with a clear bias (the mean about 6 se off): no split, corrected
     honest = est + 1e-6 * (1.5 + rng.standard_normal(16))
     assert not screen_refits(honest[:, None])[1]
-    _, _, _, corr, fl, _ = summarise(names, {"drift": est}, {"drift": honest})
-    assert fl["drift"] and corr["drift"] < est
+    sm = summarise(names, {"drift": est}, {"drift": honest})
+    assert sm.bias_corrected["drift"] and sm.corrected["drift"] < est
+
+
+def test_scattered_runaways_are_not_bias_corrected() -> None:
+    """Half of the refits ran away and scattered over two decades: the robust screen does not see a
+    split (the runaways widen the robust sd itself), but the re-estimates are far from normal, so the
+    estimate is not moved by their mean and the sd (RMS error about the estimate) shows the spread.
+    Normal re-estimates with a clear bias are still corrected (the check refuses about 1 draw in 1000)."""
+    from valve_env.diagnosis.uncertainty import screen_refits, summarise
+
+    rng = np.random.default_rng(12)
+    est = 6e-5
+    reps = np.concatenate([est * (1 + 0.01 * rng.standard_normal(8)),
+                           est * np.exp(rng.uniform(np.log(10.0), np.log(1000.0), 8))])
+    failed, split = screen_refits(reps[:, None])
+    assert not split and failed.sum() < 8  # the screen alone lets most of them through
+    sm = summarise(["drift"], {"drift": est}, {"drift": reps[~failed]})
+    assert sm.normality_p["drift"] < 1e-3
+    assert not sm.bias_corrected["drift"] and sm.corrected["drift"] == est
+    assert sm.std["drift"] > 10 * est
+    moved = summarise(["drift"], {"drift": est}, {"drift": reps[~failed]}, normal_p=0.0)
+    assert moved.corrected["drift"] < -5 * est  # what the mean would have done
+    # a bias of 2 sd (8 se of the mean of 16): clear in every draw, refused only by the normality check
+    kept = [summarise(["b"], {"b": 0.0}, {"b": 2.0 + rng.standard_normal(16)}).bias_corrected["b"]
+            for _ in range(2000)]
+    assert np.mean(kept) > 0.995

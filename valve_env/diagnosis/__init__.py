@@ -9,7 +9,8 @@ Public API (imported lazily, so that ``thermovalve`` starts fast):
 * :data:`EFFECTS` (the effect library), :func:`effect_model` (the effects as SDE models for the estimator)
 * :func:`run_bench` (speed of a 24 h diagnosis)
 * :func:`bootstrap` (the model-based bootstrap behind the named effects' sd), :func:`jump_band`
-  (stiction's band from the jumps of the opening)
+  (stiction's band from the jumps of the opening), :func:`band_sampling` (that estimator's sampling
+  distribution on a known opening)
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ _LAZY = {
     "run_bench": "valve_env.diagnosis.bench",
     "bootstrap": "valve_env.diagnosis.uncertainty",
     "jump_band": "valve_env.diagnosis.stiction",
+    "band_sampling": "valve_env.diagnosis.stiction",
 }
 
 __all__ = sorted(_LAZY)

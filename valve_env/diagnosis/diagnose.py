@@ -373,7 +373,7 @@ def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[
 
 def _bootstrap_finding(f: Finding, train: RunData, valve: ValveParams, B: int) -> None:
     """Replace the effect parameters' std of an accepted finding by the model-based bootstrap's."""
-    from valve_env.diagnosis.uncertainty import METHOD, bootstrap
+    from valve_env.diagnosis.uncertainty import METHOD, NORMAL_P, bootstrap
 
     model = Model(f.fit.effects, valve)
     b = bootstrap(model, train, f.fit, B=B)
@@ -390,6 +390,8 @@ def _bootstrap_finding(f: Finding, train: RunData, valve: ValveParams, B: int) -
         f.fit.params[k] = b.corrected[k]
     aside = f", {b.dropped} failed refit(s) set aside" if b.dropped else ""
     aside += "; the re-estimates split into groups, not bias-corrected" if b.split else ""
+    skewed = [k for k, v in b.normality_p.items() if v < NORMAL_P and not b.split]
+    aside += f"; re-estimates of {', '.join(skewed)} far from normal, not bias-corrected" if skewed else ""
     f.std_method = (f"{METHOD} (B={B}{aside}; bias-corrected where the bias is clear, else RMS error of the "
                     "re-estimates; at least the inverse-Hessian/HAC sd)")
     f.uncertainty = {**b.to_json(), "bootstrap_std": {k: float(v) for k, v in b.std.items()},

@@ -127,4 +127,23 @@ def _mixture_band(a: np.ndarray, b0: float, sig: float, iters: int = 50) -> floa
     return b
 
 
-__all__ = ["jump_band", "noise_sd", "resting_noise_sd"]
+def band_sampling(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int = 200,
+                  seed: int = 0) -> np.ndarray:
+    """The band estimator's sampling distribution on a known opening: :func:`jump_band` of
+    ``x_true`` plus fresh white noise of ``noise_sd_mm``, ``draws`` times (nan where too few jumps).
+
+    With the true opening of a generated run (``true_x_mm``) this is the estimator's own spread and
+    bias for that run, which no method that sees only the measured opening can know: the yardstick
+    the bootstrap's sd and bias correction are measured against (``benchmarks/diagnosis_coverage.py``);
+    with a simulated opening it tells how precisely a planned experiment measures the band."""
+    x_true = np.asarray(x_true, dtype=float)
+    if not (math.isfinite(noise_sd_mm) and noise_sd_mm >= 0):
+        raise ValueError(f"noise_sd_mm must be finite and >= 0, got {noise_sd_mm}")
+    if draws < 2:
+        raise ValueError(f"draws must be at least 2, got {draws}")
+    rng = np.random.default_rng(seed)
+    return np.array([jump_band(x_true + noise_sd_mm * rng.standard_normal(x_true.shape[0]), stroke)[0]
+                     for _ in range(draws)])
+
+
+__all__ = ["band_sampling", "jump_band", "noise_sd", "resting_noise_sd"]

@@ -45,16 +45,22 @@ the re-estimates have split into groups with no majority: none is set aside, and
 refitted parameters is bias-corrected (the mean of two groups lies between them; with a world
 that made half of the refits run away, the correction had moved one drift estimate 33-fold). The
 sd is then the root-mean-square error about the estimate, which shows the split, and
-``split_replicates`` says so.
+``split_replicates`` says so. The screen catches runaways that gather (at a bound, at one far
+value); runaways that scatter widely inflate the robust sd itself and pass it. The bias
+correction therefore also asks the re-estimates to look normal (Shapiro-Wilk p >= ``NORMAL_P``,
+0.001): a heavy-tailed or split set is not bias-corrected (its mean is not a centre to trust), and
+its sd is the root-mean-square error about the estimate; ``normality_p`` reports the p-values.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from arch.bootstrap import optimal_block_length
+from scipy.stats import shapiro
 from statsmodels.robust.scale import qn_scale
 
 from valve_env.diagnosis.effects import EFFECTS
@@ -65,6 +71,8 @@ from valve_env.diagnosis.stiction import jump_band, resting_noise_sd
 METHOD = "model-based bootstrap (residual blocks)"
 #: A re-estimate farther than this many robust sd (Qn) from the median is a failed refit.
 GROSS_Z = 6.0
+#: Re-estimates whose Shapiro-Wilk p-value is below this are too far from normal to bias-correct by their mean.
+NORMAL_P = 1e-3
 
 
 @dataclass
@@ -88,11 +96,14 @@ class BootstrapResult:
     band_B: int = 0
     #: more than half of the refits were gross (:func:`screen_refits`): none set aside, none bias-corrected
     split: bool = False
+    #: Shapiro-Wilk p-value of each parameter's re-estimates (below :data:`NORMAL_P`: not bias-corrected)
+    normality_p: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, object]:
         extra: dict[str, object] = {"band_replicates": int(self.band_B)} if self.band_B else {}
         return {"method": METHOD, "replicates": int(self.B), **extra, "dropped_replicates": int(self.dropped),
                 "split_replicates": bool(self.split),
+                "normality_p": {k: float(v) for k, v in self.normality_p.items()},
                 "bias": {k: float(v) for k, v in self.bias.items()},
                 "bias_corrected": {k: bool(v) for k, v in self.bias_corrected.items()},
                 "uncorrected_estimate": {k: float(v) for k, v in self.estimate.items()},
@@ -315,46 +326,51 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
              for _ in range(max(band_B - B, 0))] if stuck and s_x is not None else []
     by_name = {k: (np.concatenate([reps[:, i], extra]) if k == "band_mm" else kept[:, i]) for i, k in enumerate(names)}
     # re-estimates split into groups with no majority: no bias correction (the mean lies between them)
-    std, bias, ci, corrected, flag, spread = summarise(
-        names, est, by_name, bias_z, no_correction=set(names) - {"band_mm"} if split else set())
-    return BootstrapResult(names, reps, est, std, bias, ci, B, corrected, flag, spread, int(dropped.sum()),
-                           B + len(extra) if stuck else 0, split)
+    sm = summarise(names, est, by_name, bias_z, no_correction=set(names) - {"band_mm"} if split else set())
+    return BootstrapResult(names, reps, est, sm.std, sm.bias, sm.interval_95, B, sm.corrected, sm.bias_corrected,
+                           sm.spread, int(dropped.sum()), B + len(extra) if stuck else 0, split, sm.normality_p)
 
 
-Summary = tuple[dict[str, float], dict[str, float], dict[str, tuple[float, float]], dict[str, float],
-                dict[str, bool], dict[str, float]]
+class Summary(NamedTuple):
+    """Each parameter's summary of its re-estimates (:func:`summarise`), by name."""
+
+    std: dict[str, float]
+    bias: dict[str, float]
+    interval_95: dict[str, tuple[float, float]]
+    corrected: dict[str, float]
+    bias_corrected: dict[str, bool]
+    spread: dict[str, float]
+    #: Shapiro-Wilk p-value of the re-estimates (1 where they do not vary)
+    normality_p: dict[str, float]
 
 
 def summarise(names: list[str], est: dict[str, float], reps: dict[str, np.ndarray], bias_z: float = 2.0,
-              no_correction: set[str] | frozenset[str] = frozenset()) -> Summary:
+              no_correction: set[str] | frozenset[str] = frozenset(), normal_p: float = NORMAL_P) -> Summary:
     """The summary of each parameter's re-estimates ``reps[k]`` about its estimate ``est[k]``
-    (module docstring, step 4): (sd, bias, 95 % interval, corrected estimate, bias-corrected flag,
-    spread). Parameters in ``no_correction`` are never bias-corrected: their sd is the
-    root-mean-square error about the estimate."""
-    bias: dict[str, float] = {}
-    std: dict[str, float] = {}
-    ci: dict[str, tuple[float, float]] = {}
-    corrected: dict[str, float] = {}
-    flag: dict[str, bool] = {}
-    spread: dict[str, float] = {}
+    (module docstring, step 4). Parameters in ``no_correction`` are never bias-corrected: their sd
+    is the root-mean-square error about the estimate. Nor are parameters whose re-estimates are far
+    from normal (Shapiro-Wilk p below ``normal_p``; 0 switches the check off): the mean of a
+    heavy-tailed or split set of re-estimates is not a reliable centre to correct by."""
+    out = Summary({}, {}, {}, {}, {}, {}, {})
     for k in names:
         r = np.asarray(reps[k], dtype=float)
         m_i, sd_i = float(r.mean()), float(r.std(ddof=1))
-        spread[k] = sd_i
-        bias[k] = m_i - est[k]
+        out.spread[k] = sd_i
+        out.bias[k] = bias = m_i - est[k]
         se = sd_i / math.sqrt(r.size)
-        flag[k] = bool(se > 0 and abs(bias[k]) > bias_z * se and k not in no_correction)
-        if flag[k]:
+        out.normality_p[k] = p = float(shapiro(r).pvalue) if r.size >= 3 and np.ptp(r) > 0 else 1.0
+        corrected = bool(se > 0 and abs(bias) > bias_z * se and k not in no_correction and p >= normal_p)
+        out.bias_corrected[k] = corrected
+        if corrected:
             # a bias the replicates show clearly (e.g. the band's jumps overshoot a little): corrected,
             # and the sd includes the uncertainty of the correction (the mean of B replicates)
-            corrected[k] = est[k] - bias[k]
-            std[k] = float(math.sqrt(sd_i**2 + se**2))
+            out.corrected[k] = est[k] - bias
+            out.std[k] = float(math.sqrt(sd_i**2 + se**2))
         else:
-            # no clear bias: root-mean-square error about the estimate (spread and bias together)
-            corrected[k] = est[k]
-            std[k] = float(math.sqrt(sd_i**2 + bias[k] ** 2))
+            # no clear bias, or none to trust: root-mean-square error about the estimate (spread and bias together)
+            out.corrected[k] = est[k]
+            out.std[k] = float(math.sqrt(sd_i**2 + bias**2))
         lo, hi = np.percentile(r, [2.5, 97.5])
         # basic bootstrap interval (reflected about the estimate)
-        ci[k] = (float(2 * est[k] - hi), float(2 * est[k] - lo))
-    return std, bias, ci, corrected, flag, spread
-
+        out.interval_95[k] = (float(2 * est[k] - hi), float(2 * est[k] - lo))
+    return out
