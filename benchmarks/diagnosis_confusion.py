@@ -57,6 +57,11 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
         out["validation_rms_before_mm"] = f.validation_rms_before_mm
         out["validation_rms_after_mm"] = f.validation_rms_after_mm
     best = d.findings[0]
+    # the first step's candidates as tested (for studies of the ranking among accepted candidates)
+    out["first_step"] = [{"effect": f.effect, "accepted": bool(f.accepted), "lr_stat": float(f.lr_stat),
+                          "delta_bic": float(f.delta_bic), "validation_loglik_gain": float(f.validation_loglik_gain),
+                          "validation_sim_rms_after_mm": float(f.validation_sim_rms_after_mm)}
+                         for f in d.findings]
     out["best_candidate"] = best.effect
     out["best_p"] = best.p_value
     return out

@@ -91,6 +91,28 @@ def test_two_effects_found_in_order() -> None:
     assert j["selection"][1]["accepted"] == "setpoint_drift"
 
 
+def test_accepted_candidates_ranked_by_held_out_gain() -> None:
+    """A drift run (seed 1313's study, run 23: 30 s sampling, 16 h) where a small spurious lag has the
+    larger in-sample likelihood ratio but the drift the larger gain on the held-out part: the drift is
+    named. Ranked by delta BIC the lag was named first."""
+    from valve_env.diagnosis.diagnose import rank_key
+    from valve_env.experiment import STUDY_CLASSES, random_cases, simulate_case
+
+    case = random_cases(40, 1313, STUDY_CLASSES[1:])[23]
+    assert case["truth"] == "setpoint_drift"
+    d = diagnose(simulate_case(case), bootstrap_B=0)
+    f = {x.effect: x for x in d.findings}
+    lag, drift = f["sensor_lag"], f["setpoint_drift"]
+    assert lag.accepted and drift.accepted
+    assert lag.lr_stat > drift.lr_stat and lag.delta_bic < drift.delta_bic  # in-sample: the lag
+    assert drift.validation_loglik_gain > lag.validation_loglik_gain  # held out: the drift
+    assert d.cause == "setpoint_drift" and d.findings[0].effect == "setpoint_drift"
+    assert [x.effect for x in d.findings] == [x.effect for x in sorted(d.findings, key=rank_key)]
+    # candidates not accepted follow, by delta BIC
+    rest = [x for x in d.findings if not x.accepted]
+    assert [x.delta_bic for x in rest] == sorted(x.delta_bic for x in rest)
+
+
 def test_input_noise_is_not_an_effect() -> None:
     """Heavy temperature noise, no effect: nothing is named (sensor_lag in particular)."""
     df = simulate_experiment(seed=141, duration_h=HOURS, T_noise_C=0.01, dt_s=5.0)

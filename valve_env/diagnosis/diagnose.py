@@ -26,7 +26,9 @@ automatic:
    ``none``. Stiction is exempt from the RMS condition (``variance_gain``): it
    improves the prediction mostly by knowing when the opening will not move (a
    better predicted variance) rather than by a smaller mean error, and the
-   held-out log-likelihood, a proper scoring rule, measures that.
+   held-out log-likelihood, a proper scoring rule, measures that. Where
+   several candidates pass, the best is the one with the largest held-out
+   log-likelihood gain (:func:`rank_key`); the others are ranked by delta BIC.
 6. Forward selection: with the named effect in the model, try the remaining
    effects the same way; repeat while one is accepted. ``selected`` lists the
    effects in the order found; ``cause`` is the first.
@@ -398,6 +400,17 @@ def _bootstrap_finding(f: Finding, train: RunData, valve: ValveParams, B: int) -
                      "hessian_std": {k: f.fit.extra[f"hessian_std_{k}"] for k in b.names}, "std_from": source}
 
 
+def rank_key(f: Finding) -> tuple[bool, float]:
+    """Order of a step's candidates, best first: those accepted (significant, relevant and validated)
+    by their log-likelihood gain on the held-out data, then the others by delta BIC.
+
+    The held-out gain decides among accepted candidates because the in-sample statistics can favour
+    an effect that absorbs another's misfit: on a run with a set-point drift (30 s sampling, 16 h) a
+    lag of 4.5 s had the larger likelihood ratio (48 against 26), while the drift gained twice as much
+    on the held-out part (32 against 16) and halved the held-out simulation error."""
+    return (not f.accepted, -f.validation_loglik_gain if f.accepted else f.delta_bic)
+
+
 def effect_size(model: Model, data: RunData, values: dict[str, float], effect: str) -> float:
     """How much the effect moves the simulated opening: RMS (mm) of the difference between the
     simulation with the fitted effect and with the effect switched off (everything else equal)."""
@@ -474,7 +487,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 ref_fit, ref_val = base, base_val
                 step = [_try(f.effect, (), base, train, valid, vr, valve, alpha, base_val,
                              f.fit.effect_params, min_validation_gain, min_effect_size, f.fit) for f in step]
-        step.sort(key=lambda f: (not f.accepted, f.delta_bic))
+        step.sort(key=rank_key)
         steps.append(step)
         if not selected:
             findings = step
