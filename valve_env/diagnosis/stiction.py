@@ -141,7 +141,14 @@ def band_sampling(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: 
         raise ValueError(f"noise_sd_mm must be finite and >= 0, got {noise_sd_mm}")
     if draws < 2:
         raise ValueError(f"draws must be at least 2, got {draws}")
-    rng = np.random.default_rng(seed)
+    return band_draws(x_true, noise_sd_mm, stroke, draws, np.random.default_rng(seed))
+
+
+def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int,
+               rng: np.random.Generator) -> np.ndarray:
+    """``draws`` band estimates (:func:`jump_band`) of ``x_true`` plus white noise of ``noise_sd_mm``
+    from ``rng``, nan where too few jumps: :func:`band_sampling` without its checks, and the band's
+    extra replicates of the bootstrap (:func:`valve_env.diagnosis.uncertainty.bootstrap`)."""
     return np.array([jump_band(x_true + noise_sd_mm * rng.standard_normal(x_true.shape[0]), stroke)[0]
                      for _ in range(draws)])
 

@@ -65,7 +65,7 @@ from statsmodels.robust.scale import qn_scale
 
 from valve_env.diagnosis.effects import EFFECTS
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
-from valve_env.diagnosis.stiction import jump_band, resting_noise_sd
+from valve_env.diagnosis.stiction import band_draws, jump_band, resting_noise_sd
 
 #: Name of the method, as written into the JSON.
 METHOD = "model-based bootstrap (residual blocks)"
@@ -322,8 +322,10 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     # the band's re-estimates need no refit (only the jumps of a replicate opening): more of them, so
     # that the Monte Carlo error of the band's bias and spread (the jumps' estimate is heavy-tailed)
     # does not dominate its sd
-    extra = [_band_from(model, x_true + s_x * rng.standard_normal(x_true.shape[0]), fit.params["band_mm"])
-             for _ in range(max(band_B - B, 0))] if stuck and s_x is not None else []
+    extra = np.empty(0)
+    if stuck and s_x is not None:
+        extra = band_draws(x_true, s_x, float(model.valve.stroke), max(band_B - B, 0), rng)
+        extra = np.where(np.isfinite(extra), extra, fit.params["band_mm"])  # too few jumps: as _band_from
     by_name = {k: (np.concatenate([reps[:, i], extra]) if k == "band_mm" else kept[:, i]) for i, k in enumerate(names)}
     # re-estimates split into groups with no majority: no bias correction (the mean lies between them)
     sm = summarise(names, est, by_name, bias_z, no_correction=set(names) - {"band_mm"} if split else set())
