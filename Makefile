@@ -1,33 +1,65 @@
-# Every target CI and the README use. PYTHON may point at a virtualenv's python.
+# Every target CI and the README use. Each works on a fresh machine: it builds its own virtualenv
+# ($(VENV), default .venv) with $(PYTHON) and installs the versions CI tested (constraints.txt).
+#   make demo                 core only (no torch): simulate, evaluate the baselines, write out/demo/
+#   make test                 core + RL + test tools, then the default test suite
+#   make test-slow            the long statistical studies and full training (marked slow)
+#   make test-latest          the default suite against the newest versions pyproject.toml allows
 PYTHON ?= python3
-PIP := $(PYTHON) -m pip
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+CONSTRAINTS ?= constraints.txt
 OUT ?= out
 
-.PHONY: install demo test test-slow lint typecheck bench evaluate leaderboard train-all clean
+.PHONY: venv install-core install demo test test-slow test-latest lint typecheck bench evaluate constraints clean
 
-# torch is pinned first so the CPU build is taken (an unpinned torch pulls GBs of CUDA packages)
-install:
-	$(PIP) install "torch==2.13.0"
-	$(PIP) install -e ".[rl,dev]"
+$(PY):
+	$(PYTHON) -m venv $(VENV)
 
-demo: install
-	$(PYTHON) -m valve_env.cli demo --out $(OUT)/demo
+venv: $(PY)
+
+# the core: environments, baselines, identification, CLI (no torch)
+install-core: venv
+	$(PIP) install -q -c $(CONSTRAINTS) -e .
+
+# torch is installed first and pinned so the local CPU build is taken (an unpinned torch pulls GBs of CUDA packages)
+install: venv
+	$(PIP) install -q -c $(CONSTRAINTS) "torch==2.13.0"
+	$(PIP) install -q -c $(CONSTRAINTS) -e ".[rl,dev]"
+
+demo: install-core
+	$(PY) -m valve_env.cli demo --out $(OUT)/demo --force
 
 test: install
-	$(PYTHON) -m pytest -n 2 -q
+	$(PY) -m pytest -n 2 -q
 
 test-slow: install
-	$(PYTHON) -m pytest -n 2 -q -m slow
+	$(PY) -m pytest -n 2 -q -m slow
 
-lint:
-	$(PYTHON) -m ruff check valve_env agents tests benchmarks
-	$(PYTHON) -m mypy
+# the newest versions pyproject.toml allows (torch stays at the CPU build)
+test-latest: venv
+	$(PIP) install -q "torch==2.13.0"
+	$(PIP) install -q --upgrade --upgrade-strategy eager -e ".[rl,dev]"
+	$(PY) -m pytest -n 2 -q
+
+# after changing dependencies: re-resolve in a scratch venv and write constraints.txt
+constraints:
+	rm -rf $(OUT)/constraints-venv && $(PYTHON) -m venv $(OUT)/constraints-venv
+	$(OUT)/constraints-venv/bin/pip install -q "torch==2.13.0"
+	$(OUT)/constraints-venv/bin/pip install -q -e ".[rl,dev]"
+	{ sed -n '1,3p' $(CONSTRAINTS); $(OUT)/constraints-venv/bin/pip freeze --exclude-editable | \
+	  sed 's/^torch==2.13.0+cpu/torch==2.13.0/'; } > $(CONSTRAINTS).new && mv $(CONSTRAINTS).new $(CONSTRAINTS)
+
+lint: install
+	$(PY) -m ruff check valve_env agents tests benchmarks
+	$(PY) -m mypy
 
 bench: install
-	$(PYTHON) -m valve_env.cli bench --json $(OUT)/bench.json
+	$(PY) -m valve_env.cli bench --json $(OUT)/bench.json --force
 
-evaluate: install
-	$(PYTHON) -m valve_env.cli evaluate --env ThermoValve-v0 --controllers self_acting,pi,pi_compensated --episodes 10 --seed 0 --json $(OUT)/evaluate.json --out $(OUT)/evaluate
+evaluate: install-core
+	$(PY) -m valve_env.cli evaluate --env ThermoValve-v0 --controllers self_acting,pi,pi_compensated --episodes 10 \
+	  --seed 0 --json $(OUT)/evaluate.json --out $(OUT)/evaluate --force
 
 clean:
 	rm -rf $(OUT) .pytest_cache .mypy_cache .ruff_cache

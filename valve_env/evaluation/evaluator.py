@@ -1,14 +1,17 @@
 """Score any controller (baselines and trained agents alike) on the SPEC
 section 5 KPIs.
 
-Each controller runs the same N seeded episodes: a ``DummyVecEnv`` of N
-``Monitor``-wrapped envs seeded ``seed, seed + 1, ..., seed + N - 1`` (SB3's
-``VecEnv.seed`` convention), driven by stable-baselines3's
-``evaluate_policy`` with a callback that collects ``info["kpis"]`` and the
-Monitor's episode return at each env's episode end. Every env runs exactly
-one episode, so episode i has seed ``seed + i`` for every controller, and the
-controller's ``predict`` sees the whole batch at each step (its vectorised
-path).
+Each controller runs the same N seeded episodes: a gymnasium ``SyncVectorEnv``
+of N envs wrapped in ``RecordEpisodeStatistics``, seeded ``seed, seed + 1,
+..., seed + N - 1`` (SB3's ``VecEnv.seed`` convention), driven the way
+stable-baselines3's ``evaluate_policy`` drives a ``VecEnv``: ``predict(obs,
+state, episode_start, deterministic=True)`` on the whole batch at each step,
+``episode_start`` true at the first step, ``info["kpis"]`` and the episode
+return collected at each env's episode end. Every env runs exactly one
+episode, so episode i has seed ``seed + i`` for every controller. The core
+needs neither stable-baselines3 nor torch; ``tests/agents`` checks that SB3's
+``evaluate_policy`` over ``DummyVecEnv`` of ``Monitor``-wrapped envs gives the
+same returns.
 
 The summary (:func:`evaluate`) is the SPEC section 7 JSON:
 ``{"env": ID, "episodes": N, "results": {name: {"return": {"mean", "std"},
@@ -26,9 +29,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pandas as pd
-from stable_baselines3.common.evaluation import evaluate_policy
-from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv
+from gymnasium.vector import SyncVectorEnv
+from gymnasium.wrappers import RecordEpisodeStatistics
 
 import valve_env
 from valve_env.config import make_config
@@ -107,28 +109,26 @@ def run_episodes(
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
     episodes = int(episodes)
     make_env(env_id, env_kwargs, config).close()  # fail early on a bad configuration
-    vec = DummyVecEnv([lambda: Monitor(make_env(env_id, env_kwargs, config)) for _ in range(episodes)])
-    vec.seed(int(seed))
+    vec = SyncVectorEnv([lambda: RecordEpisodeStatistics(make_env(env_id, env_kwargs, config))
+                         for _ in range(episodes)])
     rows: dict[int, dict[str, float]] = {}
-
-    def _collect(loc: dict[str, Any], _glob: dict[str, Any]) -> None:
-        if loc["done"]:
-            info = loc["info"]
-            i = int(loc["i"])
-            if "kpis" not in info or "episode" not in info:
-                raise RuntimeError(f"env {env_id!r} ended an episode without info['kpis'] (was it truncated early?)")
-            rows[i] = {"return": float(info["episode"]["r"]), **{k: float(info["kpis"][k]) for k in KPI_NAMES}}
-
     try:
-        evaluate_policy(
-            controller,  # type: ignore[arg-type]
-            vec,
-            n_eval_episodes=episodes,
-            deterministic=True,
-            callback=_collect,
-            return_episode_rewards=True,
-            warn=False,
-        )
+        obs, _ = vec.reset(seed=[int(seed) + i for i in range(episodes)])
+        state: Any = None
+        episode_start = np.ones(episodes, dtype=bool)
+        while len(rows) < episodes:
+            actions, state = controller.predict(obs, state=state, episode_start=episode_start, deterministic=True)
+            obs, _r, terminated, truncated, info = vec.step(actions)
+            done = np.logical_or(terminated, truncated)
+            for i in np.flatnonzero(done):
+                if int(i) in rows:
+                    continue
+                if not (info.get("_kpis", np.zeros(episodes, bool))[i] and info.get("_episode",
+                                                                                   np.zeros(episodes, bool))[i]):
+                    raise RuntimeError(f"env {env_id!r} ended an episode without info['kpis'] (was it truncated early?)")
+                rows[int(i)] = {"return": float(info["episode"]["r"][i]),
+                                **{k: float(info["kpis"][k][i]) for k in KPI_NAMES}}
+            episode_start = done
     finally:
         vec.close()
     df = pd.DataFrame([{"episode": i, "seed": int(seed) + i, **rows[i]} for i in sorted(rows)])
