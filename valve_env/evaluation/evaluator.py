@@ -123,9 +123,10 @@ def run_episodes(
             for i in np.flatnonzero(done):
                 if int(i) in rows:
                     continue
-                if not (info.get("_kpis", np.zeros(episodes, bool))[i] and info.get("_episode",
-                                                                                   np.zeros(episodes, bool))[i]):
-                    raise RuntimeError(f"env {env_id!r} ended an episode without info['kpis'] (was it truncated early?)")
+                ended = info.get("_kpis", np.zeros(episodes, bool))[i] and info.get("_episode", done)[i]
+                if not ended:
+                    raise RuntimeError(f"env {env_id!r} ended an episode without info['kpis'] "
+                                       "(was it truncated early?)")
                 rows[int(i)] = {"return": float(info["episode"]["r"][i]),
                                 **{k: float(info["kpis"][k][i]) for k in KPI_NAMES}}
             episode_start = done
