@@ -48,6 +48,7 @@ NOISE_PARAMS: tuple[tuple[str, str, float, float], ...] = (
     ("s_e", "mm", 1e-6, 1.0),
     ("tau_e", "s", 1.0, 900.0),
 )
+NOISE_NAMES: frozenset[str] = frozenset(n for n, *_ in NOISE_PARAMS)
 
 
 @dataclass
@@ -457,9 +458,8 @@ class Model:
                     4 * h * h)
         g = self.dnat_dwork(vals)[free]
         out = {n: float("nan") for n in names}
-        try:
-            Hi = np.linalg.inv(H)
-        except np.linalg.LinAlgError:
+        Hi = self._identified_inverse(H, [self.work_bounds()[i] for i in free])
+        if Hi is None:
             return out
         # per-sample scores by central differences
         n = None
@@ -481,11 +481,45 @@ class Model:
             Gam = G[lag:].T @ G[:-lag]
             M += w * (Gam + Gam.T)
         cov_model = Hi
+        # The robust (sandwich) covariance of the physical parameters holds the residual model's
+        # parameters fixed at their estimates: they are a working covariance, and the sandwich for the
+        # parameters of the mean stays valid however wrong it is (Liang and Zeger 1986). Letting their
+        # own scores in would carry the misfit of a nearly flat noise direction into every physical sd
+        # (issue 16: 500 times the bootstrap sd of beta). The noise parameters keep the full sandwich.
+        phys = np.array([n not in NOISE_NAMES for n in names])
         cov_robust = Hi @ M @ Hi
+        if phys.any():
+            Hp = self._identified_inverse(H[np.ix_(phys, phys)], [self.work_bounds()[free[i]]
+                                                                  for i in np.flatnonzero(phys)])
+            if Hp is not None:
+                cov_robust[np.ix_(phys, phys)] = Hp @ M[np.ix_(phys, phys)] @ Hp
         for i, name in enumerate(names):
             v = max(cov_model[i, i], cov_robust[i, i])
             out[name] = float(math.sqrt(v) * abs(g[i])) if v > 0 and math.isfinite(v) else float("nan")
         return out
+
+    @staticmethod
+    def _identified_inverse(H: np.ndarray, bounds: list[tuple[float, float]]) -> np.ndarray | None:
+        """The inverse of the Hessian over the directions the data identify.
+
+        A direction ``v`` (eigenvector of ``H``, eigenvalue ``lam``) is unidentified when the data
+        constrain it less than the parameter box does: the +-1 sd interval of the likelihood along
+        ``v`` (``2 / sqrt(lam)`` wide) is wider than the box along ``v``, or ``lam <= 0``. Such directions
+        (typically the residual model's ``s_e``/``tau_e`` when the OU error is negligible) are held
+        fixed: they carry no information, and inverting them lets finite-difference noise and the HAC
+        scores of a flat direction inflate every sd (a 500-fold inflated sd of beta on numpy 2.4 /
+        scipy 1.17, issue 16). Returns ``None`` when no direction is identified."""
+        Hs = 0.5 * (H + H.T)
+        if not np.all(np.isfinite(Hs)):
+            return None
+        lam, V = np.linalg.eigh(Hs)
+        width = np.array([hi - lo for lo, hi in bounds], dtype=float)
+        extent = np.abs(V).T @ width  # the box's extent along each eigenvector
+        keep = (lam > 0) & (2.0 / np.sqrt(np.where(lam > 0, lam, 1.0)) < extent)
+        if not keep.any():
+            return None
+        Vk = V[:, keep]
+        return np.asarray((Vk / lam[keep]) @ Vk.T)
 
     @staticmethod
     def _profile_std(pts: dict[float, float], ll_best: float) -> float:
