@@ -89,15 +89,26 @@ class ThermoValveVecEnv(VecEnv):
     ``ThermoValveVecEnv(env_id, num_envs, **env_kwargs)`` builds
     ``gym.make_vec(env_id, num_envs, vectorization_mode="vector_entry_point", **env_kwargs)``
     (``env_kwargs`` as for ``gym.make``: ``config=``, ``control=``, ...,
-    ``max_episode_steps=``); ``ThermoValveVecEnv.from_vector(vec)`` adapts
+    ``max_episode_steps=``); the kernel runs serially unless ``threads=True``
+    (then on numba's threads from the native env's ``parallel_threshold``
+    envs on); ``ThermoValveVecEnv.from_vector(vec)`` adapts
     an existing :class:`ThermoValveVectorEnv`. See the module docstring.
     """
 
-    def __init__(self, env_id: str = "ThermoValve-v0", num_envs: int = 1, **env_kwargs: Any) -> None:
+    def __init__(
+        self, env_id: str = "ThermoValve-v0", num_envs: int = 1, threads: bool = False, **env_kwargs: Any
+    ) -> None:
         if env_id not in valve_env.ENV_IDS:
             raise ValueError(f"unknown env id {env_id!r}; known: {', '.join(valve_env.ENV_IDS)}")
         vec = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **env_kwargs)
-        self._init_from(vec.unwrapped)  # type: ignore[arg-type]
+        base = vec.unwrapped
+        if not threads:
+            # one core for the kernel: in training the policy's torch thread needs the other core, and a
+            # kernel step waiting for a numba thread that torch (or another process) holds is slow (at
+            # N = 1024, PPO learn ran 26k against 15k and 67k against 46k env-steps/s serial vs
+            # threaded in two interleaved pairs on the shared 2-core machine; docs/agents.md)
+            base.parallel_threshold = num_envs + 1  # type: ignore[attr-defined]
+        self._init_from(base)  # type: ignore[arg-type]
         self.env_id = env_id
 
     @classmethod
@@ -241,10 +252,14 @@ class VecKPIInfo(VecEnvWrapper):
 
 
 class VecEnergyShaping(VecEnvWrapper):
-    """agents.wrappers.EnergyPotentialShaping for all envs (training only; see there)."""
+    """agents.wrappers.EnergyPotentialShaping for all envs (training only; see there).
+    With ``active=False`` it passes rewards through: the evaluation stack keeps the
+    layer so that SB3's ``sync_envs_normalization`` finds its VecNormalize at the
+    same depth as the training stack's."""
 
-    def __init__(self, venv: VecEnv, gamma: float) -> None:
+    def __init__(self, venv: VecEnv, gamma: float, active: bool = True) -> None:
         super().__init__(venv)
+        self.active = bool(active)
         base = native_of(venv)
         cfg = base.cfg
         self.gamma = float(gamma)
@@ -260,6 +275,8 @@ class VecEnergyShaping(VecEnvWrapper):
 
     def step_wait(self) -> VecEnvStepReturn:
         obs, rewards, dones, infos = self.venv.step_wait()
+        if not self.active:
+            return obs, rewards, dones, infos
         phi = self._scale * (self._base.step_stored_energy_J - self._E_ref)
         if dones.any():
             for i in np.flatnonzero(dones).tolist():
@@ -393,8 +410,8 @@ def make_native_stack(
     kwargs = dict(cfg.get("env_kwargs") or {}) if env_kwargs is None else dict(env_kwargs)
     venv: VecEnv = ThermoValveVecEnv(env_id, n_envs, **kwargs)
     venv = VecMonitor(VecKPIInfo(venv), filename=monitor_file, info_keywords=KPI_KEYS)
-    if cfg.get("energy_shaping") and training:
-        venv = VecEnergyShaping(venv, gamma=float((cfg.get("hyperparams") or {}).get("gamma", 0.99)))
+    if cfg.get("energy_shaping"):
+        venv = VecEnergyShaping(venv, float((cfg.get("hyperparams") or {}).get("gamma", 0.99)), active=training)
     residual = cfg.get("residual")
     venv = VecResidualAction(venv, residual) if residual else VecRescaleAction(venv)
     if cfg.get("obs_scaling") == "physical":
