@@ -30,6 +30,8 @@ import numpy as np
 import yaml
 
 ALGOS: tuple[str, ...] = ("ppo", "sac", "td3", "a2c")
+#: the VecEnv kinds of agents.wrappers.make_vec_env (``vec_env`` in configs/<algo>.yml, ``--vec``)
+VEC_KINDS: tuple[str, ...] = ("native", "dummy", "subproc")
 REPO_ROOT = Path(__file__).resolve().parent.parent
 CONFIG_DIR = REPO_ROOT / "configs"
 ZOO_DIR = Path(__file__).resolve().parent / "zoo"
@@ -209,8 +211,10 @@ def train(
     config_dir: str | Path | None = None,
     command: str | None = None,
     verbose: int = 0,
+    vec: str | None = None,
 ) -> Path:
-    """Train one agent; returns its run directory."""
+    """Train one agent; returns its run directory. ``vec`` (native, dummy or
+    subproc) overrides the config's ``vec_env``; the resolved config records it."""
     import torch
     from stable_baselines3.common.callbacks import BaseCallback, CallbackList
     from stable_baselines3.common.logger import configure
@@ -225,6 +229,11 @@ def train(
     cfg.setdefault("env_kwargs", {})
     if timesteps is not None:
         cfg["n_timesteps"] = int(timesteps)
+    if vec is not None:
+        cfg["vec_env"] = vec
+    cfg["vec_env"] = str(cfg.get("vec_env", "dummy"))
+    if cfg["vec_env"] not in VEC_KINDS:
+        raise ValueError(f"vec_env must be one of {', '.join(VEC_KINDS)}, got {cfg['vec_env']!r}")
     n_timesteps = int(float(cfg["n_timesteps"]))
     cfg["n_timesteps"] = n_timesteps
     ev = dict(cfg.get("eval") or {})
@@ -361,6 +370,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="override a config entry, e.g. --set hyperparams.learning_rate=1e-4 (repeatable)",
     )
     p.add_argument("--eval-freq", type=int, default=None, help="env steps between evaluations (0: none)")
+    p.add_argument(
+        "--vec", choices=VEC_KINDS, default=None,
+        help="VecEnv: native (the batched kernel, agents.vec_env), dummy or subproc (SB3's, of single envs); "
+        "default: the config's vec_env",
+    )
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (tests, CI)")
     p.add_argument("--ship", action="store_true", help="copy the best model into agents/zoo/<env>/<algo>.*")
@@ -381,6 +395,7 @@ def run(args: argparse.Namespace) -> int:
         n_threads=args.threads,
         config_dir=args.config_dir,
         verbose=args.verbose,
+        vec=args.vec,
     )
     meta = json.loads((run_dir / "run.json").read_text())
     print(f"run directory: {run_dir}")

@@ -11,6 +11,10 @@ Training stack, innermost first::
     -> FrameStackObservation + FlattenObservation   (history: the friction state is not observed)
     -> DummyVecEnv | SubprocVecEnv -> VecNormalize  (observation and reward normalisation)
 
+or, with ``vec_env: native``, the same wrappers in batched form over the native batched env
+(agents.vec_env: ThermoValveVecEnv -> VecKPIInfo + VecMonitor -> VecEnergyShaping ->
+VecResidualAction -> VecScaleObservation -> VecHistory -> VecNormalize).
+
 ``ResidualAction`` makes the action a bounded correction around a sensible
 setting: ``u = clip(base + span * a)`` where ``base`` is either a fixed centre
 (the outlet target for a temperature setting) or a PI law on the outlet
@@ -36,6 +40,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 import valve_env  # noqa: F401  (registers the environments)
+from agents.train import VEC_KINDS  # the VecEnv kinds of make_vec_env (configs' vec_env, train --vec)
 from valve_env.envs.thermovalve import OBS_NAMES
 
 I_T_OUT = OBS_NAMES.index("T_out_C")
@@ -321,16 +326,34 @@ def make_vec_env(
     monitor_dir: str | Path | None = None,
     training: bool = True,
     env_kwargs: Mapping[str, Any] | None = None,
+    vec: str | None = None,
 ) -> VecEnv:
-    """The vectorised, normalised training (or evaluation) environment."""
+    """The vectorised, normalised training (or evaluation) environment.
+
+    ``vec`` (default: the config's ``vec_env``, else ``dummy``) picks the
+    ``VecEnv``: ``native`` the batched kernel with the batched form of this
+    module's wrappers (agents.vec_env.make_native_stack; one VecMonitor file
+    ``native.monitor.csv`` for all envs), ``dummy``/``subproc`` SB3's
+    ``DummyVecEnv``/``SubprocVecEnv`` of single wrapped envs (one Monitor file
+    per env). Both give the same episodes on the same seed (env i: seed + i).
+    """
     n = int(n_envs if n_envs is not None else cfg.get("n_envs", 1))
-    fns = [make_env_fn(env_id, cfg, seed, i, monitor_dir, env_kwargs, training) for i in range(n)]
+    kind = str(vec if vec is not None else cfg.get("vec_env", "dummy"))
+    if kind not in VEC_KINDS:
+        raise ValueError(f"vec_env must be one of {', '.join(VEC_KINDS)}, got {kind!r}")
     venv: VecEnv
-    if cfg.get("vec_env", "dummy") == "subproc" and n > 1:
-        venv = SubprocVecEnv(fns, start_method="spawn")
+    if kind == "native":
+        from agents.vec_env import make_native_stack
+
+        mfile = None if monitor_dir is None else str(Path(monitor_dir) / "native")
+        venv = make_native_stack(env_id, cfg, seed, n, monitor_file=mfile, training=training, env_kwargs=env_kwargs)
     else:
-        venv = DummyVecEnv(fns)
-    venv.seed(seed)
+        fns = [make_env_fn(env_id, cfg, seed, i, monitor_dir, env_kwargs, training) for i in range(n)]
+        if kind == "subproc" and n > 1:
+            venv = SubprocVecEnv(fns, start_method="spawn")
+        else:
+            venv = DummyVecEnv(fns)
+        venv.seed(seed)
     norm = cfg.get("normalize") or {}
     if norm:
         venv = VecNormalize(

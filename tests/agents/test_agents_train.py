@@ -30,8 +30,9 @@ def test_run_directory_has_everything(short_run: Path, short: dict) -> None:
     assert (short_run / "command.txt").read_text().strip() == "pytest short_run"
     meta = json.loads((short_run / "run.json").read_text())
     assert meta["seed"] == 3 and meta["num_timesteps"] >= 2048 and meta["wall_time_s"] > 0
+    assert cfg["vec_env"] == "native"  # configs/ppo.yml's default; VecMonitor: one file for all envs
     monitors = sorted((short_run / "monitor").glob("*.monitor.csv"))
-    assert len(monitors) == 2
+    assert [m.name for m in monitors] == ["native.monitor.csv"]
     lines = monitors[0].read_text().splitlines()
     assert lines[1].startswith("r,l,t,rmse_K") and len(lines) > 2  # episodes with KPI columns
     assert list((short_run / "tb").glob("events.out.tfevents.*"))
