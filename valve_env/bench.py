@@ -647,12 +647,28 @@ def markdown(res: dict[str, Any]) -> str:
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    from valve_env.outputs import OutputSet
+
+    outs = OutputSet(force=args.force)
+    json_out = outs.add(args.json, "--json") if args.json else None  # checked before the long run
     res = run_bench(quick=args.quick, progress=lambda m: print(f"bench: {m} ...", file=sys.stderr, flush=True))
     print(markdown(res))
-    if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=2, default=_jsonable) + "\n")
-        print(f"bench: wrote {args.json}", file=sys.stderr)
+    if json_out is not None:
+        with outs:
+            outs.write_text(json_out, json.dumps(_finite(res), indent=2, default=_jsonable, allow_nan=False) + "\n")
+    print(outs.summary())
     return 0
+
+
+def _finite(obj: Any) -> Any:
+    """JSON has no NaN/inf: write them as null."""
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
 
 
 def _jsonable(x: Any) -> Any:
@@ -673,4 +689,5 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--json", metavar="OUT.json", help="write every figure and ratio to this file")
     p.add_argument("--quick", action="store_true", help="shorter timings and fewer N (a smoke run, noisier)")
+    p.add_argument("--force", action="store_true", help="replace an existing --json")
     p.set_defaults(func=_cmd)
