@@ -41,9 +41,9 @@ MIN_T_RANGE_K = 0.2
 RANGES: dict[str, tuple[float, float, bool, str]] = {
     "T_tank_C": (-30.0, 150.0, False, "a plausible water temperature, degC"),
     "T_med_C": (-30.0, 150.0, False, "a plausible water temperature, degC"),
-    "q_kgh": (0.0, 1.0e5, False, "a flow, kg/h (>= 0)"),
-    "dp_mbar": (0.0, 1.0e4, True, "a differential pressure, mbar (> 0)"),
-    "ps_bar": (0.0, 100.0, True, "a static pressure, bar (> 0)"),
+    "q_kgh": (0.0, 1.0e5, False, "a flow, kg/h"),
+    "dp_mbar": (0.0, 1.0e4, True, "a differential pressure, mbar"),
+    "ps_bar": (0.0, 100.0, True, "a static pressure, bar"),
     "x_mm": (-1.0, 50.0, False, "a valve opening, mm"),
 }
 #: The median sampling interval must lie in this range (s).
@@ -147,8 +147,8 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
     if bad.size:
         i = int(bad[0])
         bound = f"{'>' if lo_open else '>='} {lo:g} and <= {hi:g}"
-        raise DataError(f"{source}: column {col}, row {i + 1} (line {i + 2}): {v[i]:.6g} is not {what} "
-                        f"(must be {bound})")
+        raise DataError(f"{source}: column {col}, row {i + 1} (line {i + 2}): {v[i]:.6g} is out of range "
+                        f"(must be {bound}: {what})")
 
 
 def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Series:
