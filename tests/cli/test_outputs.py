@@ -14,7 +14,6 @@ from pathlib import Path
 
 import pytest
 
-from tests.cli.conftest import sha
 from valve_env.cli import main
 from valve_env.outputs import OutputError, OutputSet
 
