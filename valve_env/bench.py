@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import os
 import platform
 import statistics
@@ -647,7 +646,7 @@ def markdown(res: dict[str, Any]) -> str:
 
 
 def _cmd(args: argparse.Namespace) -> int:
-    from valve_env.outputs import OutputSet
+    from valve_env.outputs import OutputSet, json_text
 
     outs = OutputSet(force=args.force)
     json_out = outs.add(args.json, "--json") if args.json else None  # checked before the long run
@@ -655,20 +654,10 @@ def _cmd(args: argparse.Namespace) -> int:
     print(markdown(res))
     if json_out is not None:
         with outs:
-            outs.write_text(json_out, json.dumps(_finite(res), indent=2, default=_jsonable, allow_nan=False) + "\n")
+            outs.write_text(json_out, json_text(res, default=_jsonable))
     print(outs.summary())
     return 0
 
-
-def _finite(obj: Any) -> Any:
-    """JSON has no NaN/inf: write them as null."""
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    return obj
 
 
 def _jsonable(x: Any) -> Any:

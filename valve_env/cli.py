@@ -102,9 +102,16 @@ def missing_extra(exc: ImportError) -> str | None:
 
 
 def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
-    """Run a sub-command with the shared error handling (see the module docstring)."""
+    """Run a sub-command with the shared error handling (see the module docstring). Numerical
+    RuntimeWarnings of the optimisers are not shown (THERMOVALVE_DEBUG=1 shows them): bad input is
+    rejected by validation, with one line, before any computation."""
+    import warnings
+
     try:
-        return int(func(args) or 0)
+        with warnings.catch_warnings():
+            if not os.environ.get("THERMOVALVE_DEBUG"):
+                warnings.simplefilter("ignore", RuntimeWarning)
+            return int(func(args) or 0)
     except KeyboardInterrupt:
         print("thermovalve: interrupted; no output was replaced", file=sys.stderr)
         return 130

@@ -133,6 +133,33 @@ def atomic_write_bytes(path: PathLike, data: bytes) -> Path:
     return Path(path)
 
 
+def json_safe(obj: object) -> object:
+    """``obj`` for JSON: non-finite floats as null (JSON has no NaN/inf), numpy scalars and arrays
+    as Python numbers and lists, tuples as lists."""
+    import math
+
+    import numpy as np
+
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj
+
+
+def json_text(obj: object, indent: int | None = 2, default: Callable[[object], object] | None = None) -> str:
+    """JSON text of ``obj`` through :func:`json_safe` (never NaN/Infinity), ending in a newline."""
+    import json
+
+    return json.dumps(json_safe(obj), indent=indent, allow_nan=False, default=default) + "\n"
+
+
 class OutputSet:
     """The outputs of one command run: checked up front, staged under temporary names,
     renamed into place together by :meth:`commit`, removed by :meth:`discard` (also on
@@ -239,17 +266,35 @@ class OutputSet:
                         raise OutputError(f"output {target} exists; use --force to replace it")
                 moves.append((f, target))
         for final, tmp in list(self._staged.items()):
-            os.replace(tmp, final)
+            self._place(tmp, final)
             self.written.append(final)
             del self._staged[final]
         for f, target in moves:
             target.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(f, target)
+            self._place(f, target)
             self.written.append(target)
         for tmp_dir in self._staged_dirs.values():
             shutil.rmtree(tmp_dir, ignore_errors=True)
         self._staged_dirs.clear()
         return self.written
+
+    def _place(self, tmp: Path, final: Path) -> None:
+        """Rename ``tmp`` onto ``final``. Without ``force`` the rename must not replace a file
+        that appeared while the run was working (two runs writing one path): a hard link,
+        which fails when ``final`` exists, makes that check and the placing one atomic step."""
+        if self.force:
+            os.replace(tmp, final)
+            return
+        try:
+            os.link(tmp, final)
+        except FileExistsError:
+            raise OutputError(f"output {final} appeared while this run was working (another run?); "
+                              "use --force to replace it") from None
+        except OSError:  # no hard links on this file system: the check made up front stands
+            os.replace(tmp, final)
+            return
+        with contextlib.suppress(OSError):
+            tmp.unlink()
 
     def discard(self) -> None:
         for tmp in self._staged.values():
@@ -278,4 +323,4 @@ class OutputSet:
 
 
 __all__ = ["OutputError", "OutputSet", "check_output", "check_output_dir", "atomic_path", "atomic_write_text",
-           "atomic_write_bytes", "DEFAULT_OUT_DIR"]
+           "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text"]

@@ -192,3 +192,21 @@ def test_bad_arguments_and_outputs(case: str, tmp_path: Path, run_csv: Path,
     _assert_one_line(code, err, needle)
     after = {p: sha(p) for p in tmp_path.rglob("*") if p.is_file() and not p.is_symlink()}
     assert after == before  # no input, no existing output touched, nothing new (no partial output)
+
+
+@pytest.mark.parametrize("argv", [["train", "--algo", "sac", "--timesteps", "10"],
+                                  ["evaluate", "--controllers", "sac", "--episodes", "1"]])
+def test_rl_commands_name_the_extra(argv: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """Without stable-baselines3 the RL commands say which extra to install, in one line."""
+    import sys
+
+    for mod in [m for m in sys.modules if m == "stable_baselines3" or m.startswith("stable_baselines3.")]:
+        monkeypatch.delitem(sys.modules, mod)
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)  # import stable_baselines3 -> ImportError
+    for mod in [m for m in sys.modules if m.startswith("agents.loader") or m.startswith("agents.wrappers")]:
+        monkeypatch.delitem(sys.modules, mod)
+    code, err = _run([*argv, "--out" if argv[0] == "train" else "--json", str(tmp_path / "o")], capsys)
+    lines = err.strip().splitlines()
+    assert code != 0 and len(lines) == 1, err
+    assert lines[0].startswith("thermovalve: error: ") and "pip install -e '.[rl]'" in lines[0], err

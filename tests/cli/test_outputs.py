@@ -146,3 +146,19 @@ def test_fit_force_replaces_and_prints_what_it_wrote(tmp_path: Path, run_csv: Pa
     printed = capsys.readouterr().out
     assert f"wrote {out}, {cfg}" in printed
     assert "params" in json.loads(out.read_text())
+
+
+def test_a_file_that_appears_meanwhile_is_not_replaced(tmp_path: Path) -> None:
+    """Two runs writing one path: the one that finishes second refuses (no silent loss)."""
+    p = tmp_path / "d.json"
+    first, second = OutputSet(), OutputSet()
+    first.add(p)
+    second.add(p)  # both checked while p did not exist
+    first.write_text(p, "first\n")
+    second.write_text(p, "second\n")
+    first.commit()
+    with pytest.raises(OutputError, match="appeared while this run was working"):
+        second.commit()
+    second.discard()
+    assert p.read_text() == "first\n"
+    assert _temps(tmp_path) == []

@@ -9,8 +9,6 @@ work, never over an input, replaced only with --force, written atomically). More
 from __future__ import annotations
 
 import argparse
-import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -98,7 +96,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from valve_env.cli import progress_bar
     from valve_env.diagnosis.diagnose import diagnose, read_run
     from valve_env.diagnosis.effects import EFFECTS, check_effects
-    from valve_env.outputs import OutputSet
+    from valve_env.outputs import OutputSet, json_text
 
     check_range("--holdout", args.holdout, 0.05, 0.5)
     check_range("--alpha", args.alpha, 0.0, 0.5, lo_open=True, hi_open=True)
@@ -130,7 +128,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     with outs:
-        outs.write_text(out, json.dumps(_clean(result.to_json()), indent=2, allow_nan=False) + "\n")
+        outs.write_text(out, json_text(result.to_json()))
         if report is not None:
             from valve_env.diagnosis.report import write_report
 
@@ -139,13 +137,3 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     print(outs.summary())
     return 0
 
-
-def _clean(obj: Any) -> Any:
-    """JSON has no NaN/inf: write them as null."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    return obj

@@ -12,7 +12,6 @@ environment's YAML configuration. Bad input: exit status 2 and one line on stder
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import warnings
 from pathlib import Path
@@ -46,21 +45,10 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=run_fit)
 
 
-def _finite(obj: Any, field: str = "") -> Any:
-    """The summary with every non-finite number written as null (JSON has no NaN/inf)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite(v, f"{field}.{k}" if field else str(k)) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v, field) for v in obj]
-    return obj
-
-
 def run_fit(args: argparse.Namespace) -> int:
     from valve_env.cli import progress_bar
     from valve_env.data_io import load_run
-    from valve_env.outputs import OutputSet
+    from valve_env.outputs import OutputSet, json_text
 
     if args.n_starts < 1:
         raise UsageError(f"--n-starts must be at least 1, got {args.n_starts}")
@@ -98,7 +86,7 @@ def run_fit(args: argparse.Namespace) -> int:
     if bad:
         raise UsageError(f"{args.run}: the fit gave a non-finite {bad[0]}; the run does not identify the valve")
     with outs:
-        outs.write_text(json_out, json.dumps(_finite(summary), indent=2, allow_nan=False) + "\n")
+        outs.write_text(json_out, json_text(summary))
         if cfg is not None:
             import yaml
 

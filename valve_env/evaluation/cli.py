@@ -13,8 +13,6 @@ file goes through one OutputSet: checked before the evaluation, replaced only wi
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -23,10 +21,7 @@ from typing import Any
 import yaml
 
 from valve_env.cli import UsageError, add_force
-
-EXIT_BAD_INPUT = 2
-#: kept for callers of the old name
-CLIError = UsageError
+from valve_env.outputs import json_text
 
 
 def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
@@ -35,36 +30,12 @@ def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise CLIError(f"bad --env-kwargs item {item!r}: expected key=value")
+            raise UsageError(f"bad --env-kwargs item {item!r}: expected key=value")
         try:
             out[key.strip()] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
-            raise CLIError(f"bad --env-kwargs value in {item!r}: {str(exc).splitlines()[0]}") from exc
+            raise UsageError(f"bad --env-kwargs value in {item!r}: {str(exc).splitlines()[0]}") from exc
     return out
-
-
-def _json_safe(obj: Any) -> Any:
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
-
-
-def json_text(summary: dict[str, Any]) -> str:
-    """The SPEC JSON (non-finite numbers as null)."""
-    return json.dumps(_json_safe(summary), indent=2, allow_nan=False) + "\n"
-
-
-def write_json(summary: dict[str, Any], path: str | Path, force: bool = False) -> Path:
-    """Write the SPEC JSON atomically; never replace an existing file unless ``force``."""
-    from valve_env.outputs import OutputSet
-
-    with OutputSet(force=force) as outs:
-        outs.write_text(outs.add(path, "--json"), json_text(summary))
-    return Path(path)
 
 
 def _default_controllers(env_id: str) -> list[str]:
@@ -83,18 +54,41 @@ def _run_evaluation(
     out_dir: Path | None,
 ) -> tuple[dict[str, Any], dict[str, Path]]:
     """Evaluate; with ``out_dir`` (a staging directory) also write the tables and figures there."""
+    from valve_env.cli import progress_bar
     from valve_env.config import make_config
-    from valve_env.evaluation.evaluator import evaluate_detailed, resolve_controllers, rollout, write_outputs
+    from valve_env.evaluation.evaluator import (
+        check_env_id,
+        make_env,
+        resolve_controllers,
+        rollout,
+        run_episodes,
+        summarise,
+        write_outputs,
+    )
 
+    check_env_id(env_id)
+    make_env(env_id, env_kwargs, config).close()  # a bad config fails here, before any episode
     ctrls = resolve_controllers(controllers, env_id)
-    summary, per_ep = evaluate_detailed(ctrls, env_id, episodes, seed, env_kwargs, config)
-    paths: dict[str, Path] = {}
-    if out_dir is not None:
-        trajs = {}
+    bar = progress_bar(len(ctrls) * (2 if out_dir is not None else 1), desc="evaluate", unit="controller")
+    try:
+        per_ep = {}
         for name, c in ctrls.items():
-            df = rollout(c, env_id, seed, env_kwargs, config)
-            df.attrs["seed"] = seed
-            trajs[name] = df
+            bar.set_postfix_str(name)
+            per_ep[name] = run_episodes(c, env_id, episodes, seed, env_kwargs, config)
+            bar.update(1)
+        summary = summarise(per_ep, env_id)
+        paths: dict[str, Path] = {}
+        trajs = {}
+        if out_dir is not None:
+            for name, c in ctrls.items():
+                bar.set_postfix_str(f"{name} trajectory")
+                df = rollout(c, env_id, seed, env_kwargs, config)
+                df.attrs["seed"] = seed
+                trajs[name] = df
+                bar.update(1)
+    finally:
+        bar.close()
+    if out_dir is not None:
         paths = write_outputs(summary, per_ep, out_dir, trajs, make_config(config, **env_kwargs))
     return summary, paths
 
