@@ -19,8 +19,8 @@ Adding a sub-command (``loop-diagnose``, ``tasks``, ``benchmark``, ...):
 3. write every file through one :class:`~valve_env.outputs.OutputSet`: add ``--force``
    with :func:`add_force`, ``add()`` every output before the long work, stage, commit
    (or ``with OutputSet(...) as outs:``), then ``print(outs.summary())``;
-4. long steps show a progress bar: :func:`progress` (tqdm on stderr, silent when
-   ``THERMOVALVE_NO_PROGRESS`` is set or stderr is not a terminal unless forced).
+4. long steps show a progress bar: :func:`progress_bar` (tqdm on stderr; off when
+   ``THERMOVALVE_NO_PROGRESS`` is set or stderr is not a terminal).
 
 Argument-parsing errors take the same one-line form and exit status 2. Help shows each
 option's default and no reStructuredText markup. SIGTERM ends a run like Ctrl-C: staged
@@ -36,8 +36,8 @@ import re
 import signal
 import sys
 import traceback
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any, NoReturn, TypeVar
+from collections.abc import Callable, Sequence
+from typing import Any, NoReturn
 
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.bench",
@@ -55,8 +55,6 @@ PREFIX = "thermovalve: error: "
 #: optional modules and the extra that provides them
 EXTRAS: dict[str, str] = {"stable_baselines3": "rl", "torch": "rl", "sb3_contrib": "rl", "distributed": "rl",
                           "dask": "rl", "tensorboard": "rl"}
-
-T = TypeVar("T")
 
 
 class UsageError(ValueError):
@@ -160,16 +158,9 @@ def add_force(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
 
 
-def progress(iterable: Iterable[T], total: int | None = None, desc: str = "", unit: str = "it") -> Iterable[T]:
-    """A tqdm progress bar on stderr (off when THERMOVALVE_NO_PROGRESS is set)."""
-    from tqdm.auto import tqdm
-
-    disable = bool(os.environ.get("THERMOVALVE_NO_PROGRESS")) or None
-    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=disable, file=sys.stderr, leave=False)
-
-
 def progress_bar(total: int, desc: str = "", unit: str = "it") -> Any:
-    """A manual tqdm bar (``.update(n)``, ``.close()``), same rules as :func:`progress`."""
+    """A tqdm bar on stderr (``.update(n)``, ``.set_postfix_str(s)``, ``.close()``); off when
+    THERMOVALVE_NO_PROGRESS is set, and when stderr is not a terminal (tqdm's ``disable=None``)."""
     from tqdm.auto import tqdm
 
     disable = bool(os.environ.get("THERMOVALVE_NO_PROGRESS")) or None
