@@ -162,3 +162,14 @@ def test_a_file_that_appears_meanwhile_is_not_replaced(tmp_path: Path) -> None:
     second.discard()
     assert p.read_text() == "first\n"
     assert _temps(tmp_path) == []
+
+
+def test_json_writer_writes_non_finite_as_null() -> None:
+    """No more 'Out of range float values are not JSON compliant: -inf': null instead."""
+    import numpy as np
+
+    from valve_env.outputs import json_text
+
+    text = json_text({"loglik": float("-inf"), "sd": np.float64("nan"), "x": np.array([1.0, np.inf]), "n": 3})
+    assert json.loads(text) == {"loglik": None, "sd": None, "x": [1.0, None], "n": 3}
+    assert "Infinity" not in text and "NaN" not in text
