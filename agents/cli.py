@@ -16,6 +16,5 @@ def register(subparsers: Any) -> None:
         ("sweep", sweep, "a sweep of algos x seeds x scenarios on a Dask cluster (resumable)"),
     ):
         p: argparse.ArgumentParser = subparsers.add_parser(name, help=help_text, description=mod.__doc__)
-        p.formatter_class = argparse.RawDescriptionHelpFormatter
         mod.add_arguments(p)
         p.set_defaults(func=mod.run)

@@ -2,12 +2,16 @@
 (``valve_env.evaluation``), on the training scenario and unseen ones, the same
 seeds for every controller.
 
-    thermovalve leaderboard [--envs ThermoValve-v0,...] [--episodes 10] [--seed 1000] [--out docs]
+    thermovalve leaderboard [--envs ThermoValve-v0,...] [--episodes 10] [--seed 1000] [--out out/leaderboard]
+    thermovalve leaderboard --docs --force      # regenerate the tracked docs/leaderboard.*
     python -m agents.leaderboard ...
 
 Writes ``leaderboard.md``, ``leaderboard.csv``, ``leaderboard.json`` into
-``--out`` and ``figures/leaderboard_<env>.png`` (tracking versus energy) below
-it. The markdown ends with the issue's target check, computed from the
+``--out`` (default out/leaderboard; ``--docs`` writes the tracked docs/ instead)
+and ``figures/leaderboard_<env>.png`` (tracking versus energy) below it, all
+together and atomically; existing files are replaced only with ``--force``.
+Scenario names come from the one registry, valve_env.evaluation.scenarios.
+The markdown ends with the issue's target check, computed from the
 numbers: the best agent (highest mean return on the default scenario) against
 ``pi``, per scenario, paired by seed.
 """
@@ -28,7 +32,14 @@ import numpy as np
 import pandas as pd
 
 import valve_env
-from agents.scenarios import DESCRIPTIONS, SCENARIOS, check_scenario, episode_env_kwargs, is_randomised
+from agents.scenarios import (
+    DESCRIPTIONS,
+    LEADERBOARD_SCENARIOS,
+    SCENARIOS,
+    check_scenario,
+    episode_env_kwargs,
+    is_randomised,
+)
 
 BASELINE_NAMES: tuple[str, ...] = ("self_acting", "pi", "pi_compensated")
 REFERENCE = "pi"
@@ -233,13 +244,13 @@ def target_markdown(env_id: str, best: str | None, checks: Mapping[str, Any]) ->
 
 def build_leaderboard(
     env_ids: Sequence[str],
-    scenarios: Sequence[str] = SCENARIOS,
+    scenarios: Sequence[str] = LEADERBOARD_SCENARIOS,
     episodes: int = 10,
     seed: int = 1000,
     names: Sequence[str] | None = None,
     ablation: bool = True,
     zoo: str | Path | None = None,
-    out_dir: str | Path = "docs",
+    out_dir: str | Path = "out/leaderboard",
     command: str | None = None,
     verbose: bool = True,
     base_kwargs: Mapping[str, Any] | None = None,
@@ -317,10 +328,13 @@ def build_leaderboard(
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--envs", default=None, help="comma-separated env ids (default: every env id with a shipped agent)")
     p.add_argument("--controllers", default=None, help="comma-separated names (default: baselines + shipped agents)")
-    p.add_argument("--scenarios", default=",".join(SCENARIOS), help=f"comma-separated, from {', '.join(SCENARIOS)}")
+    p.add_argument("--scenarios", default=",".join(LEADERBOARD_SCENARIOS),
+                   help=f"comma-separated, from {', '.join(SCENARIOS)}")
     p.add_argument("--episodes", type=int, default=10, help="seeded episodes per scenario (default 10)")
     p.add_argument("--seed", type=int, default=1000, help="first evaluation seed (default 1000)")
-    p.add_argument("--out", default="docs", help="output directory (default docs/)")
+    p.add_argument("--out", default="out/leaderboard", help="output directory")
+    p.add_argument("--docs", action="store_true", help="write the tracked docs/leaderboard.* (with --force to replace)")
+    p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
     p.add_argument("--zoo", default=None, help="directory of shipped agents (default agents/zoo)")
     p.add_argument("--no-ablation", action="store_true", help="leave out the <agent>_base_law rows")
 
@@ -342,13 +356,22 @@ def run(args: argparse.Namespace) -> int:
     scenarios = [s for s in args.scenarios.split(",") if s]
     for s in scenarios:
         check_scenario(s)
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
     names = args.controllers.split(",") if args.controllers else None
     cmd = _command_line()
-    paths = build_leaderboard(
-        envs, scenarios, args.episodes, args.seed, names, not args.no_ablation, args.zoo, args.out, cmd
-    )
-    for k, v in paths.items():
-        print(f"{k}: {v}")
+    from valve_env.outputs import OutputSet
+
+    out_dir = Path("docs") if args.docs else Path(args.out)
+    outs = OutputSet(force=args.force)
+    outs.add_in_dir(out_dir, ["leaderboard.md", "leaderboard.csv", "leaderboard.json",
+                              *[f"figures/leaderboard_{e}.png" for e in envs]], "--out")
+    with outs:
+        build_leaderboard(envs, scenarios, args.episodes, args.seed, names, not args.no_ablation, args.zoo,
+                          outs.stage_dir(out_dir), cmd)
+    print(outs.summary())
     return 0
 
 

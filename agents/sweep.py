@@ -1,7 +1,7 @@
 """A sweep of algorithms x seeds x scenarios on a Dask cluster.
 
-    thermovalve sweep --algos ppo,sac --seeds 0,1,2 --scenarios default,profile_L --timesteps 200000 \
-        --out runs/sweep [--workers 2 | --scheduler tcp://host:8786]
+    thermovalve sweep --algos ppo,sac --seeds 0,1,2 --scenarios default,profile_L --timesteps 200000
+        --out out/sweep [--workers 2 | --scheduler tcp://host:8786]
     python -m agents.sweep ...
 
 Each cell (algo, seed, scenario) trains an agent on that scenario
@@ -16,7 +16,8 @@ Resuming: a cell's result is written atomically (a temporary file, then
 ``os.replace``) to ``<out>/results/<cell>.json``; a rerun skips every cell
 whose result exists. A cell that raised writes ``<out>/failed/<cell>.json``
 (the error and traceback) and is retried on the next run; an interrupted
-cell leaves no result and is also rerun. ``<out>/summary.csv`` and
+cell leaves no result and is also rerun. A non-empty ``--out`` that is not a
+sweep (no ``grid.json``) is refused unless ``--force``. ``<out>/summary.csv`` and
 ``summary.md`` collect the results after every run.
 """
 
@@ -200,9 +201,12 @@ def collect(out_dir: str | Path) -> pd.DataFrame:
 
 
 def write_summary(out_dir: str | Path) -> pd.DataFrame:
+    from valve_env.outputs import atomic_path, atomic_write_text
+
     out = Path(out_dir)
     df = collect(out)
-    df.to_csv(out / "summary.csv", index=False)
+    with atomic_path(out / "summary.csv") as tmp:
+        df.to_csv(tmp, index=False)
     lines = ["# Sweep summary", ""]
     if len(df):
         g = df.groupby(["env_id", "algo", "scenario"])
@@ -218,7 +222,7 @@ def write_summary(out_dir: str | Path) -> pd.DataFrame:
     failed = sorted(p.stem for p in (out / "failed").glob("*.json")) if (out / "failed").is_dir() else []
     if failed:
         lines += ["", f"Failed cells (retried on the next run): {', '.join(failed)}"]
-    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / "summary.md", "\n".join(lines) + "\n")
     return df
 
 
@@ -284,16 +288,18 @@ def _ints(text: str) -> list[int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--algos", default="ppo", help="comma-separated algorithms (default ppo)")
+    p.add_argument("--algos", default="ppo", help="comma-separated algorithms, from ppo, sac, td3")
     p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds or ranges, e.g. 0-4 (default 0,1,2)")
     p.add_argument("--scenarios", default="default", help="comma-separated training scenarios (agents.scenarios)")
-    p.add_argument("--env", default="ThermoValve-v0")
+    p.add_argument("--env", default="ThermoValve-v0", help="environment id")
     p.add_argument("--timesteps", type=int, default=100_000, help="training steps per cell")
-    p.add_argument("--eval-episodes", type=int, default=5)
-    p.add_argument("--eval-seed", type=int, default=1000)
+    p.add_argument("--eval-episodes", type=int, default=5, help="held-out evaluation episodes per cell")
+    p.add_argument("--eval-seed", type=int, default=1000, help="first evaluation seed")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="config override (as in thermovalve train); ALGO:KEY=VALUE applies to one algo only")
-    p.add_argument("--out", default="runs/sweep", help="sweep directory (results/, failed/, cells/, summary.*)")
+    p.add_argument("--out", default="out/sweep", help="sweep directory (results/, failed/, cells/, summary.*); "
+                   "an existing sweep there is resumed")
+    p.add_argument("--force", action="store_true", help="use a non-empty --out that is not a sweep")
     p.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
     p.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler, e.g. tcp://host:8786")
 
@@ -303,9 +309,17 @@ def run(args: argparse.Namespace) -> int:
         [a for a in args.algos.split(",") if a], _ints(args.seeds), [s for s in args.scenarios.split(",") if s],
         args.env, args.timesteps, args.eval_episodes, args.eval_seed, args.overrides,
     )
+    from valve_env.outputs import OutputError, atomic_write_text
+
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"--out {out} exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()) and not (out / "grid.json").is_file() and not args.force:
+        raise OutputError(f"--out {out} is not empty and holds no sweep (grid.json); use --force to sweep into it")
+    import distributed  # noqa: F401  (ImportError here names the extra: pip install -e '.[rl]')
+
     out.mkdir(parents=True, exist_ok=True)
-    (out / "command.txt").write_text(shlex.join(sys.argv) + "\n")
+    atomic_write_text(out / "command.txt", shlex.join(sys.argv) + "\n")
     stats = run_sweep(cells, out, scheduler=args.scheduler, workers=args.workers)
     print(json.dumps(stats))
     print(f"summary: {out / 'summary.md'}")

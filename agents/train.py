@@ -29,13 +29,14 @@ from typing import Any
 import numpy as np
 import yaml
 
-ALGOS: tuple[str, ...] = ("ppo", "sac", "td3", "a2c")
+#: the algorithms with a tuned config in configs/<algo>.yml (a2c has none, so it is not offered)
+ALGOS: tuple[str, ...] = ("ppo", "sac", "td3")
 #: the VecEnv kinds of agents.wrappers.make_vec_env (``vec_env`` in configs/<algo>.yml, ``--vec``)
 VEC_KINDS: tuple[str, ...] = ("native", "dummy", "subproc")
 REPO_ROOT = Path(__file__).resolve().parent.parent
 CONFIG_DIR = REPO_ROOT / "configs"
 ZOO_DIR = Path(__file__).resolve().parent / "zoo"
-DEFAULT_RUNS = REPO_ROOT / "runs"
+DEFAULT_RUNS = REPO_ROOT / "out" / "runs"
 
 
 # --------------------------------------------------------------------------- config
@@ -332,9 +333,19 @@ def train(
 
 
 # --------------------------------------------------------------------------- shipping
-def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool = True) -> Path:
+def ship_files(algo: str) -> list[str]:
+    """The files :func:`ship` writes into ``agents/zoo/<env_id>/``."""
+    return [f"{algo}.zip", f"{algo}_obs_norm.json", f"{algo}.yml"]
+
+
+def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool = True,
+         outs: Any = None) -> Path:
     """Copy a run's model into ``agents/zoo/<env_id>/<algo>.zip`` with its config
-    (``<algo>.yml``) and observation statistics (``<algo>_obs_norm.json``)."""
+    (``<algo>.yml``) and observation statistics (``<algo>_obs_norm.json``), the three
+    together and atomically (an :class:`valve_env.outputs.OutputSet`, replacing existing
+    files only when it was made with ``force``; by default it is)."""
+    from valve_env.outputs import OutputSet
+
     run_dir = Path(run_dir)
     cfg = yaml.safe_load((run_dir / "config.yml").read_text())
     algo, env_id = cfg["algo"], cfg["env_id"]
@@ -342,8 +353,9 @@ def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool 
     model = src / ("best_model.zip" if src.name == "best" else "model.zip")
     dest = Path(zoo_dir or ZOO_DIR) / env_id
     dest.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(model, dest / f"{algo}.zip")
-    shutil.copyfile(src / "obs_norm.json", dest / f"{algo}_obs_norm.json")
+    outs = outs if outs is not None else OutputSet(force=True)
+    outs.stage(dest / f"{algo}.zip", lambda tmp: shutil.copyfile(model, tmp))
+    outs.stage(dest / f"{algo}_obs_norm.json", lambda tmp: shutil.copyfile(src / "obs_norm.json", tmp))
     meta = json.loads((run_dir / "run.json").read_text())
     shipped = {
         **cfg,
@@ -353,7 +365,8 @@ def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool 
             "command": (run_dir / "command.txt").read_text().strip(),
         },
     }
-    (dest / f"{algo}.yml").write_text(yaml.safe_dump(shipped, sort_keys=False))
+    outs.write_text(dest / f"{algo}.yml", yaml.safe_dump(shipped, sort_keys=False))
+    outs.commit()
     return dest / f"{algo}.zip"
 
 
@@ -361,9 +374,9 @@ def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--algo", required=True, choices=ALGOS, help="stable-baselines3 algorithm")
     p.add_argument("--env", default="ThermoValve-v0", help="environment id (default ThermoValve-v0)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="training seed (>= 0)")
     p.add_argument("--timesteps", type=int, default=None, help="override n_timesteps of the config")
-    p.add_argument("--out", default=None, help="run directory (default runs/<env>/<algo>_s<seed>_<time>)")
+    p.add_argument("--out", default=None, help="run directory (default out/runs/<env>/<algo>_s<seed>_<time>)")
     p.add_argument("--config-dir", default=None, help="directory of <algo>.yml files (default configs/)")
     p.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -377,11 +390,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (tests, CI)")
-    p.add_argument("--ship", action="store_true", help="copy the best model into agents/zoo/<env>/<algo>.*")
+    p.add_argument("--ship", action="store_true", help="copy the best model into agents/zoo/<env>/<algo>.* "
+                   "(replacing a shipped agent needs --force)")
+    p.add_argument("--force", action="store_true", help="train into a non-empty --out; replace a shipped agent")
     p.add_argument("--verbose", type=int, default=0)
 
 
 def run(args: argparse.Namespace) -> int:
+    import valve_env
+    from valve_env.outputs import OutputError, OutputSet
+
+    if args.env not in valve_env.ENV_IDS:
+        raise ValueError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ENV_IDS)}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
+    if args.timesteps is not None and args.timesteps < 1:
+        raise ValueError(f"--timesteps must be >= 1, got {args.timesteps}")
+    if args.out is not None:
+        out = Path(args.out)
+        if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
+            raise OutputError(f"--out {out} exists and is not empty; use --force to train into it")
+    ship_outs = None
+    if args.ship:  # checked before training: a shipped agent is replaced only with --force
+        ship_outs = OutputSet(force=args.force)
+        ship_outs.add_in_dir(ZOO_DIR / args.env, ship_files(args.algo), "--ship")
+    import stable_baselines3  # noqa: F401  (ImportError here names the extra: pip install -e '.[rl]')
+
     progress = not args.no_progress and os.environ.get("THERMOVALVE_NO_PROGRESS", "") == ""
     run_dir = train(
         args.algo,
@@ -402,8 +436,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"trained {meta['num_timesteps']} steps in {meta['wall_time_s']} s ({meta['steps_per_s']} steps/s)")
     if "best_eval" in meta:
         print(f"best evaluation: return {meta['best_eval']['mean_return']:.2f} at {meta['best_eval']['timesteps']}")
-    if args.ship:
-        print(f"shipped: {ship(run_dir)}")
+    if ship_outs is not None:
+        ship(run_dir, outs=ship_outs)
+        print(f"shipped: {ship_outs.summary()}")
     return 0
 
 

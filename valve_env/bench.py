@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import os
 import platform
 import statistics
@@ -647,12 +646,18 @@ def markdown(res: dict[str, Any]) -> str:
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    from valve_env.outputs import OutputSet, json_text
+
+    outs = OutputSet(force=args.force)
+    json_out = outs.add(args.json, "--json") if args.json else None  # checked before the long run
     res = run_bench(quick=args.quick, progress=lambda m: print(f"bench: {m} ...", file=sys.stderr, flush=True))
     print(markdown(res))
-    if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=2, default=_jsonable) + "\n")
-        print(f"bench: wrote {args.json}", file=sys.stderr)
+    if json_out is not None:
+        with outs:
+            outs.write_text(json_out, json_text(res, default=_jsonable))
+    print(outs.summary())
     return 0
+
 
 
 def _jsonable(x: Any) -> Any:
@@ -673,4 +678,5 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--json", metavar="OUT.json", help="write every figure and ratio to this file")
     p.add_argument("--quick", action="store_true", help="shorter timings and fewer N (a smoke run, noisier)")
+    p.add_argument("--force", action="store_true", help="replace an existing --json")
     p.set_defaults(func=_cmd)

@@ -1,13 +1,43 @@
-"""The ``thermovalve`` command. Each sub-command lives beside the code it runs;
-a module in SUBCOMMAND_MODULES exposes ``register(subparsers)`` which adds its
-sub-parser(s) with ``set_defaults(func=...)``; ``func(args)`` returns the exit code."""
+"""The ``thermovalve`` command: one style for every sub-command.
+
+Each sub-command lives beside the code it runs. A module in SUBCOMMAND_MODULES exposes
+``register(subparsers)``, which adds its sub-parser(s) with ``set_defaults(func=...)``;
+``func(args)`` returns the exit code (or None for 0).
+
+Adding a sub-command (``loop-diagnose``, ``tasks``, ``benchmark``, ...):
+
+1. write ``register(subparsers)`` in the module that does the work and add the module
+   to SUBCOMMAND_MODULES (import the heavy parts inside ``func``, not at module level:
+   ``thermovalve --help`` imports every module listed here);
+2. in ``func``, **raise** on bad input instead of printing: :class:`UsageError` (or
+   :class:`~valve_env.params.ConfigError`, :class:`~valve_env.data_io.DataError`,
+   :class:`~valve_env.outputs.OutputError`, any ``ValueError``) becomes one line
+   ``thermovalve: error: <message>`` on stderr and exit status 2; any other exception
+   becomes one line and exit status 1 (the traceback only with ``THERMOVALVE_DEBUG=1``);
+   a missing optional dependency (``ImportError`` of stable_baselines3/torch/dask) names
+   the extra to install;
+3. write every file through one :class:`~valve_env.outputs.OutputSet`: add ``--force``
+   with :func:`add_force`, ``add()`` every output before the long work, stage, commit
+   (or ``with OutputSet(...) as outs:``), then ``print(outs.summary())``;
+4. long steps show a progress bar: :func:`progress_bar` (tqdm on stderr; off when
+   ``THERMOVALVE_NO_PROGRESS`` is set or stderr is not a terminal).
+
+Argument-parsing errors take the same one-line form and exit status 2. Help shows each
+option's default and no reStructuredText markup. SIGTERM ends a run like Ctrl-C: staged
+outputs are discarded, the previous results stay intact.
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import re
+import signal
 import sys
-from collections.abc import Sequence
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any, NoReturn
 
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.bench",
@@ -17,16 +47,215 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "agents.cli",
 )
 
+EXIT_OK = 0
+EXIT_ERROR = 1
+EXIT_BAD_INPUT = 2
+PREFIX = "thermovalve: error: "
+
+#: optional modules and the extra that provides them
+EXTRAS: dict[str, str] = {"stable_baselines3": "rl", "torch": "rl", "sb3_contrib": "rl", "distributed": "rl",
+                          "dask": "rl", "tensorboard": "rl"}
+
+
+class UsageError(ValueError):
+    """Bad input found by a command's own argument checks: one line, exit status 2."""
+
+
+def one_line(text: object) -> str:
+    """``text`` on one line (whitespace runs collapsed)."""
+    return " ".join(str(text).split())
+
+
+def error_message(exc: BaseException) -> str:
+    """The one-line message of ``exc`` (its type's name when it has none)."""
+    msg = one_line(exc)
+    if isinstance(exc, KeyError) and exc.args:
+        msg = one_line(exc.args[0])
+    if isinstance(exc, OSError) and exc.strerror:
+        msg = f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror}"
+    return msg or type(exc).__name__
+
+
+def fail(msg: object, code: int = EXIT_BAD_INPUT) -> int:
+    """Print ``thermovalve: error: <msg>`` (one line) on stderr; returns ``code``."""
+    print(PREFIX + one_line(msg), file=sys.stderr, flush=True)
+    return code
+
+
+def _bad_input_types() -> tuple[type[BaseException], ...]:
+    from valve_env.data_io import DataError
+    from valve_env.outputs import OutputError
+    from valve_env.params import ConfigError
+
+    return (UsageError, ConfigError, DataError, OutputError, ValueError, TypeError, KeyError)
+
+
+def missing_extra(exc: ImportError) -> str | None:
+    """``pip install -e '.[rl]'`` advice when ``exc`` is a missing optional module."""
+    name = (getattr(exc, "name", None) or "").split(".")[0]
+    extra = EXTRAS.get(name)
+    if extra is None:
+        return None
+    return f"this command needs the optional package {name!r}: install it with pip install -e '.[{extra}]'"
+
+
+def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
+    """Run a sub-command with the shared error handling (see the module docstring). Numerical
+    RuntimeWarnings of the optimisers are not shown (THERMOVALVE_DEBUG=1 shows them): bad input is
+    rejected by validation, with one line, before any computation."""
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            if not os.environ.get("THERMOVALVE_DEBUG"):
+                warnings.simplefilter("ignore", RuntimeWarning)
+            return int(func(args) or 0)
+    except KeyboardInterrupt:
+        print("thermovalve: interrupted; no output was replaced", file=sys.stderr)
+        return 130
+    except _Terminated:
+        print("thermovalve: terminated; no output was replaced", file=sys.stderr)
+        return 143
+    except ImportError as exc:
+        advice = missing_extra(exc)
+        if os.environ.get("THERMOVALVE_DEBUG"):
+            traceback.print_exc()
+        if advice:
+            return fail(advice, EXIT_ERROR)
+        return fail(f"{type(exc).__name__}: {error_message(exc)}", EXIT_ERROR)
+    except MemoryError:
+        return fail("out of memory", EXIT_ERROR)
+    except _bad_input_types() as exc:
+        if os.environ.get("THERMOVALVE_DEBUG"):
+            traceback.print_exc()
+        return fail(error_message(exc), EXIT_BAD_INPUT)
+    except PermissionError as exc:
+        return fail(f"permission denied: {exc.filename or error_message(exc)}", EXIT_BAD_INPUT)
+    except Exception as exc:  # noqa: BLE001 - never a bare traceback: one line, exit 1
+        if os.environ.get("THERMOVALVE_DEBUG"):
+            traceback.print_exc()
+        return fail(f"{type(exc).__name__}: {error_message(exc)} (THERMOVALVE_DEBUG=1 shows the traceback)",
+                    EXIT_ERROR)
+
+
+# --------------------------------------------------------------------------- argument checks
+def check_range(name: str, value: float, lo: float | None = None, hi: float | None = None,
+                lo_open: bool = False, hi_open: bool = False) -> float:
+    """Raise :class:`UsageError` naming ``name`` unless ``value`` is finite and within the bounds."""
+    import math
+
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise UsageError(f"{name} must be a finite number, got {value!r}")
+    if lo is not None and (value <= lo if lo_open else value < lo):
+        raise UsageError(f"{name} must be {'>' if lo_open else '>='} {lo:g}, got {value:g}")
+    if hi is not None and (value >= hi if hi_open else value > hi):
+        raise UsageError(f"{name} must be {'<' if hi_open else '<='} {hi:g}, got {value:g}")
+    return value
+
+
+def add_force(p: argparse.ArgumentParser) -> None:
+    """The ``--force`` option every writing command has."""
+    p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
+
+
+def progress_bar(total: int, desc: str = "", unit: str = "it") -> Any:
+    """A tqdm bar on stderr (``.update(n)``, ``.set_postfix_str(s)``, ``.close()``); off when
+    THERMOVALVE_NO_PROGRESS is set, and when stderr is not a terminal (tqdm's ``disable=None``)."""
+    from tqdm.auto import tqdm
+
+    disable = bool(os.environ.get("THERMOVALVE_NO_PROGRESS")) or None
+    return tqdm(total=total, desc=desc, unit=unit, disable=disable, file=sys.stderr, leave=False)
+
+
+# --------------------------------------------------------------------------- parser
+_MARKUP = (
+    (re.compile(r":[a-z]+:`~?([^`<]*?)(?:\s*<[^>]*>)?`"), r"\1"),  # :func:`x`, :class:`~a.b`
+    (re.compile(r"``([^`]+)``"), r"\1"),
+    (re.compile(r"(?<![\w`])`([^`]+)`_?"), r"\1"),
+    (re.compile(r"\*\*([^*]+)\*\*"), r"\1"),
+)
+
+
+def strip_markup(text: str | None) -> str | None:
+    """Help text without reStructuredText/markdown markup."""
+    if text is None:
+        return None
+    for pat, rep in _MARKUP:
+        text = pat.sub(rep, text)
+    return text
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """Descriptions wrapped by paragraph (indented lines, e.g. examples, kept as written),
+    defaults shown, no markup."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        import textwrap
+
+        out: list[str] = []
+        for para in re.split(r"\n\s*\n", text.strip("\n")):
+            lines = para.splitlines()
+            if any(ln.startswith((" ", "\t", "|")) for ln in lines):
+                out.append("\n".join(indent + ln for ln in lines))
+            else:
+                out.append(textwrap.fill(" ".join(para.split()), width, initial_indent=indent,
+                                         subsequent_indent=indent))
+        return "\n\n".join(out)
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        help_text = strip_markup(action.help) or ""
+        if action.default is None or action.default is False or action.default is argparse.SUPPRESS \
+                or "default" in help_text:
+            return help_text
+        if action.option_strings or action.nargs in (argparse.OPTIONAL, argparse.ZERO_OR_MORE):
+            help_text += " (default: %(default)s)"
+        return help_text
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line error form and exit status 2."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs["formatter_class"] = HelpFormatter
+        for key in ("description", "epilog"):
+            if kwargs.get(key):
+                kwargs[key] = strip_markup(kwargs[key])
+        super().__init__(*args, **kwargs)
+
+    def error(self, message: str) -> NoReturn:
+        print(f"{PREFIX}{one_line(message)} (see {self.prog} --help)", file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)
+
+
+class _SubParsers(argparse._SubParsersAction):  # type: ignore[type-arg]
+    def add_parser(self, name: str, **kwargs: Any) -> Any:
+        kwargs.pop("formatter_class", None)
+        if kwargs.get("help"):
+            kwargs["help"] = strip_markup(kwargs["help"])
+        if kwargs.get("description"):
+            kwargs["description"] = strip_markup(kwargs["description"])
+        return super().add_parser(name, **kwargs)
+
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="thermovalve",
-        description="ThermoValve: thermostatic valve environments, controllers and grey-box identification.",
+        description="ThermoValve: thermostatic valve environments, controllers and grey-box identification. "
+                    "Bad input: one line 'thermovalve: error: ...' and exit status 2.",
     )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser.register("action", "parsers", _SubParsers)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for name in SUBCOMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread so staged outputs are discarded."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise _Terminated()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -34,12 +263,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
-        return 2
+        return EXIT_BAD_INPUT
+    previous = None
     try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("thermovalve: interrupted", file=sys.stderr)
-        return 130
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread
+        previous = None
+    try:
+        return run_command(args.func, args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -2,6 +2,16 @@
 
     df = load_run("run.csv")
 
+The one validation path for a measured run: ``thermovalve fit``, ``thermovalve diagnose``
+and ``thermovalve experiment`` (its output is checked before it is written) all go through
+:func:`validate_run`. It checks, in order: the columns; every value numeric and finite; the
+physical ranges of :data:`RANGES` (dp_mbar > 0, flows >= 0, static pressure > 0 and
+plausible, temperatures within -30..150 degC); time strictly increasing with a plausible
+sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, times within
+:data:`MAX_ABS_TIME_S`); the record length; a temperature that moves; an opening that can be
+known (a flow that is zero everywhere with no x_mm column is rejected). Each failure is one
+line naming the column and the row (row 1 is the first data row, line 2 of the file).
+
 Required columns: time_s, T_tank_C, T_med_C, q_kgh, dp_mbar, ps_bar; optional x_mm
 (where absent, or where a cell is empty, it is derived from q_kgh and dp_mbar with
 :func:`valve_env.physics.valve.opening_from_flow`); extra columns are kept. Every
@@ -25,6 +35,23 @@ OPTIONAL: tuple[str, ...] = ("x_mm",)
 MIN_ROWS = 30
 #: A temperature range below this (K) identifies nothing (no hysteresis loop, no gain).
 MIN_T_RANGE_K = 0.2
+#: Plausible physical ranges (lo, hi, lo_open): a domestic hot-water substation
+#: (docs/cli.md; the seed paper's test rig: tank 55-65 degC, medium 60-80 degC, dp 50-300 mbar,
+#: static pressure ~2-6 bar, flows up to a few hundred kg/h, stem stroke a few mm).
+RANGES: dict[str, tuple[float, float, bool, str]] = {
+    "T_tank_C": (-30.0, 150.0, False, "a plausible water temperature, degC"),
+    "T_med_C": (-30.0, 150.0, False, "a plausible water temperature, degC"),
+    "q_kgh": (0.0, 1.0e5, False, "a flow, kg/h"),
+    "dp_mbar": (0.0, 1.0e4, True, "a differential pressure, mbar"),
+    "ps_bar": (0.0, 100.0, True, "a static pressure, bar"),
+    "x_mm": (-1.0, 50.0, False, "a valve opening, mm"),
+}
+#: The median sampling interval must lie in this range (s).
+DT_RANGE_S: tuple[float, float] = (1.0e-3, 3600.0)
+#: No single interval between samples may be longer than this (s): one day.
+MAX_GAP_S = 86400.0
+#: |time_s| beyond this (s, ~300 years) is not a time.
+MAX_ABS_TIME_S = 1.0e10
 
 
 class DataError(ValueError):
@@ -62,23 +89,41 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     out = raw.copy()
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
         out[col] = _numeric(raw[col], col, source, allow_empty=col in OPTIONAL)
+    for col, (lo, hi, lo_open, what) in RANGES.items():
+        if col in out.columns:
+            _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source)
     n = len(out)
     if n < MIN_ROWS:
         raise DataError(f"{source}: too short a record, {n} rows; at least {MIN_ROWS} are needed")
     t = out["time_s"].to_numpy()
+    far = np.flatnonzero(np.abs(t) > MAX_ABS_TIME_S)
+    if far.size:
+        i = int(far[0])
+        raise DataError(f"{source}: column time_s, row {i + 1} (line {i + 2}): {t[i]:.6g} s is not a plausible "
+                        f"time (|time_s| <= {MAX_ABS_TIME_S:g} s)")
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         i = int(bad[0]) + 1
         raise DataError(f"{source}: time_s is not increasing at row {i + 1} (line {i + 2}) "
                         f"({t[i - 1]:.6g} then {t[i]:.6g}); times must be strictly increasing")
-    for col in ("dp_mbar",):
-        neg = np.flatnonzero(out[col].to_numpy() < 0)
-        if neg.size:
-            raise DataError(f"{source}: negative {col} at row {int(neg[0]) + 1} (line {int(neg[0]) + 2})")
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    if not DT_RANGE_S[0] <= med <= DT_RANGE_S[1]:
+        raise DataError(f"{source}: column time_s: median sampling interval {med:.3g} s is implausible "
+                        f"(expected {DT_RANGE_S[0]:g} to {DT_RANGE_S[1]:g} s)")
+    gap = np.flatnonzero(dt > MAX_GAP_S)
+    if gap.size:
+        i = int(gap[0]) + 1
+        raise DataError(f"{source}: column time_s, row {i + 1} (line {i + 2}): a gap of {dt[i - 1]:.3g} s after "
+                        f"the previous sample (at most {MAX_GAP_S:g} s)")
     T = out["T_tank_C"].to_numpy()
     if float(np.max(T) - np.min(T)) < MIN_T_RANGE_K:
         raise DataError(f"{source}: T_tank_C is constant (range {np.max(T) - np.min(T):.3g} K < "
                         f"{MIN_T_RANGE_K} K): a constant temperature identifies nothing")
+    q = out["q_kgh"].to_numpy()
+    if "x_mm" not in out.columns and not np.any(q > 0):
+        raise DataError(f"{source}: column q_kgh is 0 in every row and there is no x_mm column: "
+                        "the valve opening cannot be derived")
     vp = (valve or ValveParams()).to_array()
     derived = opening_from_flow(out["q_kgh"].to_numpy(), out["dp_mbar"].to_numpy(), vp)
     if "x_mm" in out.columns:
@@ -92,6 +137,18 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         out.attrs["x_mm_derived_rows"] = n
     out.attrs["source"] = source
     return out.reset_index(drop=True)
+
+
+def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str) -> None:
+    known = np.isfinite(v) if col in OPTIONAL else np.ones(v.shape, dtype=bool)  # empty x_mm cells: derived
+    with np.errstate(invalid="ignore"):
+        below = v <= lo if lo_open else v < lo
+        bad = np.flatnonzero(known & (below | (v > hi) | ~np.isfinite(v)))
+    if bad.size:
+        i = int(bad[0])
+        bound = f"{'>' if lo_open else '>='} {lo:g} and <= {hi:g}"
+        raise DataError(f"{source}: column {col}, row {i + 1} (line {i + 2}): {v[i]:.6g} is out of range "
+                        f"(must be {bound}: {what})")
 
 
 def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Series:
@@ -119,4 +176,5 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Se
     return pd.Series(vals, index=col.index, name=name)
 
 
-__all__ = ["DataError", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K"]
+__all__ = ["DataError", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES",
+           "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S"]

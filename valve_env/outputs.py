@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -107,6 +108,13 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
         raise
 
 
+def _existing_ancestor(p: Path) -> Path:
+    q = p.absolute()
+    while not q.exists() and q != q.parent:
+        q = q.parent
+    return q
+
+
 def _fsync(p: Path) -> None:
     with contextlib.suppress(OSError), open(p, "rb") as fh:
         os.fsync(fh.fileno())
@@ -125,6 +133,33 @@ def atomic_write_bytes(path: PathLike, data: bytes) -> Path:
     return Path(path)
 
 
+def json_safe(obj: object) -> object:
+    """``obj`` for JSON: non-finite floats as null (JSON has no NaN/inf), numpy scalars and arrays
+    as Python numbers and lists, tuples as lists."""
+    import math
+
+    import numpy as np
+
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj
+
+
+def json_text(obj: object, indent: int | None = 2, default: Callable[[object], object] | None = None) -> str:
+    """JSON text of ``obj`` through :func:`json_safe` (never NaN/Infinity), ending in a newline."""
+    import json
+
+    return json.dumps(json_safe(obj), indent=indent, allow_nan=False, default=default) + "\n"
+
+
 class OutputSet:
     """The outputs of one command run: checked up front, staged under temporary names,
     renamed into place together by :meth:`commit`, removed by :meth:`discard` (also on
@@ -135,6 +170,7 @@ class OutputSet:
         self.force = force
         self._declared: list[Path] = []
         self._staged: dict[Path, Path] = {}
+        self._staged_dirs: dict[Path, Path] = {}
         self.written: list[Path] = []
 
     def add(self, path: PathLike, what: str = "output") -> Path:
@@ -149,6 +185,43 @@ class OutputSet:
 
     def add_dir(self, path: PathLike, what: str = "output directory") -> Path:
         return check_output_dir(path, self.inputs, self.force, what)
+
+    def add_in_dir(self, directory: PathLike, names: Iterable[str], what: str = "output") -> list[Path]:
+        """Declare the files ``names`` that a writer will put into ``directory`` (which may not exist
+        yet: it is created at :meth:`commit`). Checks up front, like :meth:`add`, without creating
+        anything; use with :meth:`stage_dir`."""
+        d = Path(directory)
+        for inp in self.inputs:
+            if _same_file(d, inp):
+                raise OutputError(f"{what} directory {d} is the input {inp}; refusing to overwrite an input")
+        if d.exists() and not d.is_dir():
+            raise OutputError(f"{what} directory {d} exists and is not a directory")
+        if not d.is_dir():
+            anc = _existing_ancestor(d)
+            if not os.access(anc, os.W_OK):
+                raise OutputError(f"cannot create {what} directory {d}: {anc} is not writable")
+            return [d / n for n in names]
+        out = []
+        for n in names:
+            target = d / n
+            if target.parent.is_dir():
+                out.append(self.add(target, what))
+            else:  # a subdirectory made at commit
+                self._declared.append(target)
+                out.append(target)
+        return out
+
+    def stage_dir(self, directory: PathLike) -> Path:
+        """A temporary directory (beside ``directory``) for writers that fill a directory
+        (figures, reports); :meth:`commit` moves each of its files into ``directory`` (each
+        rename atomic), checking every file it did not see declared as it checks :meth:`add`."""
+        d = Path(directory)
+        if d in self._staged_dirs:
+            return self._staged_dirs[d]
+        base = d if d.is_dir() else _existing_ancestor(d)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{d.name or 'out'}.", suffix=".tmp", dir=base))
+        self._staged_dirs[d] = tmp
+        return tmp
 
     def stage(self, path: PathLike, writer: Callable[[Path], object]) -> Path:
         """Call ``writer(tmp_path)`` to write the file under a temporary name."""
@@ -179,18 +252,58 @@ class OutputSet:
         return self.stage(path, lambda tmp: tmp.write_bytes(data))
 
     def commit(self) -> list[Path]:
-        """Rename every staged file into place (each rename is atomic)."""
+        """Rename every staged file into place (each rename is atomic). Every file of a staged
+        directory is checked first, so a refusal leaves nothing renamed."""
+        moves: list[tuple[Path, Path]] = []
+        for d, tmp_dir in self._staged_dirs.items():
+            for f in sorted(q for q in tmp_dir.rglob("*") if q.is_file()):
+                target = d / f.relative_to(tmp_dir)
+                if not any(target == q or _same_file(target, q) for q in self._declared):
+                    for inp in self.inputs:
+                        if _same_file(target, inp):
+                            raise OutputError(f"output {target} is the input {inp}; refusing to overwrite an input")
+                    if target.exists() and not self.force:
+                        raise OutputError(f"output {target} exists; use --force to replace it")
+                moves.append((f, target))
         for final, tmp in list(self._staged.items()):
-            os.replace(tmp, final)
+            self._place(tmp, final)
             self.written.append(final)
             del self._staged[final]
+        for f, target in moves:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            self._place(f, target)
+            self.written.append(target)
+        for tmp_dir in self._staged_dirs.values():
+            shutil.rmtree(tmp_dir, ignore_errors=True)
+        self._staged_dirs.clear()
         return self.written
+
+    def _place(self, tmp: Path, final: Path) -> None:
+        """Rename ``tmp`` onto ``final``. Without ``force`` the rename must not replace a file
+        that appeared while the run was working (two runs writing one path): a hard link,
+        which fails when ``final`` exists, makes that check and the placing one atomic step."""
+        if self.force:
+            os.replace(tmp, final)
+            return
+        try:
+            os.link(tmp, final)
+        except FileExistsError:
+            raise OutputError(f"output {final} appeared while this run was working (another run?); "
+                              "use --force to replace it") from None
+        except OSError:  # no hard links on this file system: the check made up front stands
+            os.replace(tmp, final)
+            return
+        with contextlib.suppress(OSError):
+            tmp.unlink()
 
     def discard(self) -> None:
         for tmp in self._staged.values():
             with contextlib.suppress(OSError):
                 tmp.unlink()
         self._staged.clear()
+        for tmp_dir in self._staged_dirs.values():
+            shutil.rmtree(tmp_dir, ignore_errors=True)
+        self._staged_dirs.clear()
 
     def summary(self) -> str:
         return "wrote " + ", ".join(str(p) for p in self.written) if self.written else "wrote nothing"
@@ -210,4 +323,4 @@ class OutputSet:
 
 
 __all__ = ["OutputError", "OutputSet", "check_output", "check_output_dir", "atomic_path", "atomic_write_text",
-           "atomic_write_bytes", "DEFAULT_OUT_DIR"]
+           "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text"]

@@ -129,7 +129,7 @@ def test_bad_input_one_line_no_traceback(good: Path, tmp_path: Path, capsys: pyt
     code = main(["diagnose", str(good), "--json", str(tmp_path / "nodir" / "x.json")])
     assert code != 0 and "does not exist" in capsys.readouterr().err
     code = main(["diagnose", str(good), "--json", str(good)])
-    assert code != 0 and "overwrite the input" in capsys.readouterr().err
+    assert code == 2 and "refusing to overwrite an input" in capsys.readouterr().err
 
 
 def test_entry_point_bad_input_subprocess(tmp_path: Path) -> None:

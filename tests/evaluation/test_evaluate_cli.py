@@ -24,9 +24,14 @@ def test_evaluate_writes_the_spec_json(tmp_path, capsys) -> None:
         assert set(res["return"]) == {"mean", "std"}
         assert set(res["kpis"]) == set(KPI_NAMES)
     assert "| pi |" in capsys.readouterr().out
-    # re-running replaces an earlier result
+    # re-running refuses to replace the earlier result without --force, and replaces it with --force
+    before = out.read_text()
     assert main(["evaluate", "--controllers", "pi", "--episodes", "1", "--json", str(out),
-                 "--env-kwargs", "horizon_h=1"]) == 0
+                 "--env-kwargs", "horizon_h=1"]) == 2
+    assert "use --force" in capsys.readouterr().err and out.read_text() == before
+    assert main(["evaluate", "--controllers", "pi", "--episodes", "1", "--json", str(out),
+                 "--env-kwargs", "horizon_h=1", "--force"]) == 0
+    assert list(json.loads(out.read_text())["results"]) == ["pi"]
 
 
 def test_evaluate_pressure_env_with_out_dir(tmp_path) -> None:

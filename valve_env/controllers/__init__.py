@@ -46,9 +46,13 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     try:
         from agents.loader import load_agent  # type: ignore[import-not-found]
     except ImportError as exc:
+        missing = (exc.name or "").split(".")[0]
+        if missing in ("stable_baselines3", "torch"):
+            hint = f"trained agents need the RL extra ({missing} is missing): install it with pip install -e '.[rl]'"
+        else:
+            hint = f"the agent loader agents.loader.load_agent could not be imported ({exc})"
         raise UnknownControllerError(
-            f"unknown controller {name!r}: not a baseline ({', '.join(BASELINES)}) and the agent loader "
-            f"agents.loader.load_agent could not be imported ({exc})"
+            f"controller {name!r} is not a baseline ({', '.join(BASELINES)}); {hint}"
         ) from exc
     return load_agent(name, env_id, **kwargs)
 

@@ -271,18 +271,24 @@ def tune(specs: Mapping[str, StepTestSpec] | None = None) -> dict[str, dict[str,
     return out
 
 
-def write_gains(table: Mapping[str, Any], path: str | Path = GAINS_PATH) -> Path:
-    """Write the tuning table as YAML with a header naming the procedure."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
+def gains_yaml(table: Mapping[str, Any]) -> str:
+    """The tuning table as YAML with a header naming the procedure."""
     header = (
         "# PI gains of the baseline controllers, keyed by env id (rl-baselines3-zoo style).\n"
         "# Produced by `thermovalve tune` (valve_env.controllers.tuning.tune): a step test on the\n"
         "# simulator, a least-squares FOPDT/IPDT fit and SIMC rules; `procedure` holds the inputs.\n"
         "# tests/controllers/test_tuning.py re-runs the procedure and checks it reproduces these gains.\n"
     )
-    p.write_text(header + yaml.safe_dump(dict(table), sort_keys=False))
-    return p
+    return header + yaml.safe_dump(dict(table), sort_keys=False)
+
+
+def write_gains(table: Mapping[str, Any], path: str | Path = GAINS_PATH) -> Path:
+    """Write the tuning table (:func:`gains_yaml`) atomically."""
+    from valve_env.outputs import atomic_write_text
+
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    return atomic_write_text(p, gains_yaml(table))
 
 
 def load_gains(env_id: str, path: str | Path | None = None) -> dict[str, Any]:

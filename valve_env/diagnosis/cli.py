@@ -1,25 +1,18 @@
 """``thermovalve diagnose`` and ``thermovalve experiment`` (SPEC sections 4 and 7).
 
-Every failure the user can cause ends with one line on stderr that names the
-problem and a non-zero exit status; input files are never written.
+Bad input raises (the shared handler of :mod:`valve_env.cli` prints one line and exits 2);
+every file goes through one :class:`valve_env.outputs.OutputSet` (checked before the long
+work, never over an input, replaced only with --force, written atomically). More outputs
+(e.g. a fitted valve file) join the same set in :func:`_cmd_diagnose`.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import math
-import sys
 from pathlib import Path
 from typing import Any
 
-EXIT_BAD_INPUT = 2
-EXIT_ERROR = 1
-
-
-def _fail(msg: str, code: int = EXIT_BAD_INPUT) -> int:
-    print(f"thermovalve: error: {msg}", file=sys.stderr)
-    return code
+from valve_env.cli import UsageError, add_force, check_range
 
 
 def register(subparsers: Any) -> None:
@@ -44,6 +37,7 @@ def register(subparsers: Any) -> None:
     d.add_argument("--bootstrap", type=int, default=16, metavar="B",
                    help="bootstrap replicates for the named effects' sd (0: inverse Hessian/HAC, "
                    "faster but optimistic)")
+    add_force(d)
     d.set_defaults(func=_cmd_diagnose)
 
     e = subparsers.add_parser(
@@ -52,8 +46,8 @@ def register(subparsers: Any) -> None:
         description="Temperature steps of varying speed around the set point, the medium temperature varying "
         "independently, SPEC section 2 columns and noise levels.",
     )
-    e.add_argument("--seed", type=int, default=0)
-    e.add_argument("--hours", type=float, default=24.0)
+    e.add_argument("--seed", type=int, default=0, help="seed of the noise and the steps (>= 0)")
+    e.add_argument("--hours", type=float, default=24.0, help="duration, h")
     e.add_argument("--dt", type=float, default=10.0, help="sampling interval, s")
     e.add_argument("--effect", action="append", default=[], metavar="NAME:key=value",
                    help="switch on an effect, e.g. sensor_lag:tau_s=60 (repeatable)")
@@ -61,98 +55,85 @@ def register(subparsers: Any) -> None:
     e.add_argument("--x-noise", dest="x_noise", type=float, default=2.4e-3, help="opening noise sd, mm")
     e.add_argument("--jitter", type=float, default=0.0, help="uneven sampling, fraction of dt (< 0.5)")
     e.add_argument("--no-truth", action="store_true", help="leave out the true_* columns")
-    e.add_argument("--out", required=True, metavar="RUN.csv")
-    e.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    e.add_argument("--out", required=True, metavar="RUN.csv", help="where to write the run")
+    add_force(e)
     e.set_defaults(func=_cmd_experiment)
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
+    from valve_env.data_io import validate_run
     from valve_env.experiment import parse_effect, simulate_experiment
-    from valve_env.params import ConfigError
+    from valve_env.outputs import OutputSet
 
-    out = Path(args.out)
-    if out.exists() and not args.force:
-        return _fail(f"{out} exists; use --force to overwrite it")
-    try:
-        effects: dict[str, dict[str, float]] = {}
-        for text in args.effect:
-            name, pars = parse_effect(text)
-            if name in effects:
-                raise ConfigError(f"effect {name!r} given twice")
-            effects[name] = pars
-        df = simulate_experiment(seed=args.seed, duration_h=args.hours, dt_s=args.dt, effects=effects,
-                                 T_noise_C=args.T_noise, x_noise_mm=args.x_noise, jitter=args.jitter)
-    except ConfigError as exc:
-        return _fail(str(exc))
-    except MemoryError:
-        return _fail(f"out of memory for {args.hours:g} h at {args.dt:g} s", EXIT_ERROR)
+    if args.seed < 0:
+        raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
+    check_range("--hours", args.hours, 0.0, 24.0 * 366, lo_open=True)
+    check_range("--dt", args.dt, 0.0, 3600.0, lo_open=True)
+    check_range("--T-noise", args.T_noise, 0.0)
+    check_range("--x-noise", args.x_noise, 0.0)
+    check_range("--jitter", args.jitter, 0.0, 0.5, hi_open=True)
+    outs = OutputSet(force=args.force)
+    out = outs.add(args.out, "--out")
+    effects: dict[str, dict[str, float]] = {}
+    for text in args.effect:
+        name, pars = parse_effect(text)
+        if name in effects:
+            raise UsageError(f"--effect {name!r} given twice")
+        effects[name] = pars
+    df = simulate_experiment(seed=args.seed, duration_h=args.hours, dt_s=args.dt, effects=effects,
+                             T_noise_C=args.T_noise, x_noise_mm=args.x_noise, jitter=args.jitter)
     if args.no_truth:
         df = df[[c for c in df.columns if not c.startswith("true_")]]
-    try:
-        if out.parent and not out.parent.exists():
-            return _fail(f"directory {out.parent} does not exist")
-        df.to_csv(out, index=False, float_format="%.9g")
-    except OSError as exc:
-        return _fail(f"cannot write {out}: {exc.strerror or exc}")
+    validate_run(df, source=f"the simulated run for {out}")  # the same checks fit and diagnose apply
+    with outs:
+        outs.stage(out, lambda tmp: df.to_csv(tmp, index=False, float_format="%.9g"))
     desc = ", ".join(f"{k}({', '.join(f'{p}={v:g}' for p, v in d.items())})" for k, d in effects.items()) or "none"
-    print(f"wrote {out}: {len(df)} samples, {args.hours:g} h at {args.dt:g} s, effects: {desc}")
+    print(f"{outs.summary()}: {len(df)} samples, {args.hours:g} h at {args.dt:g} s, effects: {desc}")
     return 0
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from valve_env.diagnosis.diagnose import DiagnosisError, diagnose_files
+    from valve_env.cli import progress_bar
+    from valve_env.diagnosis.diagnose import diagnose, read_run
+    from valve_env.diagnosis.effects import EFFECTS, check_effects
+    from valve_env.outputs import OutputSet, json_text
 
-    out = Path(args.json_out)
-    for path in (args.run, args.validate):
-        if path is not None and Path(path).resolve() == out.resolve():
-            return _fail(f"--json {out} would overwrite the input {path}")
-    if not out.parent.is_dir():
-        return _fail(f"cannot write {out}: directory {out.parent} does not exist")
-    if out.is_dir():
-        return _fail(f"cannot write {out}: is a directory")
-    if not 0.05 <= args.holdout <= 0.5:
-        return _fail(f"--holdout must be in [0.05, 0.5], got {args.holdout}")
-    if not 0 < args.alpha < 0.5:
-        return _fail(f"--alpha must be in (0, 0.5), got {args.alpha}")
+    check_range("--holdout", args.holdout, 0.05, 0.5)
+    check_range("--alpha", args.alpha, 0.0, 0.5, lo_open=True, hi_open=True)
     if args.bootstrap < 0:
-        return _fail(f"--bootstrap must be >= 0, got {args.bootstrap}")
-    effects = None
-    if args.effects:
-        effects = [s.strip() for s in args.effects.split(",") if s.strip()]
-    try:
-        result = diagnose_files(args.run, validate=args.validate, holdout=args.holdout, alpha=args.alpha,
-                                effects=effects, bootstrap_B=args.bootstrap)
-    except DiagnosisError as exc:
-        return _fail(str(exc))
-    except MemoryError:
-        return _fail("out of memory", EXIT_ERROR)
-    except Exception as exc:  # noqa: BLE001 - never a bare traceback; name the failure in one line
-        return _fail(f"diagnosis failed: {type(exc).__name__}: {' '.join(str(exc).split())}", EXIT_ERROR)
-    try:
-        out.write_text(json.dumps(_clean(result.to_json()), indent=2) + "\n")
-    except OSError as exc:
-        return _fail(f"cannot write {out}: {exc.strerror or exc}")
+        raise UsageError(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    effects = [s.strip() for s in args.effects.split(",") if s.strip()] if args.effects else None
+    cands = check_effects(list(effects) if effects else list(EFFECTS))
+    # every output checked before the long work: never an input, never replaced without --force
+    outs = OutputSet(inputs=[args.run, args.validate], force=args.force)
+    out = outs.add(args.json_out, "--json")
+    report = None
     if not args.no_report:
-        from valve_env.diagnosis.report import write_report
-
         report = Path(args.report) if args.report else out.with_suffix(".md")
-        try:
-            write_report(result, report)
-        except OSError as exc:
-            return _fail(f"cannot write the report {report}: {exc.strerror or exc}")
-        except Exception as exc:  # noqa: BLE001 - the JSON is written; report the failure in one line
-            return _fail(f"report failed: {type(exc).__name__}: {' '.join(str(exc).split())}", EXIT_ERROR)
-        print(f"report: {report}")
+        outs.add(report, "--report" if args.report else "report (default: beside --json; give --report)")
+        from valve_env.diagnosis.report import FIGURE_SUFFIXES
+
+        outs.add_in_dir(report.parent, [f"{report.stem}{sfx}" for sfx in FIGURE_SUFFIXES], "report figure")
+    run = read_run(args.run)
+    vdf = read_run(args.validate) if args.validate is not None else None
+    total = 1 + len(cands) * 2 + 1 + (2 if args.bootstrap else 0)
+    bar = progress_bar(total, desc="diagnose", unit="step")
+    try:
+        def tick(msg: str) -> None:
+            bar.set_postfix_str(msg)
+            bar.update(1)
+
+        result = diagnose(run, validate=vdf, name=str(args.run), holdout=args.holdout, alpha=args.alpha,
+                          effects=cands, bootstrap_B=args.bootstrap, progress=tick)
+    finally:
+        bar.close()
+    with outs:
+        outs.write_text(out, json_text(result.to_json()))
+        if report is not None:
+            from valve_env.diagnosis.report import write_report
+
+            write_report(result, outs.stage_dir(report.parent) / report.name)
     print(result.summary())
+    print(outs.summary())
     return 0
 
-
-def _clean(obj: Any) -> Any:
-    """JSON has no NaN/inf: write them as null."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    return obj

@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,11 +48,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from valve_env.data_io import DataError, load_run
+from valve_env.data_io import DataError, load_run, validate_run
 from valve_env.diagnosis.effects import EFFECTS, check_effects
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
 from valve_env.params import ValveParams
-from valve_env.physics.valve import opening_from_flow
 
 REQUIRED = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar")
 MIN_SAMPLES = 200
@@ -60,7 +60,7 @@ MIN_T_RANGE_K = 1.0
 MIN_X_RANGE_MM = 0.05
 
 
-class DiagnosisError(ValueError):
+class DiagnosisError(DataError):
     """Bad input or a diagnosis that cannot be made; the message is one line naming the problem."""
 
 
@@ -68,75 +68,38 @@ class DiagnosisError(ValueError):
 def read_run(path: str | os.PathLike[str]) -> pd.DataFrame:
     """Read and check a measured run (SPEC section 2); raises DiagnosisError with one line.
 
-    Runs :func:`valve_env.data_io.load_run` first (the estimator's checks: file, columns, values;
-    its ``DataError`` becomes a DiagnosisError), then re-reads the file as written and adds the
-    checks the diagnosis needs (:func:`check_run`: no gaps, not even in x_mm). The file is only read."""
+    The one loader and validation of :mod:`valve_env.data_io` (the same as ``thermovalve fit``),
+    then the diagnosis's own needs (:func:`check_run`: a longer record, a moving opening).
+    The file is only read."""
     p = Path(path)
     try:
-        load_run(p)
+        df = load_run(p)
     except DataError as exc:
         raise DiagnosisError(_one_line(f"{p}: {exc}" if str(p) not in str(exc) else str(exc))) from None
-    except Exception:  # noqa: BLE001 - our own checks below name the problem
-        pass
-    try:
-        df = pd.read_csv(p)
-    except UnicodeDecodeError:
-        raise DiagnosisError(f"{p}: not a text CSV file") from None
-    except pd.errors.EmptyDataError:
-        raise DiagnosisError(f"{p}: the file is empty") from None
-    except (pd.errors.ParserError, ValueError) as exc:
-        raise DiagnosisError(_one_line(f"{p}: cannot parse the CSV: {exc}")) from None
     except OSError as exc:
         raise DiagnosisError(f"{p}: cannot read: {exc.strerror or exc}") from None
     return check_run(df, str(p))
 
 
 def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
-    """Validate the columns and values of a run; returns the numeric columns (x_mm derived if absent)."""
-    cols = [c.strip() if isinstance(c, str) else c for c in df.columns]
-    df = df.copy()
-    df.columns = cols
-    missing = [c for c in REQUIRED if c not in df.columns]
-    if missing:
-        raise DiagnosisError(f"{name}: missing column(s) {', '.join(missing)} (SPEC section 2 needs "
-                             f"{', '.join(REQUIRED)}; x_mm optional)")
-    use = list(REQUIRED) + (["x_mm"] if "x_mm" in df.columns else [])
-    out = pd.DataFrame(index=df.index)
-    for c in use:
-        col = pd.to_numeric(df[c], errors="coerce")
-        bad = col.isna() & df[c].notna()
-        if bad.any():
-            i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise DiagnosisError(f"{name}: non-numeric value {df[c].iloc[i]!r} in column {c} at data row {i + 1}")
-        if col.isna().any():
-            i = int(np.flatnonzero(col.isna().to_numpy())[0])
-            raise DiagnosisError(f"{name}: missing value (NaN) in column {c} at data row {i + 1}")
-        v = col.to_numpy(dtype=float)
-        if not np.isfinite(v).all():
-            i = int(np.flatnonzero(~np.isfinite(v))[0])
-            raise DiagnosisError(f"{name}: non-finite value {v[i]} in column {c} at data row {i + 1}")
-        out[c] = v
+    """Validate a run (:func:`valve_env.data_io.validate_run`, the one validation path) and the
+    diagnosis's needs; returns the numeric columns (x_mm derived where absent)."""
+    try:
+        checked = validate_run(df, source=name)
+    except DataError as exc:
+        raise DiagnosisError(_one_line(str(exc))) from None
+    out = checked[[*REQUIRED, "x_mm"]].copy()
     t = out["time_s"].to_numpy()
     if len(t) < MIN_SAMPLES:
         raise DiagnosisError(f"{name}: too short a record: {len(t)} samples (the diagnosis needs at least "
                              f"{MIN_SAMPLES})")
-    dt = np.diff(t)
-    if (dt <= 0).any():
-        i = int(np.flatnonzero(dt <= 0)[0])
-        raise DiagnosisError(f"{name}: time_s is not strictly increasing at data row {i + 2} "
-                             f"({t[i]:g} then {t[i + 1]:g})")
     if t[-1] - t[0] < MIN_DURATION_S:
         raise DiagnosisError(f"{name}: too short a record: {(t[-1] - t[0]) / 3600:.2g} h (the diagnosis needs at "
                              f"least {MIN_DURATION_S / 3600:g} h)")
-    if (out["dp_mbar"] <= 0).any():
-        raise DiagnosisError(f"{name}: dp_mbar must be positive")
     T = out["T_tank_C"].to_numpy()
     if np.ptp(T) < MIN_T_RANGE_K:
         raise DiagnosisError(f"{name}: T_tank_C is constant (range {np.ptp(T):.3g} K < {MIN_T_RANGE_K:g} K): "
                              "a constant temperature identifies nothing")
-    if "x_mm" not in out.columns:
-        out["x_mm"] = opening_from_flow(out["q_kgh"].to_numpy(), out["dp_mbar"].to_numpy(),
-                                        ValveParams().to_array())
     if np.ptp(out["x_mm"].to_numpy()) < MIN_X_RANGE_MM:
         raise DiagnosisError(f"{name}: the valve opening hardly moves (range {np.ptp(out['x_mm']):.3g} mm): "
                              "nothing to identify")
@@ -423,7 +386,8 @@ def effect_size(model: Model, data: RunData, values: dict[str, float], effect: s
 def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout: float = 0.25,
              alpha: float = 0.001, effects: list[str] | tuple[str, ...] | None = None,
              valve: ValveParams | None = None, max_effects: int = 2, min_validation_gain: float = 2.0,
-             min_effect_size: float = 1.0, name: str = "run", bootstrap_B: int = 16) -> Diagnosis:
+             min_effect_size: float = 1.0, name: str = "run", bootstrap_B: int = 16,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose a measured run (a DataFrame with SPEC section 2 columns). See the module docstring.
 
     ``validate``: an independent run for validation (else the last ``holdout`` fraction of ``df``
@@ -434,8 +398,11 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
     effect must make, in units of the measurement noise sd, to count as relevant (a statistically
     significant but physically negligible effect, such as a lag of a fraction of the sampling
     interval, is an artefact of the data processing rather than a cause). ``bootstrap_B``: replicates
-    of the model-based bootstrap that gives the named effects' std (0: keep the Hessian/HAC std)."""
+    of the model-based bootstrap that gives the named effects' std (0: keep the Hessian/HAC std).
+    ``progress``: called with the name of each finished step (base fit, each candidate, each
+    bootstrap, the residual diagnostics), e.g. to advance a progress bar."""
     t0 = time.perf_counter()
+    tick = progress if progress is not None else (lambda _msg: None)
     valve = valve if valve is not None else ValveParams()
     cands = check_effects(list(effects) if effects else list(EFFECTS))
     run = check_run(df, name)
@@ -460,6 +427,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
     base_model = Model((), valve)
     base = base_model.fit(train)
     base_val = _held_out(base_model, valid, base.params, *vr)
+    tick("base model")
 
     steps: list[list[Finding]] = []
     selected: list[str] = []
@@ -476,6 +444,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
             warm = single[e].effect_params if e in single else None
             step.append(_try(e, ref_effects, ref_fit, train, valid, vr, valve, alpha, ref_val, warm,
                              min_validation_gain, min_effect_size))
+            tick(f"+{e}")
         if not selected:
             # every extension contains the base model: with its effect switched off, a candidate's fit is
             # a base model fit. Where one of them beats the base fit, the base fit stopped short; refit it
@@ -507,9 +476,11 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
             best = step[0]
             if best.accepted:
                 _bootstrap_finding(best, train, valve, bootstrap_B)
+                tick(f"bootstrap {best.effect}")
     final = ref_fit
     final_val = ref_val[0]
     diagnostics = residual_diagnostics(base_model, train, base)
+    tick("diagnostics")
     settings = {"validation": mode, "alpha": alpha, "holdout": holdout if validate is None else None,
                 "candidates": list(cands), "min_validation_gain": min_validation_gain,
                 "min_effect_size_noise_sd": min_effect_size,

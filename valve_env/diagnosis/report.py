@@ -251,6 +251,10 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
     return "\n".join(L)
 
 
+#: the figures :func:`write_report` writes beside ``<stem>.md``
+FIGURE_SUFFIXES: tuple[str, ...] = ("_fit.png", "_phase.png", "_residuals.png")
+
+
 def write_report(d: Diagnosis, path: str | Path) -> Path:
     """Write ``path`` (markdown) and its PNG figures beside it; returns the path."""
     path = Path(path)
@@ -260,4 +264,4 @@ def write_report(d: Diagnosis, path: str | Path) -> Path:
     return path
 
 
-__all__ = ["write_report", "write_figures", "render_markdown"]
+__all__ = ["write_report", "write_figures", "render_markdown", "FIGURE_SUFFIXES"]

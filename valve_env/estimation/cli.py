@@ -12,14 +12,15 @@ environment's YAML configuration. Bad input: exit status 2 and one line on stder
 from __future__ import annotations
 
 import argparse
-import json
-import sys
+import math
 import warnings
 from pathlib import Path
 from typing import Any
 
-EXIT_BAD_INPUT = 2
-EXIT_FAILED = 1
+from valve_env.cli import UsageError, add_force
+
+#: the files ``--report DIR`` writes (valve_env.estimation.report.write_report)
+REPORT_FILES: tuple[str, ...] = ("report.md", "fit.png", "phase.png", "whiteness.png")
 
 
 def register(subparsers: Any) -> None:
@@ -27,7 +28,8 @@ def register(subparsers: Any) -> None:
         "fit",
         help="fit the base valve model to a measured run (maximum likelihood)",
         description="Fit the base valve model (SPEC section 1) to RUN.csv (SPEC section 2) by maximum "
-                    "likelihood and write the estimates as JSON.",
+                    "likelihood and write the estimates as JSON. RUN.csv is validated exactly as "
+                    "'thermovalve diagnose' validates it (valve_env.data_io).",
     )
     p.add_argument("run", metavar="RUN.csv", help="measured run (SPEC section 2 columns)")
     p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
@@ -37,57 +39,67 @@ def register(subparsers: Any) -> None:
                    help="write an environment config with the fitted 'valve:' parameters")
     p.add_argument("--validate", metavar="OTHER.csv", default=None,
                    help="an independent run for cross-validation (paper Fig. 7)")
-    p.add_argument("--n-starts", type=int, default=3, help="optimiser starts (default 3)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the extra starts (default 0)")
+    p.add_argument("--n-starts", type=int, default=3, help="optimiser starts (>= 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the extra starts (>= 0)")
+    add_force(p)
     p.set_defaults(func=run_fit)
 
 
-def _fail(msg: str, code: int) -> int:
-    line = " ".join(str(msg).split())
-    print(f"thermovalve fit: {line}", file=sys.stderr)
-    return code
-
-
 def run_fit(args: argparse.Namespace) -> int:
-    from valve_env.data_io import DataError, load_run
+    from valve_env.cli import progress_bar
+    from valve_env.data_io import load_run
+    from valve_env.outputs import OutputSet, json_text
 
-    try:
-        data = load_run(args.run)
-        validation = load_run(args.validate) if args.validate else None
-    except DataError as exc:
-        return _fail(str(exc), EXIT_BAD_INPUT)
     if args.n_starts < 1:
-        return _fail("--n-starts must be at least 1", EXIT_BAD_INPUT)
-    try:
-        from valve_env.estimation.report import fit_run, fit_summary, write_report
+        raise UsageError(f"--n-starts must be at least 1, got {args.n_starts}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
+    # every output checked before the long work (never an input, never replaced without --force);
+    # further outputs (e.g. a fitted valve file) join this set
+    outs = OutputSet(inputs=[args.run, args.validate], force=args.force)
+    json_out = outs.add(args.json_out, "--json")
+    cfg = outs.add(args.config, "--config") if args.config else None
+    report_dir = Path(args.report) if args.report else None
+    if report_dir is not None:
+        names = [*REPORT_FILES, *(["validation.png"] if args.validate else [])]
+        outs.add_in_dir(report_dir, names, "--report")
+    data = load_run(args.run)
+    validation = load_run(args.validate) if args.validate else None
+    from valve_env.estimation.report import fit_run, fit_summary, write_report
 
+    bar = progress_bar(3 if report_dir is not None else 2, desc="fit", unit="step")
+    try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             est = fit_run(data, n_starts=args.n_starts, seed=args.seed)
+            bar.update(1)
             summary = fit_summary(est, data, validation)
-            if args.report:
-                write_report(est, data, args.report, summary, validation, name=Path(args.run).stem)
-                summary["report"] = str(Path(args.report) / "report.md")
-        out = Path(args.json_out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(summary, indent=2, allow_nan=False))
-        if args.config:
+            bar.update(1)
+            if report_dir is not None:
+                write_report(est, data, outs.stage_dir(report_dir), summary, validation, name=Path(args.run).stem)
+                summary["report"] = str(report_dir / "report.md")
+                bar.update(1)
+    finally:
+        bar.close()
+    p = summary["params"]
+    bad = [k for k, v in p.items() if not (isinstance(v, (int, float)) and math.isfinite(v))]
+    if bad:
+        raise UsageError(f"{args.run}: the fit gave a non-finite {bad[0]}; the run does not identify the valve")
+    with outs:
+        outs.write_text(json_out, json_text(summary))
+        if cfg is not None:
             import yaml
 
-            cfg = Path(args.config)
-            cfg.parent.mkdir(parents=True, exist_ok=True)
-            cfg.write_text(yaml.safe_dump({"valve": summary["params"]}, sort_keys=False))
-    except (OSError, ValueError) as exc:
-        return _fail(f"{type(exc).__name__}: {exc}", EXIT_FAILED)
-    p = summary["params"]
+            outs.write_text(cfg, yaml.safe_dump({"valve": summary["params"]}, sort_keys=False))
     s = summary["std"]
     print(f"sigma = {p['sigma']:.4g} ({_sd(s['sigma'])}) N/K, F_hmax = {p['F_hmax']:.4g} ({_sd(s['F_hmax'])}) N, "
           f"p_bset = {p['p_bset']:.5g} ({_sd(s['p_bset'])}) MPa; loglik {summary['loglik']:.1f}, "
-          f"rms {summary['rms_mm']:.3g} mm, n {summary['n']} -> {args.json_out}")
+          f"rms {summary['rms_mm']:.3g} mm, n {summary['n']}")
     for m in summary["identifiability"]:
-        print(f"warning: {m}", file=sys.stderr)
+        print(f"warning: {m}")
+    print(outs.summary())
     return 0
 
 
 def _sd(v: float | None) -> str:
-    return "-" if v is None else f"{v:.2g}"
+    return "-" if v is None or not math.isfinite(v) else f"{v:.2g}"

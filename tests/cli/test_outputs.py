@@ -1,0 +1,175 @@
+"""The output policy under interruption and --force: a killed writer leaves the previous
+output intact (and, on SIGTERM, no temporary file); --force replaces; a run that fails after
+its outputs were staged leaves none of them."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from valve_env.cli import main
+from valve_env.outputs import OutputError, OutputSet
+
+PREVIOUS = '{"previous": "result"}\n'
+
+#: a process that stages a large output slowly, under the CLI's SIGTERM handling
+WRITER = r"""
+import signal, sys, time
+from valve_env.cli import run_command, _on_sigterm
+from valve_env.outputs import OutputSet
+signal.signal(signal.SIGTERM, _on_sigterm)
+
+def slow(tmp):
+    with open(tmp, "w") as fh:
+        for i in range(10_000):
+            fh.write("x" * 100_000)
+            fh.flush()
+            if i == 2:
+                print("writing", flush=True)
+            time.sleep(0.01)
+
+def cmd(args):
+    with OutputSet(force=True) as outs:
+        outs.stage(sys.argv[1], slow)
+    return 0
+
+sys.exit(run_command(cmd, None))
+"""
+
+
+def _temps(d: Path) -> list[str]:
+    return sorted(p.name for p in d.iterdir() if p.name.endswith(".tmp"))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_killed_writer_leaves_previous_output(tmp_path: Path, sig: signal.Signals) -> None:
+    out = tmp_path / "out.json"
+    out.write_text(PREVIOUS)
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == "writing"
+    assert _temps(tmp_path)  # the partial file exists, under a temporary name
+    proc.send_signal(sig)
+    proc.wait(timeout=60)
+    assert proc.returncode != 0
+    assert out.read_text() == PREVIOUS
+    if sig == signal.SIGTERM:  # handled: the staged file is removed
+        assert _temps(tmp_path) == []
+        assert proc.stderr is not None and "terminated" in proc.stderr.read()
+    else:  # SIGKILL cannot be handled: at most a hidden temporary file stays, never a partial out.json
+        assert all(n.startswith(".out.json.") for n in _temps(tmp_path))
+
+
+def test_sigterm_during_fit_keeps_previous_result(tmp_path: Path, run_csv: Path) -> None:
+    out = tmp_path / "out.json"
+    out.write_text(PREVIOUS)
+    env = {**os.environ, "THERMOVALVE_NO_PROGRESS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "valve_env.cli", "fit", str(run_csv), "--json", str(out),
+                             "--force", "--n-starts", "20", "--report", str(tmp_path / "rep")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    time.sleep(6.0)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode != 0, err
+    assert out.read_text() == PREVIOUS
+    assert not (tmp_path / "rep").exists()
+    assert [p.name for p in tmp_path.rglob("*") if p.name.endswith(".tmp")] == []
+
+
+def test_force_replaces_and_refuses_without(tmp_path: Path) -> None:
+    p = tmp_path / "a.json"
+    p.write_text(PREVIOUS)
+    with pytest.raises(OutputError, match="use --force"):
+        OutputSet().add(p)
+    with OutputSet(force=True) as outs:
+        outs.write_text(outs.add(p), "new\n")
+    assert p.read_text() == "new\n"
+    assert _temps(tmp_path) == []
+
+
+def test_force_never_replaces_an_input(tmp_path: Path) -> None:
+    inp = tmp_path / "run.csv"
+    inp.write_text("data\n")
+    link = tmp_path / "hard.csv"
+    os.link(inp, link)
+    for target in (inp, link):
+        with pytest.raises(OutputError, match="is the input"):
+            OutputSet(inputs=[inp], force=True).add(target)
+    assert inp.read_text() == "data\n"
+
+
+def test_failure_after_staging_leaves_nothing(tmp_path: Path) -> None:
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    b.write_text(PREVIOUS)
+    with pytest.raises(RuntimeError), OutputSet(force=True) as outs:
+        outs.write_text(outs.add(a), "new a\n")
+        outs.write_text(outs.add(b), "new b\n")
+        staged = outs.stage_dir(tmp_path / "figs")
+        (staged / "f.png").write_bytes(b"png")
+        raise RuntimeError("the report failed")
+    assert not a.exists() and b.read_text() == PREVIOUS
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.json"]
+
+
+def test_staged_directory_commits_together_and_checks_each_file(tmp_path: Path) -> None:
+    d = tmp_path / "rep"
+    d.mkdir()
+    (d / "old.png").write_text("old")
+    outs = OutputSet()
+    staged = outs.stage_dir(d)
+    (staged / "new.png").write_text("new")
+    (staged / "old.png").write_text("replaced?")
+    with pytest.raises(OutputError, match="old.png exists"):
+        outs.commit()
+    assert not (d / "new.png").exists() and (d / "old.png").read_text() == "old"
+    outs.discard()
+    assert sorted(p.name for p in d.iterdir()) == ["old.png"]
+
+
+@pytest.mark.slow
+def test_fit_force_replaces_and_prints_what_it_wrote(tmp_path: Path, run_csv: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    out, cfg = tmp_path / "fit.json", tmp_path / "valve.yaml"
+    out.write_text(PREVIOUS)
+    assert main(["fit", str(run_csv), "--json", str(out), "--config", str(cfg), "--n-starts", "1"]) == 2
+    assert out.read_text() == PREVIOUS and not cfg.exists()
+    capsys.readouterr()
+    assert main(["fit", str(run_csv), "--json", str(out), "--config", str(cfg), "--n-starts", "1", "--force"]) == 0
+    printed = capsys.readouterr().out
+    assert f"wrote {out}, {cfg}" in printed
+    assert "params" in json.loads(out.read_text())
+
+
+def test_a_file_that_appears_meanwhile_is_not_replaced(tmp_path: Path) -> None:
+    """Two runs writing one path: the one that finishes second refuses (no silent loss)."""
+    p = tmp_path / "d.json"
+    first, second = OutputSet(), OutputSet()
+    first.add(p)
+    second.add(p)  # both checked while p did not exist
+    first.write_text(p, "first\n")
+    second.write_text(p, "second\n")
+    first.commit()
+    with pytest.raises(OutputError, match="appeared while this run was working"):
+        second.commit()
+    second.discard()
+    assert p.read_text() == "first\n"
+    assert _temps(tmp_path) == []
+
+
+def test_json_writer_writes_non_finite_as_null() -> None:
+    """No more 'Out of range float values are not JSON compliant: -inf': null instead."""
+    import numpy as np
+
+    from valve_env.outputs import json_text
+
+    text = json_text({"loglik": float("-inf"), "sd": np.float64("nan"), "x": np.array([1.0, np.inf]), "n": 3})
+    assert json.loads(text) == {"loglik": None, "sd": None, "x": [1.0, None], "n": 3}
+    assert "Infinity" not in text and "NaN" not in text
