@@ -272,6 +272,10 @@ def markdown_table(summary: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: the files :func:`write_outputs` writes (the PNG of trajectories only with trajectories)
+OUTPUT_FILES: tuple[str, ...] = ("table.md", "results.csv", "episodes.csv", "tradeoff.png", "trajectories.png")
+
+
 def write_outputs(
     summary: Mapping[str, Any],
     per_episode: Mapping[str, pd.DataFrame],
@@ -281,7 +285,8 @@ def write_outputs(
 ) -> dict[str, Path]:
     """Write ``table.md``, ``results.csv`` (summary), ``episodes.csv`` (per
     episode) and, with ``trajectories``, ``trajectories.png`` and
-    ``tradeoff.png`` into ``out_dir``; returns name -> path."""
+    ``tradeoff.png`` into ``out_dir`` (:data:`OUTPUT_FILES`); returns name -> path. Commands stage
+    ``out_dir`` in an :class:`valve_env.outputs.OutputSet` (``stage_dir``) so the files appear together."""
     from valve_env.evaluation.figures import plot_tradeoff, plot_trajectories
 
     out = Path(out_dir)
