@@ -262,7 +262,8 @@ def main(argv: list[str] | None = None) -> int:
         with ProcessPoolExecutor(max_workers=args.workers) as pool:
             for r in pool.map(fn, cs):
                 results.append(r)
-                print(f"  {len(results)}/{len(cs)} done ({time.perf_counter() - t0:.0f} s)", flush=True)
+                print(f"  {len(results)}/{len(cs)} done ({time.perf_counter() - t0:.0f} s): "
+                      f"{json.dumps(r, default=float)}", flush=True)
     summ = summarise_base(results) if args.study == "base" else summarise_effects(results)
     (_print_base if args.study == "base" else _print_effects)(summ)
     doc = {"study": args.study, "generator": args.generator, "seed": seed, "runs": len(cs), "eiv_B": args.eiv_B,
