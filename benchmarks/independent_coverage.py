@@ -1,0 +1,280 @@
+"""Coverage and confusion studies on the independent simulator (docs/uncertainty.md).
+
+Runs the project's current tools, exactly as the commands run them (the run is
+written to a CSV holding only the SPEC section 2 columns and read back with the
+loader, so no tool sees the truth), on runs of the independent simulator
+(:mod:`valve_env.studies.independent`) and, for comparison, of the project's own
+generator (:mod:`valve_env.experiment`):
+
+* ``base``: ``thermovalve fit`` (``valve_env.estimation.report.fit_run``) on runs
+  without effects at 0.01 degC of temperature noise: sigma, F_hmax, p_bset,
+  z = (estimate - truth) / sd, 1-sd and 2-sd coverage, with the plain inverse-Hessian
+  sd ("before") and with the errors-in-variables sd of
+  :func:`valve_env.estimation.eiv.temperature_bootstrap` ("after").
+* ``effects``: ``thermovalve diagnose`` (``valve_env.diagnosis.diagnose.diagnose``)
+  on runs with one named effect each (stiction once per stick-slip variant) and
+  runs without: the cause named, and the true effect's parameter against the truth
+  (z, coverage, relative error).
+
+Study seeds (chosen before any run, never tuned on): base 20261123,
+effects 20261124; the project generator's runs use 20261125 and 20261126.
+Run i of a study uses ``numpy.random.default_rng([seed, i])``.
+
+    python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 16 --workers 2 \
+        --json out/indep_base.json
+    python benchmarks/independent_coverage.py --study effects --runs 2 --workers 2 --json out/indep_effects.json
+    python benchmarks/independent_coverage.py --study base --generator project --runs 30 --json out/proj_base.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import sys
+import tempfile
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from valve_env.outputs import OutputError, OutputSet
+from valve_env.studies.independent import COLUMNS, STICTION_VARIANTS, draw_run, simulate_independent
+
+SEEDS = {("base", "independent"): 20261123, ("effects", "independent"): 20261124,
+         ("base", "project"): 20261125, ("effects", "project"): 20261126}
+BASE_NAMES = ("sigma", "F_hmax", "p_bset")
+EFFECT_PARAM = {"sensor_lag": "tau_s", "medium_temperature": "beta", "stiction": "band_mm",
+                "setpoint_drift": "rate_MPa_per_h"}
+
+
+def _simulate(case: dict[str, Any]) -> tuple[pd.DataFrame, dict[str, float], dict[str, dict[str, float]]]:
+    """The run of a case and its truth (base parameters, effects)."""
+    rng = np.random.default_rng([case["seed"], case["i"]])
+    run = draw_run(rng, case["effect"], T_noise_C=case.get("T_noise_C"),
+                   stiction_variant=case.get("variant") or "reset")
+    truth = {"sigma": run.valve.sigma, "F_hmax": run.valve.F_hmax, "p_bset": run.valve.p_bset}
+    if case["generator"] == "independent":
+        df = simulate_independent(run)
+    else:
+        from valve_env.experiment import simulate_experiment
+
+        df = simulate_experiment(seed=run.seed, duration_h=run.duration_h, dt_s=run.dt_s,
+                                 effects={k: dict(v) for k, v in run.effects.items()} or None,
+                                 T_noise_C=run.T_noise_C, q_noise_rel=0.015, dp_noise_rel=0.015,
+                                 ps_noise_rel=0.015)
+    case.update({"run_seed": run.seed, "duration_h": run.duration_h, "dt_s": run.dt_s, "T_noise_C": run.T_noise_C})
+    return df, truth, {k: dict(v) for k, v in run.effects.items()}
+
+
+def _as_measured(df: pd.DataFrame) -> pd.DataFrame:
+    """Write the SPEC section 2 columns to a CSV and read it back with the project's loader."""
+    from valve_env.data_io import load_run
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "run.csv")
+        df.loc[:, list(COLUMNS)].to_csv(path, index=False)
+        return load_run(path)
+
+
+def run_base(case: dict[str, Any]) -> dict[str, Any]:
+    from valve_env.estimation.eiv import temperature_bootstrap
+    from valve_env.estimation.report import fit_run
+
+    df, truth, _ = _simulate(case)
+    data = _as_measured(df)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = fit_run(data)  # what `thermovalve fit` runs (n_starts=3, seed=0)
+        t_fit = time.perf_counter() - t0
+        out = dict(case)
+        out.update({"truth": truth, "estimate": {k: est.params_[k] for k in BASE_NAMES},
+                    "std_hessian": {k: est.std_[k] for k in BASE_NAMES}, "fit_s": t_fit, "n": len(data)})
+        if case["eiv_B"] > 0:
+            t1 = time.perf_counter()
+            eiv = temperature_bootstrap(est, data, B=case["eiv_B"], seed=case["i"])
+            out["estimate_eiv"] = {k: eiv.params[k] for k in BASE_NAMES}
+            out["std_eiv"] = {k: eiv.std[k] for k in BASE_NAMES}
+            out["std_temperature"] = {k: eiv.std_temperature[k] for k in BASE_NAMES}
+            out["eiv_bias"] = {k: eiv.bias[k] for k in BASE_NAMES}
+            out["eiv_T_noise_C"] = eiv.T_noise_C
+            out["eiv_s"] = time.perf_counter() - t1
+    return out
+
+
+def run_effects(case: dict[str, Any]) -> dict[str, Any]:
+    from valve_env.diagnosis.diagnose import diagnose
+
+    df, truth, effects = _simulate(case)
+    data = _as_measured(df)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = diagnose(data)
+    out = dict(case)
+    out.update({"cause": d.cause, "selected": list(d.selected), "seconds": time.perf_counter() - t0,
+                "n": len(data), "effects": effects})
+    if case["effect"] != "none":
+        name = EFFECT_PARAM[case["effect"]]
+        f = next(f for f in d.findings if f.effect == case["effect"])
+        js = f.to_json()
+        out.update({"true_value": effects[case["effect"]][name], "estimate_value": js["params"][name],
+                    "std_value": js["std"][name], "std_method": js.get("std_method", "")})
+    return out
+
+
+def _z(est: float, truth: float, sd: float) -> float:
+    return (est - truth) / sd if (sd is not None and math.isfinite(sd) and sd > 0) else float("nan")
+
+
+def _coverage(z: list[float]) -> dict[str, float]:
+    a = np.abs(np.asarray(z, dtype=float))
+    ok = a[np.isfinite(a)]
+    n = len(a)
+    return {"n": n, "n_with_sd": int(len(ok)), "cover_1sd": float(np.sum(ok <= 1.0) / n) if n else float("nan"),
+            "cover_2sd": float(np.sum(ok <= 2.0) / n) if n else float("nan"),
+            "rms_z": float(np.sqrt(np.mean(ok**2))) if len(ok) else float("nan"),
+            "mean_z": float(np.mean(np.asarray(z)[np.isfinite(z)])) if len(ok) else float("nan")}
+
+
+def summarise_base(results: list[dict[str, Any]]) -> dict[str, Any]:
+    summ: dict[str, Any] = {}
+    for k in BASE_NAMES:
+        rel = [r["estimate"][k] / r["truth"][k] - 1.0 for r in results]
+        entry = {"mean_rel_err": float(np.mean(rel)), "max_abs_rel_err": float(np.max(np.abs(rel))),
+                 "before": _coverage([_z(r["estimate"][k], r["truth"][k], r["std_hessian"][k]) for r in results])}
+        if all("std_eiv" in r for r in results):
+            entry["after"] = _coverage([_z(r["estimate_eiv"][k], r["truth"][k], r["std_eiv"][k]) for r in results])
+            entry["after_no_bias_correction"] = _coverage([_z(r["estimate"][k], r["truth"][k], r["std_eiv"][k])
+                                                           for r in results])
+            entry["mean_rel_err_eiv"] = float(np.mean([r["estimate_eiv"][k] / r["truth"][k] - 1.0
+                                                       for r in results]))
+        summ[k] = entry
+    return summ
+
+
+def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in results:
+        key = r["effect"] + (f"/{r['variant']}" if r["effect"] == "stiction" else "")
+        groups.setdefault(key, []).append(r)
+    summ: dict[str, Any] = {}
+    for key, rs in groups.items():
+        e = rs[0]["effect"]
+        entry: dict[str, Any] = {"runs": len(rs), "named_right": sum(r["cause"] == e for r in rs),
+                                 "causes": [r["cause"] for r in rs]}
+        if e != "none":
+            z = [_z(r["estimate_value"], r["true_value"], r["std_value"]) for r in rs]
+            entry.update(_coverage(z))
+            entry["z"] = z
+            entry["rel_err"] = [r["estimate_value"] / r["true_value"] - 1.0 for r in rs]
+        summ[key] = entry
+    n_eff = [r for r in results if r["effect"] != "none"]
+    summ["_total"] = {"named_right": sum(r["cause"] == r["effect"] for r in results), "runs": len(results),
+                      "false_findings_on_none": sum(r["cause"] != "none" for r in results if r["effect"] == "none"),
+                      "wrong_effect": sum(r["cause"] not in ("none", r["effect"]) for r in n_eff),
+                      "median_seconds": float(np.median([r["seconds"] for r in results]))}
+    return summ
+
+
+def cases(study: str, generator: str, runs: int, eiv_B: int, seed: int) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = []
+    if study == "base":
+        for i in range(runs):
+            out.append({"study": study, "generator": generator, "seed": seed, "i": i, "effect": "none",
+                        "T_noise_C": 0.01, "eiv_B": eiv_B})
+        return out
+    classes: list[tuple[str, str | None]] = [("none", None), ("sensor_lag", None), ("medium_temperature", None),
+                                             ("setpoint_drift", None)]
+    variants = STICTION_VARIANTS if generator == "independent" else ("reset",)
+    classes += [("stiction", v) for v in variants]
+    i = 0
+    for _ in range(runs):
+        for effect, variant in classes:
+            out.append({"study": study, "generator": generator, "seed": seed, "i": i, "effect": effect,
+                        "variant": variant})
+            i += 1
+    return out
+
+
+def _print_base(summ: dict[str, Any]) -> None:
+    print(f"{'param':8s} {'mean rel err':>12s} {'max |rel|':>10s} | {'1sd':>5s} {'2sd':>5s} {'rms z':>6s} "
+          f"(before) | {'1sd':>5s} {'2sd':>5s} {'rms z':>6s} (after: EIV sd, bias-corrected) | "
+          f"2sd (EIV sd, no bias correction) | mean rel err after")
+    for k, e in summ.items():
+        b = e["before"]
+        a = e.get("after", {"cover_1sd": float("nan"), "cover_2sd": float("nan"), "rms_z": float("nan")})
+        print(f"{k:8s} {e['mean_rel_err']:12.2e} {e['max_abs_rel_err']:10.2e} | {b['cover_1sd']:5.0%} "
+              f"{b['cover_2sd']:5.0%} {b['rms_z']:6.2f}          | {a['cover_1sd']:5.0%} {a['cover_2sd']:5.0%} "
+              f"{a['rms_z']:6.2f}                                  | "
+              f"{e.get('after_no_bias_correction', {}).get('cover_2sd', float('nan')):5.0%}"
+              f"                            | {e.get('mean_rel_err_eiv', float('nan')):.2e}")
+
+
+def _print_effects(summ: dict[str, Any]) -> None:
+    for key, e in summ.items():
+        if key == "_total":
+            continue
+        line = f"{key:26s} named {e['named_right']}/{e['runs']}  causes {e['causes']}"
+        if "z" in e:
+            zs = ", ".join(f"{v:.1f}" for v in e["z"])
+            rel = ", ".join(f"{v:+.0%}" for v in e["rel_err"])
+            line += f"  z [{zs}]  1sd {e['cover_1sd']:.0%} 2sd {e['cover_2sd']:.0%}  rel err [{rel}]"
+        print(line)
+    t = summ["_total"]
+    print(f"total: named right {t['named_right']}/{t['runs']}, false findings on 'none' "
+          f"{t['false_findings_on_none']}, wrong effect {t['wrong_effect']}, median {t['median_seconds']:.0f} s/run")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--study", choices=("base", "effects"), required=True)
+    ap.add_argument("--generator", choices=("independent", "project"), default="independent")
+    ap.add_argument("--runs", type=int, default=30, help="base: runs; effects: runs per class")
+    ap.add_argument("--eiv-B", type=int, default=0, help="base: temperature-bootstrap replicates (0: none)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=None, help="override the study seed (default: the fixed one)")
+    ap.add_argument("--json", dest="json_out", default=None)
+    ap.add_argument("--force", action="store_true")
+    args = ap.parse_args(argv)
+    seed = args.seed if args.seed is not None else SEEDS[(args.study, args.generator)]
+    outs = OutputSet(force=args.force)
+    try:
+        json_path = outs.add(args.json_out) if args.json_out else None
+    except OutputError as exc:
+        print(f"thermovalve: error: {exc}", file=sys.stderr)
+        return 2
+    cs = cases(args.study, args.generator, args.runs, args.eiv_B, seed)
+    fn = run_base if args.study == "base" else run_effects
+    t0 = time.perf_counter()
+    print(f"{args.study} study on the {args.generator} generator: {len(cs)} runs, seed {seed}, "
+          f"{args.workers} workers", flush=True)
+    results: list[dict[str, Any]] = []
+    if args.workers <= 1:
+        results = [fn(c) for c in cs]
+    else:
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
+            for r in pool.map(fn, cs):
+                results.append(r)
+                print(f"  {len(results)}/{len(cs)} done ({time.perf_counter() - t0:.0f} s): "
+                      f"{json.dumps(r, default=float)}", flush=True)
+    summ = summarise_base(results) if args.study == "base" else summarise_effects(results)
+    (_print_base if args.study == "base" else _print_effects)(summ)
+    doc = {"study": args.study, "generator": args.generator, "seed": seed, "runs": len(cs), "eiv_B": args.eiv_B,
+           "summary": summ, "results": results, "seconds": time.perf_counter() - t0,
+           "machine": platform.platform(), "command": " ".join(sys.argv)}
+    if json_path is not None:
+        outs.write_text(json_path, json.dumps(doc, indent=1, default=float))
+        outs.commit()
+        print(outs.summary())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""Study instruments: an independent simulator for coverage and confusion studies (docs/uncertainty.md)."""
