@@ -31,7 +31,7 @@ from valve_env.params import (
     check_fields,
     param,
 )
-from valve_env.scenario import ScenarioParams
+from valve_env.scenario import ScenarioParams, largest_tap_l_min
 
 #: the largest fraction of a layer's heat capacity that the coil and the losses may exchange in a
 #: sub-step (EnvConfig.layer_exchange): the rest is left for the draw, so that every layer's update
@@ -155,14 +155,16 @@ class EnvConfig:
             got = getattr(self, name)
             if not isinstance(got, cls):
                 raise ConfigError(f"EnvConfig.{name} must be a {cls.__name__}, got {type(got).__name__}")
-        ex = self.layer_exchange()
-        if ex > MAX_LAYER_EXCHANGE:
-            need = math.ceil(self.control.n_sub * ex / MAX_LAYER_EXCHANGE)
+        need = self.min_n_sub()
+        if self.control.n_sub < need:
+            tap = largest_tap_l_min(self.scenario.tapping_profile)
             raise ConfigError(
-                f"control.n_sub = {self.control.n_sub} is too few for this tank: a sub-step of {self.sub_step_s:g} s "
-                f"moves {ex:.3g} of a {self.tank.layer_mass_kg:.3g} kg layer's heat capacity through the coil and "
-                f"the losses ((tank.UA_coil / coil_layers + UA_loss / n_layers) dt_sub / (m_layer cp) must be <= "
-                f"{MAX_LAYER_EXCHANGE:g}); use control.n_sub >= {need}, a larger tank.volume_l or fewer tank.n_layers"
+                f"control.n_sub = {self.control.n_sub} is too few for this tank: in a sub-step of "
+                f"{self.sub_step_s:g} s the explicit update of a {self.tank.layer_mass_kg:.3g} kg layer exchanges "
+                f"{self.layer_exchange():.3g} of its heat capacity through the coil and the losses (at most "
+                f"{MAX_LAYER_EXCHANGE:g}) and passes at most {60.0 * self.draw_max_kgs():.3g} l/min of draw (the "
+                f"tapping cycle's largest tap: {tap:g} l/min); use control.n_sub >= {need}, a larger "
+                "tank.volume_l or fewer tank.n_layers"
             )
 
     @property
@@ -181,8 +183,22 @@ class EnvConfig:
         """The tank's largest hot-water outflow, kg/s: DRAW_MAX_L_MIN, and no more than the
         layer mass the explicit update can still move in a sub-step besides the coil and the
         losses, (1 - layer_exchange) m_layer / dt_sub (physics.tank.draw_flow's limit)."""
-        numerical = (1.0 - self.layer_exchange()) * self.tank.layer_mass_kg / self.sub_step_s
+        numerical = max(0.0, 1.0 - self.layer_exchange()) * self.tank.layer_mass_kg / self.sub_step_s
         return min(DRAW_MAX_L_MIN / 60.0, numerical)
+
+    def min_n_sub(self) -> int:
+        """The fewest sub-steps per control step that keep the explicit layer update a
+        mixture of the temperatures around each layer: layer_exchange <= MAX_LAYER_EXCHANGE,
+        with room left for the tapping cycle's largest tap flow (docs/configuration.md).
+
+        With e the exchange at one sub-step and f the largest tap (kg/s), n sub-steps
+        exchange e / n and pass (n - e) m_layer / dt_s: n >= max(e / MAX_LAYER_EXCHANGE,
+        e + f dt_s / m_layer)."""
+        t = self.tank
+        e1 = self.layer_exchange() * self.control.n_sub
+        tap = largest_tap_l_min(self.scenario.tapping_profile) / 60.0
+        need = max(e1 / MAX_LAYER_EXCHANGE, e1 + tap * self.control.dt_s / t.layer_mass_kg)
+        return max(1, math.ceil(need * (1.0 - 1e-12)))
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
         return {name: getattr(self, name).to_dict() for name in SECTIONS}

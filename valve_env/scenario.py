@@ -97,6 +97,11 @@ def tapping_cycle(name: str) -> pd.DataFrame:
     return df
 
 
+def largest_tap_l_min(profile: str) -> float:
+    """The largest tap flow of the tapping cycle ``profile``, l/min (0 for "none")."""
+    return 0.0 if profile == "none" else float(tapping_cycle(profile)["f_l_min"].max())
+
+
 @dataclass
 class ScenarioArrays:
     """Per-control-step scenario inputs (length n_steps each).
