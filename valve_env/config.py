@@ -299,7 +299,8 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
                 v = dataclasses.asdict(v)
             if not isinstance(v, Mapping):
                 raise ConfigError(
-                    f"{k}= must be a mapping of field names or a {SECTIONS[k].__name__}, got {type(v).__name__} {v!r}"
+                    f"{k}= must be a mapping of field names or a {SECTIONS[k].__name__}, got "
+                    + ("None" if v is None else f"{type(v).__name__} {v!r}")
                 )
             sections = _merge(sections, {k: _section(k, v)})
         elif k in scen_fields:

@@ -94,7 +94,7 @@ class Spec:
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
             hint = ""
             if isinstance(value, str) and _looks_numeric(value):
-                hint = " (YAML reads a number such as 1e3 without a decimal point as text: write 1.0e3)"
+                hint = " (YAML 1.1 reads 1e3 or 1.0e3 as text: write 1.0e+3 or 1000.0)"
             got = "None" if value is None else f"{type(value).__name__} {value!r}"
             raise ConfigError(f"{where} must be {expect}, got {got}{hint}")
         v = float(value)
