@@ -320,3 +320,16 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
         else:
             built[name] = current
     return EnvConfig(**built)
+
+
+def ranges_table() -> str:
+    """The accepted values of every config field as a Markdown table (docs/configuration.md
+    holds its output; tests/envs/test_config_validation.py keeps the two equal)."""
+    lines = ["| field | unit | range | default | why |", "|---|---|---|---|---|"]
+    for section, cls in SECTIONS.items():
+        for f in fields(cls):
+            spec = f.metadata["spec"]
+            unit = spec.unit if spec.kind in ("float", "int") else "-"
+            kind = " (integer)" if spec.kind == "int" else ""
+            lines.append(f"| {section}.{f.name} | {unit} | {spec.describe()}{kind} | {f.default} | {spec.why} |")
+    return "\n".join(lines) + "\n"

@@ -174,3 +174,12 @@ def test_batched_reset_accepts_int_list_and_none():
     single = gym.make("ThermoValve-v0")
     with pytest.raises(ValueError, match="seed"):
         single.reset(seed=True)
+
+
+def test_the_docs_table_of_ranges_is_the_declared_one():
+    from pathlib import Path
+
+    from valve_env.config import ranges_table
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "configuration.md").read_text()
+    assert ranges_table() in doc, "regenerate docs/configuration.md's table: python -c 'import valve_env.config as c; print(c.ranges_table())'"

@@ -126,6 +126,11 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     | 10 | setting_C: the valve setting in force | degC |
     | 11 | T_target_C: the outlet target | degC |
 
+    Bounds: temperatures [-20, 150] degC, primary flow [0, 5000] kg/h (more for a
+    valve that passes more at 2000 mbar: Kvs > 3.54 m^3/h), dp [0, 2000] mbar, draw
+    [0, 100] l/min, the setting within the action's range. Every accepted config
+    keeps its observations inside (docs/configuration.md).
+
     ## Reward
 
     Per control step, with sub-step means over the step (n_sub sub-steps):
