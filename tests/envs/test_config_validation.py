@@ -182,4 +182,5 @@ def test_the_docs_table_of_ranges_is_the_declared_one():
     from valve_env.config import ranges_table
 
     doc = (Path(__file__).resolve().parents[2] / "docs" / "configuration.md").read_text()
-    assert ranges_table() in doc, "regenerate docs/configuration.md's table: python -c 'import valve_env.config as c; print(c.ranges_table())'"
+    regenerate = "python -c 'import valve_env.config as c; print(c.ranges_table())'"
+    assert ranges_table() in doc, f"regenerate docs/configuration.md's table: {regenerate}"
