@@ -157,7 +157,8 @@ def test_every_accepted_config_gives_finite_observations_in_the_box(cfg, env_id,
 
 
 @pytest.mark.slow
-@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+@settings(max_examples=400, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much, HealthCheck.large_base_example])
 @given(cfg=configs(max_horizon_h=8784.0), env_id=st.sampled_from(IDS), u=actions(200, 2), seed=st.integers(0, 2**31))
 def test_every_accepted_config_gives_finite_observations_in_the_box_long(cfg, env_id, u, seed):
     _run(cfg, env_id, u, seed)
