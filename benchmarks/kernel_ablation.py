@@ -42,7 +42,8 @@ VARIANTS: dict[str, list[tuple[str, str]]] = {
          "        for j in range(nl):\n            for i in range(c0, c1):\n                Q[j, i] = 0.0\n"),
     ],
     "no draws, advection, losses": [
-        ("        draw_flow(draw_W, draw_T, tap_m, T_top, T_cold, cp, m_draw, q_deliv, lo, hi)\n", ""),
+        ("        draw_flow(draw_W, draw_T, tap_m, T_top, T_cold, cp, m_draw, q_deliv, lo, hi, pp[P_DRAW_MAX])\n",
+         ""),
         ("        advection_heat(T, m_draw, T_cold, cp, Q, lo, hi)\n", ""),
         ("        loss_heat(T, pp[P_UA_LOSS], pp[P_T_AMB], Q, q_loss, lo, hi)\n", ""),
     ],

@@ -2,7 +2,9 @@
 
 Runs the default scenario to 07:00, saves the state, and tries three constant
 settings for the next two hours from the same state, printing each branch's
-outlet temperature and heat use.
+outlet temperature and heat use. ``valve_env.wrappers.snapshot``/``restore``
+save and restore the whole env as gym.make wraps it (sensor noise and dead
+time included, when the ``sensors:`` section asks for them).
 
     python examples/branching_rollouts.py
 """
@@ -13,19 +15,20 @@ import gymnasium as gym
 import numpy as np
 
 import valve_env  # noqa: F401  (registers the environments)
+from valve_env.wrappers import restore, snapshot
 
 
 def main() -> None:
-    env = gym.make("ThermoValve-v0").unwrapped
+    env = gym.make("ThermoValve-v0")
     env.reset(seed=0)
     for _ in range(7 * 120):
         env.step(np.array([62.0], np.float32))
-    snapshot = env.get_state()
+    snap = snapshot(env)
     for setting in (58.0, 62.0, 66.0):
-        env.set_state(snapshot)
-        heat0 = env.energy_account()["heat_in_J"]
+        restore(env, snap)
+        heat0 = env.unwrapped.energy_account()["heat_in_J"]
         T = [env.step(np.array([setting], np.float32))[0][0] for _ in range(240)]
-        heat = (env.energy_account()["heat_in_J"] - heat0) / 3.6e6
+        heat = (env.unwrapped.energy_account()["heat_in_J"] - heat0) / 3.6e6
         print(f"setting {setting:4.1f} degC: outlet min {min(T):5.2f} mean {np.mean(T):5.2f} degC, heat {heat:.2f} kWh")
 
 

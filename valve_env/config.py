@@ -16,70 +16,88 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import yaml
 
-from valve_env.params import BulbParams, ConfigError, TankParams, ValveParams, _from_mapping
-from valve_env.scenario import ScenarioParams
+from valve_env.params import (
+    DP_MAX_MBAR,
+    DRAW_MAX_L_MIN,
+    BulbParams,
+    ConfigError,
+    TankParams,
+    ValveParams,
+    _from_mapping,
+    check_fields,
+    param,
+)
+from valve_env.scenario import ScenarioParams, largest_tap_l_min
+
+#: the largest fraction of a layer's heat capacity that the coil and the losses may exchange in a
+#: sub-step (EnvConfig.layer_exchange): the rest is left for the draw, so that every layer's update
+#: is a mixture of the temperatures around it (docs/configuration.md)
+MAX_LAYER_EXCHANGE = 0.5
+#: the longest episode in control steps: its scenario takes 80 MB (5 float64 a step); a year at 16 s
+MAX_EPISODE_STEPS = 2_000_000
 
 
 @dataclass(frozen=True)
 class ControlParams:
     """Control loop, targets and reward weights.
 
-    | field | unit | meaning (default, source) |
-    |---|---|---|
-    | dt_s | s | control step; 30 (SPEC section 5) |
-    | n_sub | - | physics sub-steps per control step; 3 (10 s, well under the bulb's 40 s and the tank's ~500 s) |
-    | horizon_h | h | episode length; 24 (SPEC) |
-    | T_target_C | degC | outlet target; 60 (SPEC) |
-    | T_floor_C | degC | hygiene and comfort floor; 55 (SPEC) |
-    | setting_min_C, setting_max_C | degC | range of the valve's temperature setting (action); 40 .. 80 |
-    | setting_C | degC | the setting when the agent does not set it (ThermoValvePressure-v0); 62 |
-    | dp_min_mbar, dp_max_mbar | mbar | range of the pump's differential pressure (action); 0 .. 300 |
-    | w_track | 1/K^2 | reward weight of the squared tracking error; 0.04 (= (e / 5 K)^2) |
-    | w_floor | 1/K | reward weight of the shortfall below the floor; 1.0 |
-    | w_energy | 1/kW | reward weight of the mean primary heat plus 2.5 x pump power (primary energy factor); 0.02 |
-    """
+    | field | unit | meaning (default, source) | range (why) |
+    |---|---|---|---|
+    | dt_s | s | control step; 30 (SPEC section 5) | [1, 3600] (a fast controller .. an hourly schedule) |
+    | n_sub | - | physics sub-steps per control step; 3 (10 s, well under the bulb's 40 s and the tank's ~500 s) | [1, 1000] (integer; bounds a step's cost) |
+    | horizon_h | h | episode length; 24 (SPEC) | (0, 8784] (up to a leap year; at most 2 000 000 steps) |
+    | T_target_C | degC | outlet target; 60 (SPEC) | [10, 100] (hot water at ambient pressure) |
+    | T_floor_C | degC | hygiene and comfort floor; 55 (SPEC) | [0, 100] (hot water at ambient pressure) |
+    | setting_min_C, setting_max_C | degC | range of the valve's temperature setting (action); 40 .. 80 | [10, 120] (thermostat scales) |
+    | setting_C | degC | the setting when the agent does not set it (ThermoValvePressure-v0); 62 | [10, 120], within the setting range |
+    | dp_min_mbar, dp_max_mbar | mbar | range of the pump's differential pressure (action); 0 .. 300 | [0, 2000] (0 .. 2 bar, DP_MAX_MBAR) |
+    | w_track | 1/K^2 | reward weight of the squared tracking error; 0.04 (= (e / 5 K)^2) | [0, 100] (a weight) |
+    | w_floor | 1/K | reward weight of the shortfall below the floor; 1.0 | [0, 100] (a weight) |
+    | w_energy | 1/kW | reward weight of the mean primary heat plus 2.5 x pump power (primary energy factor); 0.02 | [0, 100] (a weight) |
+    """  # noqa: E501
 
-    dt_s: float = 30.0
-    n_sub: int = 3
-    horizon_h: float = 24.0
-    T_target_C: float = 60.0
-    T_floor_C: float = 55.0
-    setting_min_C: float = 40.0
-    setting_max_C: float = 80.0
-    setting_C: float = 62.0
-    dp_min_mbar: float = 0.0
-    dp_max_mbar: float = 300.0
-    w_track: float = 0.04
-    w_floor: float = 1.0
-    w_energy: float = 0.02
+    SECTION: ClassVar[str] = "control"
+
+    dt_s: float = param(30.0, 1.0, 3600.0, "s", "a fast controller .. an hourly schedule")
+    n_sub: int = param(3, 1, 1000, "-", "bounds the cost of a step", kind="int")
+    horizon_h: float = param(24.0, 0.0, 8784.0, "h", "up to a leap year", lo_open=True)
+    T_target_C: float = param(60.0, 10.0, 100.0, "degC", "hot water at ambient pressure")
+    T_floor_C: float = param(55.0, 0.0, 100.0, "degC", "hot water at ambient pressure")
+    setting_min_C: float = param(40.0, 10.0, 120.0, "degC", "thermostat scales")
+    setting_max_C: float = param(80.0, 10.0, 120.0, "degC", "thermostat scales")
+    setting_C: float = param(62.0, 10.0, 120.0, "degC", "thermostat scales")
+    dp_min_mbar: float = param(0.0, 0.0, DP_MAX_MBAR, "mbar", "0 .. 2 bar")
+    dp_max_mbar: float = param(300.0, 0.0, DP_MAX_MBAR, "mbar", "0 .. 2 bar")
+    w_track: float = param(0.04, 0.0, 100.0, "1/K^2", "a weight")
+    w_floor: float = param(1.0, 0.0, 100.0, "1/K", "a weight")
+    w_energy: float = param(0.02, 0.0, 100.0, "1/kW", "a weight")
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if not math.isfinite(v):
-                raise ConfigError(f"ControlParams.{f.name} must be finite, got {v!r}")
-        if self.dt_s <= 0:
-            raise ConfigError(f"ControlParams.dt_s must be > 0, got {self.dt_s!r}")
-        if int(self.n_sub) != self.n_sub or self.n_sub < 1:
-            raise ConfigError(f"ControlParams.n_sub must be an integer >= 1, got {self.n_sub!r}")
-        object.__setattr__(self, "n_sub", int(self.n_sub))
-        if self.horizon_h * 3600.0 < self.dt_s:
-            raise ConfigError(f"ControlParams.horizon_h must cover at least one step, got {self.horizon_h!r}")
+        check_fields(self)
+        steps = self.horizon_h * 3600.0 / self.dt_s
+        if not 1 <= round(steps) <= MAX_EPISODE_STEPS:
+            raise ConfigError(
+                f"control.horizon_h must give 1 .. {MAX_EPISODE_STEPS} steps of control.dt_s = {self.dt_s:g} s, "
+                f"got {self.horizon_h!r} h ({steps:.4g} steps)"
+            )
         if not self.setting_min_C < self.setting_max_C:
-            raise ConfigError("ControlParams.setting_min_C must be < setting_max_C")
+            raise ConfigError(
+                f"control.setting_min_C must be < control.setting_max_C, got {self.setting_min_C!r} >= "
+                f"{self.setting_max_C!r}"
+            )
         if not self.setting_min_C <= self.setting_C <= self.setting_max_C:
             raise ConfigError(
-                f"ControlParams.setting_C must be within [setting_min_C, setting_max_C], got {self.setting_C}"
+                f"control.setting_C must be within [setting_min_C, setting_max_C] = "
+                f"[{self.setting_min_C:g}, {self.setting_max_C:g}], got {self.setting_C!r}"
             )
-        if not 0 <= self.dp_min_mbar < self.dp_max_mbar:
-            raise ConfigError("ControlParams.dp_min_mbar must be >= 0 and < dp_max_mbar")
-        for name in ("w_track", "w_floor", "w_energy"):
-            if getattr(self, name) < 0:
-                raise ConfigError(f"ControlParams.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not self.dp_min_mbar < self.dp_max_mbar:
+            raise ConfigError(
+                f"control.dp_min_mbar must be < control.dp_max_mbar, got {self.dp_min_mbar!r} >= {self.dp_max_mbar!r}"
+            )
 
     @property
     def n_steps(self) -> int:
@@ -97,25 +115,21 @@ class ControlParams:
 class SensorParams:
     """Measurement imperfections, applied by wrappers (valve_env.wrappers), never in the physics.
 
-    | field | unit | meaning (default) |
-    |---|---|---|
-    | noise_K | K | white noise on every observed temperature; 0 (paper Table 1: 0.05 K uncertainty) |
-    | flow_noise_rel | - | relative white noise on observed flow and dp; 0 (paper Table 1: 0.015) |
-    | dead_time_steps | steps | the observation reaches the agent this many control steps late; 0 |
-    """
+    | field | unit | meaning (default) | range (why) |
+    |---|---|---|---|
+    | noise_K | K | white noise on every observed temperature; 0 (paper Table 1: 0.05 K uncertainty) | [0, 10] (a precise .. a poor sensor) |
+    | flow_noise_rel | - | relative white noise on observed flow and dp; 0 (paper Table 1: 0.015) | [0, 1] (up to 100 %) |
+    | dead_time_steps | steps | the observation reaches the agent this many control steps late; 0 | [0, 1000] (integer; a delay line's memory) |
+    """  # noqa: E501
 
-    noise_K: float = 0.0
-    flow_noise_rel: float = 0.0
-    dead_time_steps: int = 0
+    SECTION: ClassVar[str] = "sensors"
+
+    noise_K: float = param(0.0, 0.0, 10.0, "K", "a precise .. a poor sensor")
+    flow_noise_rel: float = param(0.0, 0.0, 1.0, "-", "up to 100 %")
+    dead_time_steps: int = param(0, 0, 1000, "steps", "a delay line's memory", kind="int")
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if not math.isfinite(v) or v < 0:
-                raise ConfigError(f"SensorParams.{f.name} must be finite and >= 0, got {v!r}")
-        if int(self.dead_time_steps) != self.dead_time_steps:
-            raise ConfigError(f"SensorParams.dead_time_steps must be an integer, got {self.dead_time_steps!r}")
-        object.__setattr__(self, "dead_time_steps", int(self.dead_time_steps))
+        check_fields(self)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None) -> SensorParams:
@@ -136,6 +150,56 @@ class EnvConfig:
     control: ControlParams = field(default_factory=ControlParams)
     sensors: SensorParams = field(default_factory=SensorParams)
 
+    def __post_init__(self) -> None:
+        for name, cls in SECTIONS.items():
+            got = getattr(self, name)
+            if not isinstance(got, cls):
+                raise ConfigError(f"EnvConfig.{name} must be a {cls.__name__}, got {type(got).__name__}")
+        need = self.min_n_sub()
+        if self.control.n_sub < need:
+            tap = largest_tap_l_min(self.scenario.tapping_profile)
+            raise ConfigError(
+                f"control.n_sub = {self.control.n_sub} is too few for this tank: in a sub-step of "
+                f"{self.sub_step_s:g} s the explicit update of a {self.tank.layer_mass_kg:.3g} kg layer exchanges "
+                f"{self.layer_exchange():.3g} of its heat capacity through the coil and the losses (at most "
+                f"{MAX_LAYER_EXCHANGE:g}) and passes at most {60.0 * self.draw_max_kgs():.3g} l/min of draw (the "
+                f"tapping cycle's largest tap: {tap:g} l/min); use control.n_sub >= {need}, a larger "
+                "tank.volume_l or fewer tank.n_layers"
+            )
+
+    @property
+    def sub_step_s(self) -> float:
+        """The physics sub-step, control.dt_s / control.n_sub, s."""
+        return self.control.dt_s / self.control.n_sub
+
+    def layer_exchange(self) -> float:
+        """The largest fraction of a layer's heat capacity that the coil and the standing
+        loss can exchange in one sub-step, (UA_coil / coil_layers + UA_loss / n_layers)
+        dt_sub / (m_layer cp) (docs/configuration.md: the explicit layer update)."""
+        t = self.tank
+        return (t.UA_coil / t.coil_layers + t.UA_loss / t.n_layers) * self.sub_step_s / (t.layer_mass_kg * t.cp)
+
+    def draw_max_kgs(self) -> float:
+        """The tank's largest hot-water outflow, kg/s: DRAW_MAX_L_MIN, and no more than the
+        layer mass the explicit update can still move in a sub-step besides the coil and the
+        losses, (1 - layer_exchange) m_layer / dt_sub (physics.tank.draw_flow's limit)."""
+        numerical = max(0.0, 1.0 - self.layer_exchange()) * self.tank.layer_mass_kg / self.sub_step_s
+        return min(DRAW_MAX_L_MIN / 60.0, numerical)
+
+    def min_n_sub(self) -> int:
+        """The fewest sub-steps per control step that keep the explicit layer update a
+        mixture of the temperatures around each layer: layer_exchange <= MAX_LAYER_EXCHANGE,
+        with room left for the tapping cycle's largest tap flow (docs/configuration.md).
+
+        With e the exchange at one sub-step and f the largest tap (kg/s), n sub-steps
+        exchange e / n and pass (n - e) m_layer / dt_s: n >= max(e / MAX_LAYER_EXCHANGE,
+        e + f dt_s / m_layer)."""
+        t = self.tank
+        e1 = self.layer_exchange() * self.control.n_sub
+        tap = largest_tap_l_min(self.scenario.tapping_profile) / 60.0
+        need = max(e1 / MAX_LAYER_EXCHANGE, e1 + tap * self.control.dt_s / t.layer_mass_kg)
+        return max(1, math.ceil(need * (1.0 - 1e-12)))
+
     def to_dict(self) -> dict[str, dict[str, Any]]:
         return {name: getattr(self, name).to_dict() for name in SECTIONS}
 
@@ -154,20 +218,44 @@ SECTIONS: dict[str, Any] = {
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a config YAML file; errors name the file and the problem."""
+    """Read a config YAML file; errors name the file and the problem in one line."""
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"config file {str(p)!r} does not exist")
     try:
-        data = yaml.safe_load(p.read_text()) or {}
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"config file {str(p)!r} is not UTF-8 text (byte {exc.start}): is it a YAML file?") from exc
+    except OSError as exc:
+        raise ConfigError(f"config file {str(p)!r} cannot be read: {exc.strerror or exc}") from exc
+    try:
+        data = yaml.safe_load(text) or {}
     except yaml.YAMLError as exc:
-        raise ConfigError(f"config file {str(p)!r} is not valid YAML: {exc}") from exc
+        raise ConfigError(f"config file {str(p)!r} is not valid YAML: {' '.join(str(exc).split())}") from exc
     if not isinstance(data, dict):
-        raise ConfigError(f"config file {str(p)!r} must hold a mapping of sections {sorted(SECTIONS)}")
-    unknown = sorted(set(data) - set(SECTIONS))
+        raise ConfigError(
+            f"config file {str(p)!r} must hold a mapping of sections {sorted(SECTIONS)}, got {type(data).__name__}"
+        )
+    unknown = sorted(str(k) for k in data if k not in SECTIONS)
     if unknown:
         raise ConfigError(f"config file {str(p)!r}: unknown section(s) {unknown}; known: {sorted(SECTIONS)}")
     return data
+
+
+def _section(name: str, value: Any) -> Mapping[str, Any]:
+    """A config section's mapping of field names to values, or a one-line error naming the section."""
+    if value is None:
+        raise ConfigError(
+            f"config section {name!r} is empty (a YAML '{name}:' with nothing under it): give it fields or remove it"
+        )
+    if not isinstance(value, Mapping):
+        raise ConfigError(
+            f"config section {name!r} must be a mapping of field names to values, got {type(value).__name__} {value!r}"
+        )
+    bad = [k for k in value if not isinstance(k, str)]
+    if bad:
+        raise ConfigError(f"config section {name!r}: field names must be text, got {bad[0]!r}")
+    return value
 
 
 def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
@@ -202,7 +290,7 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
     for k, v in base.items():
         if k not in SECTIONS:
             raise ConfigError(f"unknown config section {k!r}; known: {sorted(SECTIONS)}")
-        sections[k] = v
+        sections[k] = _section(k, v)
     scen_fields = {f.name for f in fields(ScenarioParams)}
     ctrl_fields = {f.name for f in fields(ControlParams)}
     for k, v in overrides.items():
@@ -210,8 +298,11 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
             if dataclasses.is_dataclass(v) and not isinstance(v, type):
                 v = dataclasses.asdict(v)
             if not isinstance(v, Mapping):
-                raise ConfigError(f"{k}= must be a mapping of field names or a {SECTIONS[k].__name__}")
-            sections = _merge(sections, {k: v})
+                raise ConfigError(
+                    f"{k}= must be a mapping of field names or a {SECTIONS[k].__name__}, got "
+                    + ("None" if v is None else f"{type(v).__name__} {v!r}")
+                )
+            sections = _merge(sections, {k: _section(k, v)})
         elif k in scen_fields:
             sections = _merge(sections, {"scenario": {k: v}})
         elif k in ctrl_fields:
@@ -229,3 +320,16 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
         else:
             built[name] = current
     return EnvConfig(**built)
+
+
+def ranges_table() -> str:
+    """The accepted values of every config field as a Markdown table (docs/configuration.md
+    holds its output; tests/envs/test_config_validation.py keeps the two equal)."""
+    lines = ["| field | unit | range | default | why |", "|---|---|---|---|---|"]
+    for section, cls in SECTIONS.items():
+        for f in fields(cls):
+            spec = f.metadata["spec"]
+            unit = spec.unit if spec.kind in ("float", "int") else "-"
+            kind = " (integer)" if spec.kind == "int" else ""
+            lines.append(f"| {section}.{f.name} | {unit} | {spec.describe()}{kind} | {f.default} | {spec.why} |")
+    return "\n".join(lines) + "\n"

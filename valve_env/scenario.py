@@ -10,18 +10,17 @@ fixed timetable, so every seed gives another day.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from functools import cache
 from importlib import resources
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
 from numba import njit
 
-from valve_env.params import ConfigError, _from_mapping
+from valve_env.params import DP_MAX_MBAR, SUPPLY_LIMITS_C, ConfigError, _from_mapping, check_fields, param
 
 PROFILES = ("S", "M", "L", "none")
 SUPPLY_PROFILES = ("constant", "daily", "random")
@@ -31,75 +30,57 @@ SUPPLY_PROFILES = ("constant", "daily", "random")
 class ScenarioParams:
     """What happens around the tank during an episode.
 
-    | field | unit | meaning (default and source) |
-    |---|---|---|
-    | tapping_profile | - | "S", "M", "L" (EU 814/2013 tapping cycles) or "none"; "M" (5.845 kWh/day) |
-    | stochastic_draws | - | True: seeded variant (start jitter, energy scaling); False: the cycle as tabled |
-    | draw_jitter_min | min | standard deviation of each draw's start-time jitter; 20 |
-    | draw_energy_cv | - | coefficient of variation of each draw's energy (lognormal); 0.2 |
-    | supply_C | degC | primary supply temperature; 70 (SPEC section 5) |
-    | supply_profile | - | "constant", "daily" (sine, coldest at 15:00) or "random" (Ornstein-Uhlenbeck) |
-    | supply_amplitude_K | K | amplitude of the daily sine or standard deviation of the random profile; 5 |
-    | supply_tau_h | h | correlation time of the random supply profile; 2 |
-    | dp_mbar | mbar | the network's dp across the valve when the agent does not set it; 100 (calibration) |
-    | dp_noise_mbar | mbar | standard deviation of an Ornstein-Uhlenbeck disturbance on dp; 0 |
-    | dp_tau_s | s | its correlation time; 600 |
-    | ps_bar | bar | static pressure at the valve; 2 (calibration) |
-    | T_init_C | degC | initial tank temperature (mean) ; 55 |
-    | T_init_spread_K | K | seeded uniform spread of the initial temperature, +-; 3 |
-    """
+    | field | unit | meaning (default and source) | range (why) |
+    |---|---|---|---|
+    | tapping_profile | - | "S", "M", "L" (EU 814/2013 tapping cycles) or "none"; "M" (5.845 kWh/day) | {S, M, L, none} |
+    | stochastic_draws | - | True: seeded variant (start jitter, energy scaling); False: the cycle as tabled | {true, false} |
+    | draw_jitter_min | min | standard deviation of each draw's start-time jitter; 20 | [0, 240] (up to 4 h: a day's habits) |
+    | draw_energy_cv | - | coefficient of variation of each draw's energy (lognormal); 0.2 | [0, 2] (a draw 0 .. several times its tabled energy) |
+    | supply_C | degC | primary supply temperature; 70 (SPEC section 5) | [1, 130] (district heating up to 130 degC) |
+    | supply_profile | - | "constant", "daily" (sine, coldest at 15:00) or "random" (Ornstein-Uhlenbeck) | {constant, daily, random} |
+    | supply_amplitude_K | K | amplitude of the daily sine or standard deviation of the random profile; 5 | [0, 40] (a daily swing; see below) |
+    | supply_tau_h | h | correlation time of the random supply profile; 2 | [0.01, 1000] (minutes .. weeks) |
+    | dp_mbar | mbar | the network's dp across the valve when the agent does not set it; 100 (calibration) | [0, 2000] (0 .. 2 bar, DP_MAX_MBAR) |
+    | dp_noise_mbar | mbar | standard deviation of an Ornstein-Uhlenbeck disturbance on dp; 0 | [0, 1000] (up to 1 bar; the path is kept in [0, 2000]) |
+    | dp_tau_s | s | its correlation time; 600 | [1, 1000000] (a second .. 11 days) |
+    | ps_bar | bar | static pressure at the valve; 2 (calibration) | [0, 25] (PN25) |
+    | T_init_C | degC | initial tank temperature (mean) ; 55 | [1, 99] (liquid water at ambient pressure) |
+    | T_init_spread_K | K | seeded uniform spread of the initial temperature, +-; 3 | [0, 20] |
 
-    tapping_profile: str = "M"
-    stochastic_draws: bool = True
-    draw_jitter_min: float = 20.0
-    draw_energy_cv: float = 0.2
-    supply_C: float = 70.0
-    supply_profile: str = "constant"
-    supply_amplitude_K: float = 5.0
-    supply_tau_h: float = 2.0
-    dp_mbar: float = 100.0
-    dp_noise_mbar: float = 0.0
-    dp_tau_s: float = 600.0
-    ps_bar: float = 2.0
-    T_init_C: float = 55.0
-    T_init_spread_K: float = 3.0
+    The supply temperature stays within SUPPLY_LIMITS_C = [0, 140] degC (liquid
+    water at district-heating pressures): a daily profile must lie within
+    them (supply_C +- supply_amplitude_K), a random one is kept within them.
+    """  # noqa: E501
+
+    SECTION: ClassVar[str] = "scenario"
+
+    tapping_profile: str = param("M", kind="choice", choices=PROFILES)
+    stochastic_draws: bool = param(True, kind="bool")
+    draw_jitter_min: float = param(20.0, 0.0, 240.0, "min", "up to 4 h: a day's habits")
+    draw_energy_cv: float = param(0.2, 0.0, 2.0, "-", "a draw 0 .. several times its tabled energy")
+    supply_C: float = param(70.0, 1.0, 130.0, "degC", "district heating up to 130 degC")
+    supply_profile: str = param("constant", kind="choice", choices=SUPPLY_PROFILES)
+    supply_amplitude_K: float = param(5.0, 0.0, 40.0, "K", "a daily swing")
+    supply_tau_h: float = param(2.0, 0.01, 1000.0, "h", "minutes .. weeks")
+    dp_mbar: float = param(100.0, 0.0, DP_MAX_MBAR, "mbar", "0 .. 2 bar")
+    dp_noise_mbar: float = param(0.0, 0.0, 1000.0, "mbar", "up to 1 bar")
+    dp_tau_s: float = param(600.0, 1.0, 1e6, "s", "a second .. 11 days")
+    ps_bar: float = param(2.0, 0.0, 25.0, "bar", "PN25")
+    T_init_C: float = param(55.0, 1.0, 99.0, "degC", "liquid water at ambient pressure")
+    T_init_spread_K: float = param(3.0, 0.0, 20.0, "K", "a spread of the initial temperature")
 
     def __post_init__(self) -> None:
-        if self.tapping_profile not in PROFILES:
-            raise ConfigError(f"ScenarioParams.tapping_profile must be one of {PROFILES}, got {self.tapping_profile!r}")
-        if self.supply_profile not in SUPPLY_PROFILES:
+        check_fields(self)
+        lo, hi = SUPPLY_LIMITS_C
+        a = self.supply_amplitude_K
+        if self.supply_profile == "daily" and not (lo <= self.supply_C - a and self.supply_C + a <= hi):
             raise ConfigError(
-                f"ScenarioParams.supply_profile must be one of {SUPPLY_PROFILES}, got {self.supply_profile!r}"
+                f"scenario.supply_amplitude_K: a daily supply of {self.supply_C:g} +- {a:g} degC leaves "
+                f"[{lo:g}, {hi:g}] degC (liquid water at district-heating pressures)"
             )
-        if not isinstance(self.stochastic_draws, bool):
-            raise ConfigError(f"ScenarioParams.stochastic_draws must be true or false, got {self.stochastic_draws!r}")
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if isinstance(v, float) and not math.isfinite(v):
-                raise ConfigError(f"ScenarioParams.{f.name} must be finite, got {v!r}")
-        for name in ("draw_jitter_min", "draw_energy_cv", "supply_amplitude_K", "dp_noise_mbar", "T_init_spread_K"):
-            if getattr(self, name) < 0:
-                raise ConfigError(f"ScenarioParams.{name} must be >= 0, got {getattr(self, name)!r}")
-        for name in ("supply_tau_h", "dp_tau_s"):
-            if getattr(self, name) <= 0:
-                raise ConfigError(f"ScenarioParams.{name} must be > 0, got {getattr(self, name)!r}")
-        if self.dp_mbar < 0:
-            raise ConfigError(f"ScenarioParams.dp_mbar must be >= 0, got {self.dp_mbar!r}")
-        if not 0.0 < self.supply_C < 130.0:
-            raise ConfigError(f"ScenarioParams.supply_C must be in (0, 130) degC, got {self.supply_C!r}")
-        if not 0.0 < self.T_init_C < 100.0:
-            raise ConfigError(f"ScenarioParams.T_init_C must be in (0, 100) degC, got {self.T_init_C!r}")
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None) -> ScenarioParams:
-        if data is not None and isinstance(data, Mapping):
-            data = dict(data)
-            for key in ("stochastic_draws",):
-                if key in data and not isinstance(data[key], bool):
-                    raise ConfigError(f"ScenarioParams.{key} must be true or false, got {data[key]!r}")
-            for key in ("tapping_profile", "supply_profile"):
-                if key in data:
-                    data[key] = str(data[key])
         return _from_mapping(cls, data)
 
     def to_dict(self) -> dict[str, Any]:
@@ -114,6 +95,11 @@ def tapping_cycle(name: str) -> pd.DataFrame:
     with resources.files("valve_env.data").joinpath(f"ecodesign_tapping_profile_{name}.csv").open("r") as fh:
         df = pd.read_csv(fh)
     return df
+
+
+def largest_tap_l_min(profile: str) -> float:
+    """The largest tap flow of the tapping cycle ``profile``, l/min (0 for "none")."""
+    return 0.0 if profile == "none" else float(tapping_cycle(profile)["f_l_min"].max())
 
 
 @dataclass
@@ -205,9 +191,10 @@ def make_scenario(
         supply = params.supply_C + params.supply_amplitude_K * np.cos(2 * np.pi * (t - 3 * 3600.0) / 86400.0)
     else:
         supply = params.supply_C + _ou(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_amplitude_K)
+        supply = np.clip(supply, *SUPPLY_LIMITS_C)  # an unbounded Gaussian path; liquid water stays within
     if params.dp_noise_mbar > 0:
         dp = params.dp_mbar + _ou(rng, n_steps, dt_s, params.dp_tau_s, params.dp_noise_mbar)
-        dp = np.maximum(dp, 0.0)
+        dp = np.clip(dp, 0.0, DP_MAX_MBAR)
     else:
         dp = np.full(n_steps, params.dp_mbar)
     T0 = params.T_init_C + (rng.uniform(-1.0, 1.0) * params.T_init_spread_K if params.T_init_spread_K > 0 else 0.0)

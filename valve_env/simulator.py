@@ -45,8 +45,8 @@ from valve_env.physics.valve import dahl_update, flow_kgh, opening, setpoint_pre
 # plant vector
 (P_NL, P_NC, P_M, P_UA_COIL, P_UA_LOSS, P_T_AMB, P_T_COLD, P_CP, P_PUMP_EFF, P_DP_CIRC, P_Q_REF,
  P_BULB_A, P_BULB_LAYER, P_DT, P_NSUB, P_T_TARGET, P_T_FLOOR, P_W_TRACK, P_W_FLOOR, P_W_ENERGY,
- P_PS, P_CLOCK_N) = range(22)
-N_PLANT = 22  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
+ P_PS, P_CLOCK_N, P_DRAW_MAX) = range(23)
+N_PLANT = 23  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
 # state offsets after the layers
 S_TG, S_FH, S_X, S_DIR = 0, 1, 2, 3
 N_STATE_EXTRA = 4
@@ -89,6 +89,7 @@ def pack_plant(cfg: EnvConfig) -> np.ndarray:
     pp[P_W_FLOOR] = c.w_floor
     pp[P_W_ENERGY] = c.w_energy
     pp[P_PS] = sc.ps_bar
+    pp[P_DRAW_MAX] = cfg.draw_max_kgs()
     # the time-of-day features of the observation, tabulated when a day is a whole
     # number of steps (two libm calls per env-step otherwise)
     per_day = 86400.0 / c.dt_s
@@ -249,7 +250,7 @@ def plant_step(Z, lo, hi, vp, pp):
             direction[i] = d if moved else direction[i]
             X[i] = x_new[i]
         coil_heat(T, nc, m, T_sup, pp[P_UA_COIL], cp, Q, T_ret, eps, lo, hi)
-        draw_flow(draw_W, draw_T, tap_m, T_top, T_cold, cp, m_draw, q_deliv, lo, hi)
+        draw_flow(draw_W, draw_T, tap_m, T_top, T_cold, cp, m_draw, q_deliv, lo, hi, pp[P_DRAW_MAX])
         for i in range(c0, c1):
             drawn[i] += m_draw[i] * cp * (T_top[i] - T_cold) * dt
             deliv[i] += q_deliv[i] * dt

@@ -18,6 +18,8 @@ from gymnasium import spaces
 
 from valve_env import simulator as sim
 from valve_env.config import EnvConfig, make_config
+from valve_env.params import DP_MAX_MBAR, DRAW_MAX_L_MIN
+from valve_env.physics.valve import flow_kgh
 from valve_env.scenario import make_scenario
 
 Mode = Literal["setting", "pressure", "dual"]
@@ -41,6 +43,24 @@ _OUT_TO_OBS = np.array(
 )
 TEMPERATURE_OBS = (0, 1, 2, 3, 4)
 FLOW_OBS = (5, 6)
+
+
+def primary_flow_bound_kgh(cfg: EnvConfig) -> float:
+    """The upper bound of the observed primary flow, kg/h: 5000, or the valve's full
+    flow at the largest differential pressure (Kvs at DP_MAX_MBAR) if a larger valve
+    can pass more (docs/configuration.md: the observation box)."""
+    full = float(flow_kgh(cfg.valve.stroke, DP_MAX_MBAR, cfg.valve.to_array()))
+    return max(5000.0, float(np.ceil(full)) + 1.0)
+
+
+def check_seed(seed: Any, what: str = "seed") -> int | None:
+    """A reset seed: an integer >= 0 or None (not a bool, a float or text); else a
+    one-line ``ValueError`` naming ``what``."""
+    if seed is None:
+        return None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"reset({what}=...) must be an integer >= 0 or None, got {type(seed).__name__} {seed!r}")
+    return int(seed)
 
 
 @dataclass
@@ -105,6 +125,11 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     | 8, 9 | sin, cos of the time of day | - |
     | 10 | setting_C: the valve setting in force | degC |
     | 11 | T_target_C: the outlet target | degC |
+
+    Bounds: temperatures [-20, 150] degC, primary flow [0, 5000] kg/h (more for a
+    valve that passes more at 2000 mbar: Kvs > 3.54 m^3/h), dp [0, 2000] mbar, draw
+    [0, 100] l/min, the setting within the action's range. Every accepted config
+    keeps its observations inside (docs/configuration.md).
 
     ## Reward
 
@@ -185,7 +210,9 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         t_hi = 150.0
         obs_lo = np.array([-20, -20, -20, -20, -20, 0, 0, 0, -1, -1, c.setting_min_C, -20], np.float32)
         obs_hi = np.array(
-            [t_hi, t_hi, t_hi, t_hi, t_hi, 5000.0, 2000.0, 100.0, 1, 1, c.setting_max_C, t_hi], np.float32
+            [t_hi, t_hi, t_hi, t_hi, t_hi, primary_flow_bound_kgh(self.cfg), DP_MAX_MBAR, DRAW_MAX_L_MIN, 1, 1,
+             c.setting_max_C, t_hi],
+            np.float32,
         )
         self.observation_space = spaces.Box(obs_lo, obs_hi, dtype=np.float32)
         self._tod_step = 2.0 * np.pi * c.dt_s / 86400.0
@@ -204,7 +231,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # -- Gymnasium API ------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
-        super().reset(seed=seed)
+        super().reset(seed=check_seed(seed))
         cfg = self.cfg
         scen = make_scenario(
             cfg.scenario, self.np_random, self._n_steps, cfg.control.dt_s, cfg.tank.T_cold, cfg.tank.cp
@@ -347,7 +374,11 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._k
 
     def get_state(self) -> SimState:
-        """A deep copy of the simulator's state (for MPC and branching rollouts)."""
+        """A deep copy of the simulator's state (for MPC and branching rollouts).
+
+        This is the bare env's state only: for an env with wrappers (``gym.make``'s,
+        sensor noise and dead time) use :func:`valve_env.wrappers.snapshot` and
+        :func:`~valve_env.wrappers.restore`, which include every wrapper's state."""
         return SimState(
             state=self._s.copy(),
             acc=self._acc.copy(),

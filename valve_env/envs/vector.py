@@ -54,6 +54,7 @@ from valve_env.envs.thermovalve import (
     ThermoValveDualEnv,
     ThermoValveEnv,
     ThermoValvePressureEnv,
+    check_seed,
 )
 from valve_env.scenario import make_scenario
 
@@ -110,7 +111,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         render_mode: str | None = None,
         **overrides: Any,
     ) -> None:
-        if int(num_envs) != num_envs or num_envs < 1:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if render_mode is not None:
             raise ValueError(
@@ -194,14 +195,14 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         n = self.num_envs
         if seed is None:
             seeds: list[int | None] = [None] * n
-        elif isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(n)]
+        elif isinstance(seed, (list, tuple)):
+            if len(seed) != n:
+                raise ValueError(f"reset(seed=[...]) must give num_envs = {n} seeds, got {len(seed)}")
+            seeds = [check_seed(s, f"seed[{i}]") for i, s in enumerate(seed)]
         else:
-            seeds = list(seed)
-        if len(seeds) != n:
-            raise ValueError(
-                f"If seeds are passed as a list the length must match num_envs={n} but got length={len(seeds)}."
-            )
+            first = check_seed(seed)
+            assert first is not None
+            seeds = [first + i for i in range(n)]
         if options is not None and "reset_mask" in options:
             mask = options["reset_mask"]
             if not isinstance(mask, np.ndarray):

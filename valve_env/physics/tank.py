@@ -65,7 +65,8 @@ def coil_heat(T, coil_layers, m_dot, T_sup, UA_coil, cp, Q_out, T_ret_out, eps_o
 
 
 @register_jitable
-def draw_flow(P_demand_W, T_draw_C, m_tap_max, T_top, T_cold, cp, m_out, delivered_out, lo=0, hi=-1):
+def draw_flow(P_demand_W, T_draw_C, m_tap_max, T_top, T_cold, cp, m_out, delivered_out, lo=0, hi=-1,
+              m_max=np.inf):
     """Tank outflow (kg/s, into ``m_out``) and delivered power (W, into
     ``delivered_out``) for a hot-water draw, per env.
 
@@ -75,6 +76,10 @@ def draw_flow(P_demand_W, T_draw_C, m_tap_max, T_top, T_cold, cp, m_out, deliver
     ``m_tap_max`` straight from the tank and delivers only
     m cp (T_top - T_cold) (nothing if the top is no warmer than the cold
     water). No demand, no flow.
+
+    The outflow is limited to ``m_max`` (kg/s; the simulator passes
+    ``EnvConfig.draw_max_kgs()``: the outlet's capacity, and what the explicit
+    layer update can move in a sub-step), the delivered power in proportion.
     """
     c0, c1 = columns(lo, hi, T_top.shape[0])
     for i in range(c0, c1):
@@ -85,6 +90,9 @@ def draw_flow(P_demand_W, T_draw_C, m_tap_max, T_top, T_cold, cp, m_out, deliver
         m_hot = P / (cp * dT_top) if warm else 0.0
         m = m_hot if hot else m_tap_max[i]
         q = P if hot else (m_tap_max[i] * cp * dT_top if warm else 0.0)
+        over = m > m_max
+        q = q * (m_max / m) if over else q
+        m = m_max if over else m
         m_out[i] = m if P > 0.0 else 0.0
         delivered_out[i] = q if P > 0.0 else 0.0
 
