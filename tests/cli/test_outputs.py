@@ -75,7 +75,13 @@ def test_sigterm_during_fit_keeps_previous_result(tmp_path: Path, run_csv: Path)
     proc = subprocess.Popen([sys.executable, "-m", "valve_env.cli", "fit", str(run_csv), "--json", str(out),
                              "--force", "--n-starts", "20", "--report", str(tmp_path / "rep")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    time.sleep(6.0)
+    # wait until the report is being staged (a hidden temporary entry beside the outputs): mid-write
+    deadline = time.monotonic() + 300
+    while proc.poll() is None and time.monotonic() < deadline:
+        if any(p.name.startswith(".") for p in tmp_path.iterdir()):
+            break
+        time.sleep(0.005)
+    assert proc.poll() is None, "the fit ended before its outputs were staged"
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode != 0, err
