@@ -79,7 +79,8 @@ def test_fit_writes_a_valve_file_the_env_reads(tmp_path) -> None:
     df = simulate_experiment(seed=3, duration_h=3.0, dt_s=10.0)
     run, vfile = tmp_path / "run.csv", tmp_path / "v.yaml"
     df.to_csv(run, index=False)
-    assert main(["fit", str(run), "--json", str(tmp_path / "f.json"), "--valve-out", str(vfile), "--n-starts", "1"]) == 0
+    args = ["fit", str(run), "--json", str(tmp_path / "f.json"), "--valve-out", str(vfile), "--n-starts", "1"]
+    assert main(args) == 0
     valve, eff = read_valve(vfile)
     assert not eff and abs(valve.sigma / 6.41 - 1.0) < 0.3
     env = gym.make("ThermoValve-v0", config=str(vfile))
