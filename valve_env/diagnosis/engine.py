@@ -36,7 +36,6 @@ from scipy.optimize import minimize
 from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.physics import valve as phys
 from valve_env.physics.stickslip import initial_state as stick_initial_state
-from valve_env.physics.stickslip import stick_slip_step
 from valve_env.physics.trajectory import (
     E_BETA,
     E_RATE,
@@ -45,6 +44,7 @@ from valve_env.physics.trajectory import (
     bulb_lag,
     drifted_set_pressure,
     sensed_temperature,
+    stem_step,
 )
 
 _demanded_opening = njit(cache=True)(phys.demanded_opening)
@@ -407,15 +407,15 @@ def stick_simulate(x_sub: np.ndarray, sub_idx: np.ndarray, band: float, stroke: 
     """Open-loop stick-slip of the stem on the sub-step grid, sampled: the (S, J = S) model of
     :mod:`valve_env.physics.stickslip` (the generator's and the environments'): the resting stem
     sticks until the demanded opening has moved ``band`` away, slips onto it and follows it until it
-    stops or reverses."""
+    stops or reverses; the end stops win (physics.trajectory.stem_step)."""
     n = sub_idx.shape[0]
     out = np.empty(n)
     y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(x_sub[0], band, band, 0.0, stroke)
     out[0] = y
     for k in range(1, n):
         for j in range(sub_idx[k - 1] + 1, sub_idx[k] + 1):
-            y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(x_sub[j], y, u_prev, du_prev, u_s, stuck, d, band,
-                                                                band, 0.0, stroke)
+            y, u_prev, du_prev, u_s, stuck, d = stem_step(x_sub[j], y, u_prev, du_prev, u_s, stuck, d, band, band,
+                                                          stroke)
         out[k] = y
     return out
 
@@ -517,7 +517,17 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             Pee = phi * phi * Pee + ve * (1.0 - phi * phi)
             Pes = phi * Pes
             for j in range(sub_idx[k - 1] + 1, sub_idx[k] + 1):
-                xd = min(max(x_sub[j], 0.0), stroke)
+                xd = x_sub[j]
+                if xd <= 0.0 or xd >= stroke:
+                    # the end stops win: the stem rests on the stop (physics.trajectory.stem_step)
+                    ms = min(max(xd, 0.0), stroke)
+                    Pss = 0.0
+                    Pes = 0.0
+                    dmax = 0.0
+                    moving = False
+                    p_slip = 0.0
+                    x_prev = ms
+                    continue
                 du = xd - x_prev
                 x_prev = xd
                 if du * du_prev <= 0.0:
