@@ -100,13 +100,14 @@ def main(argv: list[str] | None = None) -> int:
     for band in bands[1:]:
         rs = [r for r in rows if r["band_mm"] == band]
         m = {k: float(np.nanmean([r[k] for r in rs])) for k in rs[0] if k not in ("band_mm", "seed")}
-        b = {k: float(np.nanmean([r[k] for r in base])) for k in m}
+        b = {k: float(np.mean([r[k] for r in base])) for k in m}
         print(f"  band {band:.3f} mm: stem period {m['x_period_s'] / 60:.1f} min, amplitude {m['x_amplitude_mm']:.4f} "
               f"mm; outlet period {m['T_period_s'] / 60:.1f} min, amplitude {m['T_amplitude_K']:.3f} K; reversals "
               f"x{m['reversals'] / b['reversals']:.2f}, travel x{m['travel_mm'] / b['travel_mm']:.2f}, rmse "
               f"{m['rmse_K']:.3f} K (no stiction {b['rmse_K']:.3f} K)")
     if out_path is not None:
-        outs.write_text(out_path, json.dumps({"env": ENV_ID, "controller": "pi", "profile": args.profile, "rows": rows}, indent=2))
+        doc = {"env": ENV_ID, "controller": "pi", "profile": args.profile, "rows": rows}
+        outs.write_text(out_path, json.dumps(doc, indent=2))
         outs.commit()
         print(f"wrote {Path(out_path)}")
     return 0

@@ -11,7 +11,7 @@ Three pieces, each a small state-space computation:
    The smoother is two-sided (zero phase), so it adds no lag: a lag found later
    is in the valve, not in the pre-processing. A raw finite difference of the
    channel is never used as the Dahl driver.
-2. **The valve simulation** of SPEC section 1 with every effect of SPEC
+2. **The valve simulation** of docs/reference.md, section 1 with every effect of
    section 3 as an optional term (all switched off by zero parameters), on a
    fine grid between samples (cubic Hermite interpolation of the smoothed
    temperature, at most ``max_step_s`` per sub-step). The Dahl update is exact

@@ -114,6 +114,10 @@ class FitResult:
         return {k: self.params[k] for k, *_ in BASE_PARAMS}
 
 
+#: whether Model.fit profiles stiction's band by the likelihood after the fit at the slips' band
+PROFILE_BAND = True
+
+
 class Model:
     """The base valve model with a set of effects switched on (the simulation likelihood)."""
 
@@ -127,6 +131,8 @@ class Model:
         #: the stick-slip filter's breakaway spread and landing sd, relative to the band
         self.band_spread = BAND_SPREAD
         self.landing_sd = LANDING_SD
+        #: after the fit with the band measured from the slips, profile it by the likelihood (see fit)
+        self.profile_band = PROFILE_BAND
 
     # --- the work (optimiser) scale ---------------------------------------------------
     def _spec(self, name: str) -> tuple[str, float, float, float]:
@@ -312,7 +318,7 @@ class Model:
             fit = again if again.loglik > fit.loglik else fit
             if not improved:
                 break
-        if any(p.log_grid and p.name in fixed and p.name not in free for p in self.eff_params):
+        if self.profile_band and any(p.log_grid and p.name in fixed and p.name not in free for p in self.eff_params):
             fit = self._coordinate_ascent(data, fit, free, maxiter)
             fixed = free
         if with_std:

@@ -130,7 +130,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     terminal state. The ids are registered with max_episode_steps=2880: for
     another horizon pass both, e.g. ``gym.make(id, horizon_h=48,
     max_episode_steps=5760)`` (the tapping cycle repeats every day). At
-    the last step ``info["kpis"]`` holds the SPEC section 5 KPIs (rmse_K,
+    the last step ``info["kpis"]`` holds the docs/reference.md, section 5 KPIs (rmse_K,
     iae_Kh, tdis_Kh, unmet_kWh, heat_kWh, pump_kWh, return_C, travel_mm,
     reversals) and ``info["energy"]`` the first-law account.
 
