@@ -20,7 +20,7 @@ from valve_env.valvefile import read_valve, valve_text
 def _replay(cfg, df, params: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     """The env valve of ``cfg`` (the one gym.make built from the valve file) driven by the run's inputs
     as the diagnosis reads them (its smoothed temperatures, the sensed temperature freed of reversals
-    below the noise: diagnosis.engine), on a 1 s grid; and the diagnosed model's simulation of the run."""
+    below the noise: diagnosis.engine), on the diagnosis's sub-step grid; and the diagnosed model's simulation of the run."""
     data = prepare(check_run(df))
     model = Model(cfg.effects.names, cfg.valve)
     x_diag, _, _ = model.simulate(data, params)
@@ -28,7 +28,7 @@ def _replay(cfg, df, params: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     beta = e[ENGINE_INDEX["beta"]]
     e[ENGINE_INDEX["beta"]] = 0.0  # mixed below, before the reversals are removed
     sensed = monotone_path(sensed_temperature(data.T, data.M, beta), model.delta(data, params))
-    tf = np.arange(0.0, data.t[-1] + 1e-9, 1.0)
+    tf = np.arange(0.0, data.t[-1] + 1e-9, model.max_step_s)  # the diagnosis's sub-steps (10 s samples)
     T = np.interp(tf, data.t, sensed)
     out = _valve_path(tf, T, T, np.interp(tf, data.t, data.dp), np.interp(tf, data.t, data.ps), cfg.valve.p_bset, e,
                       cfg.valve.to_array(), False, 0.0, np.zeros(tf.size), np.empty((5, tf.size)))

@@ -59,6 +59,8 @@ BAND_SPREAD = 0.5
 LANDING_SD = 0.2
 #: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
 DECIDE_MOVING = 0.9
+#: log-likelihood ratio at which a measurement overturns the stick-slip filter's decision that the stem moves
+STUCK_LLR = 2.0
 
 
 # --------------------------------------------------------------------------- 1. latent temperatures
@@ -505,6 +507,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     dmax = 0.0
     moving = False
     p_slip = 0.0
+    s_alt = ms
     x_prev = ms
     du_prev = 0.0
     ll = 0.0
@@ -557,8 +560,19 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     p_slip = 1.0 - (1.0 - p_slip) * (1.0 - pi)
                     if p_slip >= DECIDE_MOVING:
                         moving = True  # decided: it has broken away and now moves with the demand
+                        s_alt = ms - pi * d  # where it would be had it not slipped
         S = Pee + 2.0 * Pes + Pss + vw
         nu = y[k] - ms - me
+        if moving and mask[k] and band > 0.0:
+            # the decision revisited: a measurement that says much more clearly (log-likelihood ratio
+            # above STUCK_LLR) that the stem stayed where it stuck overturns it
+            nu_s = y[k] - s_alt - me
+            if (nu * nu - nu_s * nu_s) / (2.0 * S) > STUCK_LLR:
+                moving = False
+                p_slip = 0.0
+                ms = s_alt
+                nu = nu_s
+                dmax = abs(x_sub[sub_idx[k]] - ms)
         innov[k] = nu
         Sout[k] = S
         if mask[k]:
