@@ -58,7 +58,7 @@ BAND_SPREAD = 0.5
 #: times the band on exact stick-slip data; 0.2 at the band)
 LANDING_SD = 0.2
 #: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
-DECIDE_MOVING = 0.9
+DECIDE_MOVING = 0.5
 #: log-likelihood ratio at which a measurement overturns the stick-slip filter's decision that the stem moves
 STUCK_LLR = 2.0
 
