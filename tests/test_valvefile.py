@@ -20,7 +20,8 @@ from valve_env.valvefile import read_valve, valve_text
 def _replay(cfg, df, params: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
     """The env valve of ``cfg`` (the one gym.make built from the valve file) driven by the run's inputs
     as the diagnosis reads them (its smoothed temperatures, the sensed temperature freed of reversals
-    below the noise: diagnosis.engine), on the diagnosis's sub-step grid; and the diagnosed model's simulation of the run."""
+    below the noise: diagnosis.engine), on the diagnosis's sub-step grid; and the diagnosed model's
+    simulation of the run."""
     data = prepare(check_run(df))
     model = Model(cfg.effects.names, cfg.valve)
     x_diag, _, _ = model.simulate(data, params)
