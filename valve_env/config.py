@@ -33,9 +33,9 @@ class ControlParams:
     |---|---|---|
     | dt_s | s | control step; 30 (docs/reference.md, section 5) |
     | n_sub | - | physics sub-steps per control step; 3 (10 s, well under the bulb's 40 s and the tank's ~500 s) |
-    | horizon_h | h | episode length; 24 (SPEC) |
-    | T_target_C | degC | outlet target; 60 (SPEC) |
-    | T_floor_C | degC | hygiene and comfort floor; 55 (SPEC) |
+    | horizon_h | h | episode length; 24 (docs/reference.md, section 5) |
+    | T_target_C | degC | outlet target; 60 (docs/reference.md, section 5) |
+    | T_floor_C | degC | hygiene and comfort floor; 55 (docs/reference.md, section 5) |
     | setting_min_C, setting_max_C | degC | range of the valve's temperature setting (action); 40 .. 80 |
     | setting_C | degC | the setting when the agent does not set it (ThermoValvePressure-v0); 62 |
     | dp_min_mbar, dp_max_mbar | mbar | range of the pump's differential pressure (action); 0 .. 300 |

@@ -1,4 +1,4 @@
-"""Physics of the self-acting thermostatic valve (SPEC section 1, the seed paper).
+"""Physics of the self-acting thermostatic valve (docs/reference.md, section 1, the seed paper).
 
 Everything here is a pure function of floats (or NumPy arrays of floats) and
 of a packed parameter vector ``vp`` (see :class:`valve_env.params.ValveParams`
@@ -135,7 +135,7 @@ def flow_kgh(x_mm, dp_mbar, vp):
 def opening_from_flow(q_kgh, dp_mbar, vp):
     """Invert the valve characteristic: the opening (mm) that passes q at dp.
 
-    Used where a measured run has no x_mm column (SPEC section 2). The result is
+    Used where a measured run has no x_mm column (docs/reference.md, section 2). The result is
     limited to [0, stroke].
     """
     kv_ = q_kgh / (31.62 * np.sqrt(np.maximum(dp_mbar, 1e-12)))
