@@ -68,7 +68,6 @@ def test_roundtrip_through_the_cli_for_setpoint_drift(tmp_path) -> None:
     _roundtrip(tmp_path, "setpoint_drift", 6e-5, 6.0, 5, via_cli=True)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(("name", "value", "seed"), [
     ("sensor_lag", 90.0, 5), ("medium_temperature", 0.15, 6), ("stiction", 0.03, 7), ("setpoint_drift", -5e-5, 8),
 ])
