@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 
 import yaml
 
+from valve_env.effects import Effects, parse_effects
 from valve_env.params import (
     DP_MAX_MBAR,
     DRAW_MAX_L_MIN,
@@ -47,11 +48,11 @@ class ControlParams:
 
     | field | unit | meaning (default, source) | range (why) |
     |---|---|---|---|
-    | dt_s | s | control step; 30 (SPEC section 5) | [1, 3600] (a fast controller .. an hourly schedule) |
+    | dt_s | s | control step; 30 (docs/reference.md, section 5) | [1, 3600] (a fast controller .. an hourly schedule) |
     | n_sub | - | physics sub-steps per control step; 3 (10 s, well under the bulb's 40 s and the tank's ~500 s) | [1, 1000] (integer; bounds a step's cost) |
-    | horizon_h | h | episode length; 24 (SPEC) | (0, 8784] (up to a leap year; at most 2 000 000 steps) |
-    | T_target_C | degC | outlet target; 60 (SPEC) | [10, 100] (hot water at ambient pressure) |
-    | T_floor_C | degC | hygiene and comfort floor; 55 (SPEC) | [0, 100] (hot water at ambient pressure) |
+    | horizon_h | h | episode length; 24 (docs/reference.md, section 5) | (0, 8784] (up to a leap year; at most 2 000 000 steps) |
+    | T_target_C | degC | outlet target; 60 (docs/reference.md, section 5) | [10, 100] (hot water at ambient pressure) |
+    | T_floor_C | degC | hygiene and comfort floor; 55 (docs/reference.md, section 5) | [0, 100] (hot water at ambient pressure) |
     | setting_min_C, setting_max_C | degC | range of the valve's temperature setting (action); 40 .. 80 | [10, 120] (thermostat scales) |
     | setting_C | degC | the setting when the agent does not set it (ThermoValvePressure-v0); 62 | [10, 120], within the setting range |
     | dp_min_mbar, dp_max_mbar | mbar | range of the pump's differential pressure (action); 0 .. 300 | [0, 2000] (0 .. 2 bar, DP_MAX_MBAR) |
@@ -149,6 +150,8 @@ class EnvConfig:
     scenario: ScenarioParams = field(default_factory=ScenarioParams)
     control: ControlParams = field(default_factory=ControlParams)
     sensors: SensorParams = field(default_factory=SensorParams)
+    #: the valve's named effects (the ``effects:`` mapping of the ``valve:`` section; valve_env.effects)
+    effects: Effects = field(default_factory=Effects)
 
     def __post_init__(self) -> None:
         for name, cls in SECTIONS.items():
@@ -201,7 +204,10 @@ class EnvConfig:
         return max(1, math.ceil(need * (1.0 - 1e-12)))
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
-        return {name: getattr(self, name).to_dict() for name in SECTIONS}
+        out = {name: getattr(self, name).to_dict() for name in SECTIONS}
+        if self.effects:
+            out["valve"]["effects"] = self.effects.as_dict()
+        return out
 
     def replace(self, **changes: Any) -> EnvConfig:
         return dataclasses.replace(self, **changes)
@@ -272,7 +278,17 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
     """Build an EnvConfig from a YAML path, a mapping or an EnvConfig, then
     apply keyword overrides: a section name with a mapping or a dataclass
     (``valve={"sigma": 5.0}``), or a single field of ScenarioParams or
-    ControlParams by its name (``tapping_profile="L"``)."""
+    ControlParams by its name (``tapping_profile="L"``). A bad value read from a
+    file raises a ConfigError that names the file."""
+    try:
+        return _make_config(config, **overrides)
+    except ConfigError as exc:
+        if isinstance(config, (str, Path)) and str(config) not in str(exc):
+            raise ConfigError(f"config file {str(config)!r}: {exc}") from None
+        raise
+
+
+def _make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None, **overrides: Any) -> EnvConfig:
     if isinstance(config, EnvConfig):
         base: dict[str, Any] = {}
         start = config
@@ -311,7 +327,11 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
             raise ConfigError(
                 f"unknown environment option {k!r}; use a section ({sorted(SECTIONS)}) or a scenario/control field"
             )
-    built = {}
+    built: dict[str, Any] = {"effects": start.effects}
+    if "valve" in sections and isinstance(sections["valve"], Mapping) and "effects" in sections["valve"]:
+        # the valve's named effects (docs/reference.md, "The valve file"), checked against the registry
+        sections["valve"] = dict(sections["valve"])
+        built["effects"] = parse_effects(sections["valve"].pop("effects"))
     for name, cls in SECTIONS.items():
         current = getattr(start, name)
         if name in sections:

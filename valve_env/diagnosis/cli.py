@@ -1,4 +1,4 @@
-"""``thermovalve diagnose`` and ``thermovalve experiment`` (SPEC sections 4 and 7).
+"""``thermovalve diagnose`` and ``thermovalve experiment`` (docs/reference.md, sections 4 and 7).
 
 Bad input raises (the shared handler of :mod:`valve_env.cli` prints one line and exits 2);
 every file goes through one :class:`valve_env.outputs.OutputSet` (checked before the long
@@ -19,11 +19,11 @@ def register(subparsers: Any) -> None:
     """Add the ``diagnose`` and ``experiment`` sub-commands."""
     d = subparsers.add_parser(
         "diagnose",
-        help="find what the calibrated valve model gets wrong and name the cause (SPEC section 4)",
+        help="find what the calibrated valve model gets wrong and name the cause (docs/reference.md, section 4)",
         description="Fit the base valve model, try every named effect, and name the cause only when the gain is "
         "statistically significant and real on held-out data.",
     )
-    d.add_argument("run", metavar="RUN.csv", help="measured run (SPEC section 2)")
+    d.add_argument("run", metavar="RUN.csv", help="measured run (docs/reference.md, section 2)")
     d.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
     d.add_argument("--validate", metavar="OTHER.csv", default=None,
                    help="an independent run for validation (default: hold out the end of RUN.csv)")
@@ -38,13 +38,16 @@ def register(subparsers: Any) -> None:
                    help="bootstrap replicates for the named effects' sd (0: inverse Hessian/HAC, "
                    "faster but optimistic)")
     add_force(d)
+    d.add_argument("--valve-out", metavar="VALVE.yaml", default=None,
+                   help="write the diagnosed valve (base parameters and named effects) as a valve file for "
+                   "gym.make(id, config=VALVE.yaml) (docs/reference.md)")
     d.set_defaults(func=_cmd_diagnose)
 
     e = subparsers.add_parser(
         "experiment",
         help="simulate a measured run like the paper's experiment, with effects switched on",
         description="Temperature steps of varying speed around the set point, the medium temperature varying "
-        "independently, SPEC section 2 columns and noise levels.",
+        "independently, docs/reference.md, section 2 columns and noise levels.",
     )
     e.add_argument("--seed", type=int, default=0, help="seed of the noise and the steps (>= 0)")
     e.add_argument("--hours", type=float, default=24.0, help="duration, h")
@@ -107,6 +110,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     # every output checked before the long work: never an input, never replaced without --force
     outs = OutputSet(inputs=[args.run, args.validate], force=args.force)
     out = outs.add(args.json_out, "--json")
+    valve_out = outs.add(args.valve_out, "--valve-out") if args.valve_out else None
     report = None
     if not args.no_report:
         report = Path(args.report) if args.report else out.with_suffix(".md")
@@ -133,6 +137,12 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             from valve_env.diagnosis.report import write_report
 
             write_report(result, outs.stage_dir(report.parent) / report.name)
+        if valve_out is not None:
+            from valve_env.valvefile import write_valve
+
+            write_valve(outs, valve_out, result.final.params,
+                        {e: {k: result.final.params[k] for k in EFFECTS[e].param_names} for e in result.selected},
+                        source=f"diagnosed by thermovalve diagnose {args.run}: cause {result.cause}")
     print(result.summary())
     print(outs.summary())
     return 0

@@ -1,4 +1,4 @@
-"""``thermovalve fit``: the base valve model fitted to a measured run (SPEC section 7).
+"""``thermovalve fit``: the base valve model fitted to a measured run (docs/reference.md, section 7).
 
     thermovalve fit RUN.csv --json OUT.json [--report DIR] [--config OUT.yaml]
                             [--validate OTHER.csv] [--n-starts N] [--seed S]
@@ -27,16 +27,19 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "fit",
         help="fit the base valve model to a measured run (maximum likelihood)",
-        description="Fit the base valve model (SPEC section 1) to RUN.csv (SPEC section 2) by maximum "
-                    "likelihood and write the estimates as JSON. RUN.csv is validated exactly as "
+        description="Fit the base valve model (docs/reference.md, section 1) to RUN.csv (docs/reference.md, "
+                    "section 2) by maximum likelihood and write the estimates as JSON. RUN.csv is validated exactly as "
                     "'thermovalve diagnose' validates it (valve_env.data_io).",
     )
-    p.add_argument("run", metavar="RUN.csv", help="measured run (SPEC section 2 columns)")
+    p.add_argument("run", metavar="RUN.csv", help="measured run (docs/reference.md, section 2 columns)")
     p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
     p.add_argument("--report", metavar="DIR", default=None,
                    help="write figures and a markdown report (Table 4, Fig. 5-7) into DIR")
     p.add_argument("--config", metavar="OUT.yaml", default=None,
                    help="write an environment config with the fitted 'valve:' parameters")
+    p.add_argument("--valve-out", metavar="VALVE.yaml", default=None,
+                   help="write the fitted valve as a valve file for gym.make(id, config=VALVE.yaml) "
+                   "(docs/reference.md)")
     p.add_argument("--validate", metavar="OTHER.csv", default=None,
                    help="an independent run for cross-validation (paper Fig. 7)")
     p.add_argument("--n-starts", type=int, default=3, help="optimiser starts (>= 1)")
@@ -59,6 +62,7 @@ def run_fit(args: argparse.Namespace) -> int:
     outs = OutputSet(inputs=[args.run, args.validate], force=args.force)
     json_out = outs.add(args.json_out, "--json")
     cfg = outs.add(args.config, "--config") if args.config else None
+    valve_out = outs.add(args.valve_out, "--valve-out") if args.valve_out else None
     report_dir = Path(args.report) if args.report else None
     if report_dir is not None:
         names = [*REPORT_FILES, *(["validation.png"] if args.validate else [])]
@@ -91,6 +95,10 @@ def run_fit(args: argparse.Namespace) -> int:
             import yaml
 
             outs.write_text(cfg, yaml.safe_dump({"valve": summary["params"]}, sort_keys=False))
+        if valve_out is not None:
+            from valve_env.valvefile import write_valve
+
+            write_valve(outs, valve_out, summary["params"], source=f"fitted by thermovalve fit {args.run}")
     s = summary["std"]
     print(f"sigma = {p['sigma']:.4g} ({_sd(s['sigma'])}) N/K, F_hmax = {p['F_hmax']:.4g} ({_sd(s['F_hmax'])}) N, "
           f"p_bset = {p['p_bset']:.5g} ({_sd(s['p_bset'])}) MPa; loglik {summary['loglik']:.1f}, "

@@ -1,4 +1,4 @@
-"""The valve of SPEC section 1 as a continuous-discrete stochastic model.
+"""The valve of docs/reference.md, section 1 as a continuous-discrete stochastic model.
 
 The paper's model (eq. 15-17): one state, the Dahl friction force ``F_h`` (N),
 driven by the rate v_g of the gas temperature T_g = T_tank,
@@ -27,7 +27,7 @@ measurement). :func:`prepare_inputs`
 adds the columns ``T_tank_s``, ``v_tank`` (rate over the following interval,
 K/s), ``T_med_s`` and ``v_med``; the model's :meth:`ValveModel.prepare` calls it.
 
-Extension (the effect models, SPEC section 3): subclass :class:`ValveModel`,
+Extension (the effect models, docs/reference.md, section 3): subclass :class:`ValveModel`,
 append states and parameters, and replace the *hooks*, which are numba
 ``@njit`` functions ``hook(t, x, u, p, c)`` (``x`` full state vector, ``u``
 inputs, ``p`` the natural-scale vector of all parameters, ``c`` constants:
@@ -56,6 +56,7 @@ nb_demanded_opening = nb.njit(cache=True)(phys.demanded_opening)
 nb_vapour_pressure = nb.njit(cache=True)(phys.vapour_pressure)
 nb_vapour_pressure_slope = nb.njit(cache=True)(phys.vapour_pressure_slope)
 nb_stiffness = nb.njit(cache=True)(phys.stiffness)
+nb_dahl_relax = nb.njit(cache=True)(phys.dahl_relax)
 
 # Indices into the parameter vector p (base parameters come first, extensions append).
 P_SIGMA, P_F_HMAX, P_P_BSET, P_S_F, P_S_X = 0, 1, 2, 3, 4
@@ -430,7 +431,7 @@ def _fast_valve_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarra
                        innov: np.ndarray, Phi_out: np.ndarray) -> float:  # pragma: no cover - compiled
     """EKF of the base valve model, allocation-free, with the exact time update: over an
     interval the rate input is constant (zero-order hold of v), so the mean takes the exact
-    Dahl step F <- s F_hmax + (F - s F_hmax) exp(-sigma |dT| / F_hmax) (SPEC section 1) and the
+    Dahl step F <- s F_hmax + (F - s F_hmax) exp(-sigma |dT| / F_hmax) (docs/reference.md, section 1) and the
     variance P <- e^2 P + s_F^2 dt with e = dF+/dF."""
     N = t.shape[0]
     sig = p[P_SIGMA]
@@ -452,7 +453,7 @@ def _fast_valve_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarra
             v = U[k - 1, U_V]
             sv = smooth_sign(v, eps)
             e = np.exp(-sig * v * sv * dt / Fm)
-            F = sv * Fm + (F - sv * Fm) * e
+            F = nb_dahl_relax(F, sv, e, vp)  # the exact Dahl step of physics.valve
             P = e * e * P + qF * dt
         x_pred[k, 0] = F
         P_pred[k, 0, 0] = P
@@ -482,12 +483,12 @@ def _fast_valve_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarra
 
 # --------------------------------------------------------------------------- the model class
 class ValveModel(SDEModel):
-    """The base valve model (SPEC section 1, paper eq. 15-17), a :class:`SDEModel`.
+    """The base valve model (docs/reference.md, section 1, paper eq. 15-17), a :class:`SDEModel`.
 
     Free parameters (natural units): ``sigma`` N/K, ``F_hmax`` N, ``p_bset`` MPa
     (paper Table 4), ``s_F`` (N/sqrt(s), friction diffusion, paper eq. 15 dw) and
     ``s_x`` (mm, opening observation sd). The other valve constants come from
-    ``valve``. Inputs are prepared from the SPEC section 2 columns by
+    ``valve``. Inputs are prepared from the docs/reference.md, section 2 columns by
     :meth:`prepare` (denoised temperatures, see the module docstring).
 
     ``fixed`` maps parameter names to values kept fixed; ``init`` overrides
@@ -675,7 +676,7 @@ def _f(a: Any) -> np.ndarray:
 
 
 def base_valve_model(valve: ValveParams | None = None, **options: Any) -> ValveModel:
-    """The base valve model of SPEC section 1 (see :class:`ValveModel` for the options)."""
+    """The base valve model of docs/reference.md, section 1 (see :class:`ValveModel` for the options)."""
     return ValveModel(valve, **options)
 
 

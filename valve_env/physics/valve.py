@@ -1,4 +1,4 @@
-"""Physics of the self-acting thermostatic valve (SPEC section 1, the seed paper).
+"""Physics of the self-acting thermostatic valve (docs/reference.md, section 1, the seed paper).
 
 Everything here is a pure function of floats (or NumPy arrays of floats) and
 of a packed parameter vector ``vp`` (see :class:`valve_env.params.ValveParams`
@@ -99,8 +99,17 @@ def dahl_update(F_h_N, dT_K, vp):
     For dT = 0 the force is unchanged. |F| <= F_hmax is preserved.
     """
     s = np.sign(dT_K)
+    return dahl_relax(F_h_N, s, np.exp(-vp[I_SIGMA] * np.abs(dT_K) / vp[I_F_HMAX]), vp)
+
+
+@register_jitable
+def dahl_relax(F_h_N, s, decay, vp):
+    """The Dahl force relaxing towards ``s F_hmax`` by the factor ``decay``:
+    F <- s F_hmax + (F - s F_hmax) decay. :func:`dahl_update` with s = sgn(dT) and
+    decay = exp(-sigma |dT| / F_hmax); the estimator's filter (estimation.valve_model) with a
+    smooth sign and the decay it also propagates the variance with."""
     Fm = vp[I_F_HMAX]
-    return s * Fm + (F_h_N - s * Fm) * np.exp(-vp[I_SIGMA] * np.abs(dT_K) / Fm)
+    return s * Fm + (F_h_N - s * Fm) * decay
 
 
 @register_jitable
@@ -126,7 +135,7 @@ def flow_kgh(x_mm, dp_mbar, vp):
 def opening_from_flow(q_kgh, dp_mbar, vp):
     """Invert the valve characteristic: the opening (mm) that passes q at dp.
 
-    Used where a measured run has no x_mm column (SPEC section 2). The result is
+    Used where a measured run has no x_mm column (docs/reference.md, section 2). The result is
     limited to [0, stroke].
     """
     kv_ = q_kgh / (31.62 * np.sqrt(np.maximum(dp_mbar, 1e-12)))
