@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 from typing import Any
 
 EXIT_BAD_INPUT = 2
@@ -59,7 +58,9 @@ def _cmd(args: argparse.Namespace) -> int:
         outs.discard()
         return _fail(str(exc))
     R = diag.result
-    band = f", band {R['stiction']['band_pct']:.3g} +/- {R['stiction']['std_pct']:.2g} % of OP" if "stiction" in R else ""
+    band = ""
+    if "stiction" in R:
+        band = f", band {R['stiction']['band_pct']:.3g} +/- {R['stiction']['std_pct']:.2g} % of OP"
     print(f"{loop.tag}: {R['cause']}{band}; {outs.summary()}")
     for note in loop.notes:
         print(f"note: {note}")

@@ -35,8 +35,8 @@ from valve_env.physics.stickslip import stick_slip_path
 VALVES: tuple[str, ...] = ("linear", "backlash", "stiction")
 #: extra parameters of each valve over the linear one
 VALVE_EXTRA_PARAMS = {"linear": 0, "backlash": 1, "stiction": 2}
-#: J / S values tried for the stiction valve (J = 0 is the backlash candidate)
-J_FRACTIONS: tuple[float, ...] = (0.25, 0.5, 0.75, 1.0)
+#: J / S values tried for the stiction valve (it includes J = 0, so it nests the backlash candidate)
+J_FRACTIONS: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)
 #: time constants tried for the self-regulating process, s
 TAUS_S: tuple[float, ...] = (1e-3, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0, 640.0)
 #: band grid: fractions of the OP range (1st-99th percentile)
@@ -155,7 +155,7 @@ class Settings:
     dt: float = 10.0
     min_delay: int = 1
     max_delay: int = 12
-    noise_order: int = 0
+    noise_order: int = 2
     n_iter: int = 4
     allow_integrating: bool = True
     n_grid: int = 24
