@@ -8,7 +8,7 @@ referred to chi-square and before the BIC difference is taken. A valve nonlinear
 ``stiction`` only when all three hold:
 
 1. the adjusted likelihood-ratio test rejects the linear valve at ``alpha``;
-2. the adjusted BIC prefers it with very strong evidence (``delta_bic < -10``, Kass & Raftery 1995);
+2. the adjusted BIC prefers it by more than 20 (``delta_bic < -20``; Kass & Raftery 1995 call 10 very strong);
 3. on held-out data it does not lose: the record is cut in halves, the valve and process
    structure are fitted on one half, and on the other only the gain, offset and noise are
    re-estimated; the held-out log-likelihood gain over the linear valve, summed over both
@@ -48,8 +48,9 @@ BAND_SD_INFLATION = 1.0
 #: benchmarks/loop_benchmark.py: RMS relative error 0.29, 85th percentile 0.45); coverage is checked
 #: on other seeds (docs/loops.md, "Band uncertainty")
 BAND_REL_SD = 0.25
-#: "very strong" evidence on the BIC scale (Kass & Raftery 1995): delta BIC below -10
-DELTA_BIC_MAX = -10.0
+#: evidence needed on the BIC scale: delta BIC below -20 (beyond Kass & Raftery's "very strong", 10; set on the
+#: development loops, docs/loops.md)
+DELTA_BIC_MAX = -20.0
 #: the held-out halves may lose at most this share of the adjusted in-sample LR gain
 HELDOUT_LOSS_SHARE = 0.1
 
@@ -105,6 +106,7 @@ def _heldout_gain(loop: LoopData, valve: str, s: Settings) -> float:
     n = loop.n
     mid = n // 2
     gain = 0.0
+    s = replace(s, n_grid=10)
     for (a0, a1), (b0, b1) in (((s.k0, mid), (mid + s.k0, n)), ((mid + s.k0, n), (s.k0, mid))):
         lin = fit_valve(loop.op, loop.pv, "linear", s, k1=a1, k0=a0)
         cand = fit_valve(loop.op, loop.pv, valve, s, k1=a1, k0=a0)

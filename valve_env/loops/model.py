@@ -36,11 +36,11 @@ VALVES: tuple[str, ...] = ("linear", "backlash", "stiction")
 #: extra parameters of each valve over the linear one
 VALVE_EXTRA_PARAMS = {"linear": 0, "backlash": 1, "stiction": 2}
 #: J / S values tried for the stiction valve (it includes J = 0, so it nests the backlash candidate)
-J_FRACTIONS: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)
+J_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)
 #: time constants tried for the self-regulating process, s
 TAUS_S: tuple[float, ...] = (1e-3, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0, 640.0)
 #: band grid: fractions of the OP range (1st-99th percentile)
-S_FRACTIONS = (0.01, 1.5)
+S_FRACTIONS = (0.01, 3.0)
 
 
 @njit(cache=True)
@@ -73,37 +73,39 @@ def _filtered(x: np.ndarray, a: float, d: int, integ: bool) -> np.ndarray:  # pr
 
 
 @njit(cache=True)
-def _oe_fit(pv: np.ndarray, w: np.ndarray, integ: bool, k0: int, k1: int, p: int, n_iter: int,
-            rho_fixed: np.ndarray, fix_rho: bool) -> tuple:  # pragma: no cover - compiled
-    """Alternating LS: (K, c, g) given the AR(p<=2) filter, the filter given the residual, over
-    samples k0..k1-1. Returns (rss, K, c, g, rho1, rho2)."""
+def _oe_fit(pv: np.ndarray, w: np.ndarray, basis: np.ndarray, k0: int, k1: int, p: int, n_iter: int) -> tuple:
+    # pragma: no cover - compiled
+    """Alternating LS: (K, basis weights) given the AR(p<=2) filter, the filter given the residual,
+    over samples k0..k1-1. Returns (rss, theta, rho1, rho2); theta = [K, weights of the basis]."""
     n = pv.size
-    m = 3 if integ else 2
-    rho = rho_fixed.copy() if fix_rho else np.zeros(2)
+    q = basis.shape[1]
+    m = 1 + q
+    rho = np.zeros(2)
     theta = np.zeros(m)
-    rss = 0.0
     reg = np.zeros(m)
     r = np.empty(n)
-    iters = 1 if (p == 0 or fix_rho) else n_iter
+    iters = 1 if p == 0 else n_iter
     for _ in range(iters):
         A = np.zeros((m, m))
         bb = np.zeros(m)
         for k in range(k0, k1):
             z = pv[k] - rho[0] * pv[k - 1] - rho[1] * pv[k - 2]
             reg[0] = w[k] - rho[0] * w[k - 1] - rho[1] * w[k - 2]
-            reg[1] = 1.0 - rho[0] - rho[1]
-            if integ:
-                reg[2] = (k - rho[0] * (k - 1) - rho[1] * (k - 2)) / n
+            for j in range(q):
+                reg[1 + j] = basis[k, j] - rho[0] * basis[k - 1, j] - rho[1] * basis[k - 2, j]
             for i in range(m):
                 bb[i] += reg[i] * z
                 for j in range(m):
                     A[i, j] += reg[i] * reg[j]
         for i in range(m):
-            A[i, i] += 1e-10 * A[i, i] + 1e-12
+            A[i, i] += 1e-9 * A[i, i] + 1e-12
         theta = np.linalg.solve(A, bb)
         for k in range(n):
-            r[k] = pv[k] - theta[0] * w[k] - theta[1] - (theta[2] * k / n if integ else 0.0)
-        if p > 0 and not fix_rho:
+            v = pv[k] - theta[0] * w[k]
+            for j in range(q):
+                v -= theta[1 + j] * basis[k, j]
+            r[k] = v
+        if p > 0:
             b00 = 1e-12
             b01 = 0.0
             b11 = 1e-12
@@ -126,26 +128,36 @@ def _oe_fit(pv: np.ndarray, w: np.ndarray, integ: bool, k0: int, k1: int, p: int
     for k in range(k0, k1):
         e = r[k] - rho[0] * r[k - 1] - rho[1] * r[k - 2]
         rss += e * e
-    return rss, theta[0], theta[1], (theta[2] if integ else 0.0), rho[0], rho[1]
+    return rss, theta, rho[0], rho[1]
 
 
 @njit(cache=True)
-def _best_process(pv: np.ndarray, x: np.ndarray, alist: np.ndarray, dmin: int, dmax: int, k0: int, k1: int,
-                  p: int, n_iter: int, allow_integ: bool) -> tuple:  # pragma: no cover - compiled
+def _best_process(pv: np.ndarray, x: np.ndarray, basis: np.ndarray, alist: np.ndarray, dmin: int, dmax: int,
+                  k0: int, k1: int, p: int, n_iter: int, allow_integ: bool) -> tuple:  # pragma: no cover - compiled
     best_rss = 1e300
-    best = (1e300, 0.0, 0, False, 0.0, 0.0, 0.0, 0.0, 0.0)
-    zero = np.zeros(2)
+    best = (1e300, 0.0, 0, False, np.zeros(1 + basis.shape[1]), 0.0, 0.0)
     na = alist.size + (1 if allow_integ else 0)
     for ia in range(na):
         integ = ia == alist.size
         a = 1.0 if integ else alist[ia]
         for d in range(dmin, dmax + 1):
             w = _filtered(x, a, d, integ)
-            rss, K, c, g, r1, r2 = _oe_fit(pv, w, integ, k0, k1, p, n_iter, zero, False)
+            rss, theta, r1, r2 = _oe_fit(pv, w, basis, k0, k1, p, n_iter)
             if rss < best_rss:
                 best_rss = rss
-                best = (rss, a, d, integ, K, c, g, r1, r2)
+                best = (rss, a, d, integ, theta, r1, r2)
     return best
+
+
+def disturbance_basis(n: int, dt: float, knot_s: float) -> np.ndarray:
+    """Hat functions (linear B-splines) with knots every ``knot_s``: a slow load disturbance (one
+    column, a constant, when ``knot_s`` is infinite or longer than the record)."""
+    t = np.arange(n) * dt
+    if not np.isfinite(knot_s) or knot_s >= t[-1]:
+        return np.ones((n, 1))
+    knots = np.arange(0.0, t[-1] + knot_s, knot_s)
+    B = np.maximum(0.0, 1.0 - np.abs(t[:, None] - knots[None, :]) / knot_s)
+    return np.ascontiguousarray(B[:, B.sum(axis=0) > 0])
 
 
 @dataclass(frozen=True)
@@ -156,9 +168,10 @@ class Settings:
     min_delay: int = 1
     max_delay: int = 12
     noise_order: int = 2
-    n_iter: int = 4
+    n_iter: int = 3
     allow_integrating: bool = True
-    n_grid: int = 24
+    n_grid: int = 16
+    disturbance_knot_s: float = 1200.0
 
     @property
     def k0(self) -> int:
@@ -170,15 +183,15 @@ class Settings:
 
 @dataclass
 class ProcessFit:
-    """The process part of a fit: lag (``a``; 1 = integrating), delay (samples), gain, offset,
-    trend, AR noise, residual sum of squares over ``n`` samples."""
+    """The process part of a fit: lag (``a``; 1 = integrating), delay (samples), gain, the slow
+    disturbance (weights of its basis), AR noise, residual sum of squares over ``n`` samples."""
 
     a: float
     delay: int
     integrating: bool
     K: float
-    c: float
-    g: float
+    weights: np.ndarray
+    basis: np.ndarray
     rho: tuple[float, float]
     rss: float
     n: int
@@ -207,31 +220,30 @@ def fit_process(pv: np.ndarray, x: np.ndarray, s: Settings, k1: int | None = Non
     """Maximum-likelihood process for a given valve path ``x`` (samples ``k0..k1-1``)."""
     k0 = s.k0 if k0 is None else k0
     k1 = pv.size if k1 is None else k1
-    rss, a, d, integ, K, c, g, r1, r2 = _best_process(
-        np.ascontiguousarray(pv, dtype=float), np.ascontiguousarray(x, dtype=float), s.alist(), s.min_delay,
-        s.max_delay, k0, k1, s.noise_order, s.n_iter, s.allow_integrating)
-    n_params = 4 + (1 if integ else 0) + s.noise_order + 1  # K, c, a, d, [g], rho, sigma
-    return ProcessFit(float(a), int(d), bool(integ), float(K), float(c), float(g), (float(r1), float(r2)),
-                      float(rss), k1 - k0, n_params)
+    basis = disturbance_basis(pv.size, s.dt, s.disturbance_knot_s)
+    rss, a, d, integ, theta, r1, r2 = _best_process(
+        np.ascontiguousarray(pv, dtype=float), np.ascontiguousarray(x, dtype=float), basis, s.alist(),
+        s.min_delay, s.max_delay, k0, k1, s.noise_order, s.n_iter, s.allow_integrating)
+    n_params = 3 + basis.shape[1] + s.noise_order + 1  # K, a, d, disturbance weights, rho, sigma
+    return ProcessFit(float(a), int(d), bool(integ), float(theta[0]), np.asarray(theta[1:]), basis,
+                      (float(r1), float(r2)), float(rss), k1 - k0, n_params)
 
 
 def refit_gain(pv: np.ndarray, x: np.ndarray, pf: ProcessFit, s: Settings, k0: int, k1: int) -> ProcessFit:
-    """Keep the fitted lag and delay, re-estimate gain, offset, trend and noise on samples ``k0..k1-1``
+    """Keep the fitted lag and delay, re-estimate gain, disturbance and noise on samples ``k0..k1-1``
     (the held-out check)."""
     w = _filtered(np.ascontiguousarray(x, dtype=float), pf.a, pf.delay, pf.integrating)
-    rss, K, c, g, r1, r2 = _oe_fit(np.ascontiguousarray(pv, dtype=float), w, pf.integrating, k0, k1,
-                                   s.noise_order, s.n_iter, np.zeros(2), False)
-    return ProcessFit(pf.a, pf.delay, pf.integrating, float(K), float(c), float(g), (float(r1), float(r2)),
-                      float(rss), k1 - k0, pf.n_params)
+    rss, theta, r1, r2 = _oe_fit(np.ascontiguousarray(pv, dtype=float), w, pf.basis, k0, k1, s.noise_order,
+                                 s.n_iter)
+    return ProcessFit(pf.a, pf.delay, pf.integrating, float(theta[0]), np.asarray(theta[1:]), pf.basis,
+                      (float(r1), float(r2)), float(rss), k1 - k0, pf.n_params)
 
 
 def simulate(x: np.ndarray, pf: ProcessFit) -> np.ndarray:
-    """The fitted process's free-run output for the valve path ``x`` (no noise): the fitted loop's
-    simulation against the data, for the report."""
-    n = x.size
+    """The fitted process's free-run output for the valve path ``x`` plus the fitted slow disturbance
+    (no noise): the fitted loop's simulation against the data, for the report."""
     w = _filtered(np.ascontiguousarray(x, dtype=float), pf.a, pf.delay, pf.integrating)
-    t = np.arange(n) / n
-    return pf.K * w + pf.c + (pf.g * t if pf.integrating else 0.0)
+    return pf.K * w + pf.basis @ pf.weights
 
 
 def residuals(pv: np.ndarray, x: np.ndarray, pf: ProcessFit, k0: int) -> np.ndarray:
