@@ -29,11 +29,22 @@ def test_diagnose_real_sticky_loop_with_report(tmp_path: Path, capsys: pytest.Ca
         assert (rep / name).stat().st_size > 0
     assert "Ljung-Box" in (rep / "report.md").read_text()
     assert src.read_bytes() == before
-    # an existing output needs --force
+
+
+def test_existing_output_needs_force(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from valve_env.loops.sim import simulate_loop
+
+    loop, _ = simulate_loop("pressure", S=0.0, seed=3, hours=0.7)
+    src = tmp_path / "loop.csv"
+    src.write_text(loop.to_csv_text())
+    out = tmp_path / "out.json"
+    out.write_text("old")
     assert main(["loop-diagnose", str(src), "--json", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("thermovalve: error:") and "--force" in err[0]
+    assert out.read_text() == "old"
     assert main(["loop-diagnose", str(src), "--json", str(out), "--force"]) == 0
+    assert json.loads(out.read_text())["loop"]["n_samples"] == loop.n
 
 
 def test_output_over_input_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -16,7 +16,7 @@
 * :func:`kano` - Kano, M., Maruta, H., Kugemoto, H., Shimizu, K. (2004). Practical model and
   detection algorithm for valve stiction. *IFAC DYCOPS*, Boston. With the valve position estimated
   by PV (flow loops), the stiction index is the fraction of the time the OP keeps moving while the
-  PV stays within its noise (``|dPV| < 2 sd`` of PV's high-frequency noise) over sections where OP
+  PV stays within its noise (``|dPV| < 2 sd`` of PV's white noise, from second differences) over sections where OP
   moves monotonically; stiction when the index exceeds 0.25 (the paper's threshold).
 """
 
@@ -86,8 +86,9 @@ def he_curve_fit(loop: LoopData, upper: float = 0.6, lower: float = 0.4) -> dict
 def kano(loop: LoopData, threshold: float = 0.25) -> dict[str, Any]:
     dpv = np.diff(loop.pv)
     dop = np.diff(loop.op)
-    noise = float(np.median(np.abs(dpv - np.median(dpv))) * 1.4826 / np.sqrt(2.0))
-    op_noise = float(np.median(np.abs(dop - np.median(dop))) * 1.4826)
+    # white-noise sd from second differences (robust: 1.4826 MAD / sqrt(6)); a signal's smooth part cancels
+    noise = float(np.median(np.abs(np.diff(loop.pv, 2))) * 1.4826 / np.sqrt(6.0))
+    op_noise = 3.0 * float(np.median(np.abs(np.diff(loop.op, 2))) * 1.4826 / np.sqrt(6.0))
     # sections of monotonic OP motion (sign of a smoothed increment)
     k = 3
     dop_s = np.convolve(loop.op, np.ones(k) / k, mode="same")

@@ -18,9 +18,13 @@ from valve_env.loops.io import LoopData
 ENV_ID = "ThermoValve-v0"
 
 
-def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 6.0) -> LoopData:
-    """Run the PI for ``hours`` on ThermoValve-v0 (30 s steps) and return its loop record."""
-    kw: dict = {"horizon_h": hours, "max_episode_steps": int(round(hours * 120))}
+def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, warmup_h: float = 3.0,
+                    noise_K: float = 0.05) -> LoopData:
+    """Run the PI for ``warmup_h + hours`` on ThermoValve-v0 (30 s steps) and return the record of the
+    last ``hours`` (the warm-up holds the tank's start-up heating, when the loop is saturated). The
+    temperature sensors carry white noise of ``noise_K`` (the paper's 0.05 K uncertainty)."""
+    total = hours + warmup_h
+    kw: dict = {"horizon_h": total, "max_episode_steps": int(round(total * 120)), "sensors": {"noise_K": noise_K}}
     if band_mm is not None:
         kw["valve"] = {"effects": {"stiction": {"band_mm": band_mm}}}
     env = gym.make(ENV_ID, **kw)
@@ -45,6 +49,8 @@ def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 6.0) ->
         pv.append(float(obs[0]))
         op.append(100.0 * (float(np.clip(a[0], lo, hi)) - lo) / (hi - lo))
     env.close()
+    skip = int(round(warmup_h * 3600.0 / dt))
+    t, sp, pv, op = t[skip:], sp[skip:], pv[skip:], op[skip:]
     tag = f"env-pi-{'stiction-' + format(band_mm, 'g') + 'mm' if band_mm is not None else 'smooth'}-seed{seed}"
     return LoopData(time_s=np.asarray(t) - t[0], sp=np.asarray(sp), pv=np.asarray(pv), op=np.asarray(op), tag=tag,
                     source=ENV_ID)
