@@ -44,6 +44,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.diagnosis.cli",
     "valve_env.estimation.cli",
     "valve_env.evaluation.cli",
+    "valve_env.loops.cli",
     "agents.cli",
 )
 

@@ -1,0 +1,131 @@
+"""Loop-diagnosis benchmark (docs/loops.md, "Benchmark").
+
+Prints, in one run:
+* on the real loops of the chosen split set (benchmarks/plant_loops_split.csv; --set dev, heldout
+  or all): balanced accuracy (stiction vs not) of the grey-box method and of each classical
+  detector, overall and per loop tag, with the time per loop;
+* on simulated loops (valve_env.loops.sim, seeds --sim-seed .. +--sim-n): the share of bands
+  within 20 % of the truth, the 2-sd coverage, and the false-alarm rate on smooth valves.
+
+    python benchmarks/loop_benchmark.py --data /path/to/plant_loops --set dev
+    python benchmarks/loop_benchmark.py --data /path/to/plant_loops --set heldout --sim-seed 1000
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from valve_env.loops.detectors import DETECTORS
+from valve_env.loops.diagnose import diagnose
+from valve_env.loops.io import LoopDataError, read_loop
+from valve_env.loops.sim import simulate_loop
+
+SPLIT = Path(__file__).with_name("plant_loops_split.csv")
+
+
+def balanced_accuracy(truth: list[bool], pred: list[bool]) -> float:
+    t, p = np.asarray(truth), np.asarray(pred)
+    parts = [float(np.mean(p[t == v] == v)) for v in (True, False) if np.any(t == v)]
+    return float(np.mean(parts)) if parts else float("nan")
+
+
+def real_loops(data: Path, which: str) -> None:
+    rows = [r for r in csv.DictReader(open(SPLIT)) if which == "all" or r["set"] == which]
+    names = ["greybox", *DETECTORS]
+    pred: dict[str, list[bool]] = defaultdict(list)
+    truth: list[bool] = []
+    tags: list[str] = []
+    times: list[float] = []
+    sizes: list[int] = []
+    print(f"real loops, set {which}: {len(rows)} files")
+    print(f"{'file':40s} {'label':13s} {'greybox':22s} " + " ".join(f"{d:>6s}" for d in DETECTORS) + "  time_s")
+    for r in rows:
+        try:
+            loop = read_loop(data / r["label"] / r["file"])
+        except LoopDataError as exc:  # counted as "not stiction" for every method: a miss if it is sticky
+            truth.append(r["label"] == "stiction")
+            tags.append(r["loop_tag"])
+            for k in names:
+                pred[k].append(False)
+            print(f"{r['file'][:40]:40s} {r['label']:13s} UNREADABLE: {str(exc).split(': ', 1)[-1]}")
+            continue
+        t0 = time.perf_counter()
+        d = diagnose(loop)
+        times.append(time.perf_counter() - t0)
+        sizes.append(loop.n)
+        truth.append(r["label"] == "stiction")
+        tags.append(r["loop_tag"])
+        pred["greybox"].append(d.cause == "stiction")
+        det = {k: f(loop)["stiction"] for k, f in DETECTORS.items()}
+        for k, v in det.items():
+            pred[k].append(v)
+        band = f" {d.result['stiction']['band_pct']:.2f}%" if "stiction" in d.result else ""
+        print(f"{r['file'][:40]:40s} {r['label']:13s} {(d.cause + band)[:22]:22s} "
+              + " ".join(f"{int(v):6d}" for v in det.values()) + f"  {times[-1]:.2f}")
+    print(f"\nbalanced accuracy, set {which} ({sum(truth)} stiction, {len(truth) - sum(truth)} not):")
+    for k in names:
+        print(f"  {k:8s} {100 * balanced_accuracy(truth, pred[k]):5.1f} %")
+    print("per loop tag (share correct):")
+    for tag in sorted(set(tags)):
+        idx = [i for i, t in enumerate(tags) if t == tag]
+        lab = "stiction" if truth[idx[0]] else "non_stiction"
+        print(f"  {tag:28s} {lab:13s} n={len(idx):2d} " + " ".join(
+            f"{k}={sum(pred[k][i] == truth[i] for i in idx)}/{len(idx)}" for k in names))
+    print(f"time per loop: mean {np.mean(times):.2f} s, max {np.max(times):.2f} s "
+          f"(records of {np.mean(sizes):.0f} samples on average, 10 s sampling)")
+
+
+def sim_loops(seed0: int, n: int) -> None:
+    rng = np.random.default_rng(seed0)
+    procs = ["flow", "pressure", "temperature", "level"]
+    hits = cover = found = 0
+    false_alarm = 0
+    times = []
+    print(f"\nsimulated loops, seeds {seed0}..{seed0 + n - 1}: sticky valve, S ~ U(1, 4) %, J/S ~ U(0.3, 1)")
+    for i in range(n):
+        proc = procs[i % len(procs)]
+        S = float(rng.uniform(1.0, 4.0))
+        J = S * float(rng.uniform(0.3, 1.0))
+        loop, truth = simulate_loop(proc, S=S, J=J, seed=seed0 + i)
+        t0 = time.perf_counter()
+        d = diagnose(loop)
+        times.append(time.perf_counter() - t0)
+        st = d.result.get("stiction")
+        line = f"  {proc:12s} S={S:5.2f} J={J:5.2f}: {d.cause}"
+        if st is not None:
+            found += 1
+            err = abs(st["band_pct"] - S) / S
+            hits += err <= 0.2
+            cover += abs(st["band_pct"] - S) <= 2 * st["std_pct"]
+            line += f" band {st['band_pct']:.2f} +/- {st['std_pct']:.2f} (error {100 * err:.0f} %)"
+        print(line)
+        smooth, _ = simulate_loop(proc, S=0.0, seed=seed0 + 10_000 + i)
+        false_alarm += diagnose(smooth).cause == "stiction"
+    print(f"named stiction on {found}/{n} sticky loops; band within 20 % of the truth: {hits}/{found}; "
+          f"2-sd coverage: {cover}/{found}; smooth valves called stiction: {false_alarm}/{n}; "
+          f"time per loop {np.mean(times):.2f} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", type=Path, default=None, help="the plant_loops folder (stiction/, non_stiction/)")
+    ap.add_argument("--set", choices=("dev", "heldout", "all"), default="dev")
+    ap.add_argument("--sim-seed", type=int, default=0)
+    ap.add_argument("--sim-n", type=int, default=20)
+    args = ap.parse_args(argv)
+    if args.data is not None:
+        real_loops(args.data, args.set)
+    if args.sim_n > 0:
+        sim_loops(args.sim_seed, args.sim_n)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

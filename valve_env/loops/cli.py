@@ -1,0 +1,70 @@
+"""``thermovalve loop-diagnose LOOP.csv --json OUT.json [--report DIR] [--force]`` (docs/loops.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+EXIT_BAD_INPUT = 2
+
+
+def _fail(msg: str) -> int:
+    print(f"thermovalve: error: {msg}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "loop-diagnose",
+        help="diagnose a control loop's record: stiction (with its band) or another cause",
+        description="Fit a grey-box loop model (linear, backlash and stick-slip valve behind a first-order or "
+        "integrating process) by maximum likelihood, compare by likelihood ratio, BIC and held-out data, "
+        "and name the cause. Reads the loop CSV (time_s, sp, pv, op[, mv, mode]) or a plant-historian export.",
+    )
+    p.add_argument("loop", metavar="LOOP.csv", help="loop record (loop CSV or historian export)")
+    p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
+    p.add_argument("--report", metavar="DIR", default=None, help="write report.md and figures into DIR")
+    p.add_argument("--alpha", type=float, default=0.01, help="significance level of the likelihood-ratio test")
+    p.add_argument("--force", action="store_true", help="replace existing outputs")
+    p.set_defaults(func=_cmd)
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    from valve_env.loops.diagnose import diagnose
+    from valve_env.loops.io import LoopDataError, read_loop
+    from valve_env.outputs import OutputError, OutputSet
+
+    if not 0 < args.alpha < 0.5:
+        return _fail(f"--alpha must be in (0, 0.5), got {args.alpha}")
+    outs = OutputSet(inputs=[args.loop], force=args.force)
+    try:
+        json_path = outs.add(args.json_out, "--json")
+        report_dir = None
+        if args.report is not None:
+            from valve_env.loops.report import FIGURES
+            report_dir = outs.add_dir(args.report, "--report")
+            for name in (*FIGURES, "report.md"):
+                outs.add(report_dir / name, "report file")
+        loop = read_loop(args.loop)
+        diag = diagnose(loop, alpha=args.alpha)
+        outs.write_text(json_path, json.dumps(diag.result, indent=2, default=float) + "\n")
+        if report_dir is not None:
+            from valve_env.loops.report import write_report
+            write_report(diag, outs, report_dir)
+        outs.commit()
+    except (LoopDataError, OutputError) as exc:
+        outs.discard()
+        return _fail(str(exc))
+    R = diag.result
+    band = ""
+    if "stiction" in R:
+        band = f", band {R['stiction']['band_pct']:.3g} +/- {R['stiction']['std_pct']:.2g} % of OP"
+    print(f"{loop.tag}: {R['cause']}{band}; {outs.summary()}")
+    for note in loop.notes:
+        print(f"note: {note}")
+    return 0
+
+
+__all__ = ["register"]

@@ -1,0 +1,229 @@
+"""Loop diagnosis: fit the three valve candidates, compare them, name the cause (docs/loops.md).
+
+The candidates (linear, backlash, stiction) are nested and fitted by maximum likelihood
+(:mod:`valve_env.loops.model`). Because the output-error residuals of a real loop are serially
+correlated, the likelihood-ratio statistic is scaled by ``n_eff / n`` (the residuals'
+effective-sample-size factor from their autocorrelation, statsmodels ``acf``) before it is
+referred to chi-square and before the BIC difference is taken. A valve nonlinearity is named
+``stiction`` only when all three hold:
+
+1. the adjusted likelihood-ratio test rejects the linear valve at ``alpha``;
+2. the adjusted BIC prefers it by more than 20 (``delta_bic < -20``; Kass & Raftery 1995 call 10 very strong);
+3. on held-out data it does not lose: the record is cut in halves, the valve and process
+   structure are fitted on one half, and on the other only the gain, offset and noise are
+   re-estimated; the held-out log-likelihood gain over the linear valve, summed over both
+   halves, must exceed ``-0.1`` times the adjusted LR statistic (a half often holds none of the
+   record's few valve reversals, so a small loss there is no evidence against the valve).
+
+Otherwise the cause is ``none`` when the loop does not oscillate, or, for an oscillating loop,
+``aggressive_tuning`` when the linear loop model reproduces the PV oscillation from the OP
+(the loop's own feedback sustains it) and ``external_oscillation`` when it does not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from valve_env.loops.io import LoopData
+from valve_env.loops.model import (
+    VALVE_EXTRA_PARAMS,
+    Settings,
+    ValveFit,
+    fit_valve,
+    refit_gain,
+    residuals,
+    simulate,
+)
+
+CAUSES: tuple[str, ...] = ("stiction", "none", "external_oscillation", "aggressive_tuning")
+#: inflation of the profile-likelihood sd of the band, from the simulated calibration study
+#: (benchmarks/loop_benchmark.py --calibrate; docs/loops.md, "Band uncertainty")
+BAND_SD_INFLATION = 1.0
+#: relative model-error sd of the band, calibrated on simulated loops (seeds 0-19 of
+#: benchmarks/loop_benchmark.py: relative errors of the 18 named bands up to 0.57, 85th percentile 0.35);
+#: coverage is checked on seeds 1000-1019 (docs/loops.md, "Band uncertainty")
+BAND_REL_SD = 0.30
+#: evidence needed on the BIC scale: delta BIC below -20 (beyond Kass & Raftery's "very strong", 10; set on the
+#: development loops, docs/loops.md)
+DELTA_BIC_MAX = -20.0
+#: the held-out halves may lose at most this share of the adjusted in-sample LR gain
+HELDOUT_LOSS_SHARE = 0.1
+
+
+@dataclass
+class Diagnosis:
+    result: dict[str, Any]
+    fits: dict[str, ValveFit]
+    settings: Settings
+    loop: LoopData
+    neff_factor: float
+
+    @property
+    def cause(self) -> str:
+        return str(self.result["cause"])
+
+
+def neff_factor(e: np.ndarray, max_lag: int = 40) -> float:
+    """``n_eff / n`` of a serially correlated residual: ``1 / (1 + 2 sum rho_k)`` over the lags
+    before the autocorrelation first drops below zero (clipped to [0.02, 1])."""
+    from statsmodels.tsa.stattools import acf
+
+    r = acf(e - e.mean(), nlags=min(max_lag, e.size // 4), fft=True)
+    s = 0.0
+    for v in r[1:]:
+        if v <= 0:
+            break
+        s += v
+    return float(min(1.0, max(0.02, 1.0 / (1.0 + 2.0 * s))))
+
+
+def oscillation(y: np.ndarray, dt: float) -> dict[str, Any]:
+    """Regularity of an oscillation from the zero crossings of the autocorrelation (Thornhill,
+    Huang & Zhang 2003): ``r = mean(period) / (3 sd(period)) > 1`` with a first ACF peak above 0.3."""
+    from statsmodels.tsa.stattools import acf
+
+    z = y - np.polyval(np.polyfit(np.arange(y.size), y, 1), np.arange(y.size))
+    r = acf(z, nlags=y.size // 2, fft=True)
+    zc = np.flatnonzero(np.diff(np.sign(r)) != 0)
+    if zc.size < 4:
+        return {"oscillating": False, "period_s": None, "regularity": 0.0, "acf_peak": 0.0}
+    intervals = np.diff(zc[:12]) * 2.0
+    period = float(intervals.mean())
+    reg = float(period / (3.0 * intervals.std())) if intervals.std() > 0 else math.inf
+    i0, i1 = zc[1], zc[2] if zc.size > 2 else zc[1] + 1
+    peak = float(r[i0:i1 + 1].max())
+    osc = bool(reg > 1.0 and peak > 0.3)
+    return {"oscillating": osc, "period_s": period * dt, "regularity": min(reg, 1e6), "acf_peak": peak}
+
+
+def _heldout_gain(loop: LoopData, valve: str, s: Settings) -> float:
+    """Held-out log-likelihood gain of ``valve`` over the linear valve, summed over the two halves."""
+    n = loop.n
+    mid = n // 2
+    gain = 0.0
+    s = replace(s, n_grid=10)
+    for (a0, a1), (b0, b1) in (((s.k0, mid), (mid + s.k0, n)), ((mid + s.k0, n), (s.k0, mid))):
+        lin = fit_valve(loop.op, loop.pv, "linear", s, k1=a1, k0=a0)
+        cand = fit_valve(loop.op, loop.pv, valve, s, k1=a1, k0=a0)
+        ll_lin = refit_gain(loop.pv, lin.path(loop.op), lin.process, s, b0, b1).loglik
+        ll_c = refit_gain(loop.pv, cand.path(loop.op), cand.process, s, b0, b1).loglik
+        gain += ll_c - ll_lin
+    return float(gain)
+
+
+def band_uncertainty(fit: ValveFit, factor: float, inflation: float = BAND_SD_INFLATION) -> tuple[float, float, float]:
+    """The band's sd and 95 % interval: the profile-likelihood interval (LR scaled by ``factor``,
+    ``{S: factor * 2 (ll_max - ll(S)) <= 3.84}``, interpolated in log S, sd = width / 3.92) combined
+    with the model-error sd ``BAND_REL_SD * S`` of the simulated calibration study."""
+    S = np.array([p[0] for p in fit.profile])
+    ll = np.array([p[1] for p in fit.profile])
+    dev = factor * 2.0 * (ll.max() - ll)
+    i = int(np.argmax(ll))
+    logS = np.log(S)
+
+    def edge(step: int) -> float:
+        j = i
+        while 0 <= j + step < S.size and dev[j + step] <= 3.84:
+            j += step
+        if not 0 <= j + step < S.size:
+            return float(S[j])
+        # interpolate between j (inside) and j+step (outside)
+        t = (3.84 - dev[j]) / max(dev[j + step] - dev[j], 1e-12)
+        return float(math.exp(logS[j] + t * (logS[j + step] - logS[j])))
+
+    lo, hi = edge(-1), edge(+1)
+    sd_prof = inflation * max(hi - lo, 0.0) / 3.92
+    S_hat = float(S[i])
+    sd = math.hypot(sd_prof, BAND_REL_SD * S_hat)
+    return sd, min(lo, S_hat - 1.96 * sd), max(hi, S_hat + 1.96 * sd)
+
+
+def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> Settings:
+    """The AR order of the noise by BIC of the linear-valve model (then fixed for every candidate)."""
+    best: tuple[float, Settings] | None = None
+    for p in orders:
+        s = Settings(dt=loop.dt, noise_order=p)
+        fit = fit_valve(loop.op, loop.pv, "linear", s)
+        if best is None or fit.bic < best[0]:
+            best = (fit.bic, s)
+    assert best is not None
+    return best[1]
+
+
+def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.01,
+             heldout: bool = True) -> Diagnosis:
+    """Diagnose one loop record; returns the SPEC section 10 result and the fits behind it."""
+    s = settings or select_noise_order(loop)
+    if s.dt != loop.dt:
+        s = replace(s, dt=loop.dt)
+    fits = {v: fit_valve(loop.op, loop.pv, v, s) for v in ("linear", "backlash", "stiction")}
+    lin = fits["linear"]
+    e_lin = residuals(loop.pv, loop.op, lin.process, s.k0)
+    f = neff_factor(e_lin)
+    n = lin.n
+    findings: list[dict[str, Any]] = []
+    for name, fit in fits.items():
+        df = VALVE_EXTRA_PARAMS[name]
+        lr = 2.0 * (fit.loglik - lin.loglik)
+        lr_adj = max(lr, 0.0) * f
+        p = float(stats.chi2.sf(lr_adj, df)) if df else 1.0
+        findings.append({
+            "candidate": name,
+            "valve": name,
+            "loglik": fit.loglik,
+            "n_params": fit.n_params,
+            "n": n,
+            "lr_stat": lr,
+            "lr_stat_adjusted": lr_adj,
+            "p_value": p,
+            "delta_bic": -lr_adj + df * math.log(n),
+            "S_pct": fit.S,
+            "J_pct": fit.J,
+            "process": fit.process.describe(s.dt),
+        })
+    # the better valve nonlinearity by adjusted BIC
+    nonlin = min((fd for fd in findings if fd["candidate"] != "linear"), key=lambda fd: fd["delta_bic"])
+    gain = _heldout_gain(loop, nonlin["candidate"], s) if heldout else math.nan
+    nonlin["heldout_loglik_gain"] = gain
+    justified = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
+                 and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
+    osc = oscillation(loop.pv - loop.sp, loop.dt)
+    sim_lin = simulate(loop.op, lin.process)
+    r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
+    result: dict[str, Any] = {"cause": "none"}
+    fit = fits[nonlin["candidate"]]
+    if justified:
+        result["cause"] = "stiction"
+        sd, lo, hi = band_uncertainty(fit, f)
+        result["stiction"] = {
+            "band_pct": fit.S,
+            "std_pct": sd,
+            "ci95_pct": [lo, hi],
+            "jump_pct": fit.J,
+            "kind": "deadband (backlash, J = 0)" if nonlin["candidate"] == "backlash" else "stick-slip",
+            "model": nonlin["candidate"],
+        }
+    elif osc["oscillating"]:
+        result["cause"] = "aggressive_tuning" if r2 > 0.5 else "external_oscillation"
+    result["findings"] = findings
+    result["decision"] = {
+        "alpha": alpha,
+        "best_nonlinear": nonlin["candidate"],
+        "neff_factor": f,
+        "heldout_loglik_gain": gain,
+        "justified": bool(justified),
+    }
+    result["oscillation"] = {**osc, "linear_sim_r2": r2}
+    result["loop"] = {"tag": loop.tag, "source": loop.source, "n_samples": loop.n, "dt_s": loop.dt,
+                      "op_range_pct": [float(loop.op.min()), float(loop.op.max())],
+                      "process": lin.process.describe(s.dt)}
+    result["notes"] = list(loop.notes)
+    return Diagnosis(result, fits, s, loop, f)
+
+
+__all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty"]

@@ -1,0 +1,59 @@
+"""Loop records from the project's own environment: a PI on ThermoValve-v0 trimming the valve's
+temperature setting, written as a loop CSV (docs/loops.md, "Loops from the environment").
+
+OP is the setting as % of the action range (40-80 degC -> 0-100 %), PV the outlet temperature,
+SP the outlet target. The valve's stiction is the env's named effect
+(``valve={"effects": {"stiction": {"band_mm": ...}}}``); ``band_mm=None`` is the smooth valve.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+import valve_env  # noqa: F401  (registers the environments)
+from valve_env.controllers.baselines import PIController
+from valve_env.loops.io import LoopData
+
+ENV_ID = "ThermoValve-v0"
+
+
+def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, warmup_h: float = 3.0,
+                    noise_K: float = 0.05) -> LoopData:
+    """Run the PI for ``warmup_h + hours`` on ThermoValve-v0 (30 s steps) and return the record of the
+    last ``hours`` (the warm-up holds the tank's start-up heating, when the loop is saturated). The
+    temperature sensors carry white noise of ``noise_K`` (the paper's 0.05 K uncertainty)."""
+    total = hours + warmup_h
+    kw: dict = {"horizon_h": total, "max_episode_steps": int(round(total * 120)), "sensors": {"noise_K": noise_K}}
+    if band_mm is not None:
+        kw["valve"] = {"effects": {"stiction": {"band_mm": band_mm}}}
+    env = gym.make(ENV_ID, **kw)
+    lo, hi = float(env.action_space.low[0]), float(env.action_space.high[0])
+    ctrl = PIController(ENV_ID)
+    obs, _ = env.reset(seed=seed)
+    state = None
+    t, sp, pv, op = [], [], [], []
+    dt = float(env.unwrapped.config.control.dt_s) if hasattr(env.unwrapped, "config") else 30.0
+    k = 0
+    done = False
+    start = True
+    while not done:
+        act, state = ctrl.predict(obs, state, np.array([start]), deterministic=True)
+        start = False
+        a = np.asarray(act, dtype=np.float32).reshape(env.action_space.shape)
+        obs, _, term, trunc, info = env.step(a)
+        done = bool(term or trunc)
+        k += 1
+        t.append(k * dt)
+        sp.append(float(obs[11]))
+        pv.append(float(obs[0]))
+        op.append(100.0 * (float(np.clip(a[0], lo, hi)) - lo) / (hi - lo))
+    env.close()
+    skip = int(round(warmup_h * 3600.0 / dt))
+    t, sp, pv, op = t[skip:], sp[skip:], pv[skip:], op[skip:]
+    tag = f"env-pi-{'stiction-' + format(band_mm, 'g') + 'mm' if band_mm is not None else 'smooth'}-seed{seed}"
+    return LoopData(time_s=np.asarray(t) - t[0], sp=np.asarray(sp), pv=np.asarray(pv), op=np.asarray(op), tag=tag,
+                    source=ENV_ID)
+
+
+__all__ = ["record_env_loop", "ENV_ID"]

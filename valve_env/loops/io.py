@@ -1,0 +1,235 @@
+"""Reading and checking control-loop records (docs/loops.md, "Input formats").
+
+Two formats are read:
+
+* the project's loop CSV: a header row with ``time_s, sp, pv, op`` and optionally ``mv``
+  (measured valve position, %) and ``mode`` (1 = automatic); extra columns are ignored;
+* the plant-historian export of the real loops in ``tests/data/plant_loops`` (tab-separated,
+  5 header lines, then ``timestamp  OP  PV  SP  MODE  flags...``; the tag names in line 3 end
+  in ``.MV`` (controller output), ``.PV``, ``.SV`` (set point) and ``.MODE``).
+
+Every problem with a record raises :class:`LoopDataError` whose message is one line naming the
+problem (NaN, non-increasing time, constant OP, too short a record, ...). Samples in manual mode
+are dropped with a note when enough automatic data remains (the longest automatic stretch is kept).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+#: the shortest record, in samples, that is diagnosed (about 40 min at 10 s)
+MIN_SAMPLES = 240
+#: OP whose range is below this (in %) is constant
+MIN_OP_RANGE_PCT = 1e-3
+
+
+class LoopDataError(ValueError):
+    """A loop record that cannot be diagnosed; the message is one line naming the problem."""
+
+
+@dataclass
+class LoopData:
+    """A control loop's record on a uniform time grid (s, engineering units, % for op/mv)."""
+
+    time_s: np.ndarray
+    sp: np.ndarray
+    pv: np.ndarray
+    op: np.ndarray
+    mv: np.ndarray | None = None
+    tag: str = ""
+    source: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def dt(self) -> float:
+        return float(np.median(np.diff(self.time_s)))
+
+    @property
+    def n(self) -> int:
+        return int(self.time_s.size)
+
+    def to_csv_text(self) -> str:
+        """The record as the project's loop CSV."""
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        cols = ["time_s", "sp", "pv", "op"] + (["mv"] if self.mv is not None else [])
+        w.writerow(cols)
+        arrs = [self.time_s, self.sp, self.pv, self.op] + ([self.mv] if self.mv is not None else [])
+        for row in zip(*arrs, strict=True):
+            w.writerow([f"{v:.10g}" for v in row])
+        return buf.getvalue()
+
+
+def _float(text: str, where: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise LoopDataError(f"{where}: {text!r} is not a number") from None
+
+
+def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
+    """Columns of a loop CSV (SPEC section 10) as float arrays, and the tag (the file stem)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise LoopDataError(f"{p}: not a text file") from None
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows:
+        raise LoopDataError(f"{p}: empty file")
+    header = [h.strip() for h in rows[0]]
+    missing = [c for c in ("time_s", "sp", "pv", "op") if c not in header]
+    if missing:
+        raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op)")
+    wanted = [c for c in ("time_s", "sp", "pv", "op", "mv", "mode") if c in header]
+    idx = {c: header.index(c) for c in wanted}
+    cols: dict[str, list[float]] = {c: [] for c in wanted}
+    for lineno, row in enumerate(rows[1:], start=2):
+        if not row or all(not x.strip() for x in row):
+            continue
+        if len(row) < len(header):
+            raise LoopDataError(f"{p} line {lineno}: {len(row)} fields, the header has {len(header)}")
+        for c in wanted:
+            cols[c].append(_float(row[idx[c]].strip(), f"{p} line {lineno}, column {c}"))
+    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, p.stem
+
+
+def read_historian(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
+    """Columns of a plant-historian export (the format of the real loops; see the module doc)."""
+    p = Path(path)
+    try:
+        lines = p.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError as exc:
+        raise LoopDataError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    if len(lines) < 6 or not lines[0].startswith("PROCESSDATA"):
+        raise LoopDataError(f"{p}: not a historian export (first line should start with PROCESSDATA)")
+    names = lines[2].split("\t")
+    try:
+        i_op = next(i for i, n in enumerate(names) if n.endswith(".MV"))
+        i_pv = next(i for i, n in enumerate(names) if n.endswith(".PV"))
+        i_sp = next(i for i, n in enumerate(names) if n.endswith(".SV"))
+    except StopIteration:
+        raise LoopDataError(f"{p} line 3: tag names must include <tag>.MV, <tag>.PV and <tag>.SV") from None
+    i_mode = next((i for i, n in enumerate(names) if n.endswith(".MODE")), None)
+    tag = names[i_op][: -len(".MV")]
+    t0: datetime | None = None
+    cols: dict[str, list[float]] = {"time_s": [], "sp": [], "pv": [], "op": []}
+    if i_mode is not None:
+        cols["mode"] = []
+    for lineno, line in enumerate(lines[5:], start=6):
+        if not line.strip():
+            continue
+        f = line.split("\t")
+        if len(f) < len(names):
+            raise LoopDataError(f"{p} line {lineno}: {len(f)} fields, line 3 names {len(names)}")
+        try:
+            ts = datetime.strptime(f[0].strip(), "%Y-%m-%d %H:%M:%S")
+        except ValueError:
+            raise LoopDataError(f"{p} line {lineno}: timestamp {f[0]!r} is not YYYY-MM-DD HH:MM:SS") from None
+        t0 = ts if t0 is None else t0
+        cols["time_s"].append((ts - t0).total_seconds())
+        for c, i in (("op", i_op), ("pv", i_pv), ("sp", i_sp), ("mode", i_mode)):
+            if i is not None:
+                cols[c].append(_float(f[i].strip(), f"{p} line {lineno}, column {names[i]}"))
+    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, tag
+
+
+def _is_historian(path: Path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(11) == b"PROCESSDATA"
+    except OSError:
+        return False
+
+
+def read_loop(path: str | Path, min_samples: int = MIN_SAMPLES) -> LoopData:
+    """Read either format (detected from the first line), check it, drop manual-mode samples and
+    return a :class:`LoopData` on a uniform grid."""
+    p = Path(path)
+    if not p.exists():
+        raise LoopDataError(f"{p}: no such file")
+    if p.is_dir():
+        raise LoopDataError(f"{p}: is a directory")
+    cols, tag = read_historian(p) if _is_historian(p) else read_loop_csv(p)
+    return check_loop(cols, tag=tag, source=str(p), min_samples=min_samples)
+
+
+def _longest_true_run(mask: np.ndarray) -> tuple[int, int]:
+    best, start, b0 = 0, None, 0
+    for i, m in enumerate(np.append(mask, False)):
+        if m and start is None:
+            start = i
+        elif not m and start is not None:
+            if i - start > best:
+                best, b0 = i - start, start
+            start = None
+    return b0, b0 + best
+
+
+def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
+               min_samples: int = MIN_SAMPLES) -> LoopData:
+    """Validate raw columns (``time_s, sp, pv, op`` and optional ``mv, mode``); see the module doc."""
+    where = source or "loop"
+    notes: list[str] = []
+    n = cols["time_s"].size
+    if n < 2:
+        raise LoopDataError(f"{where}: too short a record ({n} samples; at least {min_samples} needed)")
+    for c in ("time_s", "sp", "pv", "op", "mv", "mode"):
+        if c in cols:
+            bad = np.flatnonzero(~np.isfinite(cols[c]))
+            if bad.size:
+                raise LoopDataError(f"{where}: column {c} has {bad.size} NaN/infinite value(s), first at "
+                                    f"sample {bad[0] + 1}")
+    dt = np.diff(cols["time_s"])
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = int(bad[0])
+        raise LoopDataError(f"{where}: time is not strictly increasing at sample {k + 2} "
+                            f"(time_s {cols['time_s'][k]:g} then {cols['time_s'][k + 1]:g})")
+    keep = np.ones(n, dtype=bool)
+    if "mode" in cols:
+        auto = cols["mode"] == 1
+        if not auto.any():
+            raise LoopDataError(f"{where}: the loop is never in automatic mode (mode column never 1)")
+        if not auto.all():
+            a, b = _longest_true_run(auto)
+            if b - a < min_samples:
+                raise LoopDataError(f"{where}: too short a record in automatic mode ({b - a} samples in the "
+                                    f"longest automatic stretch; at least {min_samples} needed)")
+            notes.append(f"dropped {n - (b - a)} sample(s) outside the longest automatic-mode stretch "
+                         f"(samples {a + 1}-{b} kept; {int((~auto).sum())} in manual mode)")
+            keep[:] = False
+            keep[a:b] = True
+    t = cols["time_s"][keep]
+    t = t - t[0]
+    if t.size < min_samples:
+        raise LoopDataError(f"{where}: too short a record ({t.size} samples; at least {min_samples} needed)")
+    data = {c: cols[c][keep] for c in ("sp", "pv", "op", "mv") if c in cols}
+    step = np.diff(t)
+    h = float(np.median(step))
+    if np.max(np.abs(step - h)) > 0.01 * h:
+        grid = np.arange(0.0, t[-1] + 0.5 * h, h)
+        data = {c: np.interp(grid, t, v) for c, v in data.items()}
+        notes.append(f"resampled onto a uniform {h:g} s grid (sampling varied from {step.min():g} to "
+                     f"{step.max():g} s)")
+        t = grid
+    op = data["op"]
+    if float(np.ptp(op)) < MIN_OP_RANGE_PCT:
+        raise LoopDataError(f"{where}: constant OP (range {float(np.ptp(op)):.3g} %): nothing to diagnose")
+    if float(np.ptp(data["pv"])) == 0.0:
+        raise LoopDataError(f"{where}: constant PV: nothing to diagnose")
+    if not math.isfinite(h) or h <= 0:
+        raise LoopDataError(f"{where}: bad sampling interval {h!r}")
+    return LoopData(time_s=t, sp=data["sp"], pv=data["pv"], op=op, mv=data.get("mv"), tag=tag, source=source,
+                    notes=notes)
+
+
+__all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "read_loop", "read_loop_csv", "read_historian",
+           "check_loop"]

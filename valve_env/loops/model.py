@@ -1,0 +1,327 @@
+"""The grey-box loop model: a valve behind the controller output, a low-order process behind the valve.
+
+    op --[valve: linear | backlash | stiction (S, J)]--> x --[first order + delay, or
+    integrating + delay]--> pv = K w + c (+ g t) + v,   v = AR(p) noise
+
+The valve is the project's one stick-slip model, :mod:`valve_env.physics.stickslip`, in % of
+OP: ``J = 0`` is backlash (a deadband of width ``S``), ``0 < J <= S`` stick-slip with band ``S``
+and slip jump ``J`` (Choudhury et al. 2005), ``S = 0`` a linear valve.
+
+The process is an output-error model (docs/loops.md, "Model"): the valve path ``x`` delayed by
+``d >= 1`` samples (the controller reacts to the same sample's PV, so a zero delay would identify
+the controller, not the process) through a unit-gain first-order lag ``w[k] = a w[k-1] + (1-a) x[k-d]``
+(self-regulating, ``a = exp(-dt/tau)``) or an integrator ``w[k] = w[k-1] + x[k-d] - mean(x)``
+(level loops, with a trend term), scaled by the gain ``K``. The noise ``v`` is AR(p). For given
+``(a, d)`` the model is linear in ``(K, c, g)`` once the AR filter is fixed, and the AR filter is
+least squares on the residual, so the Gaussian maximum-likelihood fit alternates the two; the
+likelihood is concentrated over the innovation variance: ``loglik = -n/2 (log(2 pi RSS/n) + 1)``.
+``(a, d)`` are searched over a grid, (S, J) over a grid in S (fractions of the OP range) and J/S,
+refined by a bounded scalar search in S. Every candidate uses the same samples (``k0`` on), so
+their likelihoods compare.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+from scipy.optimize import minimize_scalar
+
+from valve_env.physics.stickslip import stick_slip_path
+
+#: valve candidates, nested: linear (S = 0) in backlash (J = 0) in stiction (S, J free)
+VALVES: tuple[str, ...] = ("linear", "backlash", "stiction")
+#: extra parameters of each valve over the linear one
+VALVE_EXTRA_PARAMS = {"linear": 0, "backlash": 1, "stiction": 2}
+#: J / S values tried for the stiction valve (it includes J = 0, so it nests the backlash candidate)
+J_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)
+#: time constants tried for the self-regulating process, s
+TAUS_S: tuple[float, ...] = (1e-3, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0, 640.0)
+#: band grid: fractions of the OP range (1st-99th percentile)
+S_FRACTIONS = (0.01, 3.0)
+
+
+@njit(cache=True)
+def _valve_path(op: np.ndarray, S: float, J: float, out: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    return stick_slip_path(op, S, J, -np.inf, np.inf, out)
+
+
+def valve_path(op: np.ndarray, S: float, J: float) -> np.ndarray:
+    """The valve position (% of OP) for the controller output ``op`` (valve at rest at ``op[0]``)."""
+    op = np.ascontiguousarray(op, dtype=float)
+    if S <= 0.0:
+        return op.copy()
+    return _valve_path(op, float(S), float(J), np.empty_like(op))
+
+
+@njit(cache=True)
+def _filtered(x: np.ndarray, a: float, d: int, integ: bool) -> np.ndarray:  # pragma: no cover - compiled
+    n = x.size
+    w = np.zeros(n)
+    xm = x.mean()
+    w[0] = 0.0 if integ else x[0]
+    for k in range(1, n):
+        j = k - d
+        xk = x[j] if j >= 0 else x[0]
+        if integ:
+            w[k] = w[k - 1] + (xk - xm)
+        else:
+            w[k] = a * w[k - 1] + (1.0 - a) * xk
+    return w
+
+
+@njit(cache=True)
+def _oe_fit(pv: np.ndarray, w: np.ndarray, basis: np.ndarray, k0: int, k1: int, p: int, n_iter: int) -> tuple:
+    # pragma: no cover - compiled
+    """Alternating LS: (K, basis weights) given the AR(p<=2) filter, the filter given the residual,
+    over samples k0..k1-1. Returns (rss, theta, rho1, rho2); theta = [K, weights of the basis]."""
+    n = pv.size
+    q = basis.shape[1]
+    m = 1 + q
+    rho = np.zeros(2)
+    theta = np.zeros(m)
+    reg = np.zeros(m)
+    r = np.empty(n)
+    iters = 1 if p == 0 else n_iter
+    for _ in range(iters):
+        A = np.zeros((m, m))
+        bb = np.zeros(m)
+        for k in range(k0, k1):
+            z = pv[k] - rho[0] * pv[k - 1] - rho[1] * pv[k - 2]
+            reg[0] = w[k] - rho[0] * w[k - 1] - rho[1] * w[k - 2]
+            for j in range(q):
+                reg[1 + j] = basis[k, j] - rho[0] * basis[k - 1, j] - rho[1] * basis[k - 2, j]
+            for i in range(m):
+                bb[i] += reg[i] * z
+                for j in range(m):
+                    A[i, j] += reg[i] * reg[j]
+        for i in range(m):
+            A[i, i] += 1e-9 * A[i, i] + 1e-12
+        theta = np.linalg.solve(A, bb)
+        for k in range(n):
+            v = pv[k] - theta[0] * w[k]
+            for j in range(q):
+                v -= theta[1 + j] * basis[k, j]
+            r[k] = v
+        if p > 0:
+            b00 = 1e-12
+            b01 = 0.0
+            b11 = 1e-12
+            c0 = 0.0
+            c1 = 0.0
+            for k in range(k0, k1):
+                b00 += r[k - 1] * r[k - 1]
+                b01 += r[k - 1] * r[k - 2]
+                b11 += r[k - 2] * r[k - 2]
+                c0 += r[k - 1] * r[k]
+                c1 += r[k - 2] * r[k]
+            if p == 1:
+                rho[0] = c0 / b00
+                rho[1] = 0.0
+            else:
+                det = b00 * b11 - b01 * b01
+                rho[0] = (c0 * b11 - c1 * b01) / det
+                rho[1] = (b00 * c1 - b01 * c0) / det
+    rss = 0.0
+    for k in range(k0, k1):
+        e = r[k] - rho[0] * r[k - 1] - rho[1] * r[k - 2]
+        rss += e * e
+    return rss, theta, rho[0], rho[1]
+
+
+@njit(cache=True)
+def _best_process(pv: np.ndarray, x: np.ndarray, basis: np.ndarray, alist: np.ndarray, dmin: int, dmax: int,
+                  k0: int, k1: int, p: int, n_iter: int, allow_integ: bool) -> tuple:  # pragma: no cover - compiled
+    best_rss = 1e300
+    best = (1e300, 0.0, 0, False, np.zeros(1 + basis.shape[1]), 0.0, 0.0)
+    na = alist.size + (1 if allow_integ else 0)
+    for ia in range(na):
+        integ = ia == alist.size
+        a = 1.0 if integ else alist[ia]
+        for d in range(dmin, dmax + 1):
+            w = _filtered(x, a, d, integ)
+            rss, theta, r1, r2 = _oe_fit(pv, w, basis, k0, k1, p, n_iter)
+            if rss < best_rss:
+                best_rss = rss
+                best = (rss, a, d, integ, theta, r1, r2)
+    return best
+
+
+def disturbance_basis(n: int, dt: float, knot_s: float) -> np.ndarray:
+    """Hat functions (linear B-splines) with knots every ``knot_s``: a slow load disturbance (one
+    column, a constant, when ``knot_s`` is infinite or longer than the record)."""
+    t = np.arange(n) * dt
+    if not np.isfinite(knot_s) or knot_s >= t[-1]:
+        return np.ones((n, 1))
+    knots = np.arange(0.0, t[-1] + knot_s, knot_s)
+    B = np.maximum(0.0, 1.0 - np.abs(t[:, None] - knots[None, :]) / knot_s)
+    return np.ascontiguousarray(B[:, B.sum(axis=0) > 0])
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Search settings of the grey-box fit (docs/loops.md, "Model")."""
+
+    dt: float = 10.0
+    min_delay: int = 1
+    max_delay: int = 12
+    noise_order: int = 2
+    n_iter: int = 3
+    allow_integrating: bool = True
+    n_grid: int = 16
+    disturbance_knot_s: float = 1200.0
+
+    @property
+    def k0(self) -> int:
+        return self.max_delay + 2
+
+    def alist(self) -> np.ndarray:
+        return np.exp(-self.dt / np.asarray(TAUS_S))
+
+
+@dataclass
+class ProcessFit:
+    """The process part of a fit: lag (``a``; 1 = integrating), delay (samples), gain, the slow
+    disturbance (weights of its basis), AR noise, residual sum of squares over ``n`` samples."""
+
+    a: float
+    delay: int
+    integrating: bool
+    K: float
+    weights: np.ndarray
+    basis: np.ndarray
+    rho: tuple[float, float]
+    rss: float
+    n: int
+    n_params: int
+
+    @property
+    def loglik(self) -> float:
+        return concentrated_loglik(self.rss, self.n)
+
+    def tau_s(self, dt: float) -> float:
+        if self.integrating:
+            return math.inf
+        return 0.0 if self.a <= 1e-12 else -dt / math.log(self.a)
+
+    def describe(self, dt: float) -> str:
+        if self.integrating:
+            return f"integrating, gain {self.K:.4g}/sample per %, delay {self.delay * dt:g} s"
+        return f"first order, gain {self.K:.4g} per %, tau {self.tau_s(dt):.0f} s, delay {self.delay * dt:g} s"
+
+
+def concentrated_loglik(rss: float, n: int) -> float:
+    return -0.5 * n * (math.log(2.0 * math.pi * max(rss, 1e-300) / n) + 1.0)
+
+
+def fit_process(pv: np.ndarray, x: np.ndarray, s: Settings, k1: int | None = None, k0: int | None = None) -> ProcessFit:
+    """Maximum-likelihood process for a given valve path ``x`` (samples ``k0..k1-1``)."""
+    k0 = s.k0 if k0 is None else k0
+    k1 = pv.size if k1 is None else k1
+    basis = disturbance_basis(pv.size, s.dt, s.disturbance_knot_s)
+    rss, a, d, integ, theta, r1, r2 = _best_process(
+        np.ascontiguousarray(pv, dtype=float), np.ascontiguousarray(x, dtype=float), basis, s.alist(),
+        s.min_delay, s.max_delay, k0, k1, s.noise_order, s.n_iter, s.allow_integrating)
+    n_params = 3 + basis.shape[1] + s.noise_order + 1  # K, a, d, disturbance weights, rho, sigma
+    return ProcessFit(float(a), int(d), bool(integ), float(theta[0]), np.asarray(theta[1:]), basis,
+                      (float(r1), float(r2)), float(rss), k1 - k0, n_params)
+
+
+def refit_gain(pv: np.ndarray, x: np.ndarray, pf: ProcessFit, s: Settings, k0: int, k1: int) -> ProcessFit:
+    """Keep the fitted lag and delay, re-estimate gain, disturbance and noise on samples ``k0..k1-1``
+    (the held-out check)."""
+    w = _filtered(np.ascontiguousarray(x, dtype=float), pf.a, pf.delay, pf.integrating)
+    rss, theta, r1, r2 = _oe_fit(np.ascontiguousarray(pv, dtype=float), w, pf.basis, k0, k1, s.noise_order,
+                                 s.n_iter)
+    return ProcessFit(pf.a, pf.delay, pf.integrating, float(theta[0]), np.asarray(theta[1:]), pf.basis,
+                      (float(r1), float(r2)), float(rss), k1 - k0, pf.n_params)
+
+
+def simulate(x: np.ndarray, pf: ProcessFit) -> np.ndarray:
+    """The fitted process's free-run output for the valve path ``x`` plus the fitted slow disturbance
+    (no noise): the fitted loop's simulation against the data, for the report."""
+    w = _filtered(np.ascontiguousarray(x, dtype=float), pf.a, pf.delay, pf.integrating)
+    return pf.K * w + pf.basis @ pf.weights
+
+
+def residuals(pv: np.ndarray, x: np.ndarray, pf: ProcessFit, k0: int) -> np.ndarray:
+    """The innovations ``e`` (after the AR noise filter) from sample ``k0`` on."""
+    r = pv - simulate(x, pf)
+    e = r[k0:] - pf.rho[0] * r[k0 - 1:-1] - pf.rho[1] * r[k0 - 2:-2]
+    return e
+
+
+@dataclass
+class ValveFit:
+    """The maximum-likelihood fit of one valve candidate."""
+
+    valve: str
+    S: float
+    J: float
+    process: ProcessFit
+    n_params: int
+    profile: list[tuple[float, float]] = field(default_factory=list)  # (S, loglik maximised over J and process)
+
+    @property
+    def loglik(self) -> float:
+        return self.process.loglik
+
+    @property
+    def n(self) -> int:
+        return self.process.n
+
+    @property
+    def bic(self) -> float:
+        return -2.0 * self.loglik + self.n_params * math.log(self.n)
+
+    def path(self, op: np.ndarray) -> np.ndarray:
+        return valve_path(op, self.S, self.J)
+
+
+def op_scale(op: np.ndarray) -> float:
+    """The OP range that bounds a band: 1st to 99th percentile, %."""
+    lo, hi = np.percentile(op, [1.0, 99.0])
+    return float(max(hi - lo, 1e-6))
+
+
+def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int | None = None,
+              k0: int | None = None) -> ValveFit:
+    """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J)."""
+    if valve == "linear":
+        pf = fit_process(pv, op, s, k1, k0)
+        return ValveFit("linear", 0.0, 0.0, pf, pf.n_params)
+    fracs = (0.0,) if valve == "backlash" else J_FRACTIONS
+    r = op_scale(op)
+    grid = r * np.geomspace(S_FRACTIONS[0], S_FRACTIONS[1], s.n_grid)
+
+    def best_over_j(S: float) -> tuple[float, float, ProcessFit]:
+        cand = [(fit_process(pv, valve_path(op, S, f * S), s, k1, k0), f * S) for f in fracs]
+        pf, J = max(cand, key=lambda c: c[0].loglik)
+        return pf.loglik, J, pf
+
+    profile: list[tuple[float, float]] = []
+    best: tuple[float, float, float, ProcessFit] | None = None  # (ll, S, J, fit)
+    for S in grid:
+        ll, J, pf = best_over_j(float(S))
+        profile.append((float(S), ll))
+        if best is None or ll > best[0]:
+            best = (ll, float(S), J, pf)
+    assert best is not None
+    i = int(np.argmax([p[1] for p in profile]))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, s.n_grid - 1)]
+    if hi > lo:
+        res = minimize_scalar(lambda v: -best_over_j(float(v))[0], bounds=(lo, hi), method="bounded",
+                              options={"xatol": 2e-3 * r, "maxiter": 12})
+        ll, J, pf = best_over_j(float(res.x))
+        profile.append((float(res.x), ll))
+        if ll > best[0]:
+            best = (ll, float(res.x), J, pf)
+    profile.sort()
+    ll, S, J, pf = best
+    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile)
+
+
+__all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
+           "refit_gain", "simulate", "residuals", "op_scale", "concentrated_loglik"]
