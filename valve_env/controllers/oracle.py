@@ -64,15 +64,15 @@ from valve_env.controllers.baselines import PIController
 class OracleSettings:
     """The MPC's settings (docs/controllers.md, "oracle", says how they were chosen)."""
 
-    horizon_steps: int = 60
-    """Prediction horizon, control steps (60 x 30 s = 30 min)."""
-    block_steps: int = 6
+    horizon_steps: int = 120
+    """Prediction horizon, control steps (120 x 30 s = 1 h)."""
+    block_steps: int = 12
     """Steps per piecewise-constant block of the plan (move blocking)."""
-    replan_steps: int = 3
+    replan_steps: int = 6
     """Steps sent from one plan before the next is made."""
     samples: int = 128
     """Action sequences simulated per iteration (the batched env's width)."""
-    iterations: int = 4
+    iterations: int = 3
     """Cross-entropy iterations per plan."""
     elite_frac: float = 0.1
     """Fraction of the samples the Gaussian is refitted to."""
@@ -117,7 +117,9 @@ class Oracle(Controller):
 
     def __init__(self, env_id: str = "ThermoValve-v0", **settings: Any) -> None:
         super().__init__(env_id)
-        self.settings = OracleSettings(**settings)
+        from valve_env.controllers.compensators import _stored
+
+        self.settings = OracleSettings(**{**_stored(env_id, self.name), **settings})
         s = self.settings
         self.horizon = int(s.horizon_steps)
         self.base = PIController(env_id)
@@ -217,7 +219,7 @@ class Oracle(Controller):
         s = self.settings
         vec = self._simulator(core)
         span = self._hi - self._lo
-        n, ad, H, B = int(s.samples), self.act_dim, self.horizon, int(s.block_steps)
+        n, H, B = int(s.samples), self.horizon, int(s.block_steps)
         n_knots = -(-H // B)
         h_eff = min(H, int(core.cfg.control.n_steps) - int(st.k))
         rng = np.random.default_rng([int(s.seed), int(st.k)])
