@@ -190,7 +190,17 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
     """Build an EnvConfig from a YAML path, a mapping or an EnvConfig, then
     apply keyword overrides: a section name with a mapping or a dataclass
     (``valve={"sigma": 5.0}``), or a single field of ScenarioParams or
-    ControlParams by its name (``tapping_profile="L"``)."""
+    ControlParams by its name (``tapping_profile="L"``). A bad value read from a
+    file raises a ConfigError that names the file."""
+    try:
+        return _make_config(config, **overrides)
+    except ConfigError as exc:
+        if isinstance(config, (str, Path)) and str(config) not in str(exc):
+            raise ConfigError(f"config file {str(config)!r}: {exc}") from None
+        raise
+
+
+def _make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None, **overrides: Any) -> EnvConfig:
     if isinstance(config, EnvConfig):
         base: dict[str, Any] = {}
         start = config

@@ -15,16 +15,20 @@ comes from the valve characteristic. White noise is added to the temperature
 channels (``T_noise_C``) and to the opening (``x_noise_mm``); q, dp and ps
 carry optional relative noise.
 
-Effects of SPEC section 3 are switched on by name with their parameters:
+The named effects (docs/reference.md, "Named effects"; declared in :mod:`valve_env.effects`) are
+switched on by name with their parameters; the valve's trajectory is
+:func:`valve_env.physics.trajectory.valve_path`, the same physics as the environments':
 
 | effect | parameters | what the generator does |
 |---|---|---|
 | sensor_lag | tau_s (s) | tau dT_g/dt = T_env - T_g (bulb heat dynamics) |
 | medium_temperature | beta (-) | T_env = T_tank + beta (T_med - T_tank) (the medium heats the sensor) |
-| stiction | band_mm (mm) | the resting stem sticks until the demanded opening is band_mm away, then slips to it |
+| stiction | band_mm, jump_mm (mm) | the (S, J) stick-slip of the stem (physics.stickslip, see below) |
 | setpoint_drift | rate_MPa_per_h (MPa/h) | p_b,set(t) = p_b,set + rate t (charge ageing) |
 
-Without sensor_lag ``T_g = T_env``; without medium_temperature ``T_env = T_tank``.
+Without sensor_lag ``T_g = T_env``; without medium_temperature ``T_env = T_tank``. With stiction
+the resting stem sticks until the demanded opening has moved band_mm away, slips, follows the
+demand, and sticks again where the demand stops or reverses.
 Everything is seeded with a :class:`numpy.random.Generator` and deterministic.
 """
 
@@ -39,8 +43,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from valve_env import effects as _effects
 from valve_env.params import ConfigError, ValveParams
-from valve_env.physics.valve import dahl_update, flow_kgh, opening, setpoint_temperature
+from valve_env.physics.trajectory import valve_path
+from valve_env.physics.valve import flow_kgh, setpoint_temperature
 
 try:  # numba compiles the fine-grid kernel; the same source runs as plain Python without it
     from numba import njit as _njit
@@ -53,12 +59,9 @@ except ImportError:  # pragma: no cover - numba is a declared dependency
         return fn
 
 
-#: Effect names (SPEC section 3) and their parameters, with the range used when randomising.
+#: Effect names and their parameters with their valid ranges (from the registry, valve_env.effects).
 EFFECTS: dict[str, dict[str, tuple[float, float]]] = {
-    "sensor_lag": {"tau_s": (0.0, 3600.0)},
-    "medium_temperature": {"beta": (0.0, 1.0)},
-    "stiction": {"band_mm": (0.0, 1.0)},
-    "setpoint_drift": {"rate_MPa_per_h": (-1.0e-2, 1.0e-2)},
+    name: {p.name: (p.lower, p.upper) for p in eff.all_parameters} for name, eff in _effects.REGISTRY.items()
 }
 
 #: Default options of :func:`simulate_experiment` (all may be overridden by keyword).
@@ -89,30 +92,11 @@ COLUMNS: tuple[str, ...] = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar",
 
 
 def _check_effects(effects: Mapping[str, Mapping[str, float]] | None) -> dict[str, dict[str, float]]:
+    """The effects checked against the registry (ConfigError naming an unknown effect or parameter, a
+    missing, non-numeric or out-of-range value); every identified parameter must be given."""
     out: dict[str, dict[str, float]] = {}
-    if not effects:
-        return out
-    for name, pars in effects.items():
-        if name not in EFFECTS:
-            raise ConfigError(f"unknown effect {name!r}; known effects: {sorted(EFFECTS)}")
-        spec = EFFECTS[name]
-        pars = dict(pars or {})
-        unknown = sorted(set(pars) - set(spec))
-        if unknown:
-            raise ConfigError(f"effect {name!r}: unknown parameter(s) {unknown}; expected {sorted(spec)}")
-        missing = sorted(set(spec) - set(pars))
-        if missing:
-            raise ConfigError(f"effect {name!r}: missing parameter(s) {missing}")
-        checked: dict[str, float] = {}
-        for key, (lo, hi) in spec.items():
-            try:
-                v = float(pars[key])
-            except (TypeError, ValueError) as exc:
-                raise ConfigError(f"effect {name!r}: {key} must be a number, got {pars[key]!r}") from exc
-            if not math.isfinite(v) or not lo <= v <= hi:
-                raise ConfigError(f"effect {name!r}: {key} must be in [{lo:g}, {hi:g}], got {v!r}")
-            checked[key] = v
-        out[name] = checked
+    for name, pars in (effects or {}).items():
+        out[name] = _effects.check_parameters(name, pars, where="effect", fill_defaults=False)
     return out
 
 
@@ -162,48 +146,7 @@ def _first_order_profile(t_fine: np.ndarray, starts: np.ndarray, targets: np.nda
     return y
 
 
-_dahl_update = _jit(dahl_update)
-
-
-@_jit
-def _gas_and_friction(t_fine: np.ndarray, T_env: np.ndarray, vp: np.ndarray, tau_s: float, F_noise: float,
-                      dW: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """Gas temperature (bulb lag, exact for a piecewise-linear input) and Dahl friction (exact per increment)."""
-    n = t_fine.shape[0]
-    Tg = np.empty(n)
-    F = np.empty(n)
-    Fm = vp[8]
-    Tg[0] = T_env[0]
-    F[0] = 0.0
-    for i in range(1, n):
-        h = t_fine[i] - t_fine[i - 1]
-        if tau_s > 0.0:
-            a = math.exp(-h / tau_s)
-            u0 = T_env[i - 1]
-            u1 = T_env[i]
-            Tg[i] = u1 + (Tg[i - 1] - u0) * a - (u1 - u0) * tau_s / h * (1.0 - a)
-        else:
-            Tg[i] = T_env[i]
-        f = _dahl_update(F[i - 1], Tg[i] - Tg[i - 1], vp)
-        if F_noise > 0.0:
-            f = min(max(f + F_noise * dW[i], -Fm), Fm)
-        F[i] = f
-    return Tg, F
-
-
-@_jit
-def _stick_slip(x_demand: np.ndarray, band: float, stroke: float) -> np.ndarray:  # pragma: no cover - compiled
-    """The stem rests until the demanded opening is ``band`` away, then slips to it; end stops always win."""
-    n = x_demand.shape[0]
-    x = np.empty(n)
-    x[0] = x_demand[0]
-    for i in range(1, n):
-        xd = x_demand[i]
-        if xd <= 0.0 or xd >= stroke or abs(xd - x[i - 1]) >= band:
-            x[i] = xd
-        else:
-            x[i] = x[i - 1]
-    return x
+_valve_path = _jit(valve_path)
 
 
 def simulate_experiment(
@@ -288,21 +231,17 @@ def simulate_experiment(
                            M0, False)
     T_med = _first_order_profile(t_fine, sm, mg, ma, M0)
 
-    beta = eff.get("medium_temperature", {}).get("beta", 0.0)
-    tau = eff.get("sensor_lag", {}).get("tau_s", 0.0)
-    band = eff.get("stiction", {}).get("band_mm", 0.0)
-    rate = eff.get("setpoint_drift", {}).get("rate_MPa_per_h", 0.0) / 3600.0
-    T_env = T_tank + beta * (T_med - T_tank)
+    e = _effects.parse_effects(eff, where="effects").vector()
+    band = e[_effects.ENGINE_INDEX["band_mm"]]
     dW = rng.standard_normal(n_fine) * math.sqrt(h)
-    Tg, F = _gas_and_friction(t_fine, T_env, vp, tau, opt["F_noise"], dW)
-    x = opening(Tg, F, opt["dp_mbar"], opt["ps_bar"], valve.p_bset + rate * t_fine, vp)
-    if band > 0:
-        x = _stick_slip(np.ascontiguousarray(x), band, valve.stroke)
+    path = _valve_path(t_fine, T_tank, T_med, np.full(n_fine, opt["dp_mbar"]), np.full(n_fine, opt["ps_bar"]),
+                       valve.p_bset, e, vp, False, opt["F_noise"], dW, np.empty((5, n_fine)))
+    Tg, F, x = path[0], path[1], path[2]
 
     def at(y: np.ndarray) -> np.ndarray:
         return np.interp(t_s, t_fine, y)
 
-    if band > 0:  # the stuck stem is piecewise constant: sample it, do not interpolate across a slip
+    if band > 0:  # the stem sticks and slips: sample it, do not interpolate across a slip
         idx = np.minimum(np.searchsorted(t_fine, t_s + 1e-9 * h, side="right") - 1, n_fine - 1)
         x_true = x[idx]
     else:
@@ -351,21 +290,15 @@ def parse_effect(text: str) -> tuple[str, dict[str, float]]:
 
 
 #: the classes of the randomised studies: no effect, then each named effect of SPEC section 3
-STUDY_CLASSES: tuple[str, ...] = ("none", "sensor_lag", "medium_temperature", "stiction", "setpoint_drift")
+STUDY_CLASSES: tuple[str, ...] = ("none", *_effects.REGISTRY)
 
 
 def draw_effect(name: str, rng: np.random.Generator) -> dict[str, dict[str, float]]:
     """A random size of effect ``name`` (``{}`` for ``"none"``), as the diagnosis studies draw it."""
     if name == "none":
         return {}
-    if name == "sensor_lag":
-        return {name: {"tau_s": float(math.exp(rng.uniform(math.log(20.0), math.log(180.0))))}}
-    if name == "medium_temperature":
-        return {name: {"beta": float(rng.uniform(0.03, 0.25))}}
-    if name == "stiction":
-        return {name: {"band_mm": float(rng.uniform(0.01, 0.04))}}
-    if name == "setpoint_drift":
-        return {name: {"rate_MPa_per_h": float(rng.choice([-1.0, 1.0]) * rng.uniform(1.5e-5, 6e-5))}}
+    if name in _effects.REGISTRY:
+        return {name: _effects.draw(name, rng)}
     raise ConfigError(f"unknown effect {name!r}; expected one of {', '.join(STUDY_CLASSES)}")
 
 

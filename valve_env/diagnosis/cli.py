@@ -13,6 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from valve_env.effects import REGISTRY as EFFECTS
+
 EXIT_BAD_INPUT = 2
 EXIT_ERROR = 1
 
@@ -44,6 +46,9 @@ def register(subparsers: Any) -> None:
     d.add_argument("--bootstrap", type=int, default=16, metavar="B",
                    help="bootstrap replicates for the named effects' sd (0: inverse Hessian/HAC, "
                    "faster but optimistic)")
+    d.add_argument("--valve-out", metavar="VALVE.yaml", default=None,
+                   help="write the diagnosed valve (base parameters and named effects) as a valve file for "
+                   "gym.make(id, config=VALVE.yaml) (docs/reference.md)")
     d.set_defaults(func=_cmd_diagnose)
 
     e = subparsers.add_parser(
@@ -119,6 +124,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     effects = None
     if args.effects:
         effects = [s.strip() for s in args.effects.split(",") if s.strip()]
+    from valve_env.outputs import OutputError, OutputSet
+
+    valve_outs = OutputSet(inputs=[args.run, args.validate, args.json_out], force=getattr(args, "force", False))
+    try:  # declared before the work (docs/reference.md, "The valve file")
+        valve_out = valve_outs.add(args.valve_out, "--valve-out") if args.valve_out else None
+    except OutputError as exc:
+        return _fail(str(exc))
     try:
         result = diagnose_files(args.run, validate=args.validate, holdout=args.holdout, alpha=args.alpha,
                                 effects=effects, bootstrap_B=args.bootstrap)
@@ -143,6 +155,17 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         except Exception as exc:  # noqa: BLE001 - the JSON is written; report the failure in one line
             return _fail(f"report failed: {type(exc).__name__}: {' '.join(str(exc).split())}", EXIT_ERROR)
         print(f"report: {report}")
+    if valve_out is not None:
+        from valve_env.valvefile import write_valve
+
+        try:
+            write_valve(valve_outs, valve_out, result.final.params,
+                        {e: {k: result.final.params[k] for k in EFFECTS[e].param_names} for e in result.selected},
+                        source=f"diagnosed by thermovalve diagnose {args.run}: cause {result.cause}")
+            valve_outs.commit()
+        except (OSError, ValueError) as exc:
+            return _fail(f"cannot write {valve_out}: {exc}")
+        print(f"valve file: {valve_out}")
     print(result.summary())
     return 0
 

@@ -33,16 +33,32 @@ import numpy as np
 from numba import njit
 from scipy.optimize import minimize
 
-from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE
+from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.physics import valve as phys
+from valve_env.physics.stickslip import initial_state as stick_initial_state
+from valve_env.physics.stickslip import stick_slip_step
+from valve_env.physics.trajectory import (
+    E_BETA,
+    E_RATE,
+    E_TAU,
+    bulb_coefficients,
+    bulb_lag,
+    drifted_set_pressure,
+    sensed_temperature,
+)
 
 _demanded_opening = njit(cache=True)(phys.demanded_opening)
+_dahl_update = njit(cache=True)(phys.dahl_update)
 LOG2PI = math.log(2.0 * math.pi)
 SQRT2 = math.sqrt(2.0)
 #: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
 BAND_SPREAD = 0.5
-#: sd of the landing position after a slip relative to the band (the demand moves during the slip)
-LANDING_SD = 0.5
+#: sd of the landing position after a slip relative to the band: the (S, J = S) stem lands on the demand, so
+#: this only absorbs the simulated demand's error (0.5, as the earlier re-sticking filter used, peaked at 1.3
+#: times the band on exact stick-slip data; 0.2 at the band)
+LANDING_SD = 0.2
+#: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
+DECIDE_MOVING = 0.9
 
 
 # --------------------------------------------------------------------------- 1. latent temperatures
@@ -183,8 +199,8 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, robust_passes: int = 3,
 
 
 # --------------------------------------------------------------------------- 2. the valve simulation
-# effect parameter vector e: tau_s, beta, band_mm, rate_MPa_per_h
-E_TAU, E_BETA, E_BAND, E_RATE = 0, 1, 2, 3
+# the effect parameter vector e: valve_env.effects.ENGINE_INDEX (tau_s, beta, band_mm, jump_mm, rate_MPa_per_h),
+# positions E_* from valve_env.physics.trajectory
 
 
 @njit(cache=True)
@@ -314,8 +330,10 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
     T_env = T + beta (M - T) is freed of reversals smaller than ``delta`` (:func:`monotone_path`;
     doing this on each channel separately instead would create spurious reversals where one channel
     rests on an isotonic plateau while the other moves). ``vp`` is the packed ValveParams
-    (sigma, F_hmax, p_bset taken from it); ``e`` the effect vector (tau_s, beta, band_mm,
-    rate_MPa_per_h), zeros switch the effects off (``band_mm`` is used by :func:`stick_loglik`).
+    (sigma, F_hmax, p_bset taken from it); ``e`` the effect vector (valve_env.effects.ENGINE_INDEX),
+    zeros switch the effects off (``band_mm`` is used by :func:`stick_simulate` and :func:`stick_loglik`).
+    The bulb lag, the sensed temperature, the Dahl step and the drifted set pressure are the
+    functions of :mod:`valve_env.physics.trajectory` that the generator and the environments run.
     T_env is interpolated linearly between samples on sub-steps of at most ``max_step_s``. ``x`` is
     the opening clipped to [0, stroke]; with ``want_sub`` the clipped opening at every sub-step is
     returned in ``x_sub`` and ``sub_idx[k]`` is the index of sample k in it."""
@@ -326,9 +344,7 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
     sub_idx = np.zeros(n, dtype=np.int64)
     tau = e[E_TAU]
     beta = e[E_BETA]
-    rate_s = e[E_RATE] / 3600.0
-    sigma = vp[I_SIGMA]
-    Fm = vp[I_F_HMAX]
+    rate = e[E_RATE]
     p0 = vp[I_P_BSET]
     stroke = vp[I_STROKE]
     t0 = t[0]
@@ -342,7 +358,7 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
     x_sub = np.empty(n_sub if want_sub else 0)
     env_raw = np.empty(n)
     for k in range(n):
-        env_raw[k] = T[k] + beta * (M[k] - T[k])
+        env_raw[k] = sensed_temperature(T[k], M[k], beta)
     env_s = monotone_path(env_raw, delta)
     Tg = env_s[0]
     F = 0.0
@@ -361,32 +377,21 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
             if m < 1:
                 m = 1
         hs = h / m
-        a = 0.0
-        b = 0.0
-        if lagged:
-            a = math.exp(-hs / tau)
-            b = tau / hs * (1.0 - a)
+        a, b = bulb_coefficients(hs, tau if lagged else 0.0)
         e0 = env_s[k - 1]
         de = (env_s[k] - e0) / m
         for j in range(1, m + 1):
             env_prev = e0 + (j - 1) * de
             env = e0 + j * de
-            if lagged:
-                Tg_new = env + (Tg - env_prev) * a - (env - env_prev) * b
-            else:
-                Tg_new = env
-            dT = Tg_new - Tg
-            if dT > 0.0:
-                F = Fm + (F - Fm) * math.exp(-sigma * dT / Fm)
-            elif dT < 0.0:
-                F = -Fm + (F + Fm) * math.exp(sigma * dT / Fm)
+            Tg_new = bulb_lag(Tg, env_prev, env, a, b)
+            F = _dahl_update(F, Tg_new - Tg, vp)
             Tg = Tg_new
             if want_sub and j < m:
                 tt = t[k - 1] + j * hs
-                xd = _demanded_opening(Tg, F, dp[k], ps[k], p0 + rate_s * (tt - t0), vp)
+                xd = _demanded_opening(Tg, F, dp[k], ps[k], drifted_set_pressure(p0, rate, tt - t0), vp)
                 pos += 1
                 x_sub[pos] = min(max(xd, 0.0), stroke)
-        xd = _demanded_opening(Tg, F, dp[k], ps[k], p0 + rate_s * (t[k] - t0), vp)
+        xd = _demanded_opening(Tg, F, dp[k], ps[k], drifted_set_pressure(p0, rate, t[k] - t0), vp)
         x_out[k] = min(max(xd, 0.0), stroke)
         if want_sub:
             pos += 1
@@ -399,18 +404,19 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
 
 @njit(cache=True)
 def stick_simulate(x_sub: np.ndarray, sub_idx: np.ndarray, band: float, stroke: float) -> np.ndarray:
-    """Open-loop stick-slip of the stem on the sub-step grid, sampled: the stem rests until the
-    demanded opening is ``band`` away, then slips to it; the end stops always win."""
+    """Open-loop stick-slip of the stem on the sub-step grid, sampled: the (S, J = S) model of
+    :mod:`valve_env.physics.stickslip` (the generator's and the environments'): the resting stem
+    sticks until the demanded opening has moved ``band`` away, slips onto it and follows it until it
+    stops or reverses."""
     n = sub_idx.shape[0]
     out = np.empty(n)
-    s = x_sub[0]
-    out[0] = s
+    y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(x_sub[0], band, band, 0.0, stroke)
+    out[0] = y
     for k in range(1, n):
         for j in range(sub_idx[k - 1] + 1, sub_idx[k] + 1):
-            xd = x_sub[j]
-            if xd <= 0.0 or xd >= stroke or abs(xd - s) >= band:
-                s = xd
-        out[k] = s
+            y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(x_sub[j], y, u_prev, du_prev, u_s, stuck, d, band,
+                                                                band, 0.0, stroke)
+        out[k] = y
     return out
 
 
@@ -462,27 +468,28 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                  landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
+    The stem follows the (S, J = S) model of :mod:`valve_env.physics.stickslip` (:func:`stick_simulate`):
+    a resting stem sticks until the demanded opening has moved ``band`` away, slips onto it and follows
+    it until the demand stops or reverses, where it sticks again.
+
     States: the stem position ``s`` and the model error ``e`` (Ornstein-Uhlenbeck, as in
-    :func:`ou_loglik`); observation ``y = s + e + w``. Between samples the stem follows the
-    stick-slip rule on the sub-step grid, starting from the filter's estimate of ``s``: where the
-    demanded opening is ``band`` away it slips to it, landing with an uncertainty of
-    ``landing * band`` (sd); where it sticks, ``s`` is unchanged and the measurements pin it down.
-    The breakaway band itself varies (sd ``spread * band``) and the stem position is
-    uncertain, so the filter slips with the probability of breakaway *in this sub-step* and
-    moment-matches the two outcomes (a first-order generalised pseudo-Bayes filter); this also makes
-    the likelihood continuous in ``band``.
+    :func:`ou_loglik`); observation ``y = s + e + w``. Between samples, on the sub-step grid: a resting
+    stem slips with the probability of breakaway *in this sub-step*, landing on the demand with an
+    uncertainty of ``landing * band`` (sd). The breakaway band itself varies (sd ``spread * band``) and
+    the stem position is uncertain, so the filter moment-matches the two outcomes (a first-order
+    generalised pseudo-Bayes filter; this also makes the likelihood continuous in ``band``); once the
+    probability that the stem has slipped since it last stuck passes ``DECIDE_MOVING``, the filter decides that
+    it moves and lets it follow the demand's increments until the demand stops or reverses
+    (decision-directed). Where the stem sticks, ``s`` is unchanged and the measurements pin it down.
 
     The breakaway probability is a first-passage hazard: a stem that has stuck while the demand
     was ``dmax`` away has a band larger than ``dmax``, so it slips in this sub-step with
     probability ``(F(|d|) - F(dmax)) / (1 - F(dmax))`` (F the distribution of the band), and not at
-    all while ``|d|`` stays below ``dmax``. Applying ``F(|d|)`` afresh in every sub-step, as an
-    earlier version did, lets the filter's stem creep towards the demand before the band is
-    reached; the fitted band then came out up to 2.5 times too large on exact stick-slip data.
-    ``dmax`` restarts after a slip and after a measurement that moves the stem estimate towards the
-    demand.
+    all while ``|d|`` stays below ``dmax``. ``dmax`` restarts where the stem sticks again and after a
+    measurement that moves the stem estimate towards the demand.
 
     Because the resting position is estimated from the data rather than simulated open loop, a
-    small error in the demand does not put the simulated and the measured staircases out of step.
+    small error in the demand does not put the simulated and the measured stems out of step.
     With ``band = 0`` the stem always slips onto the demand with no uncertainty and the likelihood
     is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested."""
     n = t.shape[0]
@@ -491,11 +498,15 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     vl = (landing * band) ** 2
     vb = (spread * band) ** 2
     me = 0.0
-    ms = x_sub[0]
+    ms = min(max(x_sub[0], 0.0), stroke)
     Pee = ve
     Pes = 0.0
     Pss = 0.0
     dmax = 0.0
+    moving = False
+    p_slip = 0.0
+    x_prev = ms
+    du_prev = 0.0
     ll = 0.0
     innov = np.empty(n)
     Sout = np.empty(n)
@@ -506,12 +517,18 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             Pee = phi * phi * Pee + ve * (1.0 - phi * phi)
             Pes = phi * Pes
             for j in range(sub_idx[k - 1] + 1, sub_idx[k] + 1):
-                xd = x_sub[j]
-                if xd <= 0.0 or xd >= stroke:
-                    ms = xd
-                    Pss = 0.0
-                    Pes = 0.0
+                xd = min(max(x_sub[j], 0.0), stroke)
+                du = xd - x_prev
+                x_prev = xd
+                if du * du_prev <= 0.0:
+                    # the demand stops or reverses: a moving stem sticks where it is
+                    moving = False
+                    p_slip = 0.0
                     dmax = 0.0
+                if du != 0.0:
+                    du_prev = du
+                if moving:
+                    ms = ms + du  # it follows the demand
                     continue
                 d = xd - ms
                 ad = abs(d)
@@ -523,12 +540,13 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
                 dmax = ad
                 if pi > 1e-12:
-                    # moment-matched mixture of "stuck" and "slipped to the demand"
+                    # moment-matched mixture of "still stuck" and "slipped onto the demand"
                     ms = ms + pi * d
                     Pss = (1.0 - pi) * Pss + pi * vl + pi * (1.0 - pi) * d * d
                     Pes = (1.0 - pi) * Pes
-                    if pi >= 0.5:
-                        dmax = abs(xd - ms)
+                    p_slip = 1.0 - (1.0 - p_slip) * (1.0 - pi)
+                    if p_slip >= DECIDE_MOVING:
+                        moving = True  # decided: it has broken away and now moves with the demand
         S = Pee + 2.0 * Pes + Pss + vw
         nu = y[k] - ms - me
         innov[k] = nu

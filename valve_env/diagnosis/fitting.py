@@ -246,12 +246,16 @@ class Model:
 
         Each effect parameter is first scanned over a grid with the other parameters at ``start`` (a
         robust start: the likelihood can be far from quadratic away from the optimum). Stiction's band
-        is measured from the jumps of the opening (:func:`valve_env.diagnosis.stiction.jump_band`) and
-        held fixed; only where the record has too few jumps is it fitted, by a 1-D profile search
-        alternating with fits of the other parameters (:meth:`_coordinate_ascent`)."""
+        is measured from the slips of the opening (:func:`valve_env.diagnosis.stiction.jump_band`) and
+        held fixed while the others are fitted; then (and from the start where the record has too few
+        slips) it is fitted by a 1-D profile search alternating with fits of the other parameters
+        (:meth:`_coordinate_ascent`): under the (S, J) stick-slip a stem slips once per reversal of the
+        demand, often too few slips for the measured band alone, and the stick-slip filter's likelihood
+        peaks at the band (tests/diagnosis/test_uncertainty.py)."""
         cold = start is None
         start = {**self.default_start(data), **(start or {})}
         fixed = dict(fixed or {})
+        free = dict(fixed)  # what stays fixed in the final profile search of the band
         # stiction's band is measured from the staircase of the opening (valve_env.diagnosis.stiction):
         # its likelihood is rough and trades the band off against F_hmax, which traps a joint fit
         for p in self.eff_params:
@@ -308,6 +312,9 @@ class Model:
             fit = again if again.loglik > fit.loglik else fit
             if not improved:
                 break
+        if any(p.log_grid and p.name in fixed and p.name not in free for p in self.eff_params):
+            fit = self._coordinate_ascent(data, fit, free, maxiter)
+            fixed = free
         if with_std:
             fit = self._fit_smooth(data, fit.params, fixed, 50, True)
         return fit

@@ -34,6 +34,7 @@ import numba as nb
 import numpy as np
 
 from valve_env.diagnosis.effects import check_effects
+from valve_env.effects import REGISTRY
 from valve_env.estimation.model import Parameter
 from valve_env.estimation.valve_model import (
     N_BASE_CONSTANTS,
@@ -116,13 +117,17 @@ def fx_extra_drift(t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray, c: np.
     return out
 
 
+#: each effect's parameter for the estimator, from the registry (valve_env.effects: start, bounds, transform)
 _PARAMS: dict[str, Parameter] = {
-    "sensor_lag": Parameter("tau_s", 60.0, 0.5, 3600.0, "log", unit="s", doc="bulb time constant"),
-    "medium_temperature": Parameter("beta", 0.05, 0.0, 0.95, "logit", unit="-",
-                                    doc="weight of the medium temperature in the sensed temperature"),
-    "stiction": Parameter("band_mm", 0.01, 1e-4, 0.5, "log", unit="mm", doc="stick band of the stem"),
-    "setpoint_drift": Parameter("rate_MPa_per_h", 0.0, -0.01, 0.01, "none", unit="MPa/h",
-                                doc="drift of the bellows set pressure"),
+    name: Parameter(p.name, p.sde_init, p.sde_lower, p.sde_upper, p.transform, unit=p.unit, doc=p.doc)
+    for name, eff in REGISTRY.items() for p in eff.parameters
+}
+#: the SDE hooks above, by effect: the extra state each adds (None: none) and its constants slot
+HOOKS: dict[str, tuple[str | None, int]] = {
+    "sensor_lag": ("T_g", C_TAU),
+    "medium_temperature": (None, C_BETA),
+    "stiction": ("x_s", C_BAND),
+    "setpoint_drift": (None, C_RATE),
 }
 
 
@@ -131,13 +136,9 @@ def effect_model(effects: list[str] | tuple[str, ...], **options: Any) -> ValveM
 
     ``options`` go to :class:`ValveModel` (``valve``, ``fixed``, ``init``, ``clip_width_mm``)."""
     names = check_effects(list(effects))
-    order = [e for e in ("sensor_lag", "medium_temperature", "stiction", "setpoint_drift") if e in names]
+    order = [e for e in REGISTRY if e in names]
     extra_params = tuple(_PARAMS[e] for e in order)
-    extra_states: list[str] = []
-    if "sensor_lag" in order:
-        extra_states.append("T_g")
-    if "stiction" in order:
-        extra_states.append("x_s")
+    extra_states = [state for state, _ in (HOOKS[e] for e in order) if state is not None]
     n_base_params = N_BASE_PARAMS
     idx = {q.name: n_base_params + k for k, q in enumerate(extra_params)}
     consts = np.array([

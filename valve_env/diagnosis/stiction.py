@@ -1,11 +1,18 @@
-"""The stick band measured from the staircase of the opening (a moment estimator).
+"""The stick band measured from the slips of the opening (a moment estimator).
 
-A sticking stem rests until the demanded opening is the band away and then slips onto it, so
-while the demand moves slowly every slip is a jump of the band (a little more while it moves
-fast, and several slips can fall between two samples). The likelihood of the stick-slip filter
-is rough in the band and the band trades off against the Dahl friction's F_hmax (both make
-hysteresis), which traps the joint fit; the jumps measure the band directly, without the valve
-model. Used by :class:`valve_env.diagnosis.fitting.Model` for ``band_mm``.
+Under the (S, J) stick-slip model of the stem (:mod:`valve_env.physics.stickslip`; J = S, the
+diagnosis's model) a stem that has come to rest, where the demanded opening stopped or reversed,
+stays put until the demand has moved the band away, then slips onto the demand and follows it. In
+the sampled opening each slip is a plateau followed by a jump of the band plus the motion of the
+rest of that sampling interval. :func:`jump_band` finds these (a flat stretch, a jump that
+persists) and measures each slip as the jump from the plateau's level to the level of the following
+samples' straight line half an interval after the plateau's last sample (which removes the motion
+within the interval on average); the band is the median over the slips. The same estimator reads
+the staircase of a stem that re-sticks right after every slip (each step a plateau and a jump of the
+band). The likelihood of the stick-slip filter is rough in the band and the band trades off against
+the Dahl friction's F_hmax (both make hysteresis), which traps the joint fit; the slips measure the
+band directly, without the valve model. Used by :class:`valve_env.diagnosis.fitting.Model` for
+``band_mm``.
 """
 
 from __future__ import annotations
@@ -14,22 +21,7 @@ import math
 
 import numpy as np
 
-
-def _responsibilities(a: np.ndarray, b: float, sig: float, w: np.ndarray,
-                      top: float) -> tuple[np.ndarray, np.ndarray]:
-    """E-step of the step-size mixture: resting |N(0, sig)|, single slips |N(b, sig)|, double
-    slips |N(2b, sig)| and a uniform part on [0, top]; returns the responsibilities (4, n) and
-    the new weights."""
-    c = 1.0 / (sig * math.sqrt(2.0 * math.pi))
-    f0 = 2.0 * c * np.exp(-0.5 * (a / sig) ** 2)
-    f1 = c * (np.exp(-0.5 * ((a - b) / sig) ** 2) + np.exp(-0.5 * ((a + b) / sig) ** 2))
-    f2 = c * (np.exp(-0.5 * ((a - 2 * b) / sig) ** 2) + np.exp(-0.5 * ((a + 2 * b) / sig) ** 2))
-    f3 = np.full_like(a, 1.0 / max(top, 1e-9))
-    F = np.vstack([w[0] * f0, w[1] * f1, w[2] * f2, w[3] * f3])
-    tot = F.sum(axis=0)
-    tot[tot <= 0] = 1e-300
-    R = F / tot
-    return R, R.sum(axis=1) / a.size
+from valve_env.estimation.valve_model import noise_sd as _smooth_noise_sd
 
 
 def _away_from_stops(x: np.ndarray, stroke: float, edge_mm: float) -> np.ndarray:
@@ -39,92 +31,66 @@ def _away_from_stops(x: np.ndarray, stroke: float, edge_mm: float) -> np.ndarray
 
 
 def noise_sd(x: np.ndarray) -> float:
-    """sd of the white noise on the opening from the resting steps (median absolute difference)."""
-    d = np.abs(np.diff(x))
-    return float(np.median(d) / (0.6745 * math.sqrt(2.0))) if d.size else 0.0
+    """sd of the white noise on the opening: the robust second-difference estimate of
+    :func:`valve_env.estimation.valve_model.noise_sd` (the stem moves smoothly between slips, which
+    are outliers of the second differences)."""
+    return _smooth_noise_sd(np.asarray(x, dtype=float))
 
 
-def resting_noise_sd(x: np.ndarray, stroke: float, band: float | None = None, edge_mm: float = 0.02,
-                     iters: int = 100) -> float:
-    """sd of the white noise on the opening from the resting steps alone, the slips set apart.
+def resting_noise_sd(x: np.ndarray, stroke: float, band: float | None = None) -> float:
+    """sd of the white noise on the opening of a sticking stem (the replicate noise of the bootstrap):
+    :func:`noise_sd`, whose second differences set the slips apart as outliers whatever the band (kept
+    with its arguments for the callers)."""
+    return noise_sd(x)
 
-    :func:`noise_sd` takes the median of all absolute steps, slips included; where slips are a good
-    share of the steps (coarse sampling, a small band) it overstates the noise (by up to about 20 %
-    at 20-30 s sampling). Here the absolute steps away from the end stops are a mixture of resting
-    steps (|N(0, sig)|, sig = sqrt(2) s), single and double slips (|N(b, sig)|, |N(2 b, sig)|) and a
-    broad uniform part, fitted by EM with the resting width free; the noise sd is ``sig / sqrt(2)``.
-    ``band``: the band (default :func:`jump_band`'s); without a band it is :func:`noise_sd`."""
+
+def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0, plateau: int = 3,
+          after: int = 3, edge_mm: float = 0.02, flat: float = 3.5, persist: float = 3.0) -> np.ndarray:
+    """The sizes (mm) of the slips of a sticking stem in the measured opening ``x`` (module docstring).
+
+    A slip is a step larger than ``z`` noise sd of a difference after ``plateau`` samples that span
+    less than ``flat`` noise sd, whose next ``after`` samples lie beyond the plateau's level by
+    ``persist`` sd of the difference of the two means and do not step back, all away from the end
+    stops by ``edge_mm``. Its size is the distance from the plateau's mean to the next samples'
+    straight line half an interval after the plateau. ``s_w``: the noise sd (default :func:`noise_sd`)."""
     x = np.asarray(x, dtype=float)
-    s0 = noise_sd(x)
-    b = jump_band(x, stroke)[0] if band is None else float(band)
-    if not (math.isfinite(b) and b > 0 and s0 > 0):
-        return s0
+    s = max(noise_sd(x) if s_w is None else float(s_w), 1e-6)
+    n = x.size
     d = np.diff(x)
-    inside = _away_from_stops(x, stroke, edge_mm)
-    a = np.abs(d[inside])
-    if a.size < 20:
-        return s0
-    sig = math.sqrt(2.0) * s0
-    top = float(a.max())
-    w = np.array([0.9, 0.05, 0.02, 0.03])
-    for _ in range(iters):
-        R, w = _responsibilities(a, b, sig, w, top)
-        # the resting steps set the width (the slips' sizes also vary with the demand's speed)
-        if R[0].sum() <= 0:
-            return s0
-        ns = math.sqrt(float(R[0] @ (a * a)) / float(R[0].sum()))
-        if abs(ns - sig) <= 1e-6 * sig:
-            sig = ns
-            break
-        sig = ns
-    return sig / math.sqrt(2.0)
+    thr = z * math.sqrt(2.0) * s
+    lift = persist * s * math.sqrt(1.0 / plateau + 1.0 / after)
+    tpost = np.arange(1, after + 1, dtype=float)
+    out: list[float] = []
+    k = plateau - 1
+    while k < n - 1 - after:
+        dk = d[k]
+        if abs(dk) <= thr:
+            k += 1
+            continue
+        pre = x[k - plateau + 1:k + 1]
+        post = x[k + 1:k + 1 + after]
+        sg = 1.0 if dk > 0 else -1.0
+        lev0 = float(pre.mean())
+        ok = (np.ptp(pre) <= flat * s and min(pre.min(), post.min()) > edge_mm
+              and max(pre.max(), post.max()) < stroke - edge_mm and sg * (post.mean() - lev0) > lift
+              and not np.any(sg * np.diff(post) < -thr))
+        if not ok:
+            k += 1
+            continue
+        slope, icpt = np.polyfit(tpost, post, 1)
+        out.append(sg * (icpt + 0.5 * slope - lev0))
+        k += after
+    return np.array(out)
 
 
-def jump_band(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 3.5,
-              edge_mm: float = 0.02, min_jumps: int = 10) -> tuple[float, int]:
-    """Band (mm) from the jumps of the measured opening; (nan, n) if fewer than ``min_jumps``.
-
-    Jumps are steps larger than ``z`` noise sd of a difference, away from the end stops. The band
-    is the centre of the smallest cluster of jump sizes (single slips): the median of the jumps
-    below 1.5 times the current estimate, iterated from the lower quartile."""
-    x = np.asarray(x, dtype=float)
-    s = noise_sd(x) if s_w is None else float(s_w)
-    d = np.diff(x)
-    inside = _away_from_stops(x, stroke, edge_mm)
-    J = np.abs(d[inside & (np.abs(d) > z * math.sqrt(2.0) * max(s, 1e-6))])
-    if J.size < min_jumps:
-        return float("nan"), int(J.size)
-    b = float(np.quantile(J, 0.25))
-    for _ in range(20):
-        sel = J[J < 1.5 * b]
-        if sel.size < min_jumps // 2:
-            break
-        nb = float(np.median(sel))
-        if abs(nb - b) <= 1e-4 * b:
-            b = nb
-            break
-        b = nb
-    return _mixture_band(np.abs(d[inside]), b, math.sqrt(2.0) * max(s, 1e-6)), int(J.size)
-
-
-def _mixture_band(a: np.ndarray, b0: float, sig: float, iters: int = 50) -> float:
-    """Refine the band by EM on the absolute steps ``a``: a mixture of resting steps (|N(0, sig)|),
-    single slips (|N(b, sig)|), double slips (|N(2b, sig)|) and a broad uniform part (slips of
-    fast ramps). Unlike the thresholded jumps it keeps the small slips that the noise hides."""
-    b = b0
-    top = float(a.max()) if a.size else 1.0
-    w = np.array([0.9, 0.05, 0.02, 0.03])
-    for _ in range(iters):
-        R, w = _responsibilities(a, b, sig, w, top)
-        den = R[1].sum() + 4.0 * R[2].sum()
-        if den <= 0:
-            break
-        nb = float((R[1] @ a + 2.0 * (R[2] @ a)) / den)
-        if abs(nb - b) <= 1e-6 * b:
-            b = nb
-            break
-        b = nb
-    return b
+def jump_band(x: np.ndarray, stroke: float, s_w: float | None = None, min_jumps: int = 4,
+              **options: float) -> tuple[float, int]:
+    """Band (mm) from the slips of the measured opening (the median of :func:`slips`, which takes
+    ``options``); (nan, n) with fewer than ``min_jumps`` slips."""
+    sz = slips(x, stroke, s_w, **options)  # type: ignore[arg-type]
+    if sz.size < min_jumps:
+        return float("nan"), int(sz.size)
+    return float(np.median(sz)), int(sz.size)
 
 
 def band_sampling(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int = 200,
@@ -153,4 +119,4 @@ def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int
                      for _ in range(draws)])
 
 
-__all__ = ["band_sampling", "jump_band", "noise_sd", "resting_noise_sd"]
+__all__ = ["band_sampling", "jump_band", "noise_sd", "resting_noise_sd", "slips"]

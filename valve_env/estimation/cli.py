@@ -35,6 +35,9 @@ def register(subparsers: Any) -> None:
                    help="write figures and a markdown report (Table 4, Fig. 5-7) into DIR")
     p.add_argument("--config", metavar="OUT.yaml", default=None,
                    help="write an environment config with the fitted 'valve:' parameters")
+    p.add_argument("--valve-out", metavar="VALVE.yaml", default=None,
+                   help="write the fitted valve as a valve file for gym.make(id, config=VALVE.yaml) "
+                   "(docs/reference.md)")
     p.add_argument("--validate", metavar="OTHER.csv", default=None,
                    help="an independent run for cross-validation (paper Fig. 7)")
     p.add_argument("--n-starts", type=int, default=3, help="optimiser starts (default 3)")
@@ -58,6 +61,13 @@ def run_fit(args: argparse.Namespace) -> int:
         return _fail(str(exc), EXIT_BAD_INPUT)
     if args.n_starts < 1:
         return _fail("--n-starts must be at least 1", EXIT_BAD_INPUT)
+    from valve_env.outputs import OutputError, OutputSet
+
+    valve_outs = OutputSet(inputs=[args.run, args.validate, args.json_out], force=getattr(args, "force", False))
+    try:  # declared before the work (docs/reference.md, "The valve file")
+        valve_out = valve_outs.add(args.valve_out, "--valve-out") if args.valve_out else None
+    except OutputError as exc:
+        return _fail(str(exc), EXIT_BAD_INPUT)
     try:
         from valve_env.estimation.report import fit_run, fit_summary, write_report
 
@@ -77,6 +87,11 @@ def run_fit(args: argparse.Namespace) -> int:
             cfg = Path(args.config)
             cfg.parent.mkdir(parents=True, exist_ok=True)
             cfg.write_text(yaml.safe_dump({"valve": summary["params"]}, sort_keys=False))
+        if valve_out is not None:
+            from valve_env.valvefile import write_valve
+
+            write_valve(valve_outs, valve_out, summary["params"], source=f"fitted by thermovalve fit {args.run}")
+            valve_outs.commit()
     except (OSError, ValueError) as exc:
         return _fail(f"{type(exc).__name__}: {exc}", EXIT_FAILED)
     p = summary["params"]
