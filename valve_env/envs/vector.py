@@ -406,13 +406,13 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._SD[idx, sim.SD_SET] = st.setting_C
         self._SD[idx, sim.SD_DP] = st.dp_mbar
         self._E0[idx] = st.E0_J
-        for i in idx:
+        for i in idx:  # the state setter copies the values (the snapshot's dict is not kept)
             rng = self._rngs[i]
             if rng is None:
                 self._rngs[i], self._seeds[i] = seeding.np_random()
                 rng = self._rngs[i]
             assert rng is not None
-            rng.bit_generator.state = copy.deepcopy(st.rng_state)
+            rng.bit_generator.state = st.rng_state
         obs = np.zeros(sim.N_OBS, np.float32)
         sim.fill_obs(obs, st.out, self._pp, k, st.setting_C)
         self._OBS[idx] = obs
