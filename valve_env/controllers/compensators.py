@@ -115,7 +115,30 @@ class _PICompensatorBase(PIController):
         return self._assemble(np.clip(u, self.u_min, self.u_max))
 
 
-class Knocker(_PICompensatorBase):
+class _AmplitudeBase(_PICompensatorBase):
+    """A compensator adding an amplitude ``amplitude_band x band_mm`` (stem mm, as K of setting) to the
+    ``pi``'s setting; memory: the PI's, the last u_c and one more value (zero at the start)."""
+
+    _extra: ClassVar[int] = 2
+
+    def __init__(self, env_id: str = "ThermoValve-v0", band_mm: float | None = None,
+                 amplitude_band: float | None = None, **kw: Any) -> None:
+        super().__init__(env_id, band_mm, **kw)
+        a = self._stored.get("amplitude_band", 0.5) if amplitude_band is None else amplitude_band
+        if not (np.isfinite(a) and a > 0):
+            raise ValueError(f"{self.name}: amplitude_band must be finite and > 0, got {amplitude_band!r}")
+        self.amplitude_band = float(a)
+
+    def initial_state(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        return np.concatenate([super().initial_state(obs), obs[:, I_SETTING : I_SETTING + 1], np.zeros((n, 1))], 1)
+
+    def amplitude_K(self, uc: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """The amplitude as kelvin of setting at the setting ``uc``."""
+        return self._mm_to_K(self.amplitude_band * self.band_mm, uc, obs)
+
+
+class Knocker(_AmplitudeBase):
     """Hägglund's (2002) knocker on the ``pi``'s setting (module docstring).
 
     ``u = u_c + a sign(u_c(t) - u_c(t_p))`` for ``t_p <= t < t_p + tau``, else ``u_c``; a pulse starts
@@ -125,22 +148,16 @@ class Knocker(_PICompensatorBase):
     """
 
     name: ClassVar[str] = "knocker"
-    _extra: ClassVar[int] = 2
 
     def __init__(self, env_id: str = "ThermoValve-v0", band_mm: float | None = None,
                  amplitude_band: float | None = None, period_steps: int | None = None,
                  width_steps: int | None = None, **kw: Any) -> None:
-        super().__init__(env_id, band_mm, **kw)
+        super().__init__(env_id, band_mm, amplitude_band, **kw)
         s = self._stored
-        self.amplitude_band = float(s.get("amplitude_band", 0.5) if amplitude_band is None else amplitude_band)
         self.period_steps = int(s.get("period_steps", 10) if period_steps is None else period_steps)
         self.width_steps = int(s.get("width_steps", 1) if width_steps is None else width_steps)
-        if not (self.amplitude_band > 0 and self.period_steps >= 1 and 1 <= self.width_steps <= self.period_steps):
-            raise ValueError("knocker: amplitude_band > 0 and 1 <= width_steps <= period_steps required")
-
-    def initial_state(self, obs: np.ndarray) -> np.ndarray:
-        n = obs.shape[0]
-        return np.concatenate([super().initial_state(obs), obs[:, I_SETTING : I_SETTING + 1], np.zeros((n, 1))], 1)
+        if not (self.period_steps >= 1 and 1 <= self.width_steps <= self.period_steps):
+            raise ValueError("knocker: 1 <= width_steps <= period_steps required")
 
     def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         uc = self.pi_output(obs, state)
@@ -149,13 +166,12 @@ class Knocker(_PICompensatorBase):
         phase = np.mod(k, self.period_steps)
         ref = state[:, j]
         pulse = np.where(phase < self.width_steps, np.sign(uc - ref), 0.0)
-        a = self._mm_to_K(self.amplitude_band * self.band_mm, uc, obs)
         state[:, j] = np.where(phase == 0, uc, ref)  # u_c at the start of this pulse
         state[:, j + 1] = k + 1
-        return self._out(uc + a * pulse), state
+        return self._out(uc + self.amplitude_K(uc, obs) * pulse), state
 
 
-class ConstantReinforcement(_PICompensatorBase):
+class ConstantReinforcement(_AmplitudeBase):
     """Constant reinforcement (Ivan & Lakshminarayanan 2009) on the ``pi``'s setting.
 
     ``u = u_c + a sgn(du_c)``, the sign of the last nonzero change of the controller output held;
@@ -164,19 +180,6 @@ class ConstantReinforcement(_PICompensatorBase):
     """
 
     name: ClassVar[str] = "constant_reinforcement"
-    _extra: ClassVar[int] = 2
-
-    def __init__(self, env_id: str = "ThermoValve-v0", band_mm: float | None = None,
-                 amplitude_band: float | None = None, **kw: Any) -> None:
-        super().__init__(env_id, band_mm, **kw)
-        s = self._stored
-        self.amplitude_band = float(s.get("amplitude_band", 0.5) if amplitude_band is None else amplitude_band)
-        if not self.amplitude_band > 0:
-            raise ValueError("constant_reinforcement: amplitude_band must be > 0")
-
-    def initial_state(self, obs: np.ndarray) -> np.ndarray:
-        n = obs.shape[0]
-        return np.concatenate([super().initial_state(obs), obs[:, I_SETTING : I_SETTING + 1], np.zeros((n, 1))], 1)
 
     def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         uc = self.pi_output(obs, state)
@@ -184,8 +187,7 @@ class ConstantReinforcement(_PICompensatorBase):
         du = uc - state[:, j]
         sgn = np.where(du > 0, 1.0, np.where(du < 0, -1.0, state[:, j + 1]))
         state[:, j], state[:, j + 1] = uc, sgn
-        a = self._mm_to_K(self.amplitude_band * self.band_mm, uc, obs)
-        return self._out(uc + a * sgn), state
+        return self._out(uc + self.amplitude_K(uc, obs) * sgn), state
 
 
 class TwoMove(_PICompensatorBase):
