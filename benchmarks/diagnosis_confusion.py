@@ -23,16 +23,17 @@ from typing import Any
 
 import numpy as np
 
+from valve_env.effects import REGISTRY
 from valve_env.experiment import STUDY_CLASSES, random_cases, run_cases, simulate_case
 
 CLASSES = STUDY_CLASSES
 
-#: The randomisation (documented in docs/diagnosis.md).
+#: The randomisation (documented in docs/diagnosis.md): the effects' sizes as the registry draws them
+#: (valve_env.effects), the runs' settings as experiment.random_cases draws them.
+_KINDS = {"log": "log-uniform", "uniform": "uniform", "signed": "+-uniform"}
 RANGES: dict[str, Any] = {
-    "tau_s": ("log-uniform", 20.0, 180.0),
-    "beta": ("uniform", 0.03, 0.25),
-    "band_mm": ("uniform", 0.01, 0.04),
-    "rate_MPa_per_h": ("+-uniform", 1.5e-5, 6e-5),
+    **{p.name: (_KINDS[p.draw[0]], p.draw[1], p.draw[2]) for e in REGISTRY.values() for p in e.parameters
+       if p.draw is not None},
     "dt_s": ("choice", [5.0, 10.0, 20.0, 30.0]),
     "duration_h": ("uniform", 12.0, 30.0),
     "T_noise_C": ("uniform", 0.0, 0.01),

@@ -129,3 +129,23 @@ def test_each_effect_moves_the_kpis_the_way_physics_expects() -> None:
     # a sticky stem swallows the small reversals of the demand
     st = _day({"stiction": {"band_mm": 0.04}})
     assert st["reversals"] < base["reversals"]
+
+
+def test_a_pi_loop_limit_cycles_on_a_sticky_valve() -> None:
+    """benchmarks/stiction_limit_cycle.py in brief: with only the standing losses to cover, the PI holds a
+    frictionless valve still near its seat; at a 2 % band (0.04 mm) the stem hunts in a regular cycle of
+    about the band, with several times the reversals and travel."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from stiction_limit_cycle import oscillation, run_day
+
+    base = run_day(0.0, 101, "none")
+    sticky = run_day(0.04, 101, "none")
+    skip = 240
+    period, amp = oscillation(sticky["x"][skip:])
+    assert 2 * 60 <= period <= 30 * 60 and 0.3 * 0.04 <= amp <= 0.04, (period, amp)
+    assert np.isnan(oscillation(base["x"][skip:])[0])
+    assert sticky["kpis"]["reversals"] > 1.5 * base["kpis"]["reversals"]
+    assert sticky["kpis"]["travel_mm"] > 3.0 * base["kpis"]["travel_mm"]

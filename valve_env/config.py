@@ -31,7 +31,7 @@ class ControlParams:
 
     | field | unit | meaning (default, source) |
     |---|---|---|
-    | dt_s | s | control step; 30 (SPEC section 5) |
+    | dt_s | s | control step; 30 (docs/reference.md, section 5) |
     | n_sub | - | physics sub-steps per control step; 3 (10 s, well under the bulb's 40 s and the tank's ~500 s) |
     | horizon_h | h | episode length; 24 (SPEC) |
     | T_target_C | degC | outlet target; 60 (SPEC) |

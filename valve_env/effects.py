@@ -110,7 +110,7 @@ REGISTRY: dict[str, Effect] = {
         "water. In the environments the bulb already lags the pocket (bulb.tau_s, 40 s); the effect sets that "
         "time constant to tau_s.",
         source="EN 215 / EN 14597 test practice for thermostatic heads: time constants of 20 s to several minutes "
-        "(liquid- and vapour-filled bulbs in water); the default 90 s is the SPEC section 8 example",
+        "(liquid- and vapour-filled bulbs in water); the default 90 s is the example in docs/reference.md s. 8",
         signature="the misfit grows with the speed of the temperature ramps and changes sign with their direction: "
         "the measured valve reacts later than the simulated one (residual correlated with dT/dt)",
         parameters=(
@@ -128,7 +128,8 @@ REGISTRY: dict[str, Effect] = {
         "head by conduction: the sensed temperature is a mix T_env = T_tank + beta (T_med - T_tank) "
         "(physics.trajectory.sensed_temperature). Paper section 4 assumes beta = 0. In the environments the medium "
         "is the primary supply water through the valve.",
-        source="the seed paper's section 4 (the effect it neglects); default 0.12, the SPEC section 8 example",
+        source="the seed paper's section 4 (the effect it neglects); default 0.12, the example in "
+        "docs/reference.md s. 8",
         signature="the misfit follows the difference T_med - T_tank, independent of the tank temperature's motion",
         parameters=(
             EffectParameter("beta", "-", 0.0, 1.0, 0.12, "weight of the medium temperature in the sensed temperature",
@@ -151,7 +152,7 @@ REGISTRY: dict[str, Effect] = {
         source="Choudhury, Thornhill & Shah (2005), Control Eng. Practice 13:641-658; Kano et al. (2004), IFAC "
         "DYCOPS. Stiction of 0.5-5 % of travel is what the control-valve literature reports for industrial valves "
         "(Choudhury et al. 2005; Jelali & Huang 2010, Detection and Diagnosis of Stiction in Control Loops, "
-        "Springer): on a 2 mm stroke 0.01-0.1 mm; default 0.04 mm = 2 % (also the SPEC section 8 example)",
+        "Springer): on a 2 mm stroke 0.01-0.1 mm; default 0.04 mm = 2 % (also the example in docs/reference.md s. 8)",
         signature="the measured opening stays flat after each reversal of the demand and then jumps: a dead zone "
         "of width band_mm at every turn of the hysteresis loop",
         parameters=(
@@ -174,7 +175,7 @@ REGISTRY: dict[str, Effect] = {
         physics="The charge of the bulb ages (a slow leak or non-condensable gas), so the bellows pressure at the "
         "set point drifts: p_b,set(t) = p_b,set + rate t, t in h from the start of the record or episode "
         "(physics.trajectory.drifted_set_pressure).",
-        source="charge ageing of vapour-filled thermostats; default 1e-4 MPa/h, the SPEC section 8 example "
+        source="charge ageing of vapour-filled thermostats; default 1e-4 MPa/h, the example in docs/reference.md s. 8 "
         "(about 0.03 K/h of set point at 58 degC)",
         signature="the misfit is an offset that grows steadily over the record, the same for both directions of "
         "motion",

@@ -1,4 +1,4 @@
-"""Synthetic measured runs like the seed paper's experiment (SPEC sections 2 and 3).
+"""Synthetic measured runs like the seed paper's experiment (docs/reference.md, sections 2 and 3).
 
 The valve sits in a small water tank. The tank temperature follows steps of
 varying size and speed (first-order tank heat dynamics, so it moves smoothly):
@@ -8,7 +8,7 @@ directions, including small inner loops. The differential and static pressures
 are held constant (100 mbar, 2 bar) and the temperature of the water through
 the valve, ``T_med``, follows its own, independent steps and ramps.
 
-The valve opening comes from the force balance of SPEC section 1 with Dahl
+The valve opening comes from the force balance of docs/reference.md, section 1 with Dahl
 friction driven by the gas temperature, integrated on a fine internal grid
 (the Dahl update is exact for each monotone increment of ``T_g``). The flow
 comes from the valve characteristic. White noise is added to the temperature
@@ -162,11 +162,11 @@ def simulate_experiment(
 ) -> pd.DataFrame:
     """Simulate a measured run like the paper's experiment.
 
-    Returns a DataFrame with the SPEC section 2 columns ``time_s, T_tank_C,
+    Returns a DataFrame with the docs/reference.md, section 2 columns ``time_s, T_tank_C,
     T_med_C, q_kgh, dp_mbar, ps_bar, x_mm`` and the latent truth
     ``true_T_tank_C, true_T_med_C, true_T_g_C, true_F_h_N, true_x_mm``.
 
-    ``effects`` maps effect names (SPEC section 3) to their parameters, e.g.
+    ``effects`` maps effect names (docs/reference.md, section 3) to their parameters, e.g.
     ``{"sensor_lag": {"tau_s": 60.0}}``. ``options`` override
     :data:`DEFAULT_OPTIONS` (``jitter`` for uneven sampling, noise levels,
     pressures, the shape of the temperature programme). Raises
@@ -289,7 +289,7 @@ def parse_effect(text: str) -> tuple[str, dict[str, float]]:
     return name, pars
 
 
-#: the classes of the randomised studies: no effect, then each named effect of SPEC section 3
+#: the classes of the randomised studies: no effect, then each named effect of docs/reference.md, section 3
 STUDY_CLASSES: tuple[str, ...] = ("none", *_effects.REGISTRY)
 
 

@@ -706,7 +706,7 @@ def effect_info(s: np.ndarray, nl: int, pp: np.ndarray, vp: np.ndarray, setting:
 
 
 def kpis_from_acc(acc: np.ndarray) -> dict[str, float]:
-    """The SPEC section 5 KPIs from an accumulator vector."""
+    """The docs/reference.md, section 5 KPIs from an accumulator vector."""
     T = max(acc[A_TIME], 1e-12)
     return {
         "rmse_K": float(np.sqrt(acc[A_SQ] / T)),

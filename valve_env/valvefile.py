@@ -97,6 +97,9 @@ def load_valve_config(path: PathLike) -> EnvConfig:
         raise ConfigError(f"valve file {str(p)!r} is not valid YAML: {' '.join(str(exc).split())}") from None
     if not isinstance(data, Mapping) or not isinstance(data.get("valve"), Mapping):
         raise ConfigError(f"valve file {str(p)!r} must hold a 'valve:' mapping")
+    for key, v in data["valve"].items():
+        if key != "effects" and (isinstance(v, bool) or not isinstance(v, (int, float))):
+            raise ConfigError(f"valve file {str(p)!r}: valve.{key} must be a number, got {v!r}")
     try:
         return make_config(str(p))
     except ConfigError as exc:

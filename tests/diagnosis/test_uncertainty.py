@@ -21,10 +21,11 @@ from valve_env.params import I_STROKE, ValveParams
 
 @pytest.mark.parametrize(("band", "dt", "seed"), [(0.012, 5.0, 1), (0.025, 10.0, 2), (0.035, 30.0, 3)])
 def test_jump_band_recovers_the_band(band: float, dt: float, seed: int) -> None:
-    df = simulate_experiment(seed=600 + seed, duration_h=12.0, dt_s=dt, effects={"stiction": {"band_mm": band}},
+    """Under the (S, J) stick-slip the stem slips once per reversal of the demand: a day holds 10-30 slips."""
+    df = simulate_experiment(seed=600 + seed, duration_h=24.0, dt_s=dt, effects={"stiction": {"band_mm": band}},
                              x_noise_mm=2e-3)
     b, n_jumps = jump_band(df["x_mm"].to_numpy(), ValveParams().stroke)
-    assert n_jumps >= 20
+    assert n_jumps >= 10
     assert abs(b / band - 1.0) < 0.1, (b, band)
 
 
@@ -36,21 +37,21 @@ def test_jump_band_without_jumps_is_nan() -> None:
 
 
 def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -> None:
-    """The jump estimator's sampling distribution on a known opening (``band_sampling``) is centred a
-    little above the band (the jumps overshoot while the demand moves on) and about normal; the
-    bootstrap, which sees only the measured run, finds that spread and that overshoot. Bad noise
-    levels and draw counts are refused."""
+    """The slip estimator's sampling distribution on a known opening (``band_sampling``) is centred a
+    little below the band (some slips are measured short where the demand slows after the slip) and
+    about normal; the bootstrap, which sees only the measured run, finds that spread and that bias.
+    Bad noise levels and draw counts are refused."""
     from scipy.stats import shapiro
 
     from valve_env.diagnosis.stiction import band_sampling
 
     band = 0.025
-    df = simulate_experiment(seed=631, duration_h=10.0, dt_s=10.0, effects={"stiction": {"band_mm": band}},
+    df = simulate_experiment(seed=631, duration_h=24.0, dt_s=10.0, effects={"stiction": {"band_mm": band}},
                              T_noise_C=0.005, x_noise_mm=2.5e-3)
     stroke = float(ValveParams().stroke)
     o = band_sampling(df["true_x_mm"].to_numpy(), 2.5e-3, stroke, draws=120, seed=1)
     assert np.isfinite(o).all()
-    assert 1.0 < o.mean() / band < 1.08 and 0.002 < o.std() / band < 0.03, (o.mean(), o.std())
+    assert 0.85 < o.mean() / band < 1.0 and 0.02 < o.std() / band < 0.12, (o.mean(), o.std())
     assert shapiro(o).pvalue > 1e-3
     d = prepare(check_run(df))
     m = Model(("stiction",))

@@ -1,4 +1,4 @@
-"""``thermovalve diagnose`` and ``thermovalve experiment`` (SPEC sections 4 and 7).
+"""``thermovalve diagnose`` and ``thermovalve experiment`` (docs/reference.md, sections 4 and 7).
 
 Every failure the user can cause ends with one line on stderr that names the
 problem and a non-zero exit status; input files are never written.
@@ -28,11 +28,11 @@ def register(subparsers: Any) -> None:
     """Add the ``diagnose`` and ``experiment`` sub-commands."""
     d = subparsers.add_parser(
         "diagnose",
-        help="find what the calibrated valve model gets wrong and name the cause (SPEC section 4)",
+        help="find what the calibrated valve model gets wrong and name the cause (docs/reference.md, section 4)",
         description="Fit the base valve model, try every named effect, and name the cause only when the gain is "
         "statistically significant and real on held-out data.",
     )
-    d.add_argument("run", metavar="RUN.csv", help="measured run (SPEC section 2)")
+    d.add_argument("run", metavar="RUN.csv", help="measured run (docs/reference.md, section 2)")
     d.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
     d.add_argument("--validate", metavar="OTHER.csv", default=None,
                    help="an independent run for validation (default: hold out the end of RUN.csv)")
@@ -55,7 +55,7 @@ def register(subparsers: Any) -> None:
         "experiment",
         help="simulate a measured run like the paper's experiment, with effects switched on",
         description="Temperature steps of varying speed around the set point, the medium temperature varying "
-        "independently, SPEC section 2 columns and noise levels.",
+        "independently, docs/reference.md, section 2 columns and noise levels.",
     )
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--hours", type=float, default=24.0)

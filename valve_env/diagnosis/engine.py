@@ -11,7 +11,7 @@ Three pieces, each a small state-space computation:
    The smoother is two-sided (zero phase), so it adds no lag: a lag found later
    is in the valve, not in the pre-processing. A raw finite difference of the
    channel is never used as the Dahl driver.
-2. **The valve simulation** of SPEC section 1 with every effect of SPEC
+2. **The valve simulation** of docs/reference.md, section 1 with every effect of
    section 3 as an optional term (all switched off by zero parameters), on a
    fine grid between samples (cubic Hermite interpolation of the smoothed
    temperature, at most ``max_step_s`` per sub-step). The Dahl update is exact
@@ -36,7 +36,6 @@ from scipy.optimize import minimize
 from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.physics import valve as phys
 from valve_env.physics.stickslip import initial_state as stick_initial_state
-from valve_env.physics.stickslip import stick_slip_step
 from valve_env.physics.trajectory import (
     E_BETA,
     E_RATE,
@@ -45,6 +44,7 @@ from valve_env.physics.trajectory import (
     bulb_lag,
     drifted_set_pressure,
     sensed_temperature,
+    stem_step,
 )
 
 _demanded_opening = njit(cache=True)(phys.demanded_opening)
@@ -58,7 +58,9 @@ BAND_SPREAD = 0.5
 #: times the band on exact stick-slip data; 0.2 at the band)
 LANDING_SD = 0.2
 #: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
-DECIDE_MOVING = 0.9
+DECIDE_MOVING = 0.5
+#: log-likelihood ratio at which a measurement overturns the stick-slip filter's decision that the stem moves
+STUCK_LLR = 2.0
 
 
 # --------------------------------------------------------------------------- 1. latent temperatures
@@ -407,15 +409,15 @@ def stick_simulate(x_sub: np.ndarray, sub_idx: np.ndarray, band: float, stroke: 
     """Open-loop stick-slip of the stem on the sub-step grid, sampled: the (S, J = S) model of
     :mod:`valve_env.physics.stickslip` (the generator's and the environments'): the resting stem
     sticks until the demanded opening has moved ``band`` away, slips onto it and follows it until it
-    stops or reverses."""
+    stops or reverses; the end stops win (physics.trajectory.stem_step)."""
     n = sub_idx.shape[0]
     out = np.empty(n)
     y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(x_sub[0], band, band, 0.0, stroke)
     out[0] = y
     for k in range(1, n):
         for j in range(sub_idx[k - 1] + 1, sub_idx[k] + 1):
-            y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(x_sub[j], y, u_prev, du_prev, u_s, stuck, d, band,
-                                                                band, 0.0, stroke)
+            y, u_prev, du_prev, u_s, stuck, d = stem_step(x_sub[j], y, u_prev, du_prev, u_s, stuck, d, band, band,
+                                                          stroke)
         out[k] = y
     return out
 
@@ -505,6 +507,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     dmax = 0.0
     moving = False
     p_slip = 0.0
+    s_alt = ms
     x_prev = ms
     du_prev = 0.0
     ll = 0.0
@@ -517,7 +520,17 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             Pee = phi * phi * Pee + ve * (1.0 - phi * phi)
             Pes = phi * Pes
             for j in range(sub_idx[k - 1] + 1, sub_idx[k] + 1):
-                xd = min(max(x_sub[j], 0.0), stroke)
+                xd = x_sub[j]
+                if xd <= 0.0 or xd >= stroke:
+                    # the end stops win: the stem rests on the stop (physics.trajectory.stem_step)
+                    ms = min(max(xd, 0.0), stroke)
+                    Pss = 0.0
+                    Pes = 0.0
+                    dmax = 0.0
+                    moving = False
+                    p_slip = 0.0
+                    x_prev = ms
+                    continue
                 du = xd - x_prev
                 x_prev = xd
                 if du * du_prev <= 0.0:
@@ -547,8 +560,19 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     p_slip = 1.0 - (1.0 - p_slip) * (1.0 - pi)
                     if p_slip >= DECIDE_MOVING:
                         moving = True  # decided: it has broken away and now moves with the demand
+                        s_alt = ms - pi * d  # where it would be had it not slipped
         S = Pee + 2.0 * Pes + Pss + vw
         nu = y[k] - ms - me
+        if moving and mask[k] and band > 0.0:
+            # the decision revisited: a measurement that says much more clearly (log-likelihood ratio
+            # above STUCK_LLR) that the stem stayed where it stuck overturns it
+            nu_s = y[k] - s_alt - me
+            if (nu * nu - nu_s * nu_s) / (2.0 * S) > STUCK_LLR:
+                moving = False
+                p_slip = 0.0
+                ms = s_alt
+                nu = nu_s
+                dmax = abs(x_sub[sub_idx[k]] - ms)
         innov[k] = nu
         Sout[k] = S
         if mask[k]:

@@ -2,7 +2,7 @@
 
 :func:`effect_model` builds a subclass of
 :class:`valve_env.estimation.valve_model.ValveModel` with any combination of
-the effects of SPEC section 3, so that ``MLEstimator(effect_model(["sensor_lag"]))``
+the effects of docs/reference.md, section 3, so that ``MLEstimator(effect_model(["sensor_lag"]))``
 fits it with the estimator's extended Kalman filter and the likelihood-ratio
 statistic against the base model is ``2 (fit_ext.loglik_ - fit_base.loglik_)``.
 One set of numba hooks serves every combination: the positions of the effect
@@ -132,7 +132,7 @@ HOOKS: dict[str, tuple[str | None, int]] = {
 
 
 def effect_model(effects: list[str] | tuple[str, ...], **options: Any) -> ValveModel:
-    """The base valve model extended by ``effects`` (names of SPEC section 3), for the estimator.
+    """The base valve model extended by ``effects`` (names of docs/reference.md, section 3), for the estimator.
 
     ``options`` go to :class:`ValveModel` (``valve``, ``fixed``, ``init``, ``clip_width_mm``)."""
     names = check_effects(list(effects))

@@ -130,7 +130,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     terminal state. The ids are registered with max_episode_steps=2880: for
     another horizon pass both, e.g. ``gym.make(id, horizon_h=48,
     max_episode_steps=5760)`` (the tapping cycle repeats every day). At
-    the last step ``info["kpis"]`` holds the SPEC section 5 KPIs (rmse_K,
+    the last step ``info["kpis"]`` holds the docs/reference.md, section 5 KPIs (rmse_K,
     iae_Kh, tdis_Kh, unmet_kWh, heat_kWh, pump_kWh, return_C, travel_mm,
     reversals) and ``info["energy"]`` the first-law account.
 
@@ -142,7 +142,12 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     ``bulb=...``, ``scenario=...``, ``control=...``, ``sensors=...``) or a
     single scenario or control field (``tapping_profile="L"``,
     ``supply_C=60``). Invalid values raise ``valve_env.ConfigError`` naming
-    the field.
+    the field. The valve's named effects (stiction, sensor_lag,
+    medium_temperature, setpoint_drift; docs/reference.md sections 3 and 8)
+    go in the valve section: ``valve={"effects": {"stiction": {"band_mm":
+    0.04}}}`` or a valve file (``config="VALVE.yaml"``, written by
+    ``thermovalve fit/diagnose --valve-out``); their hidden states are in
+    ``info`` (``stuck``, ``x_demand_mm``, ``p_set_MPa``).
 
     ## Version history
 

@@ -311,7 +311,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         return self._S[:, : self._nl].sum(axis=1) * t.layer_mass_kg * t.cp
 
     def kpis(self, i: int) -> dict[str, float]:
-        """The KPIs of env i's episode so far (SPEC section 5)."""
+        """The KPIs of env i's episode so far (docs/reference.md, section 5)."""
         return sim.kpis_from_acc(self._ACC[i])
 
     def energy_account(self, i: int) -> dict[str, float]:

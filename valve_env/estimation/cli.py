@@ -1,4 +1,4 @@
-"""``thermovalve fit``: the base valve model fitted to a measured run (SPEC section 7).
+"""``thermovalve fit``: the base valve model fitted to a measured run (docs/reference.md, section 7).
 
     thermovalve fit RUN.csv --json OUT.json [--report DIR] [--config OUT.yaml]
                             [--validate OTHER.csv] [--n-starts N] [--seed S]
@@ -26,10 +26,10 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "fit",
         help="fit the base valve model to a measured run (maximum likelihood)",
-        description="Fit the base valve model (SPEC section 1) to RUN.csv (SPEC section 2) by maximum "
-                    "likelihood and write the estimates as JSON.",
+        description="Fit the base valve model (docs/reference.md, section 1) to RUN.csv (docs/reference.md, "
+                    "section 2) by maximum likelihood and write the estimates as JSON.",
     )
-    p.add_argument("run", metavar="RUN.csv", help="measured run (SPEC section 2 columns)")
+    p.add_argument("run", metavar="RUN.csv", help="measured run (docs/reference.md, section 2 columns)")
     p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
     p.add_argument("--report", metavar="DIR", default=None,
                    help="write figures and a markdown report (Table 4, Fig. 5-7) into DIR")

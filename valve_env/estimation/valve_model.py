@@ -56,6 +56,7 @@ nb_demanded_opening = nb.njit(cache=True)(phys.demanded_opening)
 nb_vapour_pressure = nb.njit(cache=True)(phys.vapour_pressure)
 nb_vapour_pressure_slope = nb.njit(cache=True)(phys.vapour_pressure_slope)
 nb_stiffness = nb.njit(cache=True)(phys.stiffness)
+nb_dahl_relax = nb.njit(cache=True)(phys.dahl_relax)
 
 # Indices into the parameter vector p (base parameters come first, extensions append).
 P_SIGMA, P_F_HMAX, P_P_BSET, P_S_F, P_S_X = 0, 1, 2, 3, 4
@@ -452,7 +453,7 @@ def _fast_valve_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarra
             v = U[k - 1, U_V]
             sv = smooth_sign(v, eps)
             e = np.exp(-sig * v * sv * dt / Fm)
-            F = sv * Fm + (F - sv * Fm) * e
+            F = nb_dahl_relax(F, sv, e, vp)  # the exact Dahl step of physics.valve
             P = e * e * P + qF * dt
         x_pred[k, 0] = F
         P_pred[k, 0, 0] = P

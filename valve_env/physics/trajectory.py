@@ -82,12 +82,25 @@ def valve_initial_state(T_env0, dp_mbar, ps_bar, p_set_MPa, S, J, stiction, vp):
     balance puts it (with stiction: at rest there after a motion upwards). Returns the
     :data:`N_VALVE_STATE` state ``(T_g, F_h, x, u_prev, du_prev, u_s, stuck, d)``."""
     stroke = vp[I_STROKE]
-    raw = demanded_opening(T_env0, 0.0, dp_mbar, ps_bar, p_set_MPa, vp)
-    xd = min(max(raw, 0.0), stroke)
+    xd = min(max(demanded_opening(T_env0, 0.0, dp_mbar, ps_bar, p_set_MPa, vp), 0.0), stroke)
     if stiction:
-        y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(raw, S, J, -stroke, 2.0 * stroke)
-        return T_env0, 0.0, min(max(y, 0.0), stroke), u_prev, du_prev, u_s, stuck, d
+        y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(xd, S, J, 0.0, stroke)
+        return T_env0, 0.0, y, u_prev, du_prev, u_s, stuck, d
     return T_env0, 0.0, xd, xd, 0.0, xd, 1.0, 1.0
+
+
+@register_jitable
+def stem_step(x_demand, x, u_prev, du_prev, u_s, stuck, d, S, J, stroke):
+    """stiction: the stem's (S, J) stick-slip (physics.stickslip) on the demanded opening ``x_demand``
+    (mm, the force balance's, clipped to the stroke), where the end stops win: a demand at an end stop
+    (the bellows pressing the cone onto its seat, or the stem against its upper stop) puts the stem
+    there, at rest after a motion towards that stop, whatever the band, so a sticky valve still
+    closes; leaving the stop then takes a breakaway of ``S``. Returns the new stick-slip state
+    ``(x, u_prev, du_prev, u_s, stuck, d)``."""
+    if x_demand <= 0.0 or x_demand >= stroke:
+        u = min(max(x_demand, 0.0), stroke)
+        return u, u, du_prev, u, 1.0, (-1.0 if u <= 0.0 else 1.0)
+    return stick_slip_step(x_demand, x, u_prev, du_prev, u_s, stuck, d, S, J, 0.0, stroke)
 
 
 @register_jitable
@@ -99,17 +112,9 @@ def valve_step(T_g, F_h, x, u_prev, du_prev, u_s, stuck, d, T_g_new, F_noise_dW,
     :func:`valve_initial_state` and the demanded opening ``x_demand`` (mm) as a ninth value."""
     F = friction_step(F_h, T_g_new - T_g, F_noise_dW, vp)
     stroke = vp[I_STROKE]
-    raw = demanded_opening(T_g_new, F, dp_mbar, ps_bar, p_set_MPa, vp)
-    xd = min(max(raw, 0.0), stroke)
+    xd = min(max(demanded_opening(T_g_new, F, dp_mbar, ps_bar, p_set_MPa, vp), 0.0), stroke)
     if stiction:
-        # the stem sticks against the force balance's *unclipped* demand (limited to one stroke beyond
-        # the seat and the stop): the excess of the demand beyond the seat is the bellows force that
-        # presses a stuck cone shut, so a stem stuck just off the seat breaks free as the bulb warms
-        # (with the demand clipped at the seat it could stay stuck open for good); the stem itself
-        # stays within [0, stroke]
-        y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(raw, x, u_prev, du_prev, u_s, stuck, d, S, J,
-                                                             -stroke, 2.0 * stroke)
-        x = min(max(y, 0.0), stroke)
+        x, u_prev, du_prev, u_s, stuck, d = stem_step(xd, x, u_prev, du_prev, u_s, stuck, d, S, J, stroke)
     else:
         x = xd
     return T_g_new, F, x, u_prev, du_prev, u_s, stuck, d, xd
@@ -172,4 +177,4 @@ def valve_path(t, T_tank, T_med, dp, ps, p_bset_MPa, e, vp, hold, F_noise, dW, o
 
 __all__ = ["N_VALVE_STATE", "E_TAU", "E_BETA", "E_BAND", "E_JUMP", "E_RATE", "sensed_temperature",
            "bulb_coefficients", "bulb_lag", "bulb_lag_hold", "drifted_set_pressure", "friction_step",
-           "valve_initial_state", "valve_step", "valve_path"]
+           "valve_initial_state", "stem_step", "valve_step", "valve_path"]

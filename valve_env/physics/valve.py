@@ -99,8 +99,17 @@ def dahl_update(F_h_N, dT_K, vp):
     For dT = 0 the force is unchanged. |F| <= F_hmax is preserved.
     """
     s = np.sign(dT_K)
+    return dahl_relax(F_h_N, s, np.exp(-vp[I_SIGMA] * np.abs(dT_K) / vp[I_F_HMAX]), vp)
+
+
+@register_jitable
+def dahl_relax(F_h_N, s, decay, vp):
+    """The Dahl force relaxing towards ``s F_hmax`` by the factor ``decay``:
+    F <- s F_hmax + (F - s F_hmax) decay. :func:`dahl_update` with s = sgn(dT) and
+    decay = exp(-sigma |dT| / F_hmax); the estimator's filter (estimation.valve_model) with a
+    smooth sign and the decay it also propagates the variance with."""
     Fm = vp[I_F_HMAX]
-    return s * Fm + (F_h_N - s * Fm) * np.exp(-vp[I_SIGMA] * np.abs(dT_K) / Fm)
+    return s * Fm + (F_h_N - s * Fm) * decay
 
 
 @register_jitable
