@@ -271,13 +271,19 @@ def tune(specs: Mapping[str, StepTestSpec] | None = None) -> dict[str, dict[str,
     return out
 
 
-def gains_yaml(table: Mapping[str, Any]) -> str:
-    """The tuning table as YAML with a header naming the procedure."""
+def gains_yaml(table: Mapping[str, Any], keep: Mapping[str, Any] | None = None) -> str:
+    """The tuning table as YAML with a header naming the procedure; the other controllers' stored
+    settings in ``keep`` (the current file's table: pi_wear, knocker, oracle, ...) are kept."""
+    old = keep or {}
+    table = {env_id: {**{k: v for k, v in dict(old.get(env_id) or {}).items() if k not in entry}, **entry}
+             for env_id, entry in table.items()}
     header = (
-        "# PI gains of the baseline controllers, keyed by env id (rl-baselines3-zoo style).\n"
+        "# PI gains and stored settings of the built-in controllers, keyed by env id (rl-baselines3-zoo style).\n"
         "# Produced by `thermovalve tune` (valve_env.controllers.tuning.tune): a step test on the\n"
         "# simulator, a least-squares FOPDT/IPDT fit and SIMC rules; `procedure` holds the inputs.\n"
         "# tests/controllers/test_tuning.py re-runs the procedure and checks it reproduces these gains.\n"
+        "# pi_wear, knocker, constant_reinforcement, two_move, oracle: settings chosen on tuning seeds 0-4\n"
+        "# (docs/controllers.md); `thermovalve tune --write` rewrites the PI entries and keeps these.\n"
     )
     return header + yaml.safe_dump(dict(table), sort_keys=False)
 
@@ -288,7 +294,13 @@ def write_gains(table: Mapping[str, Any], path: str | Path = GAINS_PATH) -> Path
 
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    return atomic_write_text(p, gains_yaml(table))
+    return atomic_write_text(p, gains_yaml(table, stored_gains(p)))
+
+
+def stored_gains(path: str | Path = GAINS_PATH) -> dict[str, Any]:
+    """The table in a gains file, or {} when there is none."""
+    p = Path(path)
+    return dict(yaml.safe_load(p.read_text()) or {}) if p.is_file() else {}
 
 
 def load_gains(env_id: str, path: str | Path | None = None) -> dict[str, Any]:
