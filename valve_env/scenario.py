@@ -24,7 +24,8 @@ from numba import njit
 from valve_env.params import ConfigError, _from_mapping
 
 PROFILES = ("S", "M", "L", "none")
-SUPPLY_PROFILES = ("constant", "daily", "random")
+SUPPLY_PROFILES = ("constant", "daily", "random", "network")
+DP_PROFILES = ("constant", "network")
 
 
 @dataclass(frozen=True)
@@ -38,10 +39,14 @@ class ScenarioParams:
     | draw_jitter_min | min | standard deviation of each draw's start-time jitter; 20 |
     | draw_energy_cv | - | coefficient of variation of each draw's energy (lognormal); 0.2 |
     | supply_C | degC | primary supply temperature; 70 (SPEC section 5) |
-    | supply_profile | - | "constant", "daily" (sine, coldest at 15:00) or "random" (Ornstein-Uhlenbeck) |
-    | supply_amplitude_K | K | amplitude of the daily sine or standard deviation of the random profile; 5 |
-    | supply_tau_h | h | correlation time of the random supply profile; 2 |
+    | supply_profile | - | "constant", "daily" (sine, coldest at 15:00), "random" (Ornstein-Uhlenbeck) or |
+    |  |  | "network" (:func:`supply_plan` plus an OU disturbance of sd supply_noise_K) |
+    | supply_amplitude_K | K | amplitude of the daily sine or network plan, or sd of the random profile; 5 |
+    | supply_tau_h | h | correlation time of the random supply profile and of the network profile's disturbance; 2 |
+    | supply_noise_K | K | standard deviation of the network profile's OU disturbance around its plan; 0 |
     | dp_mbar | mbar | the network's dp across the valve when the agent does not set it; 100 (calibration) |
+    | dp_profile | - | "constant" (dp_mbar) or "network" (:func:`dp_plan`: falls by dp_swing at peak load) |
+    | dp_swing | - | fractional fall of dp at the network's peak load (dp_profile "network"); 0 |
     | dp_noise_mbar | mbar | standard deviation of an Ornstein-Uhlenbeck disturbance on dp; 0 |
     | dp_tau_s | s | its correlation time; 600 |
     | ps_bar | bar | static pressure at the valve; 2 (calibration) |
@@ -57,7 +62,10 @@ class ScenarioParams:
     supply_profile: str = "constant"
     supply_amplitude_K: float = 5.0
     supply_tau_h: float = 2.0
+    supply_noise_K: float = 0.0
     dp_mbar: float = 100.0
+    dp_profile: str = "constant"
+    dp_swing: float = 0.0
     dp_noise_mbar: float = 0.0
     dp_tau_s: float = 600.0
     ps_bar: float = 2.0
@@ -71,13 +79,18 @@ class ScenarioParams:
             raise ConfigError(
                 f"ScenarioParams.supply_profile must be one of {SUPPLY_PROFILES}, got {self.supply_profile!r}"
             )
+        if self.dp_profile not in DP_PROFILES:
+            raise ConfigError(f"ScenarioParams.dp_profile must be one of {DP_PROFILES}, got {self.dp_profile!r}")
+        if not 0.0 <= self.dp_swing < 1.0:
+            raise ConfigError(f"ScenarioParams.dp_swing must be in [0, 1), got {self.dp_swing!r}")
         if not isinstance(self.stochastic_draws, bool):
             raise ConfigError(f"ScenarioParams.stochastic_draws must be true or false, got {self.stochastic_draws!r}")
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):
                 raise ConfigError(f"ScenarioParams.{f.name} must be finite, got {v!r}")
-        for name in ("draw_jitter_min", "draw_energy_cv", "supply_amplitude_K", "dp_noise_mbar", "T_init_spread_K"):
+        for name in ("draw_jitter_min", "draw_energy_cv", "supply_amplitude_K", "supply_noise_K", "dp_noise_mbar",
+                     "T_init_spread_K"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"ScenarioParams.{name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("supply_tau_h", "dp_tau_s"):
@@ -97,7 +110,7 @@ class ScenarioParams:
             for key in ("stochastic_draws",):
                 if key in data and not isinstance(data[key], bool):
                     raise ConfigError(f"ScenarioParams.{key} must be true or false, got {data[key]!r}")
-            for key in ("tapping_profile", "supply_profile"):
+            for key in ("tapping_profile", "supply_profile", "dp_profile"):
                 if key in data:
                     data[key] = str(data[key])
         return _from_mapping(cls, data)
@@ -203,15 +216,62 @@ def make_scenario(
         supply = np.full(n_steps, params.supply_C)
     elif params.supply_profile == "daily":
         supply = params.supply_C + params.supply_amplitude_K * np.cos(2 * np.pi * (t - 3 * 3600.0) / 86400.0)
+    elif params.supply_profile == "network":
+        supply = supply_plan(params, t)
+        if params.supply_noise_K > 0:
+            supply = supply + _ou(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_noise_K)
     else:
         supply = params.supply_C + _ou(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_amplitude_K)
+    dp = dp_plan(params, t)
     if params.dp_noise_mbar > 0:
-        dp = params.dp_mbar + _ou(rng, n_steps, dt_s, params.dp_tau_s, params.dp_noise_mbar)
-        dp = np.maximum(dp, 0.0)
-    else:
-        dp = np.full(n_steps, params.dp_mbar)
+        dp = np.maximum(dp + _ou(rng, n_steps, dt_s, params.dp_tau_s, params.dp_noise_mbar), 0.0)
     T0 = params.T_init_C + (rng.uniform(-1.0, 1.0) * params.T_init_spread_K if params.T_init_spread_K > 0 else 0.0)
     return ScenarioArrays(draw_W, draw_T, draw_m, supply, dp, float(T0))
+
+
+def network_load(t_s: np.ndarray | float) -> np.ndarray:
+    """A district-heating network's relative load over the day, 0 .. 1 (1 at the morning peak).
+
+    Two peaks, the morning one (07:30, sd 1.5 h) higher than the evening one
+    (19:00, sd 2.5 h, 0.7 of it), scaled to 0 at the night minimum: the shape
+    of the daily heat-load profiles of residential district heating (the
+    morning peak of domestic hot water and the restart after night set-back;
+    Gadd and Werner, "Daily heat load variations in Swedish district heating
+    systems", Applied Energy 106 (2013) 47-55). Stylised: docs/tasks.md.
+    """
+    return (_load_raw(np.asarray(t_s, dtype=float) / 3600.0) - _LOAD_MIN) / (_LOAD_MAX - _LOAD_MIN)
+
+
+def _load_raw(hour: np.ndarray) -> np.ndarray:
+    h = np.mod(hour, 24.0)
+
+    def bump(centre: float, sd: float) -> np.ndarray:
+        d = np.mod(h - centre + 12.0, 24.0) - 12.0  # the shortest way round the clock
+        return np.exp(-0.5 * (d / sd) ** 2)
+
+    return bump(7.5, 1.5) + 0.7 * bump(19.0, 2.5)
+
+
+_LOAD_GRID = _load_raw(np.linspace(0.0, 24.0, 24 * 60 + 1))
+_LOAD_MIN, _LOAD_MAX = float(_LOAD_GRID.min()), float(_LOAD_GRID.max())
+
+
+def supply_plan(params: ScenarioParams, t_s: np.ndarray | float) -> np.ndarray:
+    """The network operator's planned supply temperature at times ``t_s``, degC:
+    ``supply_C + supply_amplitude_K (2 load(t + 1 h) - 1)``: the plant raises the
+    supply an hour ahead of the load (:func:`network_load`), the transport delay
+    of a city network (docs/tasks.md). What an operator would publish as a forecast."""
+    return params.supply_C + params.supply_amplitude_K * (2.0 * network_load(np.asarray(t_s) + 3600.0) - 1.0)
+
+
+def dp_plan(params: ScenarioParams, t_s: np.ndarray | float) -> np.ndarray:
+    """The differential pressure the network leaves across the valve at times ``t_s``, mbar:
+    ``dp_mbar`` ("constant") or ``dp_mbar (1 - dp_swing load(t))`` ("network": the pressure
+    drop in the mains grows with the load, so the dp at a substation falls at peak load)."""
+    t = np.asarray(t_s, dtype=float)
+    if params.dp_profile == "constant":
+        return np.full(t.shape, params.dp_mbar)
+    return params.dp_mbar * (1.0 - params.dp_swing * network_load(t))
 
 
 def _ou(rng: np.random.Generator, n: int, dt: float, tau: float, sd: float) -> np.ndarray:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from valve_env.controllers.base import ENV_MODES, Controller, PredictPolicy
+from valve_env.controllers.base import ALL_ENV_MODES, Controller, PredictPolicy, original_id
 from valve_env.controllers.baselines import DahlCompensator, PICompensated, PIController, SelfActing
 
 BASELINES: dict[str, type[Controller]] = {
@@ -39,8 +39,8 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     ``agents.loader.load_agent(name, env_id, **kwargs)``; a missing ``agents``
     package or loader raises :class:`UnknownControllerError` naming the agent.
     """
-    if env_id not in ENV_MODES:
-        raise ValueError(f"unknown env id {env_id!r}; known: {list(ENV_MODES)}")
+    if env_id not in ALL_ENV_MODES:
+        raise ValueError(f"unknown env id {env_id!r}; known: {list(ALL_ENV_MODES)}")
     if name in BASELINES:
         return BASELINES[name](env_id, **kwargs)
     try:
@@ -63,4 +63,5 @@ __all__ = [
     "SelfActing",
     "UnknownControllerError",
     "make_controller",
+    "original_id",
 ]

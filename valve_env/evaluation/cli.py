@@ -84,9 +84,9 @@ def write_json(summary: dict[str, Any], path: str | Path, force: bool = False) -
 
 
 def _default_controllers(env_id: str) -> list[str]:
-    from valve_env.controllers import BASELINES
+    from valve_env.controllers import BASELINES, original_id
 
-    return [n for n, cls in BASELINES.items() if env_id in cls.supported_env_ids]
+    return [n for n, cls in BASELINES.items() if original_id(env_id) in cls.supported_env_ids]
 
 
 def _run_evaluation(
@@ -98,8 +98,13 @@ def _run_evaluation(
     config: str | None,
     out_dir: str | None,
 ) -> tuple[dict[str, Any], dict[str, Path]]:
-    from valve_env.config import make_config
-    from valve_env.evaluation.evaluator import evaluate_detailed, resolve_controllers, rollout, write_outputs
+    from valve_env.evaluation.evaluator import (
+        env_config,
+        evaluate_detailed,
+        resolve_controllers,
+        rollout,
+        write_outputs,
+    )
 
     ctrls = resolve_controllers(controllers, env_id)
     summary, per_ep = evaluate_detailed(ctrls, env_id, episodes, seed, env_kwargs, config)
@@ -110,7 +115,7 @@ def _run_evaluation(
             df = rollout(c, env_id, seed, env_kwargs, config)
             df.attrs["seed"] = seed
             trajs[name] = df
-        paths = write_outputs(summary, per_ep, out_dir, trajs, make_config(config, **env_kwargs))
+        paths = write_outputs(summary, per_ep, out_dir, trajs, env_config(env_id, env_kwargs, config))
     return summary, paths
 
 
@@ -135,8 +140,8 @@ def _guard(fn: Any) -> Any:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     import valve_env
 
-    if args.env not in valve_env.ENV_IDS:
-        raise CLIError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ENV_IDS)}")
+    if args.env not in valve_env.ALL_ENV_IDS:
+        raise CLIError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
     if args.episodes < 1:
         raise CLIError(f"--episodes must be >= 1, got {args.episodes}")
     names = [c.strip() for c in args.controllers.split(",") if c.strip()] if args.controllers else None
