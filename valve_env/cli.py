@@ -14,6 +14,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.diagnosis.cli",
     "valve_env.estimation.cli",
     "valve_env.evaluation.cli",
+    "valve_env.tasks.cli",
     "agents.cli",
 )
 

@@ -99,8 +99,9 @@ TASKS: dict[str, Task] = {
         sections=_SMALL,
         sources={
             "tank.volume_l = 50": "the seed paper's 'small hot water cylinders' (30-80 l), docs/tasks.md",
-            "tank.UA_loss = 0.9 W/K": "Regulation (EU) 812/2013 Annex VIII standing-loss limits for 50 l "
-                                      "(class B 21 W, class C 57 W at 45 K), between them as the 200 l default",
+            "tank.UA_loss = 0.9 W/K": "40 W at 45 K, the class B limit for 50 l (S < 12 + 5.93 V^0.4 W) of the "
+                                      "standing-loss classes of Regulation (EU) 812/2013 (the 200 l default, "
+                                      "86 W, sits at its class C limit)",
             "scenario.tapping_profile = L": "Regulation (EU) 814/2013 Annex III, cycle L (11.655 kWh/day, "
                                             "a 10 l/min bath draw)",
         },
@@ -116,10 +117,10 @@ TASKS: dict[str, Task] = {
         sources={
             "scenario.supply_C = 75, supply_amplitude_K = 5, supply_noise_K = 1.5":
                 "Danish/Swedish winter supply 70-90 degC with daily swings (Frederiksen and Werner, "
-                "District Heating and Cooling, 2013, ch. 5; IEA DHC Annex IV project 06), docs/tasks.md",
+                "District Heating and Cooling, 2013; IEA DHC Annex IV project 06), docs/tasks.md",
             "scenario.dp_mbar = 150, dp_swing = 0.5, dp_noise_mbar = 15":
-                "dp at a consumer substation falls with the network load (Frederiksen and Werner 2013, "
-                "ch. 6: pressure diagram), docs/tasks.md",
+                "dp at a consumer substation falls with the network load (the pressure diagram of a "
+                "network, Frederiksen and Werner 2013), docs/tasks.md",
             "network_load": "Gadd and Werner (2013), Applied Energy 106: daily heat-load variations",
             "tariff": "REFA Energi Holeby / Lemvig Varmevaerk motivation tariffs (1 % of the MWh price per K), "
                       "peak-load price after Song, Wallin and Li (2017), Applied Energy 194",

@@ -241,7 +241,7 @@ class ThermoValveSmallCylinderEnv(ThermoValveTaskEnv):
     | parameter | value | source |
     |---|---|---|
     | tank.volume_l | 50 l | the seed paper's "small hot water cylinders", 30-80 l |
-    | tank.UA_loss | 0.9 W/K | between the classes B and C of Regulation (EU) 812/2013 for 50 l |
+    | tank.UA_loss | 0.9 W/K | 40 W at 45 K: class B limit for 50 l, Regulation (EU) 812/2013 |
     | scenario.tapping_profile | L | Regulation (EU) 814/2013 Annex III |
     | everything else | | ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4) |
 
