@@ -20,6 +20,7 @@ from typing import Any
 
 import yaml
 
+from valve_env.effects import Effects, parse_effects
 from valve_env.params import BulbParams, ConfigError, TankParams, ValveParams, _from_mapping
 from valve_env.scenario import ScenarioParams
 
@@ -135,9 +136,14 @@ class EnvConfig:
     scenario: ScenarioParams = field(default_factory=ScenarioParams)
     control: ControlParams = field(default_factory=ControlParams)
     sensors: SensorParams = field(default_factory=SensorParams)
+    #: the valve's named effects (the ``effects:`` mapping of the ``valve:`` section; valve_env.effects)
+    effects: Effects = field(default_factory=Effects)
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
-        return {name: getattr(self, name).to_dict() for name in SECTIONS}
+        out = {name: getattr(self, name).to_dict() for name in SECTIONS}
+        if self.effects:
+            out["valve"]["effects"] = self.effects.as_dict()
+        return out
 
     def replace(self, **changes: Any) -> EnvConfig:
         return dataclasses.replace(self, **changes)
@@ -220,7 +226,11 @@ def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None
             raise ConfigError(
                 f"unknown environment option {k!r}; use a section ({sorted(SECTIONS)}) or a scenario/control field"
             )
-    built = {}
+    built: dict[str, Any] = {"effects": start.effects}
+    if "valve" in sections and isinstance(sections["valve"], Mapping) and "effects" in sections["valve"]:
+        # the valve's named effects (docs/reference.md, "The valve file"), checked against the registry
+        sections["valve"] = dict(sections["valve"])
+        built["effects"] = parse_effects(sections["valve"].pop("effects"))
     for name, cls in SECTIONS.items():
         current = getattr(start, name)
         if name in sections:

@@ -14,7 +14,9 @@ Packed arrays (float64):
 
 * valve vector ``vp``: :meth:`ValveParams.to_array` (indices ``params.I_*``)
 * plant vector ``pp``: :func:`pack_plant` (indices ``P_*`` below, then the clock table)
-* state ``s``: layer temperatures (bottom .. top), then T_g, F_h, x, direction
+* state ``s``: layer temperatures (bottom .. top), then T_g, F_h, x, direction, the stem's
+  stick-slip state (physics.stickslip: u_prev, du_prev, u_s, stuck, d), the time since the
+  reset (s) and the demanded opening (mm)
 * accumulators ``acc``: KPI integrals and the energy account (``A_*``)
 * step outputs ``out``: what the env turns into observations and info (``O_*``)
 * scenario row: draw power W, draw temperature degC, tap flow kg/s, supply degC, dp mbar
@@ -22,11 +24,14 @@ Packed arrays (float64):
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numba import njit, prange
 from numba.extending import register_jitable
 
 from valve_env.config import EnvConfig
+from valve_env.effects import ENGINE_INDEX
 from valve_env.physics import valve as _valve
 
 # The physics functions are ``register_jitable``: plain NumPy when called from
@@ -40,16 +45,28 @@ from valve_env.physics.tank import (  # noqa: E402
     loss_heat,
     pump_power_W,
 )
+from valve_env.physics.trajectory import (  # noqa: E402
+    bulb_lag_hold,
+    drifted_set_pressure,
+    sensed_temperature,
+    valve_initial_state,
+    valve_step,
+)
 from valve_env.physics.valve import dahl_update, flow_kgh, opening, setpoint_pressure  # noqa: E402
 
 # plant vector
 (P_NL, P_NC, P_M, P_UA_COIL, P_UA_LOSS, P_T_AMB, P_T_COLD, P_CP, P_PUMP_EFF, P_DP_CIRC, P_Q_REF,
  P_BULB_A, P_BULB_LAYER, P_DT, P_NSUB, P_T_TARGET, P_T_FLOOR, P_W_TRACK, P_W_FLOOR, P_W_ENERGY,
- P_PS, P_CLOCK_N) = range(22)
-N_PLANT = 22  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
-# state offsets after the layers
-S_TG, S_FH, S_X, S_DIR = 0, 1, 2, 3
-N_STATE_EXTRA = 4
+ P_PS, P_CLOCK_N,
+ # the valve's named effects (valve_env.effects; docs/reference.md): any on (1.0/0.0), medium_temperature's
+ # beta, stiction's band and jump (mm; stiction is on when either is > 0), setpoint_drift's rate (MPa/h).
+ # sensor_lag sets the bulb's time constant (P_BULB_A)
+ P_EFFECTS, P_BETA, P_STICK_S, P_STICK_J, P_DRIFT) = range(27)
+N_PLANT = 27  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
+# state offsets after the layers: gas temperature, friction force, stem position, direction of the last
+# motion; the stem's stick-slip state (valve_env.physics.stickslip); time since reset (s); demanded opening
+S_TG, S_FH, S_X, S_DIR, S_UPREV, S_DUPREV, S_US, S_STUCK, S_D, S_AGE, S_XD = range(11)
+N_STATE_EXTRA = 11
 # accumulators
 (A_SQ, A_ABS, A_TDIS, A_UNMET, A_HEAT, A_PUMP, A_RET, A_MASS, A_TRAVEL, A_REV, A_LOSS, A_DRAW,
  A_TIME, A_DELIVERED, A_DEMAND) = range(15)
@@ -79,7 +96,15 @@ def pack_plant(cfg: EnvConfig) -> np.ndarray:
     pp[P_PUMP_EFF] = t.pump_eff
     pp[P_DP_CIRC] = t.dp_circuit_mbar
     pp[P_Q_REF] = t.q_ref_kgh
-    pp[P_BULB_A] = np.exp(-dt_sub / b.tau_s)
+    eff = cfg.effects
+    tau = eff.get("sensor_lag", "tau_s", b.tau_s) if "sensor_lag" in eff else b.tau_s
+    pp[P_BULB_A] = np.exp(-dt_sub / tau) if tau > 0 else 0.0
+    ev = eff.vector()
+    pp[P_EFFECTS] = 1.0 if eff else 0.0
+    pp[P_BETA] = ev[ENGINE_INDEX["beta"]]
+    pp[P_STICK_S] = ev[ENGINE_INDEX["band_mm"]]
+    pp[P_STICK_J] = ev[ENGINE_INDEX["jump_mm"]]
+    pp[P_DRIFT] = ev[ENGINE_INDEX["rate_MPa_per_h"]]
     pp[P_BULB_LAYER] = bulb_layer
     pp[P_DT] = c.dt_s
     pp[P_NSUB] = c.n_sub
@@ -101,17 +126,23 @@ def pack_plant(cfg: EnvConfig) -> np.ndarray:
     return pp
 
 
-def initial_state(cfg: EnvConfig, T0: float) -> np.ndarray:
-    """A settled start: the whole tank at T0, bulb at T0, no friction force."""
+def initial_state(cfg: EnvConfig, T0: float, T_supply0: float | None = None) -> np.ndarray:
+    """A settled start: the whole tank at T0, the bulb at its sensed temperature (T0, or mixed with the
+    supply ``T_supply0`` under medium_temperature), no friction force, the stem at rest where the force
+    balance puts it (physics.trajectory.valve_initial_state)."""
     n = cfg.tank.n_layers
     s = np.zeros(n + N_STATE_EXTRA)
     s[:n] = T0
-    s[n + S_TG] = T0
-    s[n + S_FH] = 0.0
-    s[n + S_X] = float(
-        _valve.opening(T0, 0.0, cfg.scenario.dp_mbar, cfg.scenario.ps_bar,
-                       _valve.setpoint_pressure(cfg.control.setting_C, cfg.valve.to_array()), cfg.valve.to_array())
-    )
+    vp = cfg.valve.to_array()
+    ev = cfg.effects.vector()
+    S, J = ev[ENGINE_INDEX["band_mm"]], ev[ENGINE_INDEX["jump_mm"]]
+    T_env = T0 if T_supply0 is None else float(sensed_temperature(T0, T_supply0, ev[ENGINE_INDEX["beta"]]))
+    st = valve_initial_state(T_env, cfg.scenario.dp_mbar, cfg.scenario.ps_bar,
+                             _valve.setpoint_pressure(cfg.control.setting_C, vp), S, J, S > 0 or J > 0, vp)
+    for q, v in zip((S_TG, S_FH, S_X, S_UPREV, S_DUPREV, S_US, S_STUCK, S_D), st, strict=True):
+        s[n + q] = float(v)
+    s[n + S_AGE] = 0.0
+    s[n + S_XD] = s[n + S_UPREV]
     return s
 
 
@@ -228,17 +259,21 @@ def plant_step(Z, lo, hi, vp, pp):
             Z[b0 + r, i] = 0.0
     for i in range(c0, c1):
         p_bset[i] = setpoint_pressure(T_set[i], vp)
+    effects = pp[P_EFFECTS] != 0.0
     for _ in range(nsub):
-        # sensor bulb: exact first-order lag towards the pocket's layer; Dahl friction;
-        # the force balance's opening; the flow it passes
-        for i in range(c0, c1):
-            Tg1 = Tb[i] + (T_g[i] - Tb[i]) * a_b
-            F = dahl_update(F_h[i], Tg1 - T_g[i], vp)
-            T_g[i] = Tg1
-            F_h[i] = F
-            x = opening(Tg1, F, dp[i], ps, p_bset[i], vp)
-            x_new[i] = x
-            m[i] = flow_kgh(x, dp[i], vp) / 3600.0
+        if effects:
+            _valve_effects_substep(Z, nl, c0, c1, Tb, T_sup, dp, ps, p_bset, x_new, m, a_b, dt, vp, pp)
+        else:
+            # sensor bulb: exact first-order lag towards the pocket's layer; Dahl friction;
+            # the force balance's opening; the flow it passes
+            for i in range(c0, c1):
+                Tg1 = bulb_lag_hold(T_g[i], Tb[i], a_b)
+                F = dahl_update(F_h[i], Tg1 - T_g[i], vp)
+                T_g[i] = Tg1
+                F_h[i] = F
+                x = opening(Tg1, F, dp[i], ps, p_bset[i], vp)
+                x_new[i] = x
+                m[i] = flow_kgh(x, dp[i], vp) / 3600.0
         # stem travel and reversals
         for i in range(c0, c1):
             dx = x_new[i] - X[i]
@@ -315,6 +350,40 @@ def plant_step(Z, lo, hi, vp, pp):
     T_ret_out = Z[o0 + O_T_RET]
     for i in range(c0, c1):
         T_ret_out[i] = ret[i] / mass[i] if mass[i] > 1e-12 else Z[0, i]
+
+
+@register_jitable
+def _valve_effects_substep(Z, nl, c0, c1, Tb, T_sup, dp, ps, p_bset, x_new, m, a_b, dt, vp, pp):
+    """The valve's sub-step with its named effects (physics.trajectory.valve_step): the bulb lags the
+    sensed temperature (the pocket mixed with the supply water through the valve, medium_temperature), the
+    set pressure drifts with the time since the reset (setpoint_drift), the stem sticks and slips
+    (stiction). Writes the new stem position to ``x_new`` (the caller counts travel and reversals) and
+    the flow to ``m``."""
+    beta = pp[P_BETA]
+    S = pp[P_STICK_S]
+    J = pp[P_STICK_J]
+    rate = pp[P_DRIFT]
+    stiction = S > 0.0 or J > 0.0
+    T_g = Z[nl + S_TG]
+    F_h = Z[nl + S_FH]
+    X = Z[nl + S_X]
+    UP = Z[nl + S_UPREV]
+    DUP = Z[nl + S_DUPREV]
+    US = Z[nl + S_US]
+    ST = Z[nl + S_STUCK]
+    D = Z[nl + S_D]
+    AGE = Z[nl + S_AGE]
+    XD = Z[nl + S_XD]
+    for i in range(c0, c1):
+        env = sensed_temperature(Tb[i], T_sup[i], beta)
+        AGE[i] += dt
+        Tg, F, x, UP[i], DUP[i], US[i], ST[i], D[i], XD[i] = valve_step(
+            T_g[i], F_h[i], X[i], UP[i], DUP[i], US[i], ST[i], D[i], bulb_lag_hold(T_g[i], env, a_b), 0.0, dp[i],
+            ps, drifted_set_pressure(p_bset[i], rate, AGE[i]), S, J, stiction, vp)
+        T_g[i] = Tg
+        F_h[i] = F
+        x_new[i] = x
+        m[i] = flow_kgh(x, dp[i], vp) / 3600.0
 
 
 @register_jitable
@@ -617,6 +686,23 @@ def reset_outputs(out: np.ndarray, s: np.ndarray, pp: np.ndarray, scen0: np.ndar
     out[O_X] = s[nl + S_X]
     out[O_TG] = s[nl + S_TG]
     out[O_T_SET] = setting
+
+
+def effect_info(s: np.ndarray, nl: int, pp: np.ndarray, vp: np.ndarray, setting: np.ndarray | float) -> dict[str, Any]:
+    """The hidden states of the valve's named effects from a state vector ``s`` (or the rows of the
+    batched env's states, ``(N, ns)``) and the setting(s) in force: ``x_demand_mm`` (the force
+    balance's opening, before stiction), ``stuck`` (1.0 while the stem sticks; with stiction),
+    ``p_set_MPa`` (the bellows set pressure in force, drifted by setpoint_drift). Empty without effects."""
+    if pp[P_EFFECTS] == 0.0:
+        return {}
+    out: dict[str, Any] = {
+        "x_demand_mm": s[..., nl + S_XD].copy(),
+        "p_set_MPa": _valve.setpoint_pressure(np.asarray(setting, dtype=float), vp)
+        + pp[P_DRIFT] * s[..., nl + S_AGE] / 3600.0,
+    }
+    if pp[P_STICK_S] > 0.0 or pp[P_STICK_J] > 0.0:
+        out["stuck"] = s[..., nl + S_STUCK].copy()
+    return out
 
 
 def kpis_from_acc(acc: np.ndarray) -> dict[str, float]:

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares, minimize
 
-from valve_env.diagnosis.effects import EFFECTS, ENGINE_INDEX, EffectParameter
+from valve_env.diagnosis.effects import EFFECTS, ENGINE_INDEX, N_EFFECT_PARAMS, EffectParameter
 from valve_env.diagnosis.engine import (
     BAND_SPREAD,
     LANDING_SD,
@@ -136,7 +136,7 @@ class Model:
                 return "log", lo, hi, 1.0
         for p in self.eff_params:
             if p.name == name:
-                return "lin", p.lower, p.upper, p.scale
+                return "lin", p.fit_lower, p.fit_upper, p.scale
         raise KeyError(name)
 
     def to_work(self, values: dict[str, float]) -> np.ndarray:
@@ -179,7 +179,7 @@ class Model:
         vp[I_SIGMA] = values["sigma"]
         vp[I_F_HMAX] = values["F_hmax"]
         vp[I_P_BSET] = values["p_bset"]
-        e = np.zeros(4)
+        e = np.zeros(N_EFFECT_PARAMS)
         for p in self.eff_params:
             e[ENGINE_INDEX[p.name]] = values[p.name]
         return vp, e
@@ -258,7 +258,7 @@ class Model:
             if p.name == "band_mm" and p.name not in fixed:
                 b, _ = jump_band(data.x, float(self.valve.stroke))
                 if math.isfinite(b) and b > 0:
-                    fixed[p.name] = min(max(b, p.lower), p.upper)
+                    fixed[p.name] = min(max(b, p.fit_lower), p.fit_upper)
                     start[p.name] = fixed[p.name]
         if cold:
             # stage 1, from the paper's values: least squares of the simulation error, so that the slowly
@@ -292,7 +292,7 @@ class Model:
                     continue
                 v = float(fit.params[p.name])
                 grid = np.concatenate([self._grid(data, p), v * np.array([0.5, 0.7, 0.85, 1.2, 1.4, 2.0])])
-                grid = np.clip(grid, p.lower, p.upper)
+                grid = np.clip(grid, p.fit_lower, p.fit_upper)
                 for g in grid:
                     ll = self.loglik(data, {**better, p.name: float(g)})
                     if ll > ll0 + 0.1:
@@ -385,13 +385,13 @@ class Model:
     def _grid(self, data: RunData, p: EffectParameter) -> np.ndarray:
         if p.log_grid:
             lo = max(0.5 * float(np.std(np.diff(data.x))), 1e-3)
-            return np.concatenate([[p.null], np.geomspace(lo, min(p.upper, 0.3), 8)])
+            return np.concatenate([[p.null], np.geomspace(lo, min(p.fit_upper, 0.3), 8)])
         if p.name == "tau_s":
             return np.array([0.0, 1.0, 3.0, 10.0, 20.0, 40.0, 70.0, 120.0, 200.0, 350.0, 600.0, 1000.0])
         if p.name == "beta":
             return np.array([0.0, 0.01, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3, 0.45, 0.6])
         span = np.array([0.0, 0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0]) * p.scale
-        return np.clip(np.unique(np.concatenate([-span, span])), p.lower, p.upper)
+        return np.clip(np.unique(np.concatenate([-span, span])), p.fit_lower, p.fit_upper)
 
     def _scan(self, data: RunData, start: dict[str, float], p: EffectParameter, keep_start: bool = False) -> float:
         """The value of ``p`` with the highest likelihood on its grid (the other parameters at

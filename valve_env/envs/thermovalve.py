@@ -168,6 +168,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         self._pp = sim.pack_plant(self.cfg)
         nl = self.cfg.tank.n_layers
         self._work = np.zeros((sim.block_rows(nl), 1))  # a block of one env for sim.plant_step
+        self._has_effects = bool(self.cfg.effects)
         lo, hi = [], []
         if self.mode in ("setting", "dual"):
             lo.append(c.setting_min_C)
@@ -210,7 +211,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
             cfg.scenario, self.np_random, self._n_steps, cfg.control.dt_s, cfg.tank.T_cold, cfg.tank.cp
         )
         self._scen = scen.as_matrix()
-        self._s = sim.initial_state(cfg, scen.T_init_C)
+        self._s = sim.initial_state(cfg, scen.T_init_C, float(self._scen[0, 3]))
         self._acc = np.zeros(sim.N_ACC)
         self._k = 0
         self._setting = cfg.control.setting_C
@@ -297,7 +298,15 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
             "heat_W": out[sim.O_HEAT_W],
             "pump_W": out[sim.O_PUMP_W],
             "t_s": self._k * self._dt_s,
+            **self._effect_info(),
         }
+
+    def _effect_info(self) -> dict[str, float]:
+        """The hidden states of the valve's named effects (none without effects)."""
+        if not self._has_effects:
+            return {}
+        st = sim.effect_info(self._s, self.cfg.tank.n_layers, self._pp, self._vp, self._setting)
+        return {k: float(v) for k, v in st.items()}
 
     def _record(self) -> None:
         assert self._hist is not None
@@ -330,12 +339,14 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
 
     @property
     def hidden_state(self) -> dict[str, float]:
-        """The unobserved valve state: friction force (N), stem position (mm), gas temperature (degC)."""
+        """The unobserved valve state: friction force (N), stem position (mm), gas temperature (degC), and
+        with named effects their states (simulator.effect_info)."""
         nl = self.cfg.tank.n_layers
         return {
             "F_h_N": float(self._s[nl + sim.S_FH]),
             "x_mm": float(self._s[nl + sim.S_X]),
             "T_g_C": float(self._s[nl + sim.S_TG]),
+            **self._effect_info(),
         }
 
     @property

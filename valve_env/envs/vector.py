@@ -186,6 +186,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._delay = sens.dead_time_steps
         self._delay_buf = np.zeros((n, self._delay + 1, sim.N_OBS), np.float32) if self._delay > 0 else None
         self._bulb_layer = int(self._pp[sim.P_BULB_LAYER])
+        self._has_effects = bool(self.cfg.effects)
 
     # -- Gymnasium API ------------------------------------------------------
     def reset(
@@ -330,6 +331,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             "F_h_N": self._S[:, nl + sim.S_FH].copy(),
             "x_mm": self._S[:, nl + sim.S_X].copy(),
             "T_g_C": self._S[:, nl + sim.S_TG].copy(),
+            **sim.effect_info(self._S, nl, self._pp, self._vp, self._SD[:, sim.SD_SET]),
         }
 
     @property
@@ -363,7 +365,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         arrays = make_scenario(cfg.scenario, rng, self._n_steps, cfg.control.dt_s, cfg.tank.T_cold, cfg.tank.cp)
         scen = arrays.as_matrix()
         self._store_scenario(i, scen)
-        self._S[i] = sim.initial_state(cfg, arrays.T_init_C)
+        self._S[i] = sim.initial_state(cfg, arrays.T_init_C, float(scen[0, 3]))
         self._ACC[i] = 0.0
         self._K[i] = 0
         self._CUR[i] = 0
@@ -440,6 +442,11 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             vals[:, ~masks[0]] = 0.0
         info = dict(zip(self._info_names, vals, strict=True))
         info.update(zip(self._mask_names, masks, strict=True))
+        if self._has_effects:  # the hidden states of the valve's named effects
+            for key, arr in sim.effect_info(self._S, self._nl, self._pp, self._vp, self._SD[:, sim.SD_SET]).items():
+                arr[~masks[0]] = 0.0
+                info[key] = arr
+                info["_" + key] = masks[0].copy()
         return info
 
     def _end_info(self, idx: np.ndarray) -> dict[str, Any]:
