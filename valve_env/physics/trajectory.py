@@ -82,10 +82,11 @@ def valve_initial_state(T_env0, dp_mbar, ps_bar, p_set_MPa, S, J, stiction, vp):
     balance puts it (with stiction: at rest there after a motion upwards). Returns the
     :data:`N_VALVE_STATE` state ``(T_g, F_h, x, u_prev, du_prev, u_s, stuck, d)``."""
     stroke = vp[I_STROKE]
-    xd = min(max(demanded_opening(T_env0, 0.0, dp_mbar, ps_bar, p_set_MPa, vp), 0.0), stroke)
+    raw = demanded_opening(T_env0, 0.0, dp_mbar, ps_bar, p_set_MPa, vp)
+    xd = min(max(raw, 0.0), stroke)
     if stiction:
-        y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(xd, S, J, 0.0, stroke)
-        return T_env0, 0.0, y, u_prev, du_prev, u_s, stuck, d
+        y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(raw, S, J, -stroke, 2.0 * stroke)
+        return T_env0, 0.0, min(max(y, 0.0), stroke), u_prev, du_prev, u_s, stuck, d
     return T_env0, 0.0, xd, xd, 0.0, xd, 1.0, 1.0
 
 
@@ -98,10 +99,17 @@ def valve_step(T_g, F_h, x, u_prev, du_prev, u_s, stuck, d, T_g_new, F_noise_dW,
     :func:`valve_initial_state` and the demanded opening ``x_demand`` (mm) as a ninth value."""
     F = friction_step(F_h, T_g_new - T_g, F_noise_dW, vp)
     stroke = vp[I_STROKE]
-    xd = min(max(demanded_opening(T_g_new, F, dp_mbar, ps_bar, p_set_MPa, vp), 0.0), stroke)
+    raw = demanded_opening(T_g_new, F, dp_mbar, ps_bar, p_set_MPa, vp)
+    xd = min(max(raw, 0.0), stroke)
     if stiction:
-        x, u_prev, du_prev, u_s, stuck, d = stick_slip_step(xd, x, u_prev, du_prev, u_s, stuck, d, S, J, 0.0,
-                                                             stroke)
+        # the stem sticks against the force balance's *unclipped* demand (limited to one stroke beyond
+        # the seat and the stop): the excess of the demand beyond the seat is the bellows force that
+        # presses a stuck cone shut, so a stem stuck just off the seat breaks free as the bulb warms
+        # (with the demand clipped at the seat it could stay stuck open for good); the stem itself
+        # stays within [0, stroke]
+        y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(raw, x, u_prev, du_prev, u_s, stuck, d, S, J,
+                                                             -stroke, 2.0 * stroke)
+        x = min(max(y, 0.0), stroke)
     else:
         x = xd
     return T_g_new, F, x, u_prev, du_prev, u_s, stuck, d, xd
