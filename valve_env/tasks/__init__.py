@@ -82,6 +82,8 @@ _DH = {
     "control": {"w_energy": 0.0, "w_track": 0.004},
 }
 
+_STICKY = {"valve": {"effects": {"stiction": {"band_mm": 0.1}}}}
+
 TASKS: dict[str, Task] = {
     "ThermoValve-v0": Task(
         "ThermoValve-v0", "setting",
@@ -92,6 +94,19 @@ TASKS: dict[str, Task] = {
     ),
     "ThermoValveDual-v0": Task(
         "ThermoValveDual-v0", "dual", "the original tank loop, acting on both the setting and the pump's dp",
+    ),
+    "ThermoValveStickyValve-v0": Task(
+        "ThermoValveStickyValve-v0", "setting",
+        "an aged valve whose stem sticks (band 0.1 mm = 5 % of stroke): a PI limit-cycles, the stem wears",
+        sections=_STICKY,
+        sources={
+            "valve.effects.stiction.band_mm = 0.1 (jump_mm = band)":
+                "5 % of the 2 mm stroke, the upper end of the 0.5-5 % of travel reported for industrial valves "
+                "(Choudhury, Thornhill and Shah 2005, Control Eng. Practice 13:641-658; Jelali and Huang 2010, "
+                "Detection and Diagnosis of Stiction in Control Loops, Springer)",
+            "everything else": "ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4)",
+        },
+        env_class="ThermoValveStickyValveEnv",
     ),
     "ThermoValveSmallCylinder-v0": Task(
         "ThermoValveSmallCylinder-v0", "setting",

@@ -200,6 +200,56 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
 # -- the tasks' spec sheets -------------------------------------------------------------
 
 
+class ThermoValveStickyValveEnv(ThermoValveTaskEnv):
+    """## Description
+
+    ThermoValveStickyValve-v0: the original 200 l tank loop (ThermoValve-v0,
+    tapping cycle M) with an aged valve whose stem sticks: static friction
+    holds the resting stem until the force balance's demand has moved 0.1 mm
+    (5 % of the 2 mm stroke, the upper end of what is reported for
+    industrial valves), then it slips onto the demand (the (S, J) model of
+    Choudhury et al. 2005 with S = J = 0.1 mm, on top of the paper's Dahl
+    friction). With an integrating heat balance between draws, a PI on the
+    outlet limit-cycles: its integral winds the setting until the stem
+    breaks free, the stem jumps, the outlet overshoots, and the loop turns.
+    The compensators of the stiction literature (knocker, two-move,
+    constant reinforcement) and wear-aware control have something to fix
+    here: tracking, stem travel and reversals (wear).
+
+    ## Action space
+
+    Box(1,) float32: the valve temperature setting, degC, [40, 80].
+
+    ## Observation space
+
+    Box(12,) float32, as ThermoValve-v0. The stem position, its demand and
+    whether it is stuck are not observed (``info``: x_mm, and the effects'
+    hidden states).
+
+    ## Reward
+
+    As ThermoValve-v0: ``-(0.04 mean (T_out - 60)^2 + 1.0 mean max(0, 55 -
+    T_out) + 0.02 (P_heat + 2.5 P_pump) / kW)`` per 30 s step.
+
+    ## KPIs
+
+    The SPEC section 5 KPIs; travel_mm and reversals measure the stem's wear.
+
+    ## Physical parameters (sources: docs/tasks.md)
+
+    | parameter | value | source |
+    |---|---|---|
+    | stiction band_mm | 0.1 mm (jump = band) | 0.5-5 % of travel: Choudhury et al. 2005; Jelali, Huang 2010 |
+    | everything else | | ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4) |
+
+    ## Version history
+
+    * v0: initial release.
+    """
+
+    task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
+
+
 class ThermoValveSmallCylinderEnv(ThermoValveTaskEnv):
     """## Description
 
@@ -316,6 +366,11 @@ class ThermoValveDistrictHeatingEnv(ThermoValveTaskEnv):
     task_id: ClassVar[str] = "ThermoValveDistrictHeating-v0"
 
 
+class ThermoValveStickyValveVectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveStickyValveEnv.__doc__
+    task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
+
+
 class ThermoValveSmallCylinderVectorEnv(ThermoValveTaskVectorEnv):
     __doc__ = ThermoValveSmallCylinderEnv.__doc__
     task_id: ClassVar[str] = "ThermoValveSmallCylinder-v0"
@@ -347,6 +402,8 @@ __all__ = [
     "ThermoValveDistrictHeatingVectorEnv",
     "ThermoValveSmallCylinderEnv",
     "ThermoValveSmallCylinderVectorEnv",
+    "ThermoValveStickyValveEnv",
+    "ThermoValveStickyValveVectorEnv",
     "ThermoValveTaskEnv",
     "ThermoValveTaskVectorEnv",
     "make_task_env",
