@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -34,13 +34,8 @@ SMOOTH = "pi@smooth_valve"
 
 def smooth_valve() -> dict[str, Any]:
     """The ``valve=`` override of a smooth valve: Dahl friction 1 mN (F_hmax must be > 0) and no
-    named effects (when the valve has effects)."""
-    from valve_env.params import ValveParams
-
-    valve: dict[str, Any] = {"F_hmax": 1e-3}
-    if "effects" in {f.name for f in fields(ValveParams)}:
-        valve["effects"] = {}
-    return {"valve": valve}
+    named effects (no stiction)."""
+    return {"valve": {"F_hmax": 1e-3, "effects": {}}}
 
 
 @dataclass(frozen=True)
