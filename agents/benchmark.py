@@ -110,6 +110,10 @@ def run(args: argparse.Namespace) -> int:
     records = run_cells(cells, args.scheduler, args.workers)
     table = bm.task_table(records)
     found = bm.findings(table)
+    for task in tasks:  # the limit cycle of pi where the task's valve sticks (plausibility, docs/tasks.md)
+        if "stiction" in valve_env.tasks.get_task(task).sections.get("valve", {}).get("effects", {}):
+            found.setdefault(task, {})["limit_cycle"] = bm.limit_cycles(
+                task, range(args.seed, args.seed + args.episodes))
     text = bm.markdown_report(table, found)
     import pandas as pd
 

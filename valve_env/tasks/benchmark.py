@@ -172,6 +172,34 @@ def findings(table: pd.DataFrame) -> dict[str, dict[str, Any]]:
     return out
 
 
+def limit_cycle(
+    traj: pd.DataFrame, t0_h: float = 2.0, t1_h: float = 5.0, min_jump_mm: float = 0.005
+) -> dict[str, float]:
+    """The limit cycle of a rollout (valve_env.evaluation.rollout) between ``t0_h`` and ``t1_h`` (a
+    window without draws on the M cycle, whose first draw is at 07:00): the stem's break-aways
+    (openings by more than ``min_jump_mm`` in a step), their median period (min), and the peak-to-peak
+    swings of the setting (the controller output) and of the outlet."""
+    w = traj[(traj["t_h"] > t0_h) & (traj["t_h"] < t1_h)]
+    dx = np.diff(w["x_mm"].to_numpy())
+    opens = np.flatnonzero(dx > min_jump_mm)
+    dt_min = float(np.median(np.diff(w["t_h"].to_numpy()))) * 60.0 if len(w) > 1 else math.nan
+    return {
+        "break_aways": float(opens.size),
+        "period_min": float(np.median(np.diff(opens)) * dt_min) if opens.size > 1 else math.nan,
+        "setting_p2p_K": float(np.ptp(w["setting_C"])) if len(w) else math.nan,
+        "outlet_p2p_K": float(np.ptp(w["T_out_C"])) if len(w) else math.nan,
+    }
+
+
+def limit_cycles(task_id: str, seeds: Iterable[int], controller: str = "pi") -> dict[str, float]:
+    """Median :func:`limit_cycle` figures of ``controller`` on ``task_id`` over ``seeds``."""
+    from valve_env.controllers import make_controller
+    from valve_env.evaluation import rollout
+
+    figs = [limit_cycle(rollout(make_controller(controller, task_id), task_id, int(s))) for s in seeds]
+    return {k: float(np.nanmedian([f[k] for f in figs])) for k in figs[0]}
+
+
 # -- the report --------------------------------------------------------------------------
 
 REPORT_KPIS = ("iae_Kh", "tdis_Kh", "heat_kWh", "return_C", "reversals", "travel_mm", "cost_eur")
@@ -207,6 +235,12 @@ def markdown_report(table: pd.DataFrame, found: Mapping[str, Mapping[str, Any]])
                          f"({'meets' if f['headroom_goal_met'] else 'misses'} the 25 % goal)")
         else:
             lines.append("* headroom: no oracle in this run (scores n/a)")
+        if "limit_cycle" in f:
+            lc = f["limit_cycle"]
+            lines.append(f"* pi's limit cycle, 02:00-05:00 (median over the seeds): {lc['break_aways']:.0f} "
+                         f"break-aways of the stem, period {_f(lc['period_min'])} min, setting swing "
+                         f"{_f(lc['setting_p2p_K'])} K ({100 * lc['setting_p2p_K'] / 40:.1f} % of its 40 K range), "
+                         f"outlet swing {_f(lc['outlet_p2p_K'])} K")
         if "valve_change_pct" in f:
             lines.append(f"* valve matters: pi iae_Kh {_f(f['pi_iae_Kh_task_valve'])} K h on the task's valve, "
                          f"{_f(f['pi_iae_Kh_smooth_valve'])} on a smooth valve: {f['valve_change_pct']:+.1f} % "
@@ -273,7 +307,10 @@ def report_json(table: pd.DataFrame, found: Mapping[str, Any], meta: Mapping[str
         return v
 
     rows = [{k: clean(v) for k, v in r.items()} for r in table.to_dict(orient="records")]
-    data = {"meta": dict(meta), "findings": {t: {k: clean(v) for k, v in f.items()} for t, f in found.items()},
+    def clean_all(v: Any) -> Any:
+        return {k: clean_all(x) for k, x in v.items()} if isinstance(v, Mapping) else clean(v)
+
+    data = {"meta": dict(meta), "findings": clean_all(found),
             "table": rows}
     return json.dumps(data, indent=1) + "\n"
 
@@ -284,6 +321,8 @@ __all__ = [
     "Cell",
     "findings",
     "known_controllers",
+    "limit_cycle",
+    "limit_cycles",
     "make_cells",
     "markdown_report",
     "normalised_scores",
