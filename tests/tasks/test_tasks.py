@@ -130,3 +130,22 @@ def test_the_original_ids_are_unchanged() -> None:
             env = gym.make(task_id)
             assert type(env.unwrapped).__module__ == "valve_env.envs.thermovalve"
             assert env.observation_space.shape == (12,)
+
+
+def test_batched_equals_single_with_sensor_noise_on_the_forecast_task() -> None:
+    """Noise on the plant's observations only (the forecasts are exact), each env from its own generator."""
+    kw = {**SHORT, "sensors": {"noise_K": 0.05, "flow_noise_rel": 0.015}}
+    task_id = "ThermoValveDistrictHeating-v0"
+    native = gym.make_vec(task_id, num_envs=2, **kw)
+    sync = SyncVectorEnv([lambda: gym.make(task_id, **kw) for _ in range(2)])
+    o1, _ = native.reset(seed=9)
+    o2, _ = sync.reset(seed=9)
+    np.testing.assert_allclose(o1, o2, rtol=1e-6)
+    a = np.full((2, 1), 61.0, np.float32)
+    for _ in range(50):
+        o1, r1, *_ = native.step(a)
+        o2, r2, *_ = sync.step(a)
+        np.testing.assert_allclose(o1, o2, rtol=1e-6)
+        np.testing.assert_allclose(r1, r2, rtol=1e-9)
+    layer = native.layer
+    np.testing.assert_allclose(o1[:, 12], layer.price_at(native.step_index), rtol=1e-6)  # forecasts are exact

@@ -40,6 +40,14 @@ def _extended_box(base: spaces.Box, layer: TaskLayer) -> spaces.Box:
     )
 
 
+def _task_config(env: Any, task_id: str | None, config: Any, overrides: dict[str, Any]) -> Any:
+    """Set ``env.task`` and ``env.mode`` from the task id (the class's own by default); the task's EnvConfig."""
+    task = get_task(task_id or env.task_id)
+    env.task = task
+    env.mode = task.mode
+    return task.config(config, **overrides)
+
+
 def _build_layer(task_id: str, cfg: Any, tariff: Any) -> TaskLayer:
     task = get_task(task_id)
     layer = make_layer(task.layer, {**task.layer_params, **dict(tariff or {})}, cfg.scenario, cfg.control.dt_s)
@@ -66,12 +74,9 @@ class ThermoValveTaskEnv(ThermoValveEnv):
         tariff: Any = None,
         **overrides: Any,
     ) -> None:
-        task = get_task(task_id or self.task_id)
-        self.task = task
-        self.mode = task.mode  # type: ignore[misc]
-        cfg = task.config(config, **overrides)
+        cfg = _task_config(self, task_id, config, overrides)
         super().__init__(config=cfg, render_mode=render_mode)
-        self.layer = _build_layer(task.id, cfg, tariff)
+        self.layer = _build_layer(self.task.id, cfg, tariff)
         self.observation_space = _extended_box(self.observation_space, self.layer)  # type: ignore[arg-type]
         self.obs_names: tuple[str, ...] = (*OBS_NAMES, *self.layer.obs_names)
         self._tacc = np.zeros(self.layer.n_acc)
@@ -132,28 +137,13 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
         tariff: Any = None,
         **overrides: Any,
     ) -> None:
-        task = get_task(task_id or self.task_id)
-        self.task = task
-        self.mode = task.mode  # type: ignore[misc]
-        cfg = task.config(config, **overrides)
+        cfg = _task_config(self, task_id, config, overrides)
         super().__init__(num_envs, config=cfg, max_episode_steps=max_episode_steps, render_mode=render_mode)
-        self.layer = _build_layer(task.id, cfg, tariff)
+        self.layer = _build_layer(self.task.id, cfg, tariff)
         self.single_observation_space = _extended_box(self.single_observation_space, self.layer)  # type: ignore[arg-type]
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.obs_names: tuple[str, ...] = (*OBS_NAMES, *self.layer.obs_names)
         self._TACC = np.zeros((self.num_envs, self.layer.n_acc))
-
-    def _noisy(self, i: int, observation: np.ndarray) -> np.ndarray:
-        """The plant's noise on the plant's 12 observations (the layer's are exact)."""
-        from valve_env.wrappers import noisy_observation
-
-        rng = self._rngs[i]
-        assert rng is not None
-        sens = self.cfg.sensors
-        space = self.single_observation_space
-        assert isinstance(space, gym.spaces.Box)
-        m = observation.shape[0]
-        return noisy_observation(observation, rng, sens.noise_K, sens.flow_noise_rel, space.low[:m], space.high[:m])
 
     def _extend(self, obs: np.ndarray) -> np.ndarray:
         if not self.layer.obs_names:
