@@ -113,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     for task in tasks:  # the limit cycle of pi where the task's valve sticks (plausibility, docs/tasks.md)
         if "stiction" in valve_env.tasks.get_task(task).sections.get("valve", {}).get("effects", {}):
             found.setdefault(task, {})["limit_cycle"] = bm.limit_cycles(
-                task, range(args.seed, args.seed + args.episodes))
+                task, range(args.seed, args.seed + args.episodes),
+                env_kwargs=None if args.horizon_h is None else {"horizon_h": float(args.horizon_h)})
     text = bm.markdown_report(table, found)
     import pandas as pd
 

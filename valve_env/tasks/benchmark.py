@@ -191,12 +191,13 @@ def limit_cycle(
     }
 
 
-def limit_cycles(task_id: str, seeds: Iterable[int], controller: str = "pi") -> dict[str, float]:
+def limit_cycles(task_id: str, seeds: Iterable[int], controller: str = "pi",
+                 env_kwargs: Mapping[str, Any] | None = None) -> dict[str, float]:
     """Median :func:`limit_cycle` figures of ``controller`` on ``task_id`` over ``seeds``."""
     from valve_env.controllers import make_controller
     from valve_env.evaluation import rollout
 
-    figs = [limit_cycle(rollout(make_controller(controller, task_id), task_id, int(s))) for s in seeds]
+    figs = [limit_cycle(rollout(make_controller(controller, task_id), task_id, int(s), env_kwargs)) for s in seeds]
     return {k: float(np.nanmedian([f[k] for f in figs])) for k in figs[0]}
 
 
