@@ -7,7 +7,14 @@ Built-in baselines (see docs/baselines.md):
 * ``pi``: a discrete PI on the outlet temperature with anti-windup and a
   bumpless start, SIMC-tuned on a simulator step test
   (:mod:`valve_env.controllers.tuning`, gains in ``configs/controllers.yaml``);
-* ``pi_compensated``: the PI plus an inverse-model Dahl hysteresis compensator.
+* ``pi_compensated``: the PI plus an inverse-model Dahl hysteresis compensator;
+* ``knocker``, ``constant_reinforcement``, ``two_move``: stiction compensators
+  from the literature on the PI's setting, and ``pi_wear``: an event-based PI
+  that spares the stem (:mod:`valve_env.controllers.compensators`,
+  docs/controllers.md);
+* ``oracle``: MPC with the true plant and perfect preview, the bound on what
+  is achievable (:mod:`valve_env.controllers.oracle`; it must be bound to the
+  envs it controls, which the evaluator does).
 
 ``make_controller(name, env_id)`` builds one; any other name (``ppo``,
 ``sac``, ...) is delegated to ``agents.loader.load_agent(name, env_id)``.
@@ -19,12 +26,22 @@ from typing import Any
 
 from valve_env.controllers.base import ALL_ENV_MODES, Controller, PredictPolicy, original_id
 from valve_env.controllers.baselines import DahlCompensator, PICompensated, PIController, SelfActing
+from valve_env.controllers.compensators import ConstantReinforcement, Knocker, PIWear, TwoMove
+from valve_env.controllers.oracle import Oracle, OracleSettings
 
 BASELINES: dict[str, type[Controller]] = {
     SelfActing.name: SelfActing,
     PIController.name: PIController,
     PICompensated.name: PICompensated,
+    PIWear.name: PIWear,
+    Knocker.name: Knocker,
+    ConstantReinforcement.name: ConstantReinforcement,
+    TwoMove.name: TwoMove,
 }
+"""Controllers that read only the observation (the default set of ``thermovalve evaluate``)."""
+ORACLES: dict[str, type[Controller]] = {Oracle.name: Oracle}
+"""Controllers that read the true plant (bound to their envs by the evaluator; not a default: slow)."""
+CONTROLLERS: dict[str, type[Controller]] = {**BASELINES, **ORACLES}
 
 
 class UnknownControllerError(ValueError):
@@ -34,20 +51,21 @@ class UnknownControllerError(ValueError):
 def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) -> PredictPolicy:
     """A controller by name for ``env_id``.
 
-    Baselines: ``self_acting``, ``pi``, ``pi_compensated`` (keyword arguments
-    go to their constructors). Any other name is a trained agent, loaded by
+    Built-ins (:data:`CONTROLLERS`): ``self_acting``, ``pi``, ``pi_compensated``, ``pi_wear``,
+    ``knocker``, ``constant_reinforcement``, ``two_move``, ``oracle`` (keyword arguments go to
+    their constructors). Any other name is a trained agent, loaded by
     ``agents.loader.load_agent(name, env_id, **kwargs)``; a missing ``agents``
     package or loader raises :class:`UnknownControllerError` naming the agent.
     """
     if env_id not in ALL_ENV_MODES:
         raise ValueError(f"unknown env id {env_id!r}; known: {list(ALL_ENV_MODES)}")
-    if name in BASELINES:
-        return BASELINES[name](env_id, **kwargs)
+    if name in CONTROLLERS:
+        return CONTROLLERS[name](env_id, **kwargs)
     try:
         from agents.loader import load_agent  # type: ignore[import-not-found]
     except ImportError as exc:
         raise UnknownControllerError(
-            f"unknown controller {name!r}: not a baseline ({', '.join(BASELINES)}) and the agent loader "
+            f"unknown controller {name!r}: not a built-in ({', '.join(CONTROLLERS)}) and the agent loader "
             f"agents.loader.load_agent could not be imported ({exc})"
         ) from exc
     return load_agent(name, env_id, **kwargs)
@@ -55,8 +73,16 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
 
 __all__ = [
     "BASELINES",
+    "CONTROLLERS",
+    "ORACLES",
+    "ConstantReinforcement",
     "Controller",
     "DahlCompensator",
+    "Knocker",
+    "Oracle",
+    "OracleSettings",
+    "PIWear",
+    "TwoMove",
     "PICompensated",
     "PIController",
     "PredictPolicy",

@@ -147,13 +147,18 @@ class PIController(Controller):
         u_now = np.clip(obs[:, self.u_index], lo, hi)
         return np.stack([u_now - self._bias(obs) - self.Kp * e, y], axis=1)
 
-    def pi_output(self, obs: np.ndarray, state: np.ndarray) -> np.ndarray:
-        """One PI update on a batch: returns u (clipped) and updates ``state[:, :2]`` in place."""
+    def pi_output(self, obs: np.ndarray, state: np.ndarray, feedforward: np.ndarray | None = None) -> np.ndarray:
+        """One PI update on a batch: returns u (clipped) and updates ``state[:, :2]`` in place.
+
+        ``feedforward`` (units of u, per env) is added before the limits, so the
+        anti-windup sees it (the oracle's plan perturbs the PI this way)."""
         y = state[:, 1] * self._fa + obs[:, I_T_OUT] * (1.0 - self._fa)
         state[:, 1] = y
         e = obs[:, I_T_TARGET] - y
         integ = state[:, 0]
         v = self._bias(obs) + self.Kp * e + integ
+        if feedforward is not None:
+            v = v + feedforward
         lo, hi = self._limits(obs)
         u = np.minimum(np.maximum(v, lo), hi)
         state[:, 0] = integ + self.Kp * self.dt_s / self.Ti_s * e + self.dt_s / self.Tt_s * (u - v)

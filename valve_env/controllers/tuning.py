@@ -275,11 +275,17 @@ def write_gains(table: Mapping[str, Any], path: str | Path = GAINS_PATH) -> Path
     """Write the tuning table as YAML with a header naming the procedure."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
+    # the other controllers' stored settings (pi_wear, knocker, oracle, ...) are kept
+    old = (yaml.safe_load(p.read_text()) or {}) if p.is_file() else {}
+    table = {env_id: {**{k: v for k, v in dict(old.get(env_id) or {}).items() if k not in entry}, **entry}
+             for env_id, entry in table.items()}
     header = (
-        "# PI gains of the baseline controllers, keyed by env id (rl-baselines3-zoo style).\n"
+        "# PI gains and stored settings of the built-in controllers, keyed by env id (rl-baselines3-zoo style).\n"
         "# Produced by `thermovalve tune` (valve_env.controllers.tuning.tune): a step test on the\n"
         "# simulator, a least-squares FOPDT/IPDT fit and SIMC rules; `procedure` holds the inputs.\n"
         "# tests/controllers/test_tuning.py re-runs the procedure and checks it reproduces these gains.\n"
+        "# pi_wear, knocker, constant_reinforcement, two_move, oracle: settings chosen on tuning seeds 0-4\n"
+        "# (docs/controllers.md); `thermovalve tune --write` rewrites the PI entries and keeps these.\n"
     )
     p.write_text(header + yaml.safe_dump(dict(table), sort_keys=False))
     return p

@@ -39,6 +39,7 @@ changes every step (``supply_profile="random"``) costs what a dense one would.
 
 from __future__ import annotations
 
+import copy
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -51,6 +52,7 @@ from valve_env import simulator as sim
 from valve_env.config import EnvConfig, make_config
 from valve_env.envs.thermovalve import (
     Mode,
+    SimState,
     ThermoValveDualEnv,
     ThermoValveEnv,
     ThermoValvePressureEnv,
@@ -352,6 +354,76 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     def n_steps(self) -> int:
         """The env's own horizon in steps (control.n_steps); KPIs come at this step."""
         return self._n_steps
+
+    # -- snapshots (the single env's SimState) ----------------------------------
+    def get_state(self, i: int) -> SimState:
+        """A deep copy of env i's state, as the single env's :meth:`ThermoValveEnv.get_state`
+        gives it (the same :class:`SimState`, interchangeable between the two)."""
+        i = int(i)
+        rng = self._rngs[i]
+        if rng is None:
+            raise RuntimeError("call reset() before get_state()")
+        runs = int(self._NRUN[i])
+        starts = np.append(self._RK[i, :runs], self._n_steps)
+        scen = np.repeat(self._RV[i, :runs], np.diff(starts), axis=0)
+        return SimState(
+            state=self._S[i].copy(),
+            acc=self._ACC[i].copy(),
+            out=self._OUT[i].copy(),
+            k=int(self._K[i]),
+            scenario=scen,
+            setting_C=float(self._SD[i, sim.SD_SET]),
+            dp_mbar=float(self._SD[i, sim.SD_DP]),
+            rng_state=copy.deepcopy(dict(rng.bit_generator.state)),
+            E0_J=float(self._E0[i]),
+        )
+
+    def set_state(self, st: SimState, envs: Any = None) -> None:
+        """Load the snapshot ``st`` (from this env's or the single env's ``get_state``, same
+        configuration) into the envs ``envs`` (indices, a boolean mask or a slice; all by
+        default): each continues exactly as the snapshotted env would, stepped by the same
+        kernel. This is how a model-predictive controller branches N rollouts from one state
+        (valve_env.controllers.oracle)."""
+        idx = self._all_idx[envs] if envs is not None else self._all_idx
+        if st.state.shape != (self._S.shape[1],) or st.scenario.shape != (self._n_steps, sim.N_SCEN):
+            raise ValueError("state snapshot does not match this environment's configuration")
+        k = int(st.k)
+        scen = st.scenario
+        change = np.flatnonzero((scen[1:] != scen[:-1]).any(axis=1)) + 1
+        starts = np.concatenate(([0], change))
+        m = starts.size
+        if m > self._RK.shape[1]:
+            # grow the run tables through the one place that does it
+            self._store_scenario(int(idx[0]), scen)
+        self._RK[idx, :m] = starts
+        self._RV[idx, :m] = scen[starts]
+        self._NRUN[idx] = m
+        self._CUR[idx] = max(int(np.searchsorted(starts, k, side="right")) - 1, 0)
+        self._NEXT[idx] = 0  # the next step loads the run in force into _ROW
+        self._S[idx] = st.state
+        self._ACC[idx] = st.acc
+        self._OUT[idx] = st.out
+        self._K[idx] = k
+        self._SD[idx, sim.SD_SET] = st.setting_C
+        self._SD[idx, sim.SD_DP] = st.dp_mbar
+        self._E0[idx] = st.E0_J
+        for i in idx:
+            rng = self._rngs[i]
+            if rng is None:
+                self._rngs[i], self._seeds[i] = seeding.np_random()
+                rng = self._rngs[i]
+            assert rng is not None
+            rng.bit_generator.state = copy.deepcopy(st.rng_state)
+        obs = np.zeros(sim.N_OBS, np.float32)
+        sim.fill_obs(obs, st.out, self._pp, k, st.setting_C)
+        self._OBS[idx] = obs
+        if self._delay_buf is not None:
+            self._delay_buf[idx] = obs
+        done = k >= self._limit
+        self._autoreset[idx] = done
+        self._any_autoreset = bool(self._autoreset.any())
+        self._started[idx] = True
+        self._all_started = bool(self._started.all())
 
     # -- helpers --------------------------------------------------------------
     def _reset_env(self, i: int, seed: int | None) -> None:

@@ -106,6 +106,14 @@ def resolve_controllers(
     return out
 
 
+def bind_envs(controller: PredictPolicy, envs: Sequence[gym.Env]) -> None:
+    """Give a controller that needs the true plant (``oracle``: it has ``bind_envs``) the envs it
+    will control, in batch order; other controllers see only observations and are left alone."""
+    bind = getattr(controller, "bind_envs", None)
+    if callable(bind):
+        bind(list(envs))
+
+
 def run_episodes(
     controller: PredictPolicy,
     env_id: str = "ThermoValve-v0",
@@ -124,6 +132,7 @@ def run_episodes(
                          for _ in range(episodes)])
     rows: dict[int, dict[str, float]] = {}
     try:
+        bind_envs(controller, vec.envs)
         obs, _ = vec.reset(seed=[int(seed) + i for i in range(episodes)])
         state: Any = None
         episode_start = np.ones(episodes, dtype=bool)
@@ -224,6 +233,7 @@ def rollout(
 
     env = make_env(env_id, env_kwargs, config)
     names = getattr(env.unwrapped, "obs_names", OBS_NAMES)
+    bind_envs(controller, [env])
     obs, _ = env.reset(seed=int(seed))
     state: Any = None
     start = np.ones(1, dtype=bool)

@@ -82,11 +82,10 @@ def valve_initial_state(T_env0, dp_mbar, ps_bar, p_set_MPa, S, J, stiction, vp):
     balance puts it (with stiction: at rest there after a motion upwards). Returns the
     :data:`N_VALVE_STATE` state ``(T_g, F_h, x, u_prev, du_prev, u_s, stuck, d)``."""
     stroke = vp[I_STROKE]
-    raw = demanded_opening(T_env0, 0.0, dp_mbar, ps_bar, p_set_MPa, vp)
-    xd = min(max(raw, 0.0), stroke)
+    xd = min(max(demanded_opening(T_env0, 0.0, dp_mbar, ps_bar, p_set_MPa, vp), 0.0), stroke)
     if stiction:
-        y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(raw, S, J, -stroke, 2.0 * stroke)
-        return T_env0, 0.0, min(max(y, 0.0), stroke), u_prev, du_prev, u_s, stuck, d
+        y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(xd, S, J, 0.0, stroke)
+        return T_env0, 0.0, y, u_prev, du_prev, u_s, stuck, d
     return T_env0, 0.0, xd, xd, 0.0, xd, 1.0, 1.0
 
 
@@ -99,17 +98,19 @@ def valve_step(T_g, F_h, x, u_prev, du_prev, u_s, stuck, d, T_g_new, F_noise_dW,
     :func:`valve_initial_state` and the demanded opening ``x_demand`` (mm) as a ninth value."""
     F = friction_step(F_h, T_g_new - T_g, F_noise_dW, vp)
     stroke = vp[I_STROKE]
-    raw = demanded_opening(T_g_new, F, dp_mbar, ps_bar, p_set_MPa, vp)
-    xd = min(max(raw, 0.0), stroke)
+    xd_raw = demanded_opening(T_g_new, F, dp_mbar, ps_bar, p_set_MPa, vp)
+    xd = min(max(xd_raw, 0.0), stroke)
     if stiction:
-        # the stem sticks against the force balance's *unclipped* demand (limited to one stroke beyond
-        # the seat and the stop): the excess of the demand beyond the seat is the bellows force that
-        # presses a stuck cone shut, so a stem stuck just off the seat breaks free as the bulb warms
-        # (with the demand clipped at the seat it could stay stuck open for good); the stem itself
-        # stays within [0, stroke]
-        y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(raw, x, u_prev, du_prev, u_s, stuck, d, S, J,
-                                                             -stroke, 2.0 * stroke)
-        x = min(max(y, 0.0), stroke)
+        # The end stops limit the stem, not the force on it: the stick-slip input is the force
+        # balance's demand beyond the stops by up to a band, so a stem stuck less than a band off
+        # its seat (or its top stop) still breaks away when the net force exceeds the band; the
+        # position is clipped to the stroke. (With the input clipped at the seat, such a stem could
+        # never move towards it again and stayed open for good.)
+        band = max(S, J)
+        u = min(max(xd_raw, -band), stroke + band)
+        x, u_prev, du_prev, u_s, stuck, d = stick_slip_step(u, x, u_prev, du_prev, u_s, stuck, d, S, J,
+                                                             -band, stroke + band)
+        x = min(max(x, 0.0), stroke)
     else:
         x = xd
     return T_g_new, F, x, u_prev, du_prev, u_s, stuck, d, xd

@@ -1,0 +1,344 @@
+"""Stiction compensators and a wear-aware PI for the setting loop (docs/controllers.md).
+
+How the literature's loop maps onto this plant
+----------------------------------------------
+In the papers a controller output ``u_c`` (% OP) drives a sticky valve whose stem follows the (S, J)
+stick-slip model (Choudhury et al. 2005). Here the controller trims the valve's temperature
+*setting* (ThermoValve-v0, the setting channel of ThermoValveDual-v0). The sticky element is the
+stem, and its input is the force balance's *demanded opening* ``x_d`` (mm; docs/reference.md,
+"stiction"). The setting spring moves the set pressure, so a setting change ``dT`` moves the demand by
+``g dT``, with ``g = A_b p_b'(T) / (C_v + C_i + C_b + K_f dp)`` (``physics.valve.gain_mm_per_K``,
+about 0.18 mm/K at 60 degC and 100 mbar). Unlike the papers' loops, the demand also moves with the
+bulb temperature (the valve's own proportional action) and the Dahl friction force. The compensators
+state their amplitudes in stem millimetres, set from the stiction band ``band_mm`` (as a stiction
+quantification such as ``thermovalve diagnose`` reports it), and convert them to kelvin of setting
+with ``g`` at the current operating point.
+
+Compensators (each the tuned ``pi`` of :class:`~valve_env.controllers.baselines.PIController` plus a
+term added to its output):
+
+* :class:`Knocker`: Hägglund, T. (2002). A friction compensator for pneumatic control valves.
+  *J. Process Control* 12(8), 897-904. Pulses of amplitude ``a``, width ``tau`` and period ``h_k``
+  in the direction of the controller output's change since the last pulse.
+* :class:`ConstantReinforcement`: Ivan, L.Z.X., Lakshminarayanan, S. (2009). A new unified approach
+  to valve stiction quantification and compensation. *Ind. Eng. Chem. Res.* 48(7), 3474-3483. A
+  constant ``a`` added in the direction of the controller output's last change.
+* :class:`TwoMove`: Srinivasan, R., Rengaswamy, R. (2005). Stiction compensation in process control
+  loops: a framework for integrating stiction measure and compensation. *Ind. Eng. Chem. Res.* 44(24),
+  9164-9174; and (2008) Approaches for efficient stiction compensation in process control valves.
+  *Comput. Chem. Eng.* 32(1-2), 218-229. The stem is placed where the controller wants it with at
+  most two moves computed from the (S, J) model: away by more than a band, then back onto the target.
+  Between repositionings the setting holds the demand still, so the stem stays stuck and does not
+  hunt. Adapted: the stem's position is read from the measured primary flow (a heat meter's reading,
+  observation ``q_primary_kgh``, inverted through the valve characteristic), and the demand is
+  computed from the valve model driven by the observed pocket temperature (the bulb lag and Dahl
+  friction estimates of :class:`~valve_env.controllers.baselines.DahlCompensator`).
+
+Wear-aware PI:
+
+* :class:`PIWear`: an event-based PI (Årzén, K.-E. (1999). A simple event-based PID controller.
+  *Proc. 14th IFAC World Congress*, Beijing, 423-428). The control is recomputed only when the
+  error has moved by more than ``e_lim_K`` since the last update or ``h_max`` steps have passed, the
+  integral over the elapsed time; between events the setting holds, so the stem is not nudged every
+  30 s. The gains are SIMC's (Skogestad 2003) on the stored FOPDT model with the longest hold's half
+  added to the dead time (theta_eff = theta + h_max dt / 2), the ``pi``'s own rule for its longer
+  sampling.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from valve_env.config import ControlParams
+from valve_env.controllers.base import I_DP, I_SETTING, I_T_OUT, I_T_TARGET, OBS_NAMES, Controller
+from valve_env.controllers.baselines import DahlCompensator, PIController
+from valve_env.params import I_A_B, I_A_K, I_A_S, I_DP_K_SP, I_DP_S_SP, ValveParams
+from valve_env.physics.valve import (
+    BAR_TO_MPA,
+    MBAR_TO_MPA,
+    demanded_opening,
+    gain_mm_per_K,
+    opening_from_flow,
+    saturation_temperature,
+    setpoint_pressure,
+    stiffness,
+    vapour_pressure,
+)
+from valve_env.scenario import ScenarioParams
+
+_CTRL = ControlParams()
+_SCEN = ScenarioParams()
+I_Q = OBS_NAMES.index("q_primary_kgh")
+SETTING_ENV_IDS = ("ThermoValve-v0", "ThermoValveDual-v0")
+DEFAULT_BAND_MM = 0.1
+"""Default stiction band of the compensators, mm (5 % of the 2 mm stroke); pass the valve's own."""
+
+
+def _stored(env_id: str, name: str) -> dict[str, Any]:
+    """The stored settings of controller ``name`` for ``env_id`` in configs/controllers.yaml ({} if none)."""
+    from valve_env.controllers.tuning import load_gains
+
+    try:
+        entry = load_gains(env_id)
+    except (KeyError, FileNotFoundError):
+        return {}
+    return dict(entry.get(name) or {})
+
+
+class _PICompensatorBase(PIController):
+    """The tuned ``pi`` plus a compensating term on its setting output (setting loops only)."""
+
+    supported_env_ids: ClassVar[tuple[str, ...]] = SETTING_ENV_IDS
+    _extra: ClassVar[int] = 0
+
+    def __init__(self, env_id: str = "ThermoValve-v0", band_mm: float | None = None,
+                 valve: ValveParams | None = None, **pi_kwargs: Any) -> None:
+        stored = _stored(env_id, self.name)
+        band = stored.get("band_mm", DEFAULT_BAND_MM) if band_mm is None else band_mm
+        super().__init__(env_id, **pi_kwargs)
+        if not (np.isfinite(band) and band > 0):
+            raise ValueError(f"{self.name}: band_mm must be finite and > 0, got {band!r}")
+        self.band_mm = float(band)
+        self.valve = valve or ValveParams()
+        self.vp = self.valve.to_array()
+        self._n_pi = self.state_size
+        self.state_size = self._n_pi + self._extra
+        self._stored = stored
+
+    def _mm_to_K(self, mm: np.ndarray | float, u: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """Stem millimetres of demand as kelvin of setting at the setting ``u``."""
+        return np.asarray(mm) / gain_mm_per_K(u, obs[:, I_DP], self.vp)
+
+    def _out(self, u: np.ndarray) -> np.ndarray:
+        return self._assemble(np.clip(u, self.u_min, self.u_max))
+
+
+class Knocker(_PICompensatorBase):
+    """Hägglund's (2002) knocker on the ``pi``'s setting (module docstring).
+
+    ``u = u_c + a sign(u_c(t) - u_c(t_p))`` for ``t_p <= t < t_p + tau``, else ``u_c``; a pulse starts
+    every ``h_k``; ``t_p`` is the last pulse's start. ``a`` = ``amplitude_band`` x ``band_mm`` (stem
+    mm, converted to K of setting), ``tau`` = ``width_steps``, ``h_k`` = ``period_steps`` control steps.
+    Memory: the PI's, u_c at the last pulse start, steps since the episode start.
+    """
+
+    name: ClassVar[str] = "knocker"
+    _extra: ClassVar[int] = 2
+
+    def __init__(self, env_id: str = "ThermoValve-v0", band_mm: float | None = None,
+                 amplitude_band: float | None = None, period_steps: int | None = None,
+                 width_steps: int | None = None, **kw: Any) -> None:
+        super().__init__(env_id, band_mm, **kw)
+        s = self._stored
+        self.amplitude_band = float(s.get("amplitude_band", 0.5) if amplitude_band is None else amplitude_band)
+        self.period_steps = int(s.get("period_steps", 10) if period_steps is None else period_steps)
+        self.width_steps = int(s.get("width_steps", 1) if width_steps is None else width_steps)
+        if not (self.amplitude_band > 0 and self.period_steps >= 1 and 1 <= self.width_steps <= self.period_steps):
+            raise ValueError("knocker: amplitude_band > 0 and 1 <= width_steps <= period_steps required")
+
+    def initial_state(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        return np.concatenate([super().initial_state(obs), obs[:, I_SETTING : I_SETTING + 1], np.zeros((n, 1))], 1)
+
+    def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        uc = self.pi_output(obs, state)
+        j = self._n_pi
+        k = state[:, j + 1]
+        phase = np.mod(k, self.period_steps)
+        ref = state[:, j]
+        pulse = np.where(phase < self.width_steps, np.sign(uc - ref), 0.0)
+        a = self._mm_to_K(self.amplitude_band * self.band_mm, uc, obs)
+        state[:, j] = np.where(phase == 0, uc, ref)  # u_c at the start of this pulse
+        state[:, j + 1] = k + 1
+        return self._out(uc + a * pulse), state
+
+
+class ConstantReinforcement(_PICompensatorBase):
+    """Constant reinforcement (Ivan & Lakshminarayanan 2009) on the ``pi``'s setting.
+
+    ``u = u_c + a sgn(du_c)``, the sign of the last nonzero change of the controller output held;
+    ``a`` = ``amplitude_band`` x ``band_mm`` (stem mm, as K of setting). Memory: the PI's, the last
+    u_c, the held sign.
+    """
+
+    name: ClassVar[str] = "constant_reinforcement"
+    _extra: ClassVar[int] = 2
+
+    def __init__(self, env_id: str = "ThermoValve-v0", band_mm: float | None = None,
+                 amplitude_band: float | None = None, **kw: Any) -> None:
+        super().__init__(env_id, band_mm, **kw)
+        s = self._stored
+        self.amplitude_band = float(s.get("amplitude_band", 0.5) if amplitude_band is None else amplitude_band)
+        if not self.amplitude_band > 0:
+            raise ValueError("constant_reinforcement: amplitude_band must be > 0")
+
+    def initial_state(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        return np.concatenate([super().initial_state(obs), obs[:, I_SETTING : I_SETTING + 1], np.zeros((n, 1))], 1)
+
+    def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        uc = self.pi_output(obs, state)
+        j = self._n_pi
+        du = uc - state[:, j]
+        sgn = np.where(du > 0, 1.0, np.where(du < 0, -1.0, state[:, j + 1]))
+        state[:, j], state[:, j + 1] = uc, sgn
+        a = self._mm_to_K(self.amplitude_band * self.band_mm, uc, obs)
+        return self._out(uc + a * sgn), state
+
+
+class TwoMove(_PICompensatorBase):
+    """Srinivasan & Rengaswamy's two-move compensation on the ``pi``'s setting (module docstring).
+
+    Each step the PI's setting ``u_c`` is turned into the stem position it asks for, the demand
+    ``x_pi = x_d(T_g_hat, F_h_hat, dp, u_c)`` of the valve model. The stem's position ``x_hat`` is read
+    from the measured primary flow. While ``|x_pi - x_hat| <= trigger_band * band_mm`` or the outlet is
+    within ``error_band_K`` of its target (S&R's compensation acts on a loop away from its set point), the setting holds
+    the demand where the last move left it (it follows the bulb's drift, so the stuck stem is not
+    pushed). Otherwise the stem is moved onto ``x_pi`` by the (S, J) model: in one move if the move is
+    larger than ``J`` in the direction of the last motion or ``S`` against it; else in two, first a band
+    and a margin beyond the stem away from the target, then onto the target (the landing offset
+    ``(S - J) / 2`` of the model added). A target at or below the seat is the seat (closed), and an open
+    stem whose target is the seat is always closed.
+
+    Memory: the PI's (2), the bulb and friction estimates (3), the pending second move flag, the
+    demand held (mm), the second move's demand (mm), the direction of the last move.
+    """
+
+    name: ClassVar[str] = "two_move"
+    _extra: ClassVar[int] = DahlCompensator.state_size + 4
+
+    def __init__(self, env_id: str = "ThermoValve-v0", band_mm: float | None = None,
+                 jump_mm: float | None = None, trigger_band: float | None = None,
+                 margin_band: float | None = None, error_band_K: float | None = None,
+                 ps_bar: float = _SCEN.ps_bar, **kw: Any) -> None:
+        super().__init__(env_id, band_mm, **kw)
+        s = self._stored
+        self.jump_mm = float(self.band_mm if jump_mm is None else jump_mm)
+        self.trigger_band = float(s.get("trigger_band", 1.0) if trigger_band is None else trigger_band)
+        self.margin_band = float(s.get("margin_band", 0.1) if margin_band is None else margin_band)
+        self.error_band_K = float(s.get("error_band_K", 0.05) if error_band_K is None else error_band_K)
+        if not (np.isfinite(self.jump_mm) and self.jump_mm >= 0 and self.trigger_band > 0 and self.margin_band > 0
+                and self.error_band_K >= 0):
+            raise ValueError("two_move: jump_mm >= 0, trigger_band > 0, margin_band > 0, error_band_K >= 0 required")
+        self.ps_bar = float(ps_bar)
+        self.seated_mm = 1e-3  # an opening read from the flow below this is the seat (leakage)
+        self.bulb = DahlCompensator(self.valve, None, self.dt_s)
+
+    # -- the valve model: demand of a setting and its inverse ----------------------------------
+    def demand_mm(self, T_set: np.ndarray, T_g: np.ndarray, F_h: np.ndarray, dp: np.ndarray) -> np.ndarray:
+        """The force balance's (unclipped) demanded opening for the setting ``T_set``, mm."""
+        return demanded_opening(T_g, F_h, dp, self.ps_bar, setpoint_pressure(T_set, self.vp), self.vp)
+
+    def setting_for(self, x_mm: np.ndarray, T_g: np.ndarray, F_h: np.ndarray, dp: np.ndarray) -> np.ndarray:
+        """The setting whose demanded opening is ``x_mm`` (inverse of :meth:`demand_mm`), degC."""
+        vp = self.vp
+        other = (vp[I_A_K] * (dp * MBAR_TO_MPA - vp[I_DP_K_SP]) + vp[I_A_S] * (self.ps_bar * BAR_TO_MPA - vp[I_DP_S_SP])
+                 + F_h - x_mm * stiffness(dp, vp))
+        p_set = vapour_pressure(T_g, vp) - other / vp[I_A_B]
+        return saturation_temperature(np.maximum(p_set, 1e-9), vp)
+
+    def initial_state(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        bulb = self.bulb.initial_state(obs)
+        held = self.demand_mm(obs[:, I_SETTING], bulb[:, 1], bulb[:, 2], obs[:, I_DP])
+        extra = np.stack([np.zeros(n), held, held, np.ones(n)], axis=1)
+        return np.concatenate([super().initial_state(obs), bulb, extra], 1)
+
+    def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        uc = self.pi_output(obs, state)
+        err = obs[:, I_T_TARGET] - obs[:, I_T_OUT]
+        j = self._n_pi
+        nb = DahlCompensator.state_size
+        mem = state[:, j : j + nb]
+        fh = self.bulb.update(obs, mem)
+        state[:, j : j + nb] = mem
+        tg, dp = mem[:, 1], obs[:, I_DP]
+        pending, held, second, d_last = (state[:, j + nb + q] for q in range(4))
+        S, J = self.band_mm, self.jump_mm
+        m = self.margin_band * S
+        x_hat = opening_from_flow(obs[:, I_Q], dp, self.vp)
+        target = self.demand_mm(uc, tg, fh, dp)
+        target = np.where(target <= 0.0, -m, target)  # closed: seat it
+        gap = target - x_hat
+        a = np.where(gap >= 0.0, 1.0, -1.0)
+        land = a * (S - J) * 0.5
+        closing = (target <= 0.0) & (x_hat > self.seated_mm)  # a valve that should be shut is shut
+        move = (pending == 0.0) & (((np.abs(gap) > self.trigger_band * S) & (np.abs(err) > self.error_band_K))
+                                   | closing)
+        one = move & (np.abs(gap) > np.where(a == d_last, J, S) + m)
+        two = move & ~one
+        cmd = np.where(pending != 0.0, second, held)
+        cmd = np.where(one, target + land, cmd)
+        cmd = np.where(two, x_hat - a * (S + m), cmd)
+        new_second = np.where(two, target + land, second)
+        state[:, j + nb] = np.where(two, 1.0, 0.0)
+        state[:, j + nb + 1] = np.where(two, held, cmd)
+        state[:, j + nb + 1] = np.where(pending != 0.0, second, state[:, j + nb + 1])
+        state[:, j + nb + 1] = np.where(one, cmd, state[:, j + nb + 1])
+        state[:, j + nb + 2] = new_second
+        state[:, j + nb + 3] = np.where(move, a, d_last)
+        return self._out(self.setting_for(cmd, tg, fh, dp)), state
+
+
+class PIWear(PIController):
+    """Event-based PI (Årzén 1999), SIMC-retuned for its longest hold (module docstring).
+
+    At each step the error ``e = T_target - T_out`` is compared with the error at the last update;
+    the PI is updated when ``|e - e_last| > e_lim_K`` or ``h_max`` steps have passed since the last
+    update: ``v = r + Kp e + I``, ``u = clip(v)``, ``I <- I + h (Kp dt / Ti e + dt / Tt (u - v))`` with
+    ``h`` the steps since the last update. Between updates the setting holds. Gains: SIMC on the
+    stored FOPDT model (configs/controllers.yaml) with theta_eff = theta + dt/2 + (h_max - 1) dt / 2
+    (the hold's mean extra delay), tau_c = theta_eff, unless ``Kp``/``Ti_s`` are given.
+    Memory: the PI's (2), the setting sent, the error at the last update, steps since it.
+    """
+
+    name: ClassVar[str] = "pi_wear"
+    supported_env_ids: ClassVar[tuple[str, ...]] = SETTING_ENV_IDS
+
+    def __init__(self, env_id: str = "ThermoValve-v0", e_lim_K: float | None = None, h_max: int | None = None,
+                 Kp: float | None = None, Ti_s: float | None = None, **kw: Any) -> None:
+        from valve_env.controllers.tuning import ModelFit, load_gains, simc_pi
+
+        Controller.__init__(self, env_id)  # the env id check first: only setting loops have the FOPDT model
+        stored = _stored(env_id, self.name)
+        e_lim = float(stored.get("e_lim_K", 0.02) if e_lim_K is None else e_lim_K)
+        hmax = int(stored.get("h_max", 4) if h_max is None else h_max)
+        if not (np.isfinite(e_lim) and e_lim >= 0 and hmax >= 1):
+            raise ValueError(f"pi_wear: e_lim_K must be >= 0 and h_max >= 1, got {e_lim_K!r}, {h_max!r}")
+        dt = float(kw.get("dt_s", _CTRL.dt_s))
+        if Kp is None or Ti_s is None:
+            m = load_gains(env_id)["model"]
+            model = ModelFit("fopdt", float(m["K"]), float(m["tau_s"]), float(m["theta_s"]) + (hmax - 1) * dt / 2, 0.0)
+            g = simc_pi(model, None, dt)
+            Kp = g.Kp if Kp is None else Kp
+            Ti_s = g.Ti_s if Ti_s is None else Ti_s
+        super().__init__(env_id, Kp=Kp, Ti_s=Ti_s, **kw)
+        self.e_lim_K = e_lim
+        self.h_max = hmax
+        self._n_pi = self.state_size
+        self.state_size = self._n_pi + 3
+
+    def initial_state(self, obs: np.ndarray) -> np.ndarray:
+        n = obs.shape[0]
+        e = obs[:, I_T_TARGET] - obs[:, I_T_OUT]
+        u0 = np.clip(obs[:, I_SETTING], *self._limits(obs))
+        return np.concatenate([super().initial_state(obs), np.stack([u0, e, np.zeros(n)], 1)], 1)
+
+    def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        j = self._n_pi
+        y = state[:, 1] * self._fa + obs[:, I_T_OUT] * (1.0 - self._fa)
+        state[:, 1] = y
+        e = obs[:, I_T_TARGET] - y
+        h = state[:, j + 2] + 1.0
+        event = (np.abs(e - state[:, j + 1]) > self.e_lim_K) | (h >= self.h_max)
+        v = self._bias(obs) + self.Kp * e + state[:, 0]
+        lo, hi = self._limits(obs)
+        u = np.minimum(np.maximum(v, lo), hi)
+        integ = state[:, 0] + h * (self.Kp * self.dt_s / self.Ti_s * e + self.dt_s / self.Tt_s * (u - v))
+        state[:, 0] = np.where(event, integ, state[:, 0])
+        state[:, j] = np.where(event, u, state[:, j])
+        state[:, j + 1] = np.where(event, e, state[:, j + 1])
+        state[:, j + 2] = np.where(event, 0.0, h)
+        return self._assemble(state[:, j]), state
