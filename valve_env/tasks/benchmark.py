@@ -48,17 +48,21 @@ class Cell:
     seed: int = HELD_OUT_SEED
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
+    #: the cell is one of the per-seed cells of a slow controller (its key names its seed)
+    split: bool = False
+
     @property
     def key(self) -> str:
-        return f"{self.task}__{self.controller}"
+        return f"{self.task}__{self.controller}" + (f"__s{self.seed}" if self.split else "")
 
 
 def known_controllers(task_id: str, names: Iterable[str] | None = None) -> list[str]:
     """The controllers that :func:`valve_env.controllers.make_controller` can build for ``task_id``:
-    ``names`` if given (each checked), else every baseline that supports the task's action."""
-    from valve_env.controllers import BASELINES, make_controller
+    ``names`` if given (each checked), else every built-in controller (``CONTROLLERS``: the
+    baselines, the compensators and the oracle) that supports the task's action."""
+    from valve_env.controllers import CONTROLLERS, make_controller
 
-    candidates = list(names) if names is not None else list(BASELINES)
+    candidates = list(names) if names is not None else list(CONTROLLERS)
     out = []
     for name in candidates:
         try:
@@ -79,11 +83,15 @@ def make_cells(
     smooth: bool = True,
 ) -> list[Cell]:
     """The grid: each task x each controller that applies to it (``controllers`` None: every known
-    one), plus ``pi`` on a smooth valve (``SMOOTH``) for the valve-matters check."""
+    one), plus ``pi`` on a smooth valve (``SMOOTH``) for the valve-matters check. The oracle (slow:
+    it plans by simulation) gets a cell per seed, so that its episodes spread over the workers."""
     cells = []
     for task in tasks:
         for name in known_controllers(task, controllers):
-            cells.append(Cell(task, name, int(episodes), int(seed)))
+            if name == HIGH_REFERENCE:
+                cells += [Cell(task, name, 1, int(seed) + i, split=True) for i in range(int(episodes))]
+            else:
+                cells.append(Cell(task, name, int(episodes), int(seed)))
         if smooth:
             cells.append(Cell(task, SMOOTH, int(episodes), int(seed), smooth_valve()))
     return cells
