@@ -1,4 +1,4 @@
-"""``thermovalve train``, ``thermovalve leaderboard`` and ``thermovalve sweep``
+"""``thermovalve train``, ``thermovalve leaderboard``, ``thermovalve sweep`` and ``thermovalve benchmark``
 (registered in valve_env.cli's SUBCOMMAND_MODULES)."""
 
 from __future__ import annotations
@@ -8,12 +8,13 @@ from typing import Any
 
 
 def register(subparsers: Any) -> None:
-    from agents import leaderboard, sweep, train
+    from agents import benchmark, leaderboard, sweep, train
 
     for name, mod, help_text in (
         ("train", train, "train a stable-baselines3 agent (configs/<algo>.yml); --ship copies it into agents/zoo"),
         ("leaderboard", leaderboard, "score shipped agents and baselines on seen and unseen scenarios"),
         ("sweep", sweep, "a sweep of algos x seeds x scenarios on a Dask cluster (resumable)"),
+        ("benchmark", benchmark, "every controller on every task over held-out seeds, normalised scores (Dask)"),
     ):
         p: argparse.ArgumentParser = subparsers.add_parser(name, help=help_text, description=mod.__doc__)
         mod.add_arguments(p)

@@ -3,7 +3,8 @@ its hot-water tank as Gymnasium environments, controllers and grey-box
 identification.
 
 ``import valve_env`` registers ThermoValve-v0, ThermoValvePressure-v0 and
-ThermoValveDual-v0.
+ThermoValveDual-v0, and the benchmark tasks of valve_env.tasks (TASK_IDS;
+``thermovalve tasks`` lists them).
 """
 
 from __future__ import annotations
@@ -54,7 +55,16 @@ for _id, _mode in ENV_MODES.items():
             max_episode_steps=MAX_EPISODE_STEPS,
         )
 
+from valve_env.tasks import TASK_IDS, TASKS, register_tasks  # noqa: E402
+
+register_tasks(MAX_EPISODE_STEPS)
+#: every registered id (the original three, then the tasks) -> what the agent sets
+ALL_ENV_MODES: dict[str, str] = {task_id: task.mode for task_id, task in TASKS.items()}
+ALL_ENV_IDS: tuple[str, ...] = tuple(ALL_ENV_MODES)
+
 __all__ = [
+    "ALL_ENV_IDS",
+    "ALL_ENV_MODES",
     "ENV_IDS",
     "ENV_MODES",
     "BulbParams",
@@ -63,6 +73,7 @@ __all__ = [
     "EnvConfig",
     "ScenarioParams",
     "SensorParams",
+    "TASK_IDS",
     "TankParams",
     "ValveParams",
     "make_config",

@@ -45,6 +45,7 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.estimation.cli",
     "valve_env.evaluation.cli",
     "valve_env.loops.cli",
+    "valve_env.tasks.cli",
     "agents.cli",
 )
 

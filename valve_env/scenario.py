@@ -23,7 +23,8 @@ from numba import njit
 from valve_env.params import DP_MAX_MBAR, SUPPLY_LIMITS_C, ConfigError, _from_mapping, check_fields, param
 
 PROFILES = ("S", "M", "L", "none")
-SUPPLY_PROFILES = ("constant", "daily", "random")
+SUPPLY_PROFILES = ("constant", "daily", "random", "network")
+DP_PROFILES = ("constant", "network")
 
 
 @dataclass(frozen=True)
@@ -37,10 +38,13 @@ class ScenarioParams:
     | draw_jitter_min | min | standard deviation of each draw's start-time jitter; 20 | [0, 240] (up to 4 h: a day's habits) |
     | draw_energy_cv | - | coefficient of variation of each draw's energy (lognormal); 0.2 | [0, 2] (a draw 0 .. several times its tabled energy) |
     | supply_C | degC | primary supply temperature; 70 (SPEC section 5) | [1, 130] (district heating up to 130 degC) |
-    | supply_profile | - | "constant", "daily" (sine, coldest at 15:00) or "random" (Ornstein-Uhlenbeck) | {constant, daily, random} |
-    | supply_amplitude_K | K | amplitude of the daily sine or standard deviation of the random profile; 5 | [0, 40] (a daily swing; see below) |
-    | supply_tau_h | h | correlation time of the random supply profile; 2 | [0.01, 1000] (minutes .. weeks) |
+    | supply_profile | - | "constant", "daily" (sine, coldest at 15:00), "random" (Ornstein-Uhlenbeck) or "network" (supply_plan plus an OU disturbance of sd supply_noise_K) | {constant, daily, random, network} |
+    | supply_amplitude_K | K | amplitude of the daily sine or network plan, or sd of the random profile; 5 | [0, 40] (a daily swing; see below) |
+    | supply_tau_h | h | correlation time of the random supply profile and of the network profile's disturbance; 2 | [0.01, 1000] (minutes .. weeks) |
+    | supply_noise_K | K | standard deviation of the network profile's OU disturbance around its plan; 0 | [0, 20] (kept within the supply limits) |
     | dp_mbar | mbar | the network's dp across the valve when the agent does not set it; 100 (calibration) | [0, 2000] (0 .. 2 bar, DP_MAX_MBAR) |
+    | dp_profile | - | "constant" (dp_mbar) or "network" (dp_plan: falls by dp_swing at peak load) | {constant, network} |
+    | dp_swing | - | fractional fall of dp at the network's peak load (dp_profile "network"); 0 | [0, 1) (dp stays positive) |
     | dp_noise_mbar | mbar | standard deviation of an Ornstein-Uhlenbeck disturbance on dp; 0 | [0, 1000] (up to 1 bar; the path is kept in [0, 2000]) |
     | dp_tau_s | s | its correlation time; 600 | [1, 1000000] (a second .. 11 days) |
     | ps_bar | bar | static pressure at the valve; 2 (calibration) | [0, 25] (PN25) |
@@ -62,7 +66,10 @@ class ScenarioParams:
     supply_profile: str = param("constant", kind="choice", choices=SUPPLY_PROFILES)
     supply_amplitude_K: float = param(5.0, 0.0, 40.0, "K", "a daily swing")
     supply_tau_h: float = param(2.0, 0.01, 1000.0, "h", "minutes .. weeks")
+    supply_noise_K: float = param(0.0, 0.0, 20.0, "K", "kept within the supply limits")
     dp_mbar: float = param(100.0, 0.0, DP_MAX_MBAR, "mbar", "0 .. 2 bar")
+    dp_profile: str = param("constant", kind="choice", choices=DP_PROFILES)
+    dp_swing: float = param(0.0, 0.0, 1.0, "-", "dp stays positive", hi_open=True)
     dp_noise_mbar: float = param(0.0, 0.0, 1000.0, "mbar", "up to 1 bar")
     dp_tau_s: float = param(600.0, 1.0, 1e6, "s", "a second .. 11 days")
     ps_bar: float = param(2.0, 0.0, 25.0, "bar", "PN25")
@@ -73,9 +80,9 @@ class ScenarioParams:
         check_fields(self)
         lo, hi = SUPPLY_LIMITS_C
         a = self.supply_amplitude_K
-        if self.supply_profile == "daily" and not (lo <= self.supply_C - a and self.supply_C + a <= hi):
+        if self.supply_profile in ("daily", "network") and not (lo <= self.supply_C - a and self.supply_C + a <= hi):
             raise ConfigError(
-                f"scenario.supply_amplitude_K: a daily supply of {self.supply_C:g} +- {a:g} degC leaves "
+                f"scenario.supply_amplitude_K: a {self.supply_profile} supply of {self.supply_C:g} +- {a:g} degC leaves "
                 f"[{lo:g}, {hi:g}] degC (liquid water at district-heating pressures)"
             )
 
@@ -189,16 +196,65 @@ def make_scenario(
         supply = np.full(n_steps, params.supply_C)
     elif params.supply_profile == "daily":
         supply = params.supply_C + params.supply_amplitude_K * np.cos(2 * np.pi * (t - 3 * 3600.0) / 86400.0)
+    elif params.supply_profile == "network":
+        supply = supply_plan(params, t)
+        if params.supply_noise_K > 0:
+            supply = supply + _ou(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_noise_K)
     else:
         supply = params.supply_C + _ou(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_amplitude_K)
         supply = np.clip(supply, *SUPPLY_LIMITS_C)  # an unbounded Gaussian path; liquid water stays within
+    if params.supply_profile == "network":
+        supply = np.clip(supply, *SUPPLY_LIMITS_C)  # the plan plus an unbounded Gaussian disturbance
+    dp = dp_plan(params, t)
     if params.dp_noise_mbar > 0:
-        dp = params.dp_mbar + _ou(rng, n_steps, dt_s, params.dp_tau_s, params.dp_noise_mbar)
-        dp = np.clip(dp, 0.0, DP_MAX_MBAR)
-    else:
-        dp = np.full(n_steps, params.dp_mbar)
+        dp = np.clip(dp + _ou(rng, n_steps, dt_s, params.dp_tau_s, params.dp_noise_mbar), 0.0, DP_MAX_MBAR)
     T0 = params.T_init_C + (rng.uniform(-1.0, 1.0) * params.T_init_spread_K if params.T_init_spread_K > 0 else 0.0)
     return ScenarioArrays(draw_W, draw_T, draw_m, supply, dp, float(T0))
+
+
+def network_load(t_s: np.ndarray | float) -> np.ndarray:
+    """A district-heating network's relative load over the day, 0 .. 1 (1 at the morning peak).
+
+    Two peaks, the morning one (07:30, sd 1.5 h) higher than the evening one
+    (19:00, sd 2.5 h, 0.7 of it), scaled to 0 at the night minimum: the shape
+    of the daily heat-load profiles of residential district heating (the
+    morning peak of domestic hot water and the restart after night set-back;
+    Gadd and Werner, "Daily heat load variations in Swedish district heating
+    systems", Applied Energy 106 (2013) 47-55). Stylised: docs/tasks.md.
+    """
+    return (_load_raw(np.asarray(t_s, dtype=float) / 3600.0) - _LOAD_MIN) / (_LOAD_MAX - _LOAD_MIN)
+
+
+def _load_raw(hour: np.ndarray) -> np.ndarray:
+    h = np.mod(hour, 24.0)
+
+    def bump(centre: float, sd: float) -> np.ndarray:
+        d = np.mod(h - centre + 12.0, 24.0) - 12.0  # the shortest way round the clock
+        return np.exp(-0.5 * (d / sd) ** 2)
+
+    return bump(7.5, 1.5) + 0.7 * bump(19.0, 2.5)
+
+
+_LOAD_GRID = _load_raw(np.linspace(0.0, 24.0, 24 * 60 + 1))
+_LOAD_MIN, _LOAD_MAX = float(_LOAD_GRID.min()), float(_LOAD_GRID.max())
+
+
+def supply_plan(params: ScenarioParams, t_s: np.ndarray | float) -> np.ndarray:
+    """The network operator's planned supply temperature at times ``t_s``, degC:
+    ``supply_C + supply_amplitude_K (2 load(t + 1 h) - 1)``: the plant raises the
+    supply an hour ahead of the load (:func:`network_load`), the transport delay
+    of a city network (docs/tasks.md). What an operator would publish as a forecast."""
+    return params.supply_C + params.supply_amplitude_K * (2.0 * network_load(np.asarray(t_s) + 3600.0) - 1.0)
+
+
+def dp_plan(params: ScenarioParams, t_s: np.ndarray | float) -> np.ndarray:
+    """The differential pressure the network leaves across the valve at times ``t_s``, mbar:
+    ``dp_mbar`` ("constant") or ``dp_mbar (1 - dp_swing load(t))`` ("network": the pressure
+    drop in the mains grows with the load, so the dp at a substation falls at peak load)."""
+    t = np.asarray(t_s, dtype=float)
+    if params.dp_profile == "constant":
+        return np.full(t.shape, params.dp_mbar)
+    return params.dp_mbar * (1.0 - params.dp_swing * network_load(t))
 
 
 def _ou(rng: np.random.Generator, n: int, dt: float, tau: float, sd: float) -> np.ndarray:

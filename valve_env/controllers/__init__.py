@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from valve_env.controllers.base import ENV_MODES, Controller, PredictPolicy
+from valve_env.controllers.base import ALL_ENV_MODES, Controller, PredictPolicy, original_id
 from valve_env.controllers.baselines import DahlCompensator, PICompensated, PIController, SelfActing
 from valve_env.controllers.compensators import ConstantReinforcement, Knocker, PIWear, TwoMove
 from valve_env.controllers.oracle import Oracle, OracleSettings
@@ -57,8 +57,8 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     ``agents.loader.load_agent(name, env_id, **kwargs)``; a missing ``agents``
     package or loader raises :class:`UnknownControllerError` naming the agent.
     """
-    if env_id not in ENV_MODES:
-        raise ValueError(f"unknown env id {env_id!r}; known: {list(ENV_MODES)}")
+    if env_id not in ALL_ENV_MODES:
+        raise ValueError(f"unknown env id {env_id!r}; known: {list(ALL_ENV_MODES)}")
     if name in CONTROLLERS:
         return CONTROLLERS[name](env_id, **kwargs)
     try:
@@ -93,4 +93,5 @@ __all__ = [
     "SelfActing",
     "UnknownControllerError",
     "make_controller",
+    "original_id",
 ]

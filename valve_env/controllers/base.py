@@ -16,8 +16,9 @@ evaluator scores them all:
   ``dones`` of the previous step).
 
 Controllers read only the observation (names in
-``valve_env.envs.OBS_NAMES``) and their own configuration, never the env's
-hidden state. The batched path is vectorised NumPy (no loop over envs).
+``valve_env.envs.OBS_NAMES``; a task's extra observations, e.g. forecasts,
+follow those 12 and are ignored by controllers that do not use them) and
+their own configuration, never the env's hidden state. The batched path is vectorised NumPy (no loop over envs).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from valve_env import ENV_MODES
+from valve_env import ALL_ENV_MODES, ENV_MODES
 from valve_env.envs.thermovalve import OBS_NAMES
 
 OBS_DIM = len(OBS_NAMES)
@@ -36,7 +37,17 @@ I_T_POCKET = OBS_NAMES.index("T_pocket_C")
 I_SETTING = OBS_NAMES.index("setting_C")
 I_DP = OBS_NAMES.index("dp_mbar")
 I_T_TARGET = OBS_NAMES.index("T_target_C")
+#: the original id of each mode: a task id's controllers are those of its mode's original id
+ORIGINAL_ID = {mode: env_id for env_id, mode in ENV_MODES.items()}
 
+
+def original_id(env_id: str) -> str:
+    """``env_id`` if it is one of the original three, else the original id with the same action (mode)."""
+    if env_id in ENV_MODES:
+        return env_id
+    if env_id not in ALL_ENV_MODES:
+        raise ValueError(f"unknown env id {env_id!r}; known: {list(ALL_ENV_MODES)}")
+    return ORIGINAL_ID[ALL_ENV_MODES[env_id]]
 
 
 @runtime_checkable
@@ -63,12 +74,13 @@ class Controller(ABC):
     supported_env_ids: ClassVar[tuple[str, ...]] = tuple(ENV_MODES)
 
     def __init__(self, env_id: str = "ThermoValve-v0") -> None:
-        if env_id not in self.supported_env_ids:
+        if env_id not in self.supported_env_ids and original_id(env_id) not in self.supported_env_ids:
             raise ValueError(
                 f"controller {self.name!r} does not support env {env_id!r}; it supports {list(self.supported_env_ids)}"
+                " and the task ids with their action"
             )
         self.env_id = env_id
-        self.mode = ENV_MODES[env_id]
+        self.mode = ALL_ENV_MODES[env_id]
         self.state_size = 0
 
     @property
@@ -94,9 +106,10 @@ class Controller(ABC):
     ) -> tuple[np.ndarray, np.ndarray]:
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1
-        if obs.shape[-1] != OBS_DIM or obs.ndim not in (1, 2):
-            raise ValueError(f"observation must have shape ({OBS_DIM},) or (n_envs, {OBS_DIM}), got {obs.shape}")
-        obs2 = obs.reshape(-1, OBS_DIM)
+        if obs.shape[-1] < OBS_DIM or obs.ndim not in (1, 2):
+            raise ValueError(f"observation must have shape ({OBS_DIM},) or (n_envs, {OBS_DIM}) (a task may append "
+                             f"columns), got {obs.shape}")
+        obs2 = obs.reshape(-1, obs.shape[-1])
         n = obs2.shape[0]
         if state is None:
             mem = self.initial_state(obs2)

@@ -304,11 +304,19 @@ def stored_gains(path: str | Path = GAINS_PATH) -> dict[str, Any]:
 
 
 def load_gains(env_id: str, path: str | Path | None = None) -> dict[str, Any]:
-    """The stored tuning entry of ``env_id`` (``{"pi": {...}, "model": {...}, "procedure": {...}}``)."""
+    """The stored tuning entry of ``env_id`` (``{"pi": {...}, "model": {...}, "procedure": {...}}``);
+    a task id without its own entry takes the entry of the original id with its action."""
     p = Path(path) if path is not None else GAINS_PATH
     if not p.is_file():
         raise FileNotFoundError(f"controller gains file {str(p)!r} not found; run `thermovalve tune`")
     data = yaml.safe_load(p.read_text()) or {}
+    if env_id not in data:
+        from valve_env.controllers.base import original_id
+
+        try:
+            env_id = original_id(env_id)
+        except ValueError:
+            pass
     if env_id not in data:
         raise KeyError(f"no PI gains for env {env_id!r} in {str(p)!r}; known: {sorted(data)}")
     return dict(data[env_id])

@@ -128,6 +128,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self.render_mode = None
         self.metadata = dict(type(self).metadata)
         self.single_observation_space = proto.observation_space
+        self._plant_obs_space = proto.observation_space  # the plant's 12 observations (the sensor noise's bounds)
         self.single_action_space = proto.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -494,7 +495,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         rng = self._rngs[i]
         assert rng is not None
         sens = self.cfg.sensors
-        space = self.single_observation_space
+        space = self._plant_obs_space
         assert isinstance(space, gym.spaces.Box)
         return noisy_observation(observation, rng, sens.noise_K, sens.flow_noise_rel, space.low, space.high)
 

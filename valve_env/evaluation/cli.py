@@ -39,9 +39,9 @@ def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
 
 
 def _default_controllers(env_id: str) -> list[str]:
-    from valve_env.controllers import BASELINES
+    from valve_env.controllers import BASELINES, original_id
 
-    return [n for n, cls in BASELINES.items() if env_id in cls.supported_env_ids]
+    return [n for n, cls in BASELINES.items() if original_id(env_id) in cls.supported_env_ids]
 
 
 def _run_evaluation(
@@ -55,9 +55,9 @@ def _run_evaluation(
 ) -> tuple[dict[str, Any], dict[str, Path]]:
     """Evaluate; with ``out_dir`` (a staging directory) also write the tables and figures there."""
     from valve_env.cli import progress_bar
-    from valve_env.config import make_config
     from valve_env.evaluation.evaluator import (
         check_env_id,
+        env_config,
         make_env,
         resolve_controllers,
         rollout,
@@ -89,7 +89,7 @@ def _run_evaluation(
     finally:
         bar.close()
     if out_dir is not None:
-        paths = write_outputs(summary, per_ep, out_dir, trajs, make_config(config, **env_kwargs))
+        paths = write_outputs(summary, per_ep, out_dir, trajs, env_config(env_id, env_kwargs, config))
     return summary, paths
 
 
@@ -111,8 +111,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from valve_env.evaluation.evaluator import OUTPUT_FILES, markdown_table
     from valve_env.outputs import OutputSet
 
-    if args.env not in valve_env.ENV_IDS:
-        raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ENV_IDS)}")
+    if args.env not in valve_env.ALL_ENV_IDS:
+        raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
     if args.episodes < 1:
         raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
     if args.seed < 0:

@@ -43,8 +43,19 @@ ControllerSpec = Mapping[str, PredictPolicy] | Sequence[str]
 
 
 def check_env_id(env_id: str) -> None:
-    if env_id not in valve_env.ENV_IDS:
-        raise ValueError(f"unknown env id {env_id!r}; known: {', '.join(valve_env.ENV_IDS)}")
+    if env_id not in valve_env.ALL_ENV_IDS:
+        raise ValueError(f"unknown env id {env_id!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
+
+
+def env_config(env_id: str, env_kwargs: Mapping[str, Any] | None = None, config: Any = None) -> Any:
+    """The EnvConfig that ``gym.make(env_id, config=config, **env_kwargs)`` builds (a task's
+    own configuration for a task id); raises ConfigError naming a bad field."""
+    from valve_env.tasks import get_task, task_config
+
+    kw = dict(env_kwargs or {})
+    if get_task(env_id).is_original:
+        return make_config(config, **kw)
+    return task_config(env_id, config, **kw)
 
 
 def make_env(env_id: str, env_kwargs: Mapping[str, Any] | None = None, config: Any = None) -> gym.Env:
@@ -52,7 +63,7 @@ def make_env(env_id: str, env_kwargs: Mapping[str, Any] | None = None, config: A
     matched to the configured horizon (so ``info["kpis"]`` arrives at the end)."""
     check_env_id(env_id)
     kw = dict(env_kwargs or {})
-    n_steps = make_config(config, **kw).control.n_steps  # validates; raises ConfigError naming the field
+    n_steps = env_config(env_id, kw, config).control.n_steps  # validates; raises ConfigError naming the field
     return gym.make(env_id, config=config, max_episode_steps=n_steps, **kw)
 
 
@@ -137,7 +148,7 @@ def run_episodes(
                     raise RuntimeError(f"env {env_id!r} ended an episode without info['kpis'] "
                                        "(was it truncated early?)")
                 rows[int(i)] = {"return": float(info["episode"]["r"][i]),
-                                **{k: float(info["kpis"][k][i]) for k in KPI_NAMES}}
+                                **{k: float(v[i]) for k, v in info["kpis"].items() if not k.startswith("_")}}
             episode_start = done
     finally:
         vec.close()
@@ -153,11 +164,17 @@ def _stat(x: np.ndarray) -> dict[str, float]:
     return {"mean": float(np.mean(finite)), "std": float(np.std(finite))}
 
 
+def kpi_columns(df: pd.DataFrame) -> list[str]:
+    """The KPI columns of a per-episode table: the SPEC section 5 KPIs, then a task's own."""
+    return [*KPI_NAMES, *(c for c in df.columns if c not in ("episode", "seed", "return", *KPI_NAMES))]
+
+
 def summarise(per_episode: Mapping[str, pd.DataFrame], env_id: str) -> dict[str, Any]:
-    """The SPEC section 7 summary from per-episode tables."""
+    """The SPEC section 7 summary from per-episode tables (a task's KPIs after the section 5 ones)."""
     n = {len(df) for df in per_episode.values()}
     results = {
-        name: {"return": _stat(df["return"].to_numpy()), "kpis": {k: _stat(df[k].to_numpy()) for k in KPI_NAMES}}
+        name: {"return": _stat(df["return"].to_numpy()),
+               "kpis": {k: _stat(df[k].to_numpy()) for k in kpi_columns(df)}}
         for name, df in per_episode.items()
     }
     return {"env": env_id, "episodes": n.pop() if len(n) == 1 else sorted(n), "results": results}
@@ -215,6 +232,7 @@ def rollout(
     from valve_env.envs.thermovalve import OBS_NAMES
 
     env = make_env(env_id, env_kwargs, config)
+    names = getattr(env.unwrapped, "obs_names", OBS_NAMES)
     bind_envs(controller, [env])
     obs, _ = env.reset(seed=int(seed))
     state: Any = None
@@ -231,7 +249,7 @@ def rollout(
         k += 1
         done = bool(term or trunc)
         rows.append(
-            {"t_h": k * dt / 3600.0, **{n: float(v) for n, v in zip(OBS_NAMES, obs, strict=True)}, "reward": float(r),
+            {"t_h": k * dt / 3600.0, **{n: float(v) for n, v in zip(names, obs, strict=True)}, "reward": float(r),
              "x_mm": float(info["x_mm"]), "F_h_N": float(info["F_h_N"])}
         )
     env.close()
@@ -249,7 +267,7 @@ def summary_frame(summary: Mapping[str, Any]) -> pd.DataFrame:
     rows = []
     for name, res in summary["results"].items():
         row: dict[str, Any] = {"controller": name}
-        for m in TABLE_COLUMNS:
+        for m in ("return", *res["kpis"]):
             st = res["return"] if m == "return" else res["kpis"][m]
             row[f"{m}_mean"] = st["mean"]
             row[f"{m}_std"] = st["std"]
@@ -272,12 +290,14 @@ def _fmt(mean: float, std: float) -> str:
 
 def markdown_table(summary: Mapping[str, Any]) -> str:
     """A markdown table: controllers as rows, return and KPIs as ``mean ± std``."""
-    head = "| controller | " + " | ".join(TABLE_COLUMNS) + " |"
-    sep = "|---|" + "---:|" * len(TABLE_COLUMNS)
+    first = next(iter(summary["results"].values()))
+    kpis = list(first["kpis"])
+    head = "| controller | " + " | ".join(("return", *kpis)) + " |"
+    sep = "|---|" + "---:|" * (1 + len(kpis))
     lines = [head, sep]
     for name, res in summary["results"].items():
         cells = [_fmt(res["return"]["mean"], res["return"]["std"])]
-        cells += [_fmt(res["kpis"][k]["mean"], res["kpis"][k]["std"]) for k in KPI_NAMES]
+        cells += [_fmt(res["kpis"][k]["mean"], res["kpis"][k]["std"]) for k in kpis]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -1,0 +1,46 @@
+"""``thermovalve benchmark`` on a real Dask LocalCluster (one worker, one short task), its outputs and its
+refusals; ``thermovalve tasks``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from valve_env.cli import main
+
+
+def test_benchmark_on_a_local_cluster(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "bench"
+    args = ["benchmark", "--tasks", "ThermoValveStickyValve-v0", "--controllers", "self_acting,pi",
+            "--episodes", "2", "--seed", "0", "--horizon-h", "1", "--workers", "1", "--out", str(out)]
+    assert main(args) == 0
+    names = {p.name for p in out.iterdir()}
+    assert names == {"table.md", "results.json", "episodes.csv", "scores.png", "kpis.png"}
+    data = json.loads((out / "results.json").read_text())
+    rows = {r["controller"]: r for r in data["table"]}
+    assert set(rows) == {"self_acting", "pi", "pi@smooth_valve"} and rows["pi"]["episodes"] == 2
+    assert rows["pi"]["seeds"] == "0-1"
+    f = data["findings"]["ThermoValveStickyValve-v0"]
+    assert "valve_change_pct" in f and "limit_cycle" in f
+    assert "valve matters" in (out / "table.md").read_text()
+    # an existing report is not replaced without --force
+    assert main(args) == 2
+    assert "use --force" in capsys.readouterr().err
+
+
+def test_benchmark_rejects_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["benchmark", "--tasks", "NoSuchTask-v0", "--out", str(tmp_path / "b")]) == 2
+    assert "unknown task" in capsys.readouterr().err
+    assert main(["benchmark", "--controllers", "no_such_controller", "--out", str(tmp_path / "b")]) == 2
+    assert not (tmp_path / "b").exists() or not any((tmp_path / "b").iterdir())
+
+
+def test_tasks_lists_one_line_per_task(capsys: pytest.CaptureFixture[str]) -> None:
+    import valve_env
+
+    assert main(["tasks"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert [ln.split()[0] for ln in lines] == list(valve_env.TASK_IDS)
+    assert all("Box(" in ln for ln in lines)

@@ -1,0 +1,184 @@
+"""Benchmark tasks: a physical configuration (an EnvConfig from cited
+parameters), a scenario, a reward, extra KPIs and an observation spec, on top
+of the one plant model (valve_env.simulator). docs/tasks.md.
+
+A :class:`Task` is data: the sections of its EnvConfig, the mode (what the
+agent sets), its task layer (:mod:`valve_env.tasks.layers`: reward terms,
+KPIs, observations) and the sources of its parameters. ``import valve_env``
+registers every task id with Gymnasium (single env:
+:class:`valve_env.tasks.env.ThermoValveTaskEnv`; batched:
+:class:`valve_env.tasks.env.ThermoValveTaskVectorEnv`). The three original
+ids are tasks too, with the identity layer and their own env classes,
+unchanged.
+
+    thermovalve tasks            # one line each: id, what makes it hard, action space
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from valve_env.config import EnvConfig, load_yaml, make_config
+
+
+@dataclass(frozen=True)
+class Task:
+    """A benchmark task (see the module docstring).
+
+    ``sections`` are EnvConfig sections as mappings (as ``gym.make``'s
+    keyword arguments); ``layer`` names the task layer and ``layer_params``
+    its parameters; ``sources`` maps each parameter the task sets to its
+    source; ``env_class`` is the name of its single-env class in
+    :mod:`valve_env.tasks.env` (its docstring is the spec sheet).
+    """
+
+    id: str
+    mode: str
+    hard: str
+    sections: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    layer: str | None = None
+    layer_params: Mapping[str, Any] = field(default_factory=dict)
+    sources: Mapping[str, str] = field(default_factory=dict)
+    env_class: str | None = None
+
+    @property
+    def is_original(self) -> bool:
+        """One of the three ids of SPEC section 5 (its own env classes, no task layer)."""
+        return self.env_class is None
+
+    def config(self, config: str | Path | EnvConfig | Mapping[str, Any] | None = None, **overrides: Any) -> EnvConfig:
+        """The task's EnvConfig, then a YAML file or mapping of sections, then keyword overrides
+        (as ``gym.make``). An EnvConfig replaces the task's physical configuration."""
+        if isinstance(config, EnvConfig):
+            base = config
+        else:
+            base = make_config(None, **{k: dict(v) for k, v in self.sections.items()})
+            if config is not None:
+                sections = load_yaml(config) if isinstance(config, (str, Path)) else dict(config)
+                base = make_config(base, **sections)
+        return make_config(base, **overrides)
+
+    def action_space_text(self) -> str:
+        return {
+            "setting": "Box(1): valve setting, degC [40, 80]",
+            "pressure": "Box(1): pump differential pressure, mbar [0, 300]",
+            "dual": "Box(2): [setting degC, pump dp mbar]",
+        }[self.mode]
+
+
+_SMALL = {
+    "tank": {"volume_l": 50.0, "UA_loss": 0.9},
+    "scenario": {"tapping_profile": "L"},
+}
+_DH = {
+    "scenario": {
+        "supply_profile": "network", "supply_C": 75.0, "supply_amplitude_K": 5.0, "supply_noise_K": 1.5,
+        "supply_tau_h": 1.0,
+        "dp_profile": "network", "dp_mbar": 150.0, "dp_swing": 0.5, "dp_noise_mbar": 15.0, "dp_tau_s": 600.0,
+    },
+    "control": {"w_energy": 0.0, "w_track": 0.004},
+}
+
+_STICKY = {"valve": {"effects": {"stiction": {"band_mm": 0.1}}}}
+
+TASKS: dict[str, Task] = {
+    "ThermoValve-v0": Task(
+        "ThermoValve-v0", "setting",
+        "the original tank loop (SPEC section 5): a PI holds the outlet within 0.1 K after the first hour",
+    ),
+    "ThermoValvePressure-v0": Task(
+        "ThermoValvePressure-v0", "pressure", "the original tank loop, acting through a variable-speed pump's dp",
+    ),
+    "ThermoValveDual-v0": Task(
+        "ThermoValveDual-v0", "dual", "the original tank loop, acting on both the setting and the pump's dp",
+    ),
+    "ThermoValveStickyValve-v0": Task(
+        "ThermoValveStickyValve-v0", "setting",
+        "an aged valve whose stem sticks (band 0.1 mm = 5 % of stroke): a PI limit-cycles, the stem wears",
+        sections=_STICKY,
+        sources={
+            "valve.effects.stiction.band_mm = 0.1 (jump_mm = band)":
+                "5 % of the 2 mm stroke, the upper end of the 0.5-5 % of travel reported for industrial valves "
+                "(Choudhury, Thornhill and Shah 2005, Control Eng. Practice 13:641-658; Jelali and Huang 2010, "
+                "Detection and Diagnosis of Stiction in Control Loops, Springer)",
+            "everything else": "ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4)",
+        },
+        env_class="ThermoValveStickyValveEnv",
+    ),
+    "ThermoValveSmallCylinder-v0": Task(
+        "ThermoValveSmallCylinder-v0", "setting",
+        "50 l cylinder under tapping cycle L: draws empty it, so the bulb lag and friction band reach the outlet",
+        sections=_SMALL,
+        sources={
+            "tank.volume_l = 50": "the seed paper's 'small hot water cylinders' (30-80 l), docs/tasks.md",
+            "tank.UA_loss = 0.9 W/K": "40 W at 45 K, the class B limit for 50 l (S < 12 + 5.93 V^0.4 W) of the "
+                                      "standing-loss classes of Regulation (EU) 812/2013 (the 200 l default, "
+                                      "86 W, sits at its class C limit)",
+            "scenario.tapping_profile = L": "Regulation (EU) 814/2013 Annex III, cycle L (11.655 kWh/day, "
+                                            "a 10 l/min bath draw)",
+        },
+        env_class="ThermoValveSmallCylinderEnv",
+    ),
+    "ThermoValveDistrictHeating-v0": Task(
+        "ThermoValveDistrictHeating-v0", "setting",
+        "swinging network supply and dp, a peak-load heat price and a return-temperature tariff: "
+        "when and how the valve opens costs money",
+        sections=_DH,
+        layer="district_heating",
+        layer_params={},
+        sources={
+            "scenario.supply_C = 75, supply_amplitude_K = 5, supply_noise_K = 1.5":
+                "Danish/Swedish winter supply 70-90 degC with daily swings (Frederiksen and Werner, "
+                "District Heating and Cooling, 2013; IEA DHC Annex IV project 06), docs/tasks.md",
+            "scenario.dp_mbar = 150, dp_swing = 0.5, dp_noise_mbar = 15":
+                "dp at a consumer substation falls with the network load (the pressure diagram of a "
+                "network, Frederiksen and Werner 2013), docs/tasks.md",
+            "network_load": "Gadd and Werner (2013), Applied Energy 106: daily heat-load variations",
+            "tariff": "REFA Energi Holeby / Lemvig Varmevaerk motivation tariffs (1 % of the MWh price per K), "
+                      "peak-load price after Song, Wallin and Li (2017), Applied Energy 194",
+        },
+        env_class="ThermoValveDistrictHeatingEnv",
+    ),
+}
+
+#: the task ids added to the original three, in the order `thermovalve tasks` lists them
+TASK_IDS: tuple[str, ...] = tuple(t for t, task in TASKS.items() if not task.is_original)
+
+
+def get_task(task_id: str) -> Task:
+    """The task registered as ``task_id``; ValueError naming the known ids otherwise."""
+    try:
+        return TASKS[task_id]
+    except KeyError:
+        raise ValueError(f"unknown task id {task_id!r}; known: {', '.join(TASKS)}") from None
+
+
+def task_config(task_id: str, config: Any = None, **overrides: Any) -> EnvConfig:
+    """The EnvConfig of ``task_id`` with ``config`` and keyword overrides applied (as ``gym.make``)."""
+    overrides.pop("max_episode_steps", None)
+    overrides.pop("render_mode", None)
+    overrides.pop("tariff", None)
+    return get_task(task_id).config(config, **overrides)
+
+
+def register_tasks(max_episode_steps: int) -> None:
+    """Register the task ids (not the original three) with Gymnasium."""
+    from gymnasium.envs.registration import register, registry
+
+    for task_id in TASK_IDS:
+        if task_id in registry:
+            continue
+        cls = TASKS[task_id].env_class
+        register(
+            id=task_id,
+            entry_point="valve_env.tasks.env:make_task_env",
+            vector_entry_point=f"valve_env.tasks.env:{str(cls).removesuffix('Env')}VectorEnv",
+            max_episode_steps=max_episode_steps,
+            kwargs={"task_id": task_id},
+        )
+
+
+__all__ = ["TASKS", "TASK_IDS", "Task", "get_task", "register_tasks", "task_config"]

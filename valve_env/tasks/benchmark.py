@@ -1,0 +1,341 @@
+"""The benchmark report: every controller on every task over held-out seeds,
+with a normalised score per task (0 = ``self_acting``, 1 = ``oracle``, as
+pc-gym normalises against its oracle). docs/tasks.md.
+
+This module is the core's part (no Dask, no torch): the grid of cells, one
+cell's evaluation, the scores and the report files. ``thermovalve
+benchmark`` (agents/benchmark.py, in the ``rl`` extra because Dask is)
+runs the cells on a Dask cluster.
+
+Seeds: the report's episodes use seeds ``HELD_OUT_SEED .. HELD_OUT_SEED +
+episodes - 1`` (5000-5009 by default). The tasks, their parameters and the
+report were built looking only at seeds 0-99; 5000+ were not run while
+building.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+#: first held-out seed of the report (episodes use HELD_OUT_SEED, HELD_OUT_SEED + 1, ...)
+HELD_OUT_SEED = 5000
+LOW_REFERENCE = "self_acting"
+HIGH_REFERENCE = "oracle"
+#: the controller variant that runs pi on a smooth valve (no friction to speak of, no effects)
+SMOOTH = "pi@smooth_valve"
+
+
+def smooth_valve() -> dict[str, Any]:
+    """The ``valve=`` override of a smooth valve: Dahl friction 1 mN (F_hmax must be > 0) and no
+    named effects (no stiction)."""
+    return {"valve": {"F_hmax": 1e-3, "effects": {}}}
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One controller on one task over the report's episodes."""
+
+    task: str
+    controller: str
+    episodes: int = 10
+    seed: int = HELD_OUT_SEED
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    #: the cell is one of the per-seed cells of a slow controller (its key names its seed)
+    split: bool = False
+
+    @property
+    def key(self) -> str:
+        return f"{self.task}__{self.controller}" + (f"__s{self.seed}" if self.split else "")
+
+
+def known_controllers(task_id: str, names: Iterable[str] | None = None) -> list[str]:
+    """The controllers that :func:`valve_env.controllers.make_controller` can build for ``task_id``:
+    ``names`` if given (each checked), else every built-in controller (``CONTROLLERS``: the
+    baselines, the compensators and the oracle) that supports the task's action."""
+    from valve_env.controllers import CONTROLLERS, make_controller
+
+    candidates = list(names) if names is not None else list(CONTROLLERS)
+    out = []
+    for name in candidates:
+        try:
+            make_controller(name, task_id)
+        except (ValueError, TypeError, KeyError):  # does not apply to this task's action
+            if names is not None:
+                raise
+            continue
+        out.append(name)
+    return out
+
+
+def make_cells(
+    tasks: Sequence[str],
+    controllers: Sequence[str] | None = None,
+    episodes: int = 10,
+    seed: int = HELD_OUT_SEED,
+    smooth: bool = True,
+) -> list[Cell]:
+    """The grid: each task x each controller that applies to it (``controllers`` None: every known
+    one), plus ``pi`` on a smooth valve (``SMOOTH``) for the valve-matters check. The oracle (slow:
+    it plans by simulation) gets a cell per seed, so that its episodes spread over the workers."""
+    cells = []
+    for task in tasks:
+        for name in known_controllers(task, controllers):
+            if name == HIGH_REFERENCE:
+                cells += [Cell(task, name, 1, int(seed) + i, split=True) for i in range(int(episodes))]
+            else:
+                cells.append(Cell(task, name, int(episodes), int(seed)))
+        if smooth:
+            cells.append(Cell(task, SMOOTH, int(episodes), int(seed), smooth_valve()))
+    return cells
+
+
+def run_cell(cell: Cell) -> dict[str, Any]:
+    """Evaluate one cell (runs on a Dask worker): the per-episode rows of the evaluator."""
+    import time
+
+    from valve_env.evaluation import evaluate_detailed
+
+    t0 = time.perf_counter()
+    name = "pi" if cell.controller == SMOOTH else cell.controller
+    _, per_ep = evaluate_detailed([name], cell.task, cell.episodes, cell.seed, dict(cell.env_kwargs))
+    df = per_ep[name]
+    return {"cell": {**asdict(cell), "key": cell.key}, "wall_s": time.perf_counter() - t0,
+            "episodes": df.to_dict(orient="records")}
+
+
+# -- scores ----------------------------------------------------------------------------
+
+
+def normalised_scores(
+    cost: Mapping[str, float], low: str = LOW_REFERENCE, high: str = HIGH_REFERENCE
+) -> dict[str, float]:
+    """Each controller's score ``(cost[low] - cost[c]) / (cost[low] - cost[high])``: 0 for ``low``
+    (self_acting) and 1 for ``high`` (the oracle) by construction, negative if worse than
+    ``low``, above 1 if better than ``high``. NaN for all when a reference is missing or the two
+    references cost the same."""
+    if low not in cost or high not in cost or not math.isfinite(cost[low] - cost[high]) \
+            or cost[low] == cost[high]:
+        return {c: math.nan for c in cost}
+    span = cost[low] - cost[high]
+    return {c: (cost[low] - v) / span for c, v in cost.items()}
+
+
+def task_table(records: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
+    """Per-episode rows of all cells -> one row per (task, controller): cost (= -return) and KPI
+    means and standard deviations, the score and the number of episodes."""
+    rows = []
+    for rec in records:
+        c = rec["cell"]
+        for ep in rec["episodes"]:
+            rows.append({"task": c["task"], "controller": c["controller"], **ep})
+    df = pd.DataFrame(rows)
+    df["cost"] = -df["return"]
+    metrics = [m for m in df.columns if m not in ("task", "controller", "episode", "seed", "return")]
+    g = df.groupby(["task", "controller"], sort=False)
+    means = g[metrics].mean()
+    stds = g[metrics].std(ddof=0).add_suffix("_std")
+    out = pd.concat([means, stds], axis=1)
+    out["episodes"] = g.size()
+    out["seeds"] = g["seed"].agg(lambda s: f"{int(s.min())}-{int(s.max())}")
+    out = out.reset_index()
+    scores = []
+    for task, sub in out.groupby("task", sort=False):
+        sc = normalised_scores(dict(zip(sub["controller"], sub["cost"], strict=True)))
+        scores += [(task, c, v) for c, v in sc.items()]
+    sc_df = pd.DataFrame(scores, columns=["task", "controller", "score"])
+    return out.merge(sc_df, on=["task", "controller"], how="left")
+
+
+def findings(table: pd.DataFrame) -> dict[str, dict[str, Any]]:
+    """Per task: the headroom (oracle's cost against the best non-oracle baseline) and whether
+    the valve matters (pi's iae_Kh on the task's valve against a smooth valve)."""
+    out: dict[str, dict[str, Any]] = {}
+    for task, sub in table.groupby("task", sort=False):
+        cost = dict(zip(sub["controller"], sub["cost"], strict=True))
+        f: dict[str, Any] = {}
+        base = {c: v for c, v in cost.items() if c not in (HIGH_REFERENCE, SMOOTH)}
+        if base:
+            best = min(base, key=base.__getitem__)
+            f["best_baseline"] = best
+            f["best_baseline_cost"] = base[best]
+            if HIGH_REFERENCE in cost:
+                f["oracle_cost"] = cost[HIGH_REFERENCE]
+                f["headroom_pct"] = 100.0 * (base[best] - cost[HIGH_REFERENCE]) / abs(base[best])
+                f["headroom_goal_met"] = bool(f["headroom_pct"] >= 25.0)
+        iae = dict(zip(sub["controller"], sub["iae_Kh"], strict=True))
+        if "pi" in iae and SMOOTH in iae:
+            f["pi_iae_Kh_task_valve"] = iae["pi"]
+            f["pi_iae_Kh_smooth_valve"] = iae[SMOOTH]
+            f["valve_change_pct"] = 100.0 * (iae["pi"] - iae[SMOOTH]) / iae[SMOOTH]
+            f["valve_matters"] = bool(abs(f["valve_change_pct"]) >= 20.0)
+        out[str(task)] = f
+    return out
+
+
+def limit_cycle(
+    traj: pd.DataFrame, t0_h: float = 2.0, t1_h: float = 5.0, min_jump_mm: float = 0.005
+) -> dict[str, float]:
+    """The limit cycle of a rollout (valve_env.evaluation.rollout) between ``t0_h`` and ``t1_h`` (a
+    window without draws on the M cycle, whose first draw is at 07:00): the stem's break-aways
+    (openings by more than ``min_jump_mm`` in a step), their median period (min), and the peak-to-peak
+    swings of the setting (the controller output) and of the outlet."""
+    w = traj[(traj["t_h"] > t0_h) & (traj["t_h"] < t1_h)]
+    dx = np.diff(w["x_mm"].to_numpy())
+    opens = np.flatnonzero(dx > min_jump_mm)
+    dt_min = float(np.median(np.diff(w["t_h"].to_numpy()))) * 60.0 if len(w) > 1 else math.nan
+    return {
+        "break_aways": float(opens.size),
+        "period_min": float(np.median(np.diff(opens)) * dt_min) if opens.size > 1 else math.nan,
+        "setting_p2p_K": float(np.ptp(w["setting_C"])) if len(w) else math.nan,
+        "outlet_p2p_K": float(np.ptp(w["T_out_C"])) if len(w) else math.nan,
+    }
+
+
+def limit_cycles(task_id: str, seeds: Iterable[int], controller: str = "pi",
+                 env_kwargs: Mapping[str, Any] | None = None) -> dict[str, float]:
+    """Median :func:`limit_cycle` figures of ``controller`` on ``task_id`` over ``seeds``."""
+    from valve_env.controllers import make_controller
+    from valve_env.evaluation import rollout
+
+    figs = [limit_cycle(rollout(make_controller(controller, task_id), task_id, int(s), env_kwargs)) for s in seeds]
+    return {k: float(np.nanmedian([f[k] for f in figs])) for k in figs[0]}
+
+
+# -- the report --------------------------------------------------------------------------
+
+REPORT_KPIS = ("iae_Kh", "tdis_Kh", "heat_kWh", "return_C", "reversals", "travel_mm", "cost_eur")
+
+
+def _f(v: float, digits: int = 3) -> str:
+    if v is None or not math.isfinite(v):
+        return "n/a"
+    return f"{v:.{digits}g}" if abs(v) < 1000 else f"{v:.0f}"
+
+
+def markdown_report(table: pd.DataFrame, found: Mapping[str, Mapping[str, Any]]) -> str:
+    """The report's table (one block per task) and the findings, as markdown."""
+    lines = ["# ThermoValve benchmark", ""]
+    seeds = sorted(set(table["seeds"]))
+    lines += [f"Held-out seeds {', '.join(seeds)} ({int(table['episodes'].max())} episodes per controller). "
+              "cost = -return (mean over episodes); score: 0 = self_acting, 1 = oracle "
+              "((cost_self_acting - cost) / (cost_self_acting - cost_oracle)); "
+              f"`{SMOOTH}` is pi on a smooth valve (F_hmax 1 mN, no effects).", ""]
+    for task, sub in table.groupby("task", sort=False):
+        kpis = [k for k in REPORT_KPIS if k in sub.columns and sub[k].notna().any()]
+        lines += [f"## {task}", "", "| controller | cost | score | " + " | ".join(kpis) + " |",
+                  "|---|---:|---:|" + "---:|" * len(kpis)]
+        for _, r in sub.iterrows():
+            cells = [f"{_f(r['cost'])} ± {_f(r['cost_std'], 2)}", _f(r["score"])]
+            cells += [_f(r[k]) for k in kpis]
+            lines.append(f"| {r['controller']} | " + " | ".join(cells) + " |")
+        f = found.get(str(task), {})
+        lines.append("")
+        if "headroom_pct" in f:
+            lines.append(f"* headroom: oracle cost {_f(f['oracle_cost'])} against the best baseline "
+                         f"({f['best_baseline']}) {_f(f['best_baseline_cost'])}: {f['headroom_pct']:.1f} % "
+                         f"({'meets' if f['headroom_goal_met'] else 'misses'} the 25 % goal)")
+        else:
+            lines.append("* headroom: no oracle in this run (scores n/a)")
+        if "limit_cycle" in f:
+            lc = f["limit_cycle"]
+            lines.append(f"* pi's limit cycle, 02:00-05:00 (median over the seeds): {lc['break_aways']:.0f} "
+                         f"break-aways of the stem, period {_f(lc['period_min'])} min, setting swing "
+                         f"{_f(lc['setting_p2p_K'])} K ({100 * lc['setting_p2p_K'] / 40:.1f} % of its 40 K range), "
+                         f"outlet swing {_f(lc['outlet_p2p_K'])} K")
+        if "valve_change_pct" in f:
+            lines.append(f"* valve matters: pi iae_Kh {_f(f['pi_iae_Kh_task_valve'])} K h on the task's valve, "
+                         f"{_f(f['pi_iae_Kh_smooth_valve'])} on a smooth valve: {f['valve_change_pct']:+.1f} % "
+                         f"({'yes' if f['valve_matters'] else 'no'}, goal |change| >= 20 %)")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot_scores(table: pd.DataFrame, path: Any) -> None:
+    """Grouped bars: each task's cost per controller (normalised score on the bars where known)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(dict.fromkeys(table["task"]))
+    fig, axes = plt.subplots(1, len(tasks), figsize=(4.2 * len(tasks), 3.8), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        sub = table[table["task"] == task]
+        y = np.arange(len(sub))
+        ax.barh(y, sub["cost"], xerr=sub["cost_std"], color="tab:blue", alpha=0.8)
+        ax.set_yticks(y, sub["controller"])
+        ax.invert_yaxis()
+        for yi, (c, s) in enumerate(zip(sub["cost"], sub["score"], strict=True)):
+            if math.isfinite(s):
+                ax.annotate(f"{s:.2f}", (c, yi), xytext=(3, 0), textcoords="offset points", va="center",
+                            fontsize=8)
+        ax.set_title(task, fontsize=9)
+        ax.set_xlabel("cost = -return (score at the bar)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+def plot_kpis(table: pd.DataFrame, path: Any, kpis: Sequence[str] = ("iae_Kh", "reversals")) -> None:
+    """Each task's tracking and wear KPIs per controller (the tradeoff the score hides)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(dict.fromkeys(table["task"]))
+    fig, axes = plt.subplots(1, len(tasks), figsize=(4.2 * len(tasks), 3.6), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        sub = table[table["task"] == task]
+        ax.scatter(sub[kpis[1]], sub[kpis[0]])
+        for _, r in sub.iterrows():
+            ax.annotate(r["controller"], (r[kpis[1]], r[kpis[0]]), fontsize=7, xytext=(3, 3),
+                        textcoords="offset points")
+        ax.set_xlabel(kpis[1])
+        ax.set_ylabel(kpis[0])
+        ax.set_title(task, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+def report_json(table: pd.DataFrame, found: Mapping[str, Any], meta: Mapping[str, Any]) -> str:
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, (np.floating, np.integer)):
+            return clean(v.item())
+        return v
+
+    rows = [{k: clean(v) for k, v in r.items()} for r in table.to_dict(orient="records")]
+    def clean_all(v: Any) -> Any:
+        return {k: clean_all(x) for k, x in v.items()} if isinstance(v, Mapping) else clean(v)
+
+    data = {"meta": dict(meta), "findings": clean_all(found),
+            "table": rows}
+    return json.dumps(data, indent=1) + "\n"
+
+
+__all__ = [
+    "HELD_OUT_SEED",
+    "SMOOTH",
+    "Cell",
+    "findings",
+    "known_controllers",
+    "limit_cycle",
+    "limit_cycles",
+    "make_cells",
+    "markdown_report",
+    "normalised_scores",
+    "run_cell",
+    "smooth_valve",
+    "task_table",
+]

@@ -1,0 +1,400 @@
+"""The task environments: the plant env plus a task layer, single and batched.
+
+:class:`ThermoValveTaskEnv` is the single env of a task (the plant's
+ThermoValveEnv with the task's EnvConfig, then the layer's reward terms, KPIs
+and extra observations); :class:`ThermoValveTaskVectorEnv` is its native
+batched env, which calls the same vectorised layer on the same kernel
+outputs, so the two agree to rounding (tests/tasks). Each task has its own
+subclass whose docstring is its spec sheet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector.utils import batch_space
+
+from valve_env.envs.thermovalve import OBS_NAMES, SimState, ThermoValveEnv
+from valve_env.envs.vector import ThermoValveVectorEnv
+from valve_env.params import ConfigError
+from valve_env.tasks import get_task
+from valve_env.tasks.layers import TaskLayer, make_layer
+
+
+@dataclass
+class TaskSimState(SimState):
+    """:class:`SimState` plus the task layer's accumulators."""
+
+    task_acc: np.ndarray | None = None
+
+
+def _extended_box(base: spaces.Box, layer: TaskLayer) -> spaces.Box:
+    lo, hi = layer.obs_bounds()
+    return spaces.Box(
+        np.concatenate([base.low, lo]).astype(np.float32), np.concatenate([base.high, hi]).astype(np.float32),
+        dtype=np.float32,
+    )
+
+
+def _task_config(env: Any, task_id: str | None, config: Any, overrides: dict[str, Any]) -> Any:
+    """Set ``env.task`` and ``env.mode`` from the task id (the class's own by default); the task's EnvConfig."""
+    task = get_task(task_id or env.task_id)
+    env.task = task
+    env.mode = task.mode
+    return task.config(config, **overrides)
+
+
+def _build_layer(task_id: str, cfg: Any, tariff: Any) -> TaskLayer:
+    task = get_task(task_id)
+    layer = make_layer(task.layer, {**task.layer_params, **dict(tariff or {})}, cfg.scenario, cfg.control.dt_s)
+    if layer.obs_names and cfg.sensors.dead_time_steps > 0:
+        raise ConfigError(f"{task_id}: sensors.dead_time_steps with the task's forecast observations is not supported")
+    return layer
+
+
+class ThermoValveTaskEnv(ThermoValveEnv):
+    """A benchmark task's single env (see the subclasses' spec sheets and docs/tasks.md).
+
+    ``ThermoValveTaskEnv(task_id, config=None, render_mode=None, tariff=None, **overrides)``:
+    the task's EnvConfig with ``config`` and ``overrides`` applied as in
+    ``gym.make``; ``tariff`` overrides the district-heating layer's parameters.
+    """
+
+    task_id: ClassVar[str] = ""
+
+    def __init__(
+        self,
+        task_id: str | None = None,
+        config: Any = None,
+        render_mode: str | None = None,
+        tariff: Any = None,
+        **overrides: Any,
+    ) -> None:
+        cfg = _task_config(self, task_id, config, overrides)
+        super().__init__(config=cfg, render_mode=render_mode)
+        self.layer = _build_layer(self.task.id, cfg, tariff)
+        self.observation_space = _extended_box(self.observation_space, self.layer)  # type: ignore[arg-type]
+        self.obs_names: tuple[str, ...] = (*OBS_NAMES, *self.layer.obs_names)
+        self._tacc = np.zeros(self.layer.n_acc)
+        self._k_arr = np.zeros(1, np.int64)
+
+    def _extend(self, obs: np.ndarray) -> np.ndarray:
+        if not self.layer.obs_names:
+            return obs
+        self._k_arr[0] = self._k
+        return np.concatenate([obs, self.layer.observation(self._k_arr)[0]]).astype(np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        obs, info = super().reset(seed=seed, options=options)
+        self._tacc = np.zeros(self.layer.n_acc)
+        return self._extend(obs), info
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self._k_arr[0] = self._k
+        obs, reward, terminated, truncated, info = super().step(action)
+        r_add, acc = self.layer.step(self._k_arr, self._out[None, :], self._dt_s)
+        self._tacc += acc[0]
+        reward = float(reward + r_add[0])
+        if "kpis" in info:
+            info["kpis"].update(self.layer.kpis(self._tacc))
+        return self._extend(obs), reward, terminated, truncated, info
+
+    @property
+    def task_kpis(self) -> dict[str, float]:
+        """The task KPIs of the episode so far."""
+        return self.layer.kpis(self._tacc)
+
+    def get_state(self) -> TaskSimState:
+        return TaskSimState(**asdict(super().get_state()), task_acc=self._tacc.copy())
+
+    def set_state(self, st: SimState) -> None:
+        super().set_state(st)
+        acc = getattr(st, "task_acc", None)
+        self._tacc = np.zeros(self.layer.n_acc) if acc is None else np.array(acc, dtype=float)
+
+
+class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
+    """The native batched env of a task: ``gym.make_vec(task_id, num_envs=N)``.
+
+    As :class:`valve_env.envs.vector.ThermoValveVectorEnv` (same kernel, same
+    seeding and autoreset), plus the task layer computed on the kernel's step
+    outputs of all envs at once; ``info["kpis"]`` carries the task KPIs.
+    """
+
+    task_id: ClassVar[str] = ""
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        task_id: str | None = None,
+        config: Any = None,
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        tariff: Any = None,
+        **overrides: Any,
+    ) -> None:
+        cfg = _task_config(self, task_id, config, overrides)
+        super().__init__(num_envs, config=cfg, max_episode_steps=max_episode_steps, render_mode=render_mode)
+        self.layer = _build_layer(self.task.id, cfg, tariff)
+        self.single_observation_space = _extended_box(self.single_observation_space, self.layer)  # type: ignore[arg-type]
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.obs_names: tuple[str, ...] = (*OBS_NAMES, *self.layer.obs_names)
+        self._TACC = np.zeros((self.num_envs, self.layer.n_acc))
+
+    def _extend(self, obs: np.ndarray) -> np.ndarray:
+        if not self.layer.obs_names:
+            return obs
+        return np.concatenate([obs, self.layer.observation(self._K)], axis=1).astype(np.float32)
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = super().reset(seed=seed, options=options)
+        mask = options.get("reset_mask") if options else None
+        if mask is None:
+            self._TACC[:] = 0.0
+        else:
+            self._TACC[np.asarray(mask, bool)] = 0.0
+        return self._extend(obs), info
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        stepping = ~self._autoreset if self._any_autoreset else np.ones(self.num_envs, bool)
+        k_before = self._K.copy()
+        obs, rewards, terminated, truncated, info = super().step(actions)
+        idx = np.flatnonzero(stepping)
+        if self.layer.n_acc:
+            r_add, acc = self.layer.step(k_before[idx], self._OUT[idx], self._dt_s)
+            rewards[idx] += r_add
+            self._TACC[idx] += acc
+        if "kpis" in info and self.layer.kpi_names:
+            ended = np.flatnonzero(info["_kpis"])
+            for name in self.layer.kpi_names:
+                info["kpis"][name] = np.zeros(self.num_envs)
+                info["kpis"]["_" + name] = info["_kpis"].copy()
+            for i in ended:
+                for name, v in self.layer.kpis(self._TACC[i]).items():
+                    info["kpis"][name][i] = v
+        # envs reset by this step (autoreset) start their accumulators afresh
+        self._TACC[~stepping] = 0.0
+        return self._extend(obs), rewards, terminated, truncated, info
+
+    def task_kpis(self, i: int) -> dict[str, float]:
+        """The task KPIs of env i's episode so far."""
+        return self.layer.kpis(self._TACC[i])
+
+
+# -- the tasks' spec sheets -------------------------------------------------------------
+
+
+class ThermoValveStickyValveEnv(ThermoValveTaskEnv):
+    """## Description
+
+    ThermoValveStickyValve-v0: the original 200 l tank loop (ThermoValve-v0,
+    tapping cycle M) with an aged valve whose stem sticks: static friction
+    holds the resting stem until the force balance's demand has moved 0.1 mm
+    (5 % of the 2 mm stroke, the upper end of what is reported for
+    industrial valves), then it slips onto the demand (the (S, J) model of
+    Choudhury et al. 2005 with S = J = 0.1 mm, on top of the paper's Dahl
+    friction). With an integrating heat balance between draws, a PI on the
+    outlet limit-cycles: its integral winds the setting until the stem
+    breaks free, the stem jumps, the outlet overshoots, and the loop turns.
+    The compensators of the stiction literature (knocker, two-move,
+    constant reinforcement) and wear-aware control have something to fix
+    here: tracking, stem travel and reversals (wear).
+
+    ## Action space
+
+    Box(1,) float32: the valve temperature setting, degC, [40, 80].
+
+    ## Observation space
+
+    Box(12,) float32, as ThermoValve-v0. The stem position, its demand and
+    whether it is stuck are not observed (``info``: x_mm, and the effects'
+    hidden states).
+
+    ## Reward
+
+    As ThermoValve-v0: ``-(0.04 mean (T_out - 60)^2 + 1.0 mean max(0, 55 -
+    T_out) + 0.02 (P_heat + 2.5 P_pump) / kW)`` per 30 s step.
+
+    ## KPIs
+
+    The SPEC section 5 KPIs; travel_mm and reversals measure the stem's wear.
+
+    ## Physical parameters (sources: docs/tasks.md)
+
+    | parameter | value | source |
+    |---|---|---|
+    | stiction band_mm | 0.1 mm (jump = band) | 0.5-5 % of travel: Choudhury et al. 2005; Jelali, Huang 2010 |
+    | everything else | | ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4) |
+
+    ## Version history
+
+    * v0: initial release.
+    """
+
+    task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
+
+
+class ThermoValveSmallCylinderEnv(ThermoValveTaskEnv):
+    """## Description
+
+    ThermoValveSmallCylinder-v0: the seed paper's valve on a *small* hot-water
+    cylinder, 50 l (the paper names "small hot water cylinders" of 30-80 l as
+    the valve's use), under the EU tapping cycle L (Regulation (EU) 814/2013
+    Annex III: 11.655 kWh a day, with a 10 l/min bath draw), seeded
+    stochastic variant. The cylinder holds about 2.9 kWh above the cold
+    water, so a strong draw empties its top within minutes: the bulb's 40 s
+    lag and the valve's friction band (about 0.8 K wide) reach the outlet
+    temperature, and the draws decide the score. Everything else is the
+    original tank loop (ThermoValve-v0): the agent trims the valve's
+    temperature setting.
+
+    ## Action space
+
+    Box(1,) float32: the valve temperature setting, degC, [40, 80]; clipped
+    to the box (``info["action_clipped"]``).
+
+    ## Observation space
+
+    Box(12,) float32, as ThermoValve-v0 (outlet, pocket, bottom, supply and
+    return temperatures, primary flow, dp, draw, time of day, setting,
+    target).
+
+    ## Reward
+
+    As ThermoValve-v0: ``-(0.04 mean (T_out - 60)^2 + 1.0 mean max(0, 55 -
+    T_out) + 0.02 (P_heat + 2.5 P_pump) / kW)`` per 30 s step.
+
+    ## KPIs
+
+    The SPEC section 5 KPIs (rmse_K, iae_Kh, tdis_Kh, unmet_kWh, heat_kWh,
+    pump_kWh, return_C, travel_mm, reversals) in ``info["kpis"]`` at the
+    episode's end.
+
+    ## Physical parameters (sources: docs/tasks.md)
+
+    | parameter | value | source |
+    |---|---|---|
+    | tank.volume_l | 50 l | the seed paper's "small hot water cylinders", 30-80 l |
+    | tank.UA_loss | 0.9 W/K | 40 W at 45 K: class B limit for 50 l, Regulation (EU) 812/2013 |
+    | scenario.tapping_profile | L | Regulation (EU) 814/2013 Annex III |
+    | everything else | | ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4) |
+
+    ## Version history
+
+    * v0: initial release.
+    """
+
+    task_id: ClassVar[str] = "ThermoValveSmallCylinder-v0"
+
+
+class ThermoValveDistrictHeatingEnv(ThermoValveTaskEnv):
+    """## Description
+
+    ThermoValveDistrictHeating-v0: the original 200 l tank loop (tapping
+    cycle M) on a district-heating network that behaves like one. The supply
+    temperature follows the operator's plan (75 degC, raised by up to 5 K an
+    hour ahead of the morning and evening load peaks) plus an
+    Ornstein-Uhlenbeck disturbance (sd 1.5 K, 1 h); the differential pressure
+    at the substation is 150 mbar at night and falls by half at the network's
+    peak load, with a 15 mbar, 10 min disturbance. The consumer pays a heat
+    price that follows the network's load (peak-load pricing, 0.6-1.5 x a
+    mean of 80 EUR/MWh) and a Danish-style motivation tariff: 1 % of the
+    energy bill per K of return temperature above 40 degC. The agent trims
+    the valve's setting: when the tank is charged, and how hard (the return
+    temperature rises with the flow), are what cost money. The operator's
+    day-ahead price and supply plan are observed as forecasts.
+
+    ## Action space
+
+    Box(1,) float32: the valve temperature setting, degC, [40, 80].
+
+    ## Observation space
+
+    Box(19,) float32: the 12 observations of ThermoValve-v0, then
+
+    | index | name | unit |
+    |---|---|---|
+    | 12 | price_eur_MWh: the heat price in force | EUR/MWh |
+    | 13-15 | price_{1,3,6}h_eur_MWh: the price 1, 3 and 6 h ahead (day-ahead, exact) | EUR/MWh |
+    | 16-18 | supply_plan_{1,3,6}h_C: the operator's supply plan 1, 3, 6 h ahead (without the disturbance) | degC |
+
+    ## Reward
+
+    Per 30 s step: ``-(0.004 mean (T_out - 60)^2 + 1.0 mean max(0, 55 -
+    T_out)) - 100 (energy_eur + tariff_eur)``, with ``energy_eur = price x
+    heat`` and ``tariff_eur = energy_eur x 0.01 x max(0, T_return - 40)``
+    (w_energy = 0: the energy is priced by the bill). Comfort is the floor;
+    tracking 60 degC is a weak preference.
+
+    ## KPIs
+
+    The SPEC section 5 KPIs plus ``cost_eur`` (the day's bill),
+    ``energy_cost_eur``, ``return_tariff_eur`` and ``mean_price_eur_MWh``
+    (the heat-weighted price paid).
+
+    ## Physical and economic parameters (sources: docs/tasks.md)
+
+    | parameter | value | source |
+    |---|---|---|
+    | supply | 75 degC, +-5 K plan, 1.5 K (1 h) | winter supply 70-90 degC, daily swings (Frederiksen, Werner 2013) |
+    | dp | 150 mbar, -50 % at peak, 15 mbar | dp at a substation falls with the load (Frederiksen, Werner 2013) |
+    | load shape | peaks 07:30 and 19:00 | Gadd and Werner (2013), Applied Energy 106, 47-55 |
+    | price | 80 EUR/MWh x 0.6-1.5 with the load | peak-load pricing, Song, Wallin, Li (2017), Appl. Energy 194 |
+    | return tariff | 1 %/K above 40 degC | motivation tariffs of REFA Energi Holeby and Lemvig Varmevaerk |
+
+    ## Version history
+
+    * v0: initial release.
+    """
+
+    task_id: ClassVar[str] = "ThermoValveDistrictHeating-v0"
+
+
+class ThermoValveStickyValveVectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveStickyValveEnv.__doc__
+    task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
+
+
+class ThermoValveSmallCylinderVectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveSmallCylinderEnv.__doc__
+    task_id: ClassVar[str] = "ThermoValveSmallCylinder-v0"
+
+
+class ThermoValveDistrictHeatingVectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveDistrictHeatingEnv.__doc__
+    task_id: ClassVar[str] = "ThermoValveDistrictHeating-v0"
+
+
+def make_task_env(task_id: str, render_mode: str | None = None, **kwargs: Any) -> gym.Env:
+    """A task's single env by id, with the sensor wrappers its configuration asks for
+    (as valve_env.envs.make_thermovalve does for the original ids)."""
+    from valve_env.wrappers import ObservationDelay, SensorNoise
+
+    cls = {c.task_id: c for c in ThermoValveTaskEnv.__subclasses__()}[task_id]
+    env: gym.Env = cls(render_mode=render_mode, **kwargs)
+    sens = env.unwrapped.cfg.sensors  # type: ignore[attr-defined]
+    if sens.noise_K > 0 or sens.flow_noise_rel > 0:
+        env = SensorNoise(env, sens.noise_K, sens.flow_noise_rel)
+    if sens.dead_time_steps > 0:
+        env = ObservationDelay(env, sens.dead_time_steps)
+    return env
+
+
+__all__ = [
+    "TaskSimState",
+    "ThermoValveDistrictHeatingEnv",
+    "ThermoValveDistrictHeatingVectorEnv",
+    "ThermoValveSmallCylinderEnv",
+    "ThermoValveSmallCylinderVectorEnv",
+    "ThermoValveStickyValveEnv",
+    "ThermoValveStickyValveVectorEnv",
+    "ThermoValveTaskEnv",
+    "ThermoValveTaskVectorEnv",
+    "make_task_env",
+]

@@ -1,0 +1,184 @@
+"""Task layers: reward terms, KPIs and observations that a task adds on top of
+the plant, kept apart from the physics (valve_env.simulator is not touched).
+
+A layer sees what a meter and a tariff would see: the step outputs of the
+simulator kernel (rows ``simulator.O_*``: heat, return and supply
+temperature, flow) and the step index. The same vectorised methods serve the
+single env (a batch of one) and the batched env, so both compute the same
+numbers (tests/tasks). See docs/tasks.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from valve_env import simulator as sim
+from valve_env.params import ConfigError, _from_mapping
+from valve_env.scenario import ScenarioParams, network_load, supply_plan
+
+
+class TaskLayer:
+    """The identity layer: no reward term, no KPI, no observation (the three original ids)."""
+
+    kpi_names: ClassVar[tuple[str, ...]] = ()
+    obs_names: ClassVar[tuple[str, ...]] = ()
+    n_acc: ClassVar[int] = 0
+
+    def obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of the extra observations."""
+        return np.zeros(0, np.float32), np.zeros(0, np.float32)
+
+    def step(self, k: np.ndarray, out: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The reward added for the step that started at step index ``k`` (n,) with step
+        outputs ``out`` (n, N_OUT), and the step's increments of the layer's accumulators (n, n_acc)."""
+        n = out.shape[0]
+        return np.zeros(n), np.zeros((n, self.n_acc))
+
+    def kpis(self, acc: np.ndarray) -> dict[str, float]:
+        """The task KPIs from one env's accumulators (n_acc,)."""
+        return {}
+
+    def observation(self, k: np.ndarray) -> np.ndarray:
+        """The extra observations (n, len(obs_names)) at step index ``k`` (n,)."""
+        return np.zeros((np.shape(k)[0], 0), np.float32)
+
+
+@dataclass(frozen=True)
+class DistrictHeatingTariff:
+    """A district-heating bill: a time-varying heat price and a return-temperature tariff.
+
+    | field | unit | meaning (default, source: docs/tasks.md) |
+    |---|---|---|
+    | price_eur_MWh | EUR/MWh | mean heat price; 80 (Danish consumer DH prices' variable part) |
+    | price_min_rel, price_max_rel | - | price at the lowest and highest load / mean; 0.6, 1.5 (peak-load pricing) |
+    | surcharge_per_K | 1/K | surcharge on the energy bill per K of return above the reference; 0.01 |
+    | T_return_ref_C | degC | return temperature that pays no surcharge; 40 (REFA Energi Holeby) |
+    | w_eur | 1/EUR | reward weight of the bill; 100 (1 cent costs 1) |
+    | forecast_h | h | horizons of the price and supply-plan forecasts in the observation; (1, 3, 6) |
+    """
+
+    price_eur_MWh: float = 80.0
+    price_min_rel: float = 0.6
+    price_max_rel: float = 1.5
+    surcharge_per_K: float = 0.01
+    T_return_ref_C: float = 40.0
+    w_eur: float = 100.0
+    forecast_h: tuple[float, ...] = (1.0, 3.0, 6.0)
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            vals = v if isinstance(v, tuple) else (v,)
+            if not all(np.isfinite(x) and x >= 0 for x in vals):
+                raise ConfigError(f"DistrictHeatingTariff.{f.name} must be finite and >= 0, got {v!r}")
+        if not self.price_min_rel <= self.price_max_rel:
+            raise ConfigError("DistrictHeatingTariff.price_min_rel must be <= price_max_rel")
+        object.__setattr__(self, "forecast_h", tuple(float(x) for x in self.forecast_h))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None) -> DistrictHeatingTariff:
+        data = dict(data or {})
+        horizons = data.pop("forecast_h", None)
+        base = _from_mapping(cls, data)
+        if horizons is None:
+            return base
+        try:
+            hs = tuple(float(h) for h in horizons)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"DistrictHeatingTariff.forecast_h must be a list of hours, got {horizons!r}") from exc
+        return cls(**{**{f.name: getattr(base, f.name) for f in fields(cls)}, "forecast_h": hs})
+
+    def price(self, t_s: np.ndarray | float) -> np.ndarray:
+        """The heat price at times ``t_s`` (s after midnight of day 0), EUR/MWh: it follows the
+        network's load (:func:`valve_env.scenario.network_load`), as a peak-load price does."""
+        rel = self.price_min_rel + (self.price_max_rel - self.price_min_rel) * network_load(t_s)
+        # normalise the daily mean to price_eur_MWh
+        return self.price_eur_MWh * rel / _mean_rel(self.price_min_rel, self.price_max_rel)
+
+
+def _mean_rel(lo: float, hi: float) -> float:
+    """The daily mean of ``lo + (hi - lo) load(t)``."""
+    grid = np.arange(0.0, 86400.0, 60.0)
+    return float(np.mean(lo + (hi - lo) * network_load(grid)))
+
+
+class DistrictHeatingLayer(TaskLayer):
+    """The bill of :class:`DistrictHeatingTariff` as a cost (EUR) and a reward term,
+    and the operator's forecasts of price and supply temperature as observations.
+
+    Per step of length dt with mean heat power P (W) and flow-weighted return
+    temperature T_ret, at the price p(t) of the step's start:
+
+        energy_eur = p(t) P dt / 3.6e9
+        tariff_eur = energy_eur * surcharge_per_K * max(0, T_ret - T_return_ref_C)
+        reward    += -w_eur (energy_eur + tariff_eur)
+
+    (utilities apply the surcharge to a year's flow-weighted mean return;
+    here it applies step by step, which makes it a per-step incentive.)
+    """
+
+    kpi_names: ClassVar[tuple[str, ...]] = ("cost_eur", "energy_cost_eur", "return_tariff_eur", "mean_price_eur_MWh")
+    n_acc: ClassVar[int] = 3  # energy EUR, tariff EUR, heat J
+
+    def __init__(self, tariff: DistrictHeatingTariff, scenario: ScenarioParams, dt_s: float) -> None:
+        self.tariff = tariff
+        self.scenario = scenario
+        self.dt_s = float(dt_s)
+        hs = [f"{h:g}h" for h in tariff.forecast_h]
+        self.obs_names = ("price_eur_MWh", *(f"price_{h}_eur_MWh" for h in hs), *(f"supply_plan_{h}_C" for h in hs))
+        # the price of every step of a day, tabled (the price repeats daily)
+        per_day = int(round(86400.0 / self.dt_s))
+        self._price = tariff.price(np.arange(per_day) * self.dt_s)
+        self._per_day = per_day
+
+    def obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        m = len(self.tariff.forecast_h)
+        lo = np.array([0.0] * (m + 1) + [-20.0] * m, np.float32)
+        hi = np.array([2000.0] * (m + 1) + [150.0] * m, np.float32)
+        return lo, hi
+
+    def price_at(self, k: np.ndarray) -> np.ndarray:
+        """The price (EUR/MWh) in force during step index ``k``."""
+        return self._price[np.asarray(k, dtype=np.int64) % self._per_day]
+
+    def step(self, k: np.ndarray, out: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        t = self.tariff
+        heat_J = out[:, sim.O_HEAT_W] * dt_s
+        energy = self.price_at(k) * heat_J / 3.6e9
+        excess = np.maximum(out[:, sim.O_T_RET] - t.T_return_ref_C, 0.0)
+        tariff = energy * t.surcharge_per_K * excess
+        acc = np.stack([energy, tariff, heat_J], axis=1)
+        return -t.w_eur * (energy + tariff), acc
+
+    def kpis(self, acc: np.ndarray) -> dict[str, float]:
+        heat_MWh = acc[2] / 3.6e9
+        return {
+            "cost_eur": float(acc[0] + acc[1]),
+            "energy_cost_eur": float(acc[0]),
+            "return_tariff_eur": float(acc[1]),
+            "mean_price_eur_MWh": float(acc[0] / heat_MWh) if heat_MWh > 0 else float("nan"),
+        }
+
+    def observation(self, k: np.ndarray) -> np.ndarray:
+        k = np.asarray(k, dtype=np.int64)
+        cols = [self.price_at(k)]
+        steps = [int(round(h * 3600.0 / self.dt_s)) for h in self.tariff.forecast_h]
+        cols += [self.price_at(k + s) for s in steps]
+        cols += [supply_plan(self.scenario, (k + s) * self.dt_s) for s in steps]
+        return np.stack(cols, axis=1).astype(np.float32)
+
+
+def make_layer(name: str | None, params: Mapping[str, Any], scenario: ScenarioParams, dt_s: float) -> TaskLayer:
+    """The task layer called ``name`` ("district_heating" or None) with its parameters."""
+    if name is None:
+        return TaskLayer()
+    if name == "district_heating":
+        return DistrictHeatingLayer(DistrictHeatingTariff.from_dict(params), scenario, dt_s)
+    raise ConfigError(f"unknown task layer {name!r}; known: district_heating")
+
+
+__all__ = ["DistrictHeatingLayer", "DistrictHeatingTariff", "TaskLayer", "make_layer"]
