@@ -82,8 +82,8 @@ class ScenarioParams:
         a = self.supply_amplitude_K
         if self.supply_profile in ("daily", "network") and not (lo <= self.supply_C - a and self.supply_C + a <= hi):
             raise ConfigError(
-                f"scenario.supply_amplitude_K: a {self.supply_profile} supply of {self.supply_C:g} +- {a:g} degC leaves "
-                f"[{lo:g}, {hi:g}] degC (liquid water at district-heating pressures)"
+                f"scenario.supply_amplitude_K: a {self.supply_profile} supply of {self.supply_C:g} +- {a:g} degC "
+                f"leaves [{lo:g}, {hi:g}] degC (liquid water at district-heating pressures)"
             )
 
     @classmethod
