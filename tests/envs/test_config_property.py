@@ -83,7 +83,7 @@ def configs(draw: st.DrawFn, max_horizon_h: float) -> EnvConfig:
     h_lo = c["dt_s"] / 3600.0
     h_hi = min(max_horizon_h, MAX_EPISODE_STEPS * c["dt_s"] / 3600.0)
     c["horizon_h"] = draw(st.one_of(st.just(h_lo), st.just(h_hi), st.floats(h_lo, h_hi)))
-    if s["supply_profile"] == "daily":
+    if s["supply_profile"] in ("daily", "network"):  # the supply plan swings supply_C +- amplitude
         s["supply_amplitude_K"] = min(s["supply_amplitude_K"], s["supply_C"] - SUPPLY_LIMITS_C[0],
                                       SUPPLY_LIMITS_C[1] - s["supply_C"])
     # the explicit layer update: at least the sub-steps the tank needs (often exactly those,
