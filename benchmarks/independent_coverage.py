@@ -1,7 +1,7 @@
 """Coverage and confusion studies on the independent simulator (docs/uncertainty.md).
 
 Runs the project's current tools, exactly as the commands run them (the run is
-written to a CSV holding only the SPEC section 2 columns and read back with the
+written to a CSV holding only the docs/reference.md, section 2 columns and read back with the
 loader, so no tool sees the truth), on runs of the independent simulator
 (:mod:`valve_env.studies.independent`) and, for comparison, of the project's own
 generator (:mod:`valve_env.experiment`):
@@ -73,7 +73,7 @@ def _simulate(case: dict[str, Any]) -> tuple[pd.DataFrame, dict[str, float], dic
 
 
 def _as_measured(df: pd.DataFrame) -> pd.DataFrame:
-    """Write the SPEC section 2 columns to a CSV and read it back with the project's loader."""
+    """Write the docs/reference.md, section 2 columns to a CSV and read it back with the project's loader."""
     from valve_env.data_io import load_run
 
     with tempfile.TemporaryDirectory() as tmp:

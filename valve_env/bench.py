@@ -1,4 +1,4 @@
-"""``thermovalve bench``: the speed figures of SPEC section 6, measured in one run.
+"""``thermovalve bench``: the speed figures of docs/reference.md, section 6, measured in one run.
 
     thermovalve bench [--json OUT.json] [--quick]
 
@@ -490,7 +490,7 @@ def _external(module: str) -> dict[str, Any]:
 
 # -- the whole run ---------------------------------------------------------------------------
 def run_bench(quick: bool = False, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Every figure of SPEC section 6 and issue 4, measured in this process."""
+    """Every figure of docs/reference.md, section 6 and issue 4, measured in this process."""
     say = progress or (lambda _m: None)
     res: dict[str, Any] = {"quick": quick, "machine": machine()}
     t_start = time.perf_counter()
@@ -672,7 +672,7 @@ def register(subparsers: Any) -> None:
     """Add ``thermovalve bench`` to the CLI."""
     p = subparsers.add_parser(
         "bench",
-        help="measure the simulator's speed against gymnasium's anchors (SPEC section 6)",
+        help="measure the simulator's speed against gymnasium's anchors (docs/reference.md, section 6)",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

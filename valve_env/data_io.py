@@ -1,4 +1,4 @@
-"""Measured valve runs (SPEC section 2): loading with validation and clear errors.
+"""Measured valve runs (docs/reference.md, section 2): loading with validation and clear errors.
 
     df = load_run("run.csv")
 
@@ -59,8 +59,8 @@ class DataError(ValueError):
 
 
 def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> pd.DataFrame:
-    """Read and validate a SPEC section 2 CSV file; returns a DataFrame (float columns for
-    the SPEC names, x_mm derived where absent, extra columns kept as read)."""
+    """Read and validate a docs/reference.md, section 2 CSV file; returns a DataFrame (float columns for
+    the reference (docs/reference.md) names, x_mm derived where absent, extra columns kept as read)."""
     p = Path(path)
     if not p.exists():
         raise DataError(f"{p}: no such file")

@@ -186,7 +186,7 @@ def _from_mapping(cls: type, data: Mapping[str, Any] | None) -> Any:
 
 @dataclass(frozen=True)
 class ValveParams:
-    """Self-acting thermostatic valve (SPEC section 1; paper Tables 2-4).
+    """Self-acting thermostatic valve (docs/reference.md, section 1; paper Tables 2-4).
 
     | field | unit | default source | range (why) |
     |---|---|---|---|
@@ -203,11 +203,11 @@ class ValveParams:
     | antoine_A | - | methanol vapour pressure, log10(p/bar) = A - B/(T/K + C); NIST | [2, 8] (NIST fits of fill fluids) |
     | antoine_B | K | as antoine_A | [300, 4000] (NIST fits of fill fluids) |
     | antoine_C | K | as antoine_A | [-150, 50] (NIST fits; keeps T/K + C > 100 K above -20 degC) |
-    | dp_k_sp | MPa | calibration differential pressure, 100 mbar (SPEC default) | [0, 0.5] (0 .. 5 bar) |
-    | dp_s_sp | MPa | calibration static pressure, 2 bar (SPEC default) | [0, 2.5] (0 .. 25 bar, PN25) |
-    | stroke | mm | 2.0 (SPEC default) | [0.1, 50] (small to large valve strokes) |
-    | Kvs | m^3/h | 1.9, Danfoss AVTB DN15 class (SPEC default) | [0.05, 50] (DN10 to DN50 valves) |
-    | leakage | - | 0.0002 = 0.02 % of Kvs (SPEC default) | [0, 0.1] (tight .. 10 % of Kvs, a worn seat) |
+    | dp_k_sp | MPa | calibration differential pressure, 100 mbar (docs/reference.md default) | [0, 0.5] (0 .. 5 bar) |
+    | dp_s_sp | MPa | calibration static pressure, 2 bar (docs/reference.md default) | [0, 2.5] (0 .. 25 bar, PN25) |
+    | stroke | mm | 2.0 (docs/reference.md default) | [0.1, 50] (small to large valve strokes) |
+    | Kvs | m^3/h | 1.9, Danfoss AVTB DN15 class (docs/reference.md default) | [0.05, 50] (DN10 to DN50 valves) |
+    | leakage | - | 0.0002 = 0.02 % of Kvs (docs/reference.md default) | [0, 0.1] (tight .. 10 % of Kvs, a worn seat) |
     """  # noqa: E501
 
     SECTION: ClassVar[str] = "valve"
@@ -267,7 +267,7 @@ class BulbParams:
 
     | field | unit | default source | range (why) |
     |---|---|---|---|
-    | tau_s | s | 40 s, SPEC section 5 (a liquid-filled immersion bulb in still water) | [1, 3600] (a bare probe .. a bulb in a dry pocket) |
+    | tau_s | s | 40 s, docs/reference.md, section 5 (a liquid-filled immersion bulb in still water) | [1, 3600] (a bare probe .. a bulb in a dry pocket) |
     | height | - | relative height of the bulb in the tank, 0 bottom .. 1 top; 0.7 (upper third, a thermostat pocket) | [0, 1] (inside the tank) |
     """  # noqa: E501
 
@@ -293,13 +293,13 @@ class TankParams:
 
     | field | unit | default source | range (why) |
     |---|---|---|---|
-    | volume_l | l | 200 l, SPEC section 5 | [20, 10000] (a small under-sink tank .. a multi-family store) |
-    | n_layers | - | 8 (SPEC asks for at least 6) | [6, 100] (integer; SPEC's minimum .. a fine model) |
-    | coil_layers | - | the coil occupies the lowest n layers: 4 = lower half (SPEC) | [1, 100] (integer, <= n_layers) |
-    | UA_coil | W/K | 800 W/K, SPEC section 5 | [10, 20000] (a small coil .. a large exchanger) |
-    | UA_loss | W/K | 1.9 W/K standing loss, SPEC section 5 (~ 45 W at 60/20 degC, ErP class B for 200 l) | [0, 200] (perfect .. poor insulation of a large tank) |
-    | T_ambient | degC | 20, SPEC section 5 | [0, 50] (a frost-free room, the model has no ice .. a hot plant room) |
-    | T_cold | degC | 10, SPEC section 5 and the EU tapping cycles | [1, 24] (cold mains; below the cycles' lowest draw temperature, 25 degC) |
+    | volume_l | l | 200 l, docs/reference.md, section 5 | [20, 10000] (a small under-sink tank .. a multi-family store) |
+    | n_layers | - | 8 (docs/reference.md asks for at least 6) | [6, 100] (integer; the reference's minimum .. a fine model) |
+    | coil_layers | - | the coil occupies the lowest n layers: 4 = lower half (docs/reference.md) | [1, 100] (integer, <= n_layers) |
+    | UA_coil | W/K | 800 W/K, docs/reference.md, section 5 | [10, 20000] (a small coil .. a large exchanger) |
+    | UA_loss | W/K | 1.9 W/K standing loss, docs/reference.md, section 5 (~ 45 W at 60/20 degC, ErP class B for 200 l) | [0, 200] (perfect .. poor insulation of a large tank) |
+    | T_ambient | degC | 20, docs/reference.md, section 5 | [0, 50] (a frost-free room, the model has no ice .. a hot plant room) |
+    | T_cold | degC | 10, docs/reference.md, section 5 and the EU tapping cycles | [1, 24] (cold mains; below the cycles' lowest draw temperature, 25 degC) |
     | cp | J/(kg K) | 4180, water; the tapping cycles' 4.18 kJ/(kg K) | [1500, 4500] (thermal oils .. water) |
     | rho | kg/l | 1.0, as in the tapping cycles | [0.7, 1.3] (liquids around water's density) |
     | pump_eff | - | 0.3, wire-to-water efficiency of a small circulator (EU 622/2012 EEI range) | [0.01, 1] (an efficiency) |
@@ -316,7 +316,7 @@ class TankParams:
     SECTION: ClassVar[str] = "tank"
 
     volume_l: float = param(200.0, 20.0, 10000.0, "l", "a small under-sink tank .. a multi-family store")
-    n_layers: int = param(8, 6, 100, "-", "SPEC's minimum .. a fine model", kind="int")
+    n_layers: int = param(8, 6, 100, "-", "the reference's minimum .. a fine model", kind="int")
     coil_layers: int = param(4, 1, 100, "-", "within the tank's layers", kind="int")
     UA_coil: float = param(800.0, 10.0, 20000.0, "W/K", "a small coil .. a large exchanger")
     UA_loss: float = param(1.9, 0.0, 200.0, "W/K", "perfect .. poor insulation of a large tank")

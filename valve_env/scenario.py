@@ -37,7 +37,7 @@ class ScenarioParams:
     | stochastic_draws | - | True: seeded variant (start jitter, energy scaling); False: the cycle as tabled | {true, false} |
     | draw_jitter_min | min | standard deviation of each draw's start-time jitter; 20 | [0, 240] (up to 4 h: a day's habits) |
     | draw_energy_cv | - | coefficient of variation of each draw's energy (lognormal); 0.2 | [0, 2] (a draw 0 .. several times its tabled energy) |
-    | supply_C | degC | primary supply temperature; 70 (SPEC section 5) | [1, 130] (district heating up to 130 degC) |
+    | supply_C | degC | primary supply temperature; 70 (docs/reference.md, section 5) | [1, 130] (district heating up to 130 degC) |
     | supply_profile | - | "constant", "daily" (sine, coldest at 15:00), "random" (Ornstein-Uhlenbeck) or "network" (supply_plan plus an OU disturbance of sd supply_noise_K) | {constant, daily, random, network} |
     | supply_amplitude_K | K | amplitude of the daily sine or network plan, or sd of the random profile; 5 | [0, 40] (a daily swing; see below) |
     | supply_tau_h | h | correlation time of the random supply profile and of the network profile's disturbance; 2 | [0.01, 1000] (minutes .. weeks) |

@@ -1,4 +1,4 @@
-"""Shared fixtures of the CLI tests: a short measured run (simulated, SPEC section 2 columns)."""
+"""Shared fixtures of the CLI tests: a short measured run (simulated, docs/reference.md, section 2 columns)."""
 
 from __future__ import annotations
 

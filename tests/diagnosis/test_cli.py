@@ -1,4 +1,4 @@
-"""`thermovalve diagnose`: the SPEC section 4 document, the report, and bad input."""
+"""`thermovalve diagnose`: the docs/reference.md, section 4 document, the report, and bad input."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""thermovalve fit (SPEC section 7): JSON contract, report, config for the environment, bad input."""
+"""thermovalve fit (docs/reference.md, section 7): JSON contract, report, config for the environment, bad input."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""load_run: SPEC section 2 validation with one-line errors; the input file is never changed."""
+"""load_run: docs/reference.md, section 2 validation with one-line errors; the input file is never changed."""
 
 from __future__ import annotations
 

@@ -180,7 +180,7 @@ def test_uneven_sampling_and_missing_openings(small_run: Callable[..., pd.DataFr
 @settings(max_examples=40, deadline=None)
 @given(st.lists(st.floats(-0.05, 0.05), min_size=2, max_size=60), st.floats(0.5, 50.0), st.floats(0.1, 5.0))
 def test_friction_stays_within_bounds(rates: list[float], sigma: float, F_hmax: float) -> None:
-    """|F_h| <= F_hmax along the fast kernel's prediction for any rate sequence (SPEC section 1)."""
+    """|F_h| <= F_hmax along the fast kernel's prediction for any rate sequence (docs/reference.md, section 1)."""
     n = len(rates)
     t = np.arange(n) * 10.0
     v = np.array(rates)

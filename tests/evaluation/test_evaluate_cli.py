@@ -1,4 +1,4 @@
-"""``thermovalve evaluate`` and ``thermovalve demo``: the SPEC section 7 JSON,
+"""``thermovalve evaluate`` and ``thermovalve demo``: the docs/reference.md, section 7 JSON,
 clear errors, no silent loss of user files."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The evaluator: seeds shared across controllers, SPEC section 7 structure,
+"""The evaluator: seeds shared across controllers, docs/reference.md, section 7 structure,
 consistency with a single rollout, output files."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``thermovalve loop-diagnose``: the JSON of SPEC section 10, the report, the output policy, bad input."""
+"""``thermovalve loop-diagnose``: the JSON of docs/reference.md s. 10, the report, the output policy, bad input."""
 
 from __future__ import annotations
 

@@ -61,7 +61,7 @@ def test_quasi_static_sweep_draws_a_loop_0_8_K_wide():
     T_cool = np.interp(0.2, x_down, down)
     width = T_heat - T_cool
     expected = 2 * ValveParams().F_hmax / (ValveParams().A_b * v.vapour_pressure_slope(0.5 * (T_heat + T_cool), VP))
-    assert expected == pytest.approx(0.8, abs=0.05)  # "about 0.8 K" (SPEC); 0.796 K exactly at 57.9 degC
+    assert expected == pytest.approx(0.8, abs=0.05)  # "about 0.8 K" (docs/reference.md); 0.796 K exactly at 57.9 degC
     assert width == pytest.approx(expected, rel=0.02)
     # while heating the friction holds the closing valve more open
     assert T_heat > T_cool

@@ -32,7 +32,7 @@ def test_force_balance_matches_the_project_physics_and_the_paper() -> None:
     a = np.clip(demanded_opening_mm(T, F, 100.0, 2.0, VP.p_bset, VP), 0.0, VP.stroke)
     b = opening(T, F, 100.0, 2.0, VP.p_bset, VP.to_array())
     assert np.max(np.abs(a - b)) < 1e-12
-    assert setpoint_C(VP) == pytest.approx(57.9, abs=0.05)  # SPEC section 1: T_SP = 57.9 degC
+    assert setpoint_C(VP) == pytest.approx(57.9, abs=0.05)  # docs/reference.md, section 1: T_SP = 57.9 degC
     gain = -(demanded_opening_mm(58.4, 0.0, 100.0, 2.0, VP.p_bset, VP)
              - demanded_opening_mm(57.4, 0.0, 100.0, 2.0, VP.p_bset, VP))
     assert gain == pytest.approx(0.167, abs=0.01)  # about 0.167 mm/K at the set point

@@ -1,18 +1,18 @@
 """Diagnosis of a measured run: where the calibrated valve model fails, the named cause, the gain.
 
-The procedure (SPEC section 4), as an expert in grey-box modelling would do it
+The procedure (docs/reference.md, section 4), as an expert in grey-box modelling would do it
 (forward selection with likelihood-ratio tests, Bacher and Madsen 2011), but
 automatic:
 
-1. Read and check the run (SPEC section 2). Estimate the latent temperatures
+1. Read and check the run (docs/reference.md, section 2). Estimate the latent temperatures
    (:mod:`valve_env.diagnosis.engine`).
 2. Split: fit on the first part of the run, hold out the rest for validation
    (``holdout``), or fit on the whole run and validate on ``validate``.
-3. Fit the base model (SPEC section 1) by maximum likelihood and describe its
+3. Fit the base model (docs/reference.md, section 1) by maximum likelihood and describe its
    misfit: residual statistics, autocorrelation, where in time and where in the
    phase diagram (opening against gas temperature, rising or falling) the
    misfit lies, and how it correlates with the signatures of the effects.
-4. Fit every candidate effect (SPEC section 3) on top of the base model and
+4. Fit every candidate effect (docs/reference.md, section 3) on top of the base model and
    rank them: likelihood-ratio statistic with its p-value (chi-square with one
    degree of freedom per added parameter; a 50:50 chi-square(0)/chi-square(1)
    mixture where the null value is on the edge of the parameter space),
@@ -66,7 +66,7 @@ class DiagnosisError(DataError):
 
 # --------------------------------------------------------------------------- input
 def read_run(path: str | os.PathLike[str]) -> pd.DataFrame:
-    """Read and check a measured run (SPEC section 2); raises DiagnosisError with one line.
+    """Read and check a measured run (docs/reference.md, section 2); raises DiagnosisError with one line.
 
     The one loader and validation of :mod:`valve_env.data_io` (the same as ``thermovalve fit``),
     then the diagnosis's own needs (:func:`check_run`: a longer record, a moving opening).
@@ -179,7 +179,7 @@ class Finding:
 
 @dataclass
 class Diagnosis:
-    """The result of :func:`diagnose`; ``to_json()`` is the SPEC section 4 document."""
+    """The result of :func:`diagnose`; ``to_json()`` is the docs/reference.md, section 4 document."""
 
     cause: str
     selected: list[str]
@@ -388,11 +388,11 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
              valve: ValveParams | None = None, max_effects: int = 2, min_validation_gain: float = 2.0,
              min_effect_size: float = 1.0, name: str = "run", bootstrap_B: int = 16,
              progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """Diagnose a measured run (a DataFrame with SPEC section 2 columns). See the module docstring.
+    """Diagnose a measured run (a DataFrame with docs/reference.md, section 2 columns). See the module docstring.
 
     ``validate``: an independent run for validation (else the last ``holdout`` fraction of ``df``
     is held out). ``alpha``: significance level of the likelihood-ratio test. ``effects``:
-    candidate names (default: all of SPEC section 3). ``max_effects``: the most effects forward
+    candidate names (default: all of docs/reference.md, section 3). ``max_effects``: the most effects forward
     selection adds. ``min_validation_gain``: the held-out log-likelihood gain (nats) an effect
     must bring to count as real. ``min_effect_size``: the RMS change of the simulated opening the
     effect must make, in units of the measurement noise sd, to count as relevant (a statistically

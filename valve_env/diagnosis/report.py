@@ -150,7 +150,7 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
     g = j["gain"]
     if d.cause == "none":
         best = d.findings[0] if d.findings else None
-        L += ["**Cause: none.** The calibrated base model (SPEC section 1) is not improved by any named effect "
+        L += ["**Cause: none.** The calibrated base model (docs/reference.md s. 1) is not improved by any named effect "
               "in a way that is both statistically significant and real on held-out data.", ""]
         if best is not None:
             L += [f"Closest candidate: `{best.effect}` (LR = {best.lr_stat:.1f}, p = {best.p_value:.2g}, "

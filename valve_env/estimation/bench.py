@@ -1,4 +1,4 @@
-"""Speed of the estimator (SPEC section 6): likelihood evaluations per second and the wall
+"""Speed of the estimator (docs/reference.md, section 6): likelihood evaluations per second and the wall
 time of a maximum-likelihood fit of the base valve model on 24 h of 10 s data.
 
     from valve_env.estimation.bench import run_bench

@@ -3,7 +3,7 @@
 The base model (:class:`~valve_env.estimation.valve_model.ValveModel`) takes the
 total-variation-denoised tank temperature as an exact input, so the inverse
 Hessian of its likelihood measures only what the noise on the opening does to
-the estimates. The noise on the sensed temperature (SPEC section 2: white,
+the estimates. The noise on the sensed temperature (docs/reference.md, section 2: white,
 0.001-0.05 degC) moves the estimates as well: through the denoised level (the
 force balance, hence ``p_bset``) and, above all, through where the denoised
 temperature reverses (the Dahl friction's reversals, hence ``sigma`` and
@@ -51,7 +51,7 @@ import pandas as pd
 from valve_env.estimation.fit import MLEstimator
 from valve_env.estimation.valve_model import ValveModel, noise_sd
 
-#: the fitted parameters the bootstrap reports on (SPEC section 7's params, and the noise parameters)
+#: the fitted parameters the bootstrap reports on (docs/reference.md, section 7's params, and the noise parameters)
 REPORTED: tuple[str, ...] = ("sigma", "F_hmax", "p_bset", "s_F", "s_x")
 _PREPARED = ("T_tank_s", "v_tank", "T_med_s", "v_med", "t_in")
 
@@ -94,7 +94,7 @@ def temperature_bootstrap(est: MLEstimator, data: pd.DataFrame, *, B: int = 16, 
     """Errors-in-variables standard errors of a fitted base valve model (see the module doc).
 
     ``est`` a fitted :class:`MLEstimator` of a :class:`ValveModel`; ``data`` the run it was
-    fitted to (SPEC section 2 columns); ``B`` bootstrap replicates (each one fit without a
+    fitted to (docs/reference.md, section 2 columns); ``B`` bootstrap replicates (each one fit without a
     Hessian, warm-started); ``T_noise_C`` / ``T_med_noise_C`` the temperature noise sds (default:
     estimated from the data's second differences)."""
     if not hasattr(est, "params_"):

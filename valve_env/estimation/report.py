@@ -26,7 +26,7 @@ _LABELS = {"sigma": ("sigma", "N/K"), "F_hmax": ("F_h,max", "N"), "p_bset": ("p_
 
 def fit_run(data: pd.DataFrame, *, valve: ValveParams | None = None, n_starts: int = 3, seed: int = 0,
             fixed: dict[str, float] | None = None) -> MLEstimator:
-    """Fit the base valve model (SPEC section 1) to a validated run."""
+    """Fit the base valve model (docs/reference.md, section 1) to a validated run."""
     model = ValveModel(valve)
     return MLEstimator(model, n_starts=n_starts, seed=seed, fixed=fixed).fit(data)
 
@@ -36,7 +36,7 @@ def _f(v: float) -> float | None:
 
 
 def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame | None = None) -> dict[str, Any]:
-    """The ``thermovalve fit`` JSON: SPEC section 7 keys first (params holds ValveParams fields only,
+    """The ``thermovalve fit`` JSON: docs/reference.md, section 7 keys first (params holds ValveParams fields only,
     so it can be passed to ``gym.make("ThermoValve-v0", valve=params)``), then extras."""
     sim = est.simulate(data)
     meas = data["x_mm"].to_numpy(dtype=float)
@@ -58,7 +58,7 @@ def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame |
         "converged": bool(est.converged_),
         "identifiability": list(est.identifiability_),
         "fit_time_s": float(est.fit_time_s_),
-        "model": "base valve model, SPEC section 1 (valve_env.estimation.valve_model.ValveModel)",
+        "model": "base valve model, docs/reference.md, section 1 (valve_env.estimation.valve_model.ValveModel)",
     }
     if validation is not None:
         res = est.residuals(validation, standardised=False)["x_mm"].to_numpy()
@@ -109,7 +109,7 @@ def write_report(est: MLEstimator, data: pd.DataFrame, outdir: str | Path, summa
     rep = residual_report(res, inputs)
     whiteness_figure(rep, out / "whiteness.png", title=f"{name}: residual whiteness")
     parts = [f"# Valve fit: {name}", "",
-             "Base valve model (SPEC section 1) by maximum likelihood (extended Kalman filter, "
+             "Base valve model (docs/reference.md, section 1) by maximum likelihood (extended Kalman filter, "
              "valve_env.estimation).", "",
              "## Parameters (cf. the paper's Table 4)", "", table4_markdown(est), "",
              f"log-likelihood {summary['loglik']:.2f}, n = {summary['n']}, "

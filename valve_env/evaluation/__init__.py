@@ -1,5 +1,5 @@
-"""The evaluator: score any controller with SB3's ``predict`` on the SPEC
-section 5 KPIs over seeded episodes (``thermovalve evaluate``, ``thermovalve demo``)."""
+"""The evaluator: score any controller with SB3's ``predict`` on the KPIs of
+docs/reference.md, section 5, over seeded episodes (``thermovalve evaluate``, ``thermovalve demo``)."""
 
 from __future__ import annotations
 

@@ -188,9 +188,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "evaluate", help="score controllers on the SPEC section 5 KPIs over seeded episodes",
+        "evaluate", help="score controllers on the docs/reference.md, section 5 KPIs over seeded episodes",
         description="Run N seeded episodes per controller (the same seeds for all) and report each KPI's mean "
-                    "and std and the return; writes the SPEC section 7 JSON, a markdown table, CSVs and figures.",
+                    "and std and the return; writes the JSON (docs/reference.md s. 7), tables and figures.",
     )
     p.add_argument("--env", default="ThermoValve-v0", help="env id (default ThermoValve-v0)")
     p.add_argument("--controllers", default=None,
@@ -200,7 +200,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "that support the env, without the oracle)")
     p.add_argument("--episodes", type=int, default=10, help="episodes per controller (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed of episode 0; episode i uses seed + i (default 0)")
-    p.add_argument("--json", default=None, metavar="OUT.json", help="write the SPEC section 7 JSON here")
+    p.add_argument("--json", default=None, metavar="OUT.json", help="write the docs/reference.md, section 7 JSON here")
     p.add_argument("--out", default=None, metavar="DIR", help="also write table.md, CSVs and figures into DIR")
     p.add_argument("--config", default=None, metavar="YAML", help="env configuration file (configs/scenarios/*.yaml)")
     p.add_argument("--scenario", default=None, metavar="NAME",

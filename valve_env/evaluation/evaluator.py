@@ -1,5 +1,5 @@
-"""Score any controller (baselines and trained agents alike) on the SPEC
-section 5 KPIs.
+"""Score any controller (baselines and trained agents alike) on the KPIs of
+docs/reference.md, section 5.
 
 Each controller runs the same N seeded episodes: a gymnasium ``SyncVectorEnv``
 of N envs wrapped in ``RecordEpisodeStatistics``, seeded ``seed, seed + 1,
@@ -13,7 +13,7 @@ needs neither stable-baselines3 nor torch; ``tests/agents`` checks that SB3's
 ``evaluate_policy`` over ``DummyVecEnv`` of ``Monitor``-wrapped envs gives the
 same returns.
 
-The summary (:func:`evaluate`) is the SPEC section 7 JSON:
+The summary (:func:`evaluate`) is the docs/reference.md, section 7 JSON:
 ``{"env": ID, "episodes": N, "results": {name: {"return": {"mean", "std"},
 "kpis": {kpi: {"mean", "std"}}}}}``; std is the population standard deviation
 over the episodes (``np.std``, as ``evaluate_policy``).
@@ -165,12 +165,12 @@ def _stat(x: np.ndarray) -> dict[str, float]:
 
 
 def kpi_columns(df: pd.DataFrame) -> list[str]:
-    """The KPI columns of a per-episode table: the SPEC section 5 KPIs, then a task's own."""
+    """The KPI columns of a per-episode table: the docs/reference.md, section 5 KPIs, then a task's own."""
     return [*KPI_NAMES, *(c for c in df.columns if c not in ("episode", "seed", "return", *KPI_NAMES))]
 
 
 def summarise(per_episode: Mapping[str, pd.DataFrame], env_id: str) -> dict[str, Any]:
-    """The SPEC section 7 summary from per-episode tables (a task's KPIs after the section 5 ones)."""
+    """The docs/reference.md, section 7 summary from per-episode tables (a task's KPIs after the section 5 ones)."""
     n = {len(df) for df in per_episode.values()}
     results = {
         name: {"return": _stat(df["return"].to_numpy()),
@@ -214,7 +214,7 @@ def evaluate(
     ``name:key=value`` passes constructor arguments, e.g. ``self_acting:setting_C=60``)
     or a mapping name -> object with SB3's ``predict``. ``env_kwargs`` and
     ``config`` (a YAML path) select the scenario as in ``gym.make``.
-    Returns the SPEC section 7 dict.
+    Returns the docs/reference.md, section 7 dict.
     """
     return evaluate_detailed(controllers, env_id, episodes, seed, env_kwargs, config, controller_kwargs)[0]
 

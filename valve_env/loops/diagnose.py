@@ -157,7 +157,7 @@ def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> S
 
 def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.01,
              heldout: bool = True) -> Diagnosis:
-    """Diagnose one loop record; returns the SPEC section 10 result and the fits behind it."""
+    """Diagnose one loop record; returns the docs/reference.md, section 10 result and the fits behind it."""
     s = settings or select_noise_order(loop)
     if s.dt != loop.dt:
         s = replace(s, dt=loop.dt)

@@ -75,7 +75,7 @@ def _float(text: str, where: str) -> float:
 
 
 def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
-    """Columns of a loop CSV (SPEC section 10) as float arrays, and the tag (the file stem)."""
+    """Columns of a loop CSV (docs/reference.md, section 10) as float arrays, and the tag (the file stem)."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8-sig")

@@ -44,7 +44,7 @@ Noise: temperature channels ``T_noise_C`` (0.001-0.02 degC in the studies),
 flow and pressures relative ``rel_noise`` (paper Table 1: 1.5 %), the opening
 ``x_noise_mm`` (the paper's residual sd, 2.4e-3 mm). Everything is seeded.
 
-Output: a DataFrame with the SPEC section 2 columns (``time_s, T_tank_C, T_med_C,
+Output: a DataFrame with the docs/reference.md, section 2 columns (``time_s, T_tank_C, T_med_C,
 q_kgh, dp_mbar, ps_bar, x_mm``) and ``true_T_tank_C, true_T_med_C, true_T_g_C,
 true_F_h_N, true_x_demand_mm, true_x_mm``; ``attrs`` hold the truth (valve
 parameters, effects, variant, seed).
@@ -63,7 +63,7 @@ from scipy.integrate import solve_ivp
 
 from valve_env.params import ConfigError, ValveParams
 
-#: effect names (SPEC section 3) and their parameters
+#: effect names (docs/reference.md, section 3) and their parameters
 EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
     "sensor_lag": ("tau_s",),
     "medium_temperature": ("beta",),
@@ -78,7 +78,7 @@ COLUMNS: tuple[str, ...] = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar",
 class IndependentRun:
     """One run of the independent simulator (all units in the names).
 
-    ``effects`` maps SPEC section 3 names to their parameters. ``stiction_variant`` one of
+    ``effects`` maps docs/reference.md, section 3 names to their parameters. ``stiction_variant`` one of
     :data:`STICTION_VARIANTS`; ``sj_jump`` J / S of the (S, J) variant; ``force_ratio`` F_c / F_s
     of the force variant."""
 
@@ -138,7 +138,7 @@ def demanded_opening_mm(T_g: np.ndarray, F_h: np.ndarray, dp_mbar: np.ndarray, p
 
 
 def flow_from_opening(x_mm: np.ndarray, dp_mbar: np.ndarray, vp: ValveParams) -> np.ndarray:
-    """q = 31.62 Kv sqrt(dp), Kv = Kvs (l + (1 - l) x / stroke), kg/h (SPEC section 1 default valve)."""
+    """q = 31.62 Kv sqrt(dp), Kv = Kvs (l + (1 - l) x / stroke), kg/h (docs/reference.md, section 1 default valve)."""
     kv = vp.Kvs * (vp.leakage + (1.0 - vp.leakage) * np.clip(x_mm, 0.0, vp.stroke) / vp.stroke)
     return 31.62 * kv * np.sqrt(np.maximum(dp_mbar, 0.0))
 

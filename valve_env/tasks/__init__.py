@@ -46,7 +46,7 @@ class Task:
 
     @property
     def is_original(self) -> bool:
-        """One of the three ids of SPEC section 5 (its own env classes, no task layer)."""
+        """One of the three ids of docs/reference.md, section 5 (its own env classes, no task layer)."""
         return self.env_class is None
 
     def config(self, config: str | Path | EnvConfig | Mapping[str, Any] | None = None, **overrides: Any) -> EnvConfig:
@@ -87,7 +87,7 @@ _STICKY = {"valve": {"effects": {"stiction": {"band_mm": 0.1}}}}
 TASKS: dict[str, Task] = {
     "ThermoValve-v0": Task(
         "ThermoValve-v0", "setting",
-        "the original tank loop (SPEC section 5): a PI holds the outlet within 0.1 K after the first hour",
+        "the original tank loop (docs/reference.md s. 5): a PI holds the outlet within 0.1 K after the first hour",
     ),
     "ThermoValvePressure-v0": Task(
         "ThermoValvePressure-v0", "pressure", "the original tank loop, acting through a variable-speed pump's dp",
@@ -104,7 +104,7 @@ TASKS: dict[str, Task] = {
                 "5 % of the 2 mm stroke, the upper end of the 0.5-5 % of travel reported for industrial valves "
                 "(Choudhury, Thornhill and Shah 2005, Control Eng. Practice 13:641-658; Jelali and Huang 2010, "
                 "Detection and Diagnosis of Stiction in Control Loops, Springer)",
-            "everything else": "ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4)",
+            "everything else": "ThermoValve-v0's defaults (docs/reference.md, section 5, paper Tables 2-4)",
         },
         env_class="ThermoValveStickyValveEnv",
     ),

@@ -223,14 +223,14 @@ class ThermoValveStickyValveEnv(ThermoValveTaskEnv):
 
     ## KPIs
 
-    The SPEC section 5 KPIs; travel_mm and reversals measure the stem's wear.
+    The docs/reference.md, section 5 KPIs; travel_mm and reversals measure the stem's wear.
 
     ## Physical parameters (sources: docs/tasks.md)
 
     | parameter | value | source |
     |---|---|---|
     | stiction band_mm | 0.1 mm (jump = band) | 0.5-5 % of travel: Choudhury et al. 2005; Jelali, Huang 2010 |
-    | everything else | | ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4) |
+    | everything else | | ThermoValve-v0's defaults (docs/reference.md, section 5, paper Tables 2-4) |
 
     ## Version history
 
@@ -272,7 +272,7 @@ class ThermoValveSmallCylinderEnv(ThermoValveTaskEnv):
 
     ## KPIs
 
-    The SPEC section 5 KPIs (rmse_K, iae_Kh, tdis_Kh, unmet_kWh, heat_kWh,
+    The docs/reference.md, section 5 KPIs (rmse_K, iae_Kh, tdis_Kh, unmet_kWh, heat_kWh,
     pump_kWh, return_C, travel_mm, reversals) in ``info["kpis"]`` at the
     episode's end.
 
@@ -283,7 +283,7 @@ class ThermoValveSmallCylinderEnv(ThermoValveTaskEnv):
     | tank.volume_l | 50 l | the seed paper's "small hot water cylinders", 30-80 l |
     | tank.UA_loss | 0.9 W/K | 40 W at 45 K: class B limit for 50 l, Regulation (EU) 812/2013 |
     | scenario.tapping_profile | L | Regulation (EU) 814/2013 Annex III |
-    | everything else | | ThermoValve-v0's defaults (SPEC section 5, paper Tables 2-4) |
+    | everything else | | ThermoValve-v0's defaults (docs/reference.md, section 5, paper Tables 2-4) |
 
     ## Version history
 
@@ -334,7 +334,7 @@ class ThermoValveDistrictHeatingEnv(ThermoValveTaskEnv):
 
     ## KPIs
 
-    The SPEC section 5 KPIs plus ``cost_eur`` (the day's bill),
+    The docs/reference.md, section 5 KPIs plus ``cost_eur`` (the day's bill),
     ``energy_cost_eur``, ``return_tariff_eur`` and ``mean_price_eur_MWh``
     (the heat-weighted price paid).
 
