@@ -330,8 +330,9 @@ def _make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = Non
     built: dict[str, Any] = {"effects": start.effects}
     if "valve" in sections and isinstance(sections["valve"], Mapping) and "effects" in sections["valve"]:
         # the valve's named effects (docs/reference.md, "The valve file"), checked against the registry
-        sections["valve"] = dict(sections["valve"])
-        built["effects"] = parse_effects(sections["valve"].pop("effects"))
+        valve_section = dict(sections["valve"])
+        built["effects"] = parse_effects(valve_section.pop("effects"))
+        sections["valve"] = valve_section
     for name, cls in SECTIONS.items():
         current = getattr(start, name)
         if name in sections:

@@ -119,7 +119,8 @@ def fx_extra_drift(t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray, c: np.
 
 #: each effect's parameter for the estimator, from the registry (valve_env.effects: start, bounds, transform)
 _PARAMS: dict[str, Parameter] = {
-    name: Parameter(p.name, p.sde_init, p.sde_lower, p.sde_upper, p.transform, unit=p.unit, doc=p.doc)
+    name: Parameter(p.name, p.sde_init, p.sde_lower, p.sde_upper, p.transform,  # type: ignore[arg-type]
+                    unit=p.unit, doc=p.doc)
     for name, eff in REGISTRY.items() for p in eff.parameters
 }
 #: the SDE hooks above, by effect: the extra state each adds (None: none) and its constants slot

@@ -28,7 +28,9 @@ def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, wa
     if band_mm is not None:
         kw["valve"] = {"effects": {"stiction": {"band_mm": band_mm}}}
     env = gym.make(ENV_ID, **kw)
-    lo, hi = float(env.action_space.low[0]), float(env.action_space.high[0])
+    space = env.action_space
+    assert isinstance(space, gym.spaces.Box)
+    lo, hi = float(space.low[0]), float(space.high[0])
     ctrl = PIController(ENV_ID)
     obs, _ = env.reset(seed=seed)
     state = None

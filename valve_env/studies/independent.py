@@ -127,7 +127,7 @@ def vapour_pressure_MPa(T_C: np.ndarray | float, vp: ValveParams) -> np.ndarray:
     return 0.1 * 10.0 ** (vp.antoine_A - vp.antoine_B / (np.asarray(T_C, dtype=float) + 273.15 + vp.antoine_C))
 
 
-def demanded_opening_mm(T_g: np.ndarray, F_h: np.ndarray, dp_mbar: np.ndarray, ps_bar: np.ndarray,
+def demanded_opening_mm(T_g: np.ndarray, F_h: np.ndarray, dp_mbar: np.ndarray | float, ps_bar: np.ndarray | float,
                         p_bset: np.ndarray | float, vp: ValveParams) -> np.ndarray:
     """The unclipped force-balance opening (paper eq. 16), mm; pressures converted to MPa."""
     dpk = np.asarray(dp_mbar, dtype=float) * 1e-4

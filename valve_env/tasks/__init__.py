@@ -69,11 +69,11 @@ class Task:
         }[self.mode]
 
 
-_SMALL = {
+_SMALL: dict[str, Mapping[str, Any]] = {
     "tank": {"volume_l": 50.0, "UA_loss": 0.9},
     "scenario": {"tapping_profile": "L"},
 }
-_DH = {
+_DH: dict[str, Mapping[str, Any]] = {
     "scenario": {
         "supply_profile": "network", "supply_C": 75.0, "supply_amplitude_K": 5.0, "supply_noise_K": 1.5,
         "supply_tau_h": 1.0,

@@ -21,7 +21,7 @@ from gymnasium.vector.utils import batch_space
 from valve_env.envs.thermovalve import OBS_NAMES, SimState, ThermoValveEnv
 from valve_env.envs.vector import ThermoValveVectorEnv
 from valve_env.params import ConfigError
-from valve_env.tasks import get_task
+from valve_env.tasks import Task, get_task
 from valve_env.tasks.layers import TaskLayer, make_layer
 
 
@@ -63,6 +63,8 @@ class ThermoValveTaskEnv(ThermoValveEnv):
     the task's EnvConfig with ``config`` and ``overrides`` applied as in
     ``gym.make``; ``tariff`` overrides the district-heating layer's parameters.
     """
+
+    task: Task  # set from the task id by _task_config
 
     task_id: ClassVar[str] = ""
 
@@ -124,6 +126,8 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
     seeding and autoreset), plus the task layer computed on the kernel's step
     outputs of all envs at once; ``info["kpis"]`` carries the task KPIs.
     """
+
+    task: Task  # set from the task id by _task_config
 
     task_id: ClassVar[str] = ""
 

@@ -129,7 +129,9 @@ class DistrictHeatingLayer(TaskLayer):
         self.scenario = scenario
         self.dt_s = float(dt_s)
         hs = [f"{h:g}h" for h in tariff.forecast_h]
-        self.obs_names = ("price_eur_MWh", *(f"price_{h}_eur_MWh" for h in hs), *(f"supply_plan_{h}_C" for h in hs))
+        # per instance: the tariff's forecast hours
+        self.obs_names = (  # type: ignore[misc]
+            "price_eur_MWh", *(f"price_{h}_eur_MWh" for h in hs), *(f"supply_plan_{h}_C" for h in hs))
         # the price of every step of a day, tabled (the price repeats daily)
         per_day = int(round(86400.0 / self.dt_s))
         self._price = tariff.price(np.arange(per_day) * self.dt_s)
