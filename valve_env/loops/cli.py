@@ -3,16 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 from typing import Any
 
-EXIT_BAD_INPUT = 2
-
-
-def _fail(msg: str) -> int:
-    print(f"thermovalve: error: {msg}", file=sys.stderr)
-    return EXIT_BAD_INPUT
+from valve_env.cli import add_force, check_range
 
 
 def register(subparsers: Any) -> None:
@@ -27,36 +20,35 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
     p.add_argument("--report", metavar="DIR", default=None, help="write report.md and figures into DIR")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level of the likelihood-ratio test")
-    p.add_argument("--force", action="store_true", help="replace existing outputs")
+    add_force(p)
     p.set_defaults(func=_cmd)
 
 
 def _cmd(args: argparse.Namespace) -> int:
+    """Bad input raises (LoopDataError, OutputError, UsageError): valve_env.cli's shared handler prints
+    one line and exits 2; the outputs are declared up front and written together."""
     from valve_env.loops.diagnose import diagnose
-    from valve_env.loops.io import LoopDataError, read_loop
-    from valve_env.outputs import OutputError, OutputSet
+    from valve_env.loops.io import read_loop
+    from valve_env.outputs import OutputSet, json_text
 
-    if not 0 < args.alpha < 0.5:
-        return _fail(f"--alpha must be in (0, 0.5), got {args.alpha}")
+    check_range("--alpha", args.alpha, 0.0, 0.5, lo_open=True, hi_open=True)
     outs = OutputSet(inputs=[args.loop], force=args.force)
-    try:
-        json_path = outs.add(args.json_out, "--json")
-        report_dir = None
-        if args.report is not None:
-            from valve_env.loops.report import FIGURES
-            report_dir = outs.add_dir(args.report, "--report")
-            for name in (*FIGURES, "report.md"):
-                outs.add(report_dir / name, "report file")
-        loop = read_loop(args.loop)
-        diag = diagnose(loop, alpha=args.alpha)
-        outs.write_text(json_path, json.dumps(diag.result, indent=2, default=float) + "\n")
+    json_path = outs.add(args.json_out, "--json")
+    report_dir = None
+    if args.report is not None:
+        from valve_env.loops.report import FIGURES
+
+        report_dir = outs.add_dir(args.report, "--report")
+        for name in (*FIGURES, "report.md"):
+            outs.add(report_dir / name, "report file")
+    loop = read_loop(args.loop)
+    diag = diagnose(loop, alpha=args.alpha)
+    with outs:
+        outs.write_text(json_path, json_text(diag.result))
         if report_dir is not None:
             from valve_env.loops.report import write_report
+
             write_report(diag, outs, report_dir)
-        outs.commit()
-    except (LoopDataError, OutputError) as exc:
-        outs.discard()
-        return _fail(str(exc))
     R = diag.result
     band = ""
     if "stiction" in R:
