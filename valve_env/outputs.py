@@ -91,16 +91,29 @@ def check_output_dir(path: PathLike, inputs: Iterable[PathLike | None] = (), for
 
 
 @contextlib.contextmanager
-def atomic_path(path: PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it is renamed onto ``path``, on
-    failure removed. Use for writers that want a file name (``savefig``, ``to_csv``)."""
-    p = Path(path)
+def _temp_beside(p: Path) -> Iterator[Path]:
+    """A new temporary file beside ``p`` (same directory, so a rename onto ``p`` is atomic), fsynced
+    when the block succeeds and removed when it raises."""
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
     os.close(fd)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
         _fsync(tmp_path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp_path.unlink()
+        raise
+
+
+@contextlib.contextmanager
+def atomic_path(path: PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it is renamed onto ``path``, on
+    failure removed. Use for writers that want a file name (``savefig``, ``to_csv``)."""
+    p = Path(path)
+    with _temp_beside(p) as tmp_path:
+        yield tmp_path
+    try:
         os.replace(tmp_path, p)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -228,16 +241,8 @@ class OutputSet:
         p = Path(path)
         if not any(_same_file(p, q) or p == q for q in self._declared):
             self.add(p)
-        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
-        os.close(fd)
-        tmp_path = Path(tmp)
-        try:
+        with _temp_beside(p) as tmp_path:
             writer(tmp_path)
-            _fsync(tmp_path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                tmp_path.unlink()
-            raise
         old = self._staged.pop(p, None)
         if old is not None:
             with contextlib.suppress(OSError):
