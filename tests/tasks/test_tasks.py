@@ -149,3 +149,27 @@ def test_batched_equals_single_with_sensor_noise_on_the_forecast_task() -> None:
         np.testing.assert_allclose(r1, r2, rtol=1e-9)
     layer = native.layer
     np.testing.assert_allclose(o1[:, 12], layer.price_at(native.step_index), rtol=1e-6)  # forecasts are exact
+
+
+@pytest.mark.parametrize("task_id", ["ThermoValve-v0", "ThermoValveDistrictHeating-v0"])
+def test_plan_step_follows_step_from_a_snapshot(task_id: str) -> None:
+    """The oracle's lean step (plan_step) gives the same plant observations and rewards, task
+    terms included, as step() from the same snapshot, and ends where a real episode ends."""
+    env = gym.make(task_id, control={"horizon_h": 0.25})
+    env.reset(seed=3)
+    for _ in range(10):
+        env.step(np.array([58.0], np.float32))
+    st = env.unwrapped.get_state()
+    a = np.array([[55.0], [62.0], [70.0]])
+    ref = gym.make_vec(task_id, num_envs=3, vectorization_mode="vector_entry_point", control={"horizon_h": 0.25})
+    lean = gym.make_vec(task_id, num_envs=3, vectorization_mode="vector_entry_point", control={"horizon_h": 0.25})
+    for v in (ref, lean):
+        v.reset(seed=0)
+        v.set_state(st)
+    for _ in range(30 - 10):
+        o_ref, r_ref, *_ = ref.step(a)
+        o, r = lean.plan_step(a)
+        np.testing.assert_array_equal(o, o_ref[:, : sim.N_OBS])
+        np.testing.assert_array_equal(r, r_ref)
+    with pytest.raises(RuntimeError, match="ended"):
+        lean.plan_step(a)

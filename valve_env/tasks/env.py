@@ -190,6 +190,23 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
         """The task KPIs of env i's episode so far."""
         return self.layer.kpis(self._TACC[i])
 
+    def set_state(self, st: SimState, envs: Any = None) -> None:
+        super().set_state(st, envs)
+        idx = self._all_idx[envs] if envs is not None else self._all_idx
+        acc = getattr(st, "task_acc", None)
+        self._TACC[idx] = 0.0 if acc is None else np.asarray(acc, dtype=float)
+
+    def plan_step(self, actions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`ThermoValveVectorEnv.plan_step`, the rewards with the task layer's terms
+        (the observations are the plant's 12 columns, without the layer's)."""
+        k_before = self._K.copy()
+        obs, rewards = super().plan_step(actions)
+        if self.layer.n_acc:
+            r_add, acc = self.layer.step(k_before, self._OUT, self._dt_s)
+            self._TACC += acc
+            return obs, rewards + r_add
+        return obs, rewards
+
 
 # -- the tasks' spec sheets -------------------------------------------------------------
 

@@ -136,6 +136,15 @@ class DistrictHeatingLayer(TaskLayer):
         per_day = int(round(86400.0 / self.dt_s))
         self._price = tariff.price(np.arange(per_day) * self.dt_s)
         self._per_day = per_day
+        # the observation's forecast columns of every step of a day, tabled likewise (the
+        # operator's plan repeats daily): looked up per step, not recomputed
+        steps = np.array([int(round(h * 3600.0 / self.dt_s)) for h in tariff.forecast_h], np.int64)
+        grid = np.arange(per_day, dtype=np.int64)
+        self._obs_table = np.concatenate([
+            self._price[:, None],
+            self._price[(grid[:, None] + steps[None, :]) % per_day],
+            supply_plan(scenario, ((grid[:, None] + steps[None, :]) % per_day) * self.dt_s),
+        ], axis=1).astype(np.float32)
 
     def obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         m = len(self.tariff.forecast_h)
@@ -166,12 +175,7 @@ class DistrictHeatingLayer(TaskLayer):
         }
 
     def observation(self, k: np.ndarray) -> np.ndarray:
-        k = np.asarray(k, dtype=np.int64)
-        cols = [self.price_at(k)]
-        steps = [int(round(h * 3600.0 / self.dt_s)) for h in self.tariff.forecast_h]
-        cols += [self.price_at(k + s) for s in steps]
-        cols += [supply_plan(self.scenario, (k + s) * self.dt_s) for s in steps]
-        return np.stack(cols, axis=1).astype(np.float32)
+        return self._obs_table[np.asarray(k, dtype=np.int64) % self._per_day]
 
 
 def make_layer(name: str | None, params: Mapping[str, Any], scenario: ScenarioParams, dt_s: float) -> TaskLayer:
