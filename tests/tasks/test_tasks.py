@@ -92,10 +92,12 @@ def test_batched_equals_single_across_autoresets(task_id: str) -> None:
 
 
 def test_district_heating_bill_by_hand() -> None:
-    """The bill in info['kpis'] is the price times the heat, plus 1 % per K of return above 40 degC."""
+    """The bill in info['kpis'] is the price times the heat, plus 1 % per K of return above 40 degC,
+    plus the stored heat's change settled at the mean price at the end."""
     env = gym.make("ThermoValveDistrictHeating-v0", **SHORT)
     layer = env.unwrapped.layer
     env.reset(seed=2)
+    E0 = env.unwrapped.stored_energy_J()
     energy = tariff = 0.0
     total_r = 0.0
     for k in range(120):
@@ -109,7 +111,9 @@ def test_district_heating_bill_by_hand() -> None:
     kp = info["kpis"]
     assert kp["energy_cost_eur"] == pytest.approx(energy, rel=1e-9)
     assert kp["return_tariff_eur"] == pytest.approx(tariff, rel=1e-9)
-    assert kp["cost_eur"] == pytest.approx(energy + tariff, rel=1e-9) and energy > 0
+    settle = 80.0 * (E0 - env.unwrapped.stored_energy_J()) / 3.6e9
+    assert kp["storage_settlement_eur"] == pytest.approx(settle, rel=1e-9) and settle < 0  # 70 degC: a surplus
+    assert kp["cost_eur"] == pytest.approx(energy + tariff + settle, rel=1e-9) and energy > 0
 
 
 def test_district_heating_price_and_network_swing() -> None:

@@ -101,6 +101,13 @@ class OracleSettings:
                 raise ValueError(f"oracle {name} must be finite and > 0, got {v!r}")
 
 
+#: per task, the settings that replace the stored ones (docs/controllers.md, "oracle"): on the
+#: district-heating task the bill rewards buying heat hours before it is drawn, beyond a 1 h horizon
+TASK_SETTINGS: dict[str, dict[str, Any]] = {
+    "ThermoValveDistrictHeating-v0": {"horizon_steps": 480, "block_steps": 40, "replan_steps": 20},
+}
+
+
 class OracleNotBoundError(RuntimeError):
     """``predict`` was called before :meth:`Oracle.bind_envs`."""
 
@@ -119,7 +126,7 @@ class Oracle(Controller):
         super().__init__(env_id)
         from valve_env.controllers.compensators import _stored
 
-        self.settings = OracleSettings(**{**_stored(env_id, self.name), **settings})
+        self.settings = OracleSettings(**{**_stored(env_id, self.name), **TASK_SETTINGS.get(env_id, {}), **settings})
         s = self.settings
         self.horizon = int(s.horizon_steps)
         self.base = PIController(env_id)
