@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from valve_env.loops.detectors import HORCH_MIN_HALF_PERIOD, HORCH_ODD_DEG, horch
 from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
     VALVE_EXTRA_PARAMS,
@@ -190,12 +191,18 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     nonlin = min((fd for fd in findings if fd["candidate"] != "linear"), key=lambda fd: fd["delta_bic"])
     gain = _heldout_gain(loop, nonlin["candidate"], s) if heldout else math.nan
     nonlin["heldout_loglik_gain"] = gain
-    justified = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
-                 and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
+    by_likelihood = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
+                     and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
+    # the shape evidence: Horch's CCF test on the same loop (PV increments for an integrating process)
+    shape = horch(loop, integrating=lin.process.integrating)
+    by_shape = bool(shape["phase_signed_deg"] > HORCH_ODD_DEG
+                    and shape["tau_r"] + shape["tau_l"] >= HORCH_MIN_HALF_PERIOD)
+    justified = by_likelihood or by_shape
     osc = oscillation(loop.pv - loop.sp, loop.dt)
     sim_lin = simulate(loop.op, lin.process)
     r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
     result: dict[str, Any] = {"cause": "none"}
+    band_note = ""
     fit = fits[nonlin["candidate"]]
     if justified:
         result["cause"] = "stiction"
@@ -207,7 +214,11 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "jump_pct": fit.J,
             "kind": "deadband (backlash, J = 0)" if nonlin["candidate"] == "backlash" else "stick-slip",
             "model": nonlin["candidate"],
+            "resolved_by_likelihood": bool(nonlin["p_value"] < alpha),
         }
+        if nonlin["p_value"] >= alpha:
+            band_note = ("the likelihood does not resolve the band (adjusted LR p = "
+                         f"{nonlin['p_value']:.2g}): named from the cross-correlation's shape, the band is weak")
     elif osc["oscillating"]:
         result["cause"] = "aggressive_tuning" if r2 > 0.5 else "external_oscillation"
     result["findings"] = findings
@@ -217,12 +228,18 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "neff_factor": f,
         "heldout_loglik_gain": gain,
         "justified": bool(justified),
+        "by_likelihood": bool(by_likelihood),
+        "by_shape": by_shape,
+        "shape": {k: shape[k] for k in ("statistic", "phase_signed_deg", "ratio", "tau_r", "tau_l", "integrating",
+                                        "verdict")},
     }
     result["oscillation"] = {**osc, "linear_sim_r2": r2}
     result["loop"] = {"tag": loop.tag, "source": loop.source, "n_samples": loop.n, "dt_s": loop.dt,
                       "op_range_pct": [float(loop.op.min()), float(loop.op.max())],
                       "process": lin.process.describe(s.dt)}
     result["notes"] = list(loop.notes)
+    if justified and nonlin["p_value"] >= alpha:
+        result["notes"].append(band_note)
     return Diagnosis(result, fits, s, loop, f)
 
 
