@@ -13,6 +13,14 @@ the HAC-sandwich ones (delta method to the natural scale); they ignore the
 smoothing error of the temperatures and are optimistic, so the diagnosis
 replaces them for the named effects by a model-based bootstrap
 (:mod:`valve_env.diagnosis.uncertainty`).
+
+This is the output-error back-end of the identification framework
+(docs/estimation.md, "Architecture"): the data container is
+:class:`valve_env.estimation.data.RunData`, the parameters and their
+transforms are :mod:`valve_env.estimation.model`'s, the standard errors
+:func:`valve_env.estimation.covariance.hessian_sandwich_sd`; the scikit-learn
+style front is ``ValveEstimator(effects, likelihood="output_error")``
+(:mod:`valve_env.estimation.estimator`).
 """
 
 from __future__ import annotations

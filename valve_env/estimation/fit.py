@@ -26,6 +26,8 @@ import numpy as np
 import pandas as pd
 import scipy.optimize
 
+from valve_env.estimation.base import Estimator
+from valve_env.estimation.base import NotFittedError as NotFittedError  # re-exported: raised by predict etc.
 from valve_env.estimation.covariance import fd_hessian, identified_directions
 from valve_env.estimation.filters import Arrays, FilterResult, rts_smooth, run_filter, to_arrays
 from valve_env.estimation.model import Parameter, SDEModel, dnat_dwork, from_work, to_work, work_bounds
@@ -33,10 +35,6 @@ from valve_env.estimation.model import Parameter, SDEModel, dnat_dwork, from_wor
 
 class IdentifiabilityWarning(UserWarning):
     """The data do not identify some parameters (flat or singular likelihood)."""
-
-
-class NotFittedError(RuntimeError):
-    """The estimator is used before ``fit``."""
 
 
 def negloglik(model: SDEModel, params: Mapping[str, float] | np.ndarray | None, data: pd.DataFrame | Arrays, *,
@@ -55,7 +53,7 @@ def negloglik(model: SDEModel, params: Mapping[str, float] | np.ndarray | None, 
         return float("inf")
 
 
-class MLEstimator:
+class MLEstimator(Estimator):
     """Maximum-likelihood estimator of a continuous-discrete stochastic model.
 
     Parameters: ``n_starts`` optimiser starts (the first at the parameters'
@@ -291,10 +289,6 @@ class MLEstimator:
         return H
 
     # ------------------------------------------------------------------ outputs
-    def _check(self) -> None:
-        if not hasattr(self, "params_"):
-            raise NotFittedError("call fit(data) first")
-
     def _run(self, data: pd.DataFrame | Arrays | None, mask_outputs: tuple[str, ...] = ()) -> tuple[Arrays,
                                                                                                     FilterResult]:
         self._check()
