@@ -247,20 +247,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         stepping = ~resetting if any_reset else self._all_envs
         A_in = A_in.reshape(n, adim)
         clipped = self._clipped
-        args = (
-            self._Z, self._OBS, self._INFO, self._vp, self._pp, self._RK, self._RV, self._CUR, self._NRUN, self._ROW,
-            self._NEXT, self._K,
-            A_in, self._bounds, self._A, clipped, self._mode_code, self._SD, stepping,
-        )
-        if n >= self.parallel_threshold:
-            # blocks of ``block_size`` envs, scheduled statically: each thread gets
-            # the same blocks every step, so their rows stay in its core's cache
-            # (dynamic scheduling moved blocks between cores: 5-10 % slower)
-            bad = sim.env_step_batch(*args, self.block_size)
-        else:
-            bad = sim.env_step_batch_serial(*args, self.block_size)
-        if bad >= 0:
-            raise ValueError(f"action must be finite, got {A_in[bad].tolist()} for env {bad}")
+        bad = self._kernel_step(A_in, stepping)
         truncated = self._K >= self._limit
         if any_reset:
             truncated &= stepping
@@ -301,18 +288,27 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         A_in = np.asarray(actions, dtype=np.float64).reshape(n, adim)
         if bool((self._K >= self._limit).any()):
             raise RuntimeError("plan_step: some env's episode has ended; load a snapshot with set_state()")
+        self._kernel_step(A_in, self._all_envs)
+        return self._OBS, self._R
+
+    def _kernel_step(self, A_in: np.ndarray, stepping: np.ndarray) -> int:
+        """One kernel call on the envs ``stepping`` with actions ``A_in`` (n, act_dim): the kernel's
+        flag (-1 fine, -2 some action clipped); a non-finite action raises."""
         args = (
             self._Z, self._OBS, self._INFO, self._vp, self._pp, self._RK, self._RV, self._CUR, self._NRUN, self._ROW,
             self._NEXT, self._K,
-            A_in, self._bounds, self._A, self._clipped, self._mode_code, self._SD, self._all_envs,
+            A_in, self._bounds, self._A, self._clipped, self._mode_code, self._SD, stepping,
         )
-        if n >= self.parallel_threshold:
+        if self.num_envs >= self.parallel_threshold:
+            # blocks of ``block_size`` envs, scheduled statically: each thread gets
+            # the same blocks every step, so their rows stay in its core's cache
+            # (dynamic scheduling moved blocks between cores: 5-10 % slower)
             bad = sim.env_step_batch(*args, self.block_size)
         else:
             bad = sim.env_step_batch_serial(*args, self.block_size)
         if bad >= 0:
             raise ValueError(f"action must be finite, got {A_in[bad].tolist()} for env {bad}")
-        return self._OBS, self._R
+        return int(bad)
 
     def render(self) -> None:
         return None
