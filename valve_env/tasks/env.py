@@ -198,8 +198,8 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
         """The task KPIs of env i's episode so far."""
         return self.layer.kpis(self._TACC[i])
 
-    def set_state(self, st: SimState, envs: Any = None) -> None:
-        super().set_state(st, envs)
+    def set_state(self, st: SimState, envs: Any = None, rng: bool = True) -> None:
+        super().set_state(st, envs, rng)
         idx = self._all_idx[envs] if envs is not None else self._all_idx
         acc = getattr(st, "task_acc", None)
         self._TACC[idx] = 0.0 if acc is None else np.asarray(acc, dtype=float)
