@@ -26,6 +26,8 @@ from scipy.optimize import least_squares, minimize
 
 from valve_env.diagnosis.effects import EFFECTS, ENGINE_INDEX, N_EFFECT_PARAMS, EffectParameter
 from valve_env.diagnosis.engine import (
+    BAND_SPREAD,
+    LANDING_SD,
     ou_loglik,
     simulate_valve,
     smooth_temperature,
@@ -128,6 +130,9 @@ class Model:
         self.eff_params = [p for e in self.effects for p in EFFECTS[e].parameters]
         self.names = [n for n, *_ in BASE_PARAMS] + [p.name for p in self.eff_params] + [n for n, *_ in NOISE_PARAMS]
         self._vp = self.valve.to_array()
+        #: the stick-slip filter's breakaway spread and landing sd, relative to the band
+        self.band_spread = BAND_SPREAD
+        self.landing_sd = LANDING_SD
         #: after the fit with the band measured from the slips, profile it by the likelihood (see fit)
         self.profile_band = PROFILE_BAND
 
@@ -210,7 +215,8 @@ class Model:
             mask = np.ones(len(data), dtype=np.bool_)
         if stuck:
             return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),
-                                values["s_w"], values["s_e"], values["tau_e"], mask)
+                                values["s_w"], values["s_e"], values["tau_e"], mask, self.band_spread,
+                                self.landing_sd)
         return ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
 
     def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None) -> float:
