@@ -24,10 +24,10 @@ automatic:
    data (the held-out log-likelihood rises by more than ``min_validation_gain``
    and the held-out one-step RMS does not rise). Otherwise the cause is
    ``none``. Stiction (``variance_gain``) acts in sparse events (a slip per
-   reversal of the demand): it is exempt from the RMS condition, its held-out
-   part must only not speak against it when it does not gain ``min_validation_gain``
-   (no held-out log-likelihood lost, no larger held-out simulation error), and
-   its relevance is measured over the samples where it moves the opening
+   reversal of the demand): it is exempt from the RMS condition, it is validated
+   where the held-out log-likelihood gains more than ``min_validation_gain`` *or*
+   the held-out open-loop simulation error falls, and its relevance is measured
+   over the samples where it moves the opening
    (:func:`effect_size`). Where
    several candidates pass, the best is the one with the largest held-out
    log-likelihood gain (:func:`rank_key`); the others are ranked by delta BIC.
@@ -323,9 +323,11 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         # 11 h at 20 s in the small randomised study), of which the held-out quarter holds one or two, and
         # between events the one-step predictor of the base model catches up with a resting stem within a
         # sample or two: a right model can gain nothing there (0.1 on that run, against an in-sample
-        # LR of 262). The held-out part must then not speak against it: no loss of log-likelihood and no
-        # larger held-out simulation error (the open-loop opening, where the dead zones show)
-        f.validated = f.validation_loglik_gain > min_gain or (f.validation_loglik_gain >= 0.0 and v_sim <= ref_val[2])
+        # LR of 262), and the filter's one-step predictions fail now and then at a slip (a slip caught a
+        # few samples late costs tens of log-units: -65 held out on a 5 s run whose held-out simulation
+        # error fell from 5.8 to 4.1 um). It is validated where either held-out measure says it is real:
+        # the log-likelihood gains, or the open-loop simulation error (where the dead zones show) falls
+        f.validated = f.validation_loglik_gain > min_gain or v_sim < ref_val[2]
     else:
         f.validated = f.validation_loglik_gain > min_gain and v_rms <= ref_val[0]
     return f

@@ -549,6 +549,12 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     probability that the stem has slipped since it last stuck passes ``DECIDE_MOVING``, the filter decides that
     it moves and lets it follow the demand's increments until the demand stops or reverses
     (decision-directed). Where the stem sticks, ``s`` is unchanged and the measurements pin it down.
+    "Stops or reverses" is judged on the demand freed of its noise's reversals (:func:`stick_demand`),
+    as in :func:`stick_simulate`. A measurement that says much more clearly (log-likelihood ratio above
+    ``STUCK_LLR``) that the stem stayed where it stuck overturns the decision that it moves; one that
+    says as clearly that a stem which moved at the last sample stayed there since re-sticks it there:
+    a valve that re-sticks after every slip (a staircase) or at a pause of the demand is followed as
+    well as an (S, J) one (docs/diagnosis.md, "The (S, J) stick-slip").
 
     The breakaway probability is a first-passage hazard: a stem that has stuck while the demand
     was ``dmax`` away has a band larger than ``dmax``, so it slips in this sub-step with
