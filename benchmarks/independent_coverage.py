@@ -23,6 +23,7 @@ Run i of a study uses ``numpy.random.default_rng([seed, i])``.
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 16 --workers 2 \
         --json out/indep_base.json
     python benchmarks/independent_coverage.py --study effects --runs 2 --workers 2 --json out/indep_effects.json
+    python benchmarks/independent_coverage.py --study effects --only stiction --runs 3 --seed 777 --json out/s.json
     python benchmarks/independent_coverage.py --study base --generator project --runs 30 --json out/proj_base.json
 """
 
@@ -241,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=None, help="override the study seed (default: the fixed one)")
     ap.add_argument("--json", dest="json_out", default=None)
+    ap.add_argument("--only", default="", help="effects study: only the runs of these effects (comma-separated "
+                    "names, e.g. stiction: one run per stick-slip variant); run i keeps its seed")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     seed = args.seed if args.seed is not None else SEEDS[(args.study, args.generator)]
@@ -251,6 +254,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermovalve: error: {exc}", file=sys.stderr)
         return 2
     cs = cases(args.study, args.generator, args.runs, args.eiv_B, seed)
+    if args.only:
+        cs = [c for c in cs if c["effect"] in args.only.split(",")]
     fn = run_base if args.study == "base" else run_effects
     t0 = time.perf_counter()
     print(f"{args.study} study on the {args.generator} generator: {len(cs)} runs, seed {seed}, "

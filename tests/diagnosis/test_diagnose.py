@@ -132,9 +132,6 @@ def test_validation_run(tmp_path: Path) -> None:
     assert d.settings["n_validation"] == len(b)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 17, known and reported: under the (S, J) stick-slip the 11 h, 20 s "
-                   "stiction run of this study has 6 slips; stiction is significant in-sample (p=4.5e-07) but "
-                   "its held-out prediction is worse, so it is not named")
 def test_small_randomised_study() -> None:
     """One run of each class, with random sizes, sampling, noise and length; all named correctly."""
     rng = np.random.default_rng(2026)

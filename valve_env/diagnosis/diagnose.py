@@ -23,10 +23,13 @@ automatic:
    ``min_effect_size`` times the noise sd, RMS) **and** real on the validation
    data (the held-out log-likelihood rises by more than ``min_validation_gain``
    and the held-out one-step RMS does not rise). Otherwise the cause is
-   ``none``. Stiction is exempt from the RMS condition (``variance_gain``): it
-   improves the prediction mostly by knowing when the opening will not move (a
-   better predicted variance) rather than by a smaller mean error, and the
-   held-out log-likelihood, a proper scoring rule, measures that. Where
+   ``none``. Stiction (``variance_gain``) acts in sparse events (a slip per
+   reversal of the demand): it is exempt from the RMS condition, it is validated
+   where the held-out log-likelihood gains more than ``min_validation_gain``, *or*
+   the held-out open-loop simulation error falls, *or* the held-out opening
+   itself slips by the fitted band (:func:`held_out_slips`), and its relevance is measured
+   over the samples where it moves the opening
+   (:func:`effect_size`). Where
    several candidates pass, the best is the one with the largest held-out
    log-likelihood gain (:func:`rank_key`); the others are ranked by delta BIC.
 6. Forward selection: with the named effect in the model, try the remaining
@@ -314,9 +317,35 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
     f.effect_size_mm = effect_size(model, train, fit.params, effect)
     f.significant = p < alpha and f.delta_bic < 0
     f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
-    f.validated = f.validation_loglik_gain > min_gain and (
-        EFFECTS[effect].variance_gain or v_rms <= ref_val[0])
+    if EFFECTS[effect].variance_gain:
+        # stiction acts in events (the slips, once per reversal of the demand under the (S, J) model: 6 in
+        # 11 h at 20 s in the small randomised study), of which the held-out quarter holds one or two, and
+        # between events the one-step predictor of the base model catches up with a resting stem within a
+        # sample or two: a right model can gain nothing there (0.1 on that run, against an in-sample
+        # LR of 262), and the filter's one-step predictions fail now and then at a slip (a slip caught a
+        # few samples late costs tens of log-units: -65 held out on a 5 s run whose held-out simulation
+        # error fell from 5.8 to 4.1 um), and an open-loop stem that misses one reversal stays a band off
+        # until the next. It is validated where a held-out measure says it is real: the log-likelihood
+        # gains, the open-loop simulation error (where the dead zones show) falls, or the held-out
+        # opening itself slips by the fitted band (held_out_slips: the events judged directly)
+        f.validated = (f.validation_loglik_gain > min_gain or v_sim < ref_val[2]
+                       or held_out_slips(valid.x[vr[0]:vr[1]], float(valve.stroke), float(fit.params["band_mm"])))
+    else:
+        f.validated = f.validation_loglik_gain > min_gain and v_rms <= ref_val[0]
     return f
+
+
+def held_out_slips(x: np.ndarray, stroke: float, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:
+    """Whether the held-out opening ``x`` shows stiction's events: at least ``min_slips`` slips
+    (:func:`valve_env.diagnosis.stiction.slips`) whose median lies within ``tol`` (relative) of the
+    fitted ``band``. Noise alone makes few slips, of no particular size (on generated runs without
+    stiction 4-5 in 11 h over the whole record, 0.6-1 band of a typical fit)."""
+    from valve_env.diagnosis.stiction import slips
+
+    if not (math.isfinite(band) and band > 0):
+        return False
+    sz = slips(np.asarray(x, dtype=float), stroke)
+    return bool(sz.size >= min_slips and abs(float(np.median(sz)) / band - 1.0) <= tol)
 
 
 def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[Finding]) -> FitResult | None:
@@ -374,11 +403,21 @@ def rank_key(f: Finding) -> tuple[bool, float]:
 
 def effect_size(model: Model, data: RunData, values: dict[str, float], effect: str) -> float:
     """How much the effect moves the simulated opening: RMS (mm) of the difference between the
-    simulation with the fitted effect and with the effect switched off (everything else equal)."""
+    simulation with the fitted effect and with the effect switched off (everything else equal).
+
+    For stiction (``variance_gain``), an effect that acts in events, the RMS is taken over the samples
+    where it moves the opening by more than the noise sd ``s_w``: under the (S, J) stick-slip the stem
+    rests only after the reversals of the demand, and a band of 7 noise sd came to 0.48 noise sd RMS
+    over an 11 h record (6 slips), below any relevance threshold, where every rest was 3-7 sd."""
     xs, _, _ = model.simulate(data, values)
     nulls = {p.name: p.null for p in EFFECTS[effect].parameters}
     x0, _, _ = model.simulate(data, {**values, **nulls})
-    return float(np.sqrt(np.mean((xs - x0) ** 2)))
+    diff = xs - x0
+    if EFFECTS[effect].variance_gain:
+        diff = diff[np.abs(diff) > float(values["s_w"])]
+        if diff.size == 0:
+            return 0.0
+    return float(np.sqrt(np.mean(diff**2)))
 
 
 def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout: float = 0.25,
