@@ -25,6 +25,7 @@ Each generation (hyperparameters in the config's ``cem:`` block):
   the candidates' linear heads applied at once (an einsum);
 * mu <- mean of the ``elite`` best candidates (mean return over the episodes), sigma <- their
   std plus ``noise`` x (1 - g / generations) (extra noise against premature collapse);
+* ``init: RUN_DIR`` starts mu at an earlier CEM run's best checkpoint (same features);
 * every ``eval_every`` generations mu is scored on the fixed evaluation seeds (seed + 10000 ..,
   ``eval.episodes``; never the leaderboard's) and the best is kept in ``best/`` with
   ``evaluations.npz`` as PPO's EvalCallback writes it.
@@ -59,12 +60,13 @@ class BatchedLinearPolicies:
         from agents.wrappers import ObsFeatures, ResidualCore
 
         kw = dict(cfg.get("env_kwargs") or {})
-        self.vec = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", **kw)
-        base = self.vec.unwrapped
+        self.vec: Any = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", **kw)
+        base: Any = self.vec.unwrapped
         base.parallel_threshold = n_envs + 1  # serial kernel: the machine is shared (agents.vec_env)
         single = gym.make(env_id, **kw)
         self.features = ObsFeatures.from_config(cfg, single)
         space = single.action_space
+        assert isinstance(space, gym.spaces.Box)
         self.core = ResidualCore.from_config(cfg["residual"], space, float(base.cfg.control.dt_s))
         self.obs_dim = int(single.observation_space.shape[0])  # type: ignore[index]
         single.close()
@@ -147,6 +149,14 @@ def cem_train(env_id: str, cfg: Mapping[str, Any], seed: int, run_dir: Path, mod
     eval_seeds = [seed + 10_000 + j for j in range(n_eval)]
     rng = np.random.default_rng(seed)
     mu = np.zeros(pols.n_params)
+    if opt.get("init"):  # warm start: the best checkpoint of an earlier CEM run with the same features
+        from stable_baselines3 import PPO
+
+        src = Path(str(opt["init"]))
+        net = PPO.load(src / "best" / "best_model.zip", device="cpu").policy.action_net
+        mu = np.concatenate([net.weight.detach().numpy().ravel(), net.bias.detach().numpy().ravel()]).astype(float)
+        if mu.shape != (pols.n_params,):
+            raise ValueError(f"cem.init {src}: {mu.size} parameters, this config has {pols.n_params}")
     sigma = np.full(pols.n_params, float(opt["sigma"]))
     rows: list[dict[str, float]] = []
     evals_t: list[int] = []

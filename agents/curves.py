@@ -100,7 +100,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"thermovalve: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
     for env, rs in by_env.items():
-        outs.stage(paths[env], lambda tmp, rs=rs, env=env: plot_runs(rs, tmp, f"{env}: learning curves"))
+        def write(tmp: Path, rs: list[dict[str, Any]] = rs, env: str = env) -> None:
+            plot_runs(rs, tmp, f"{env}: learning curves")
+
+        outs.stage(paths[env], write)
     outs.commit()
     print(outs.summary())
     return 0

@@ -357,7 +357,7 @@ def ship_files(algo: str) -> list[str]:
 
 
 def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool = True,
-         outs: Any = None, name: str | None = None) -> Path:
+         outs: Any = None, name: str | None = None, commit: bool = True) -> Path:
     """Copy a run's model into ``agents/zoo/<env_id>/<name>.zip`` (``name`` defaults to the
     algo) with its config (``<name>.yml``) and observation statistics
     (``<name>_obs_norm.json``), the three together and atomically (an
@@ -386,7 +386,8 @@ def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool 
         },
     }
     outs.write_text(dest / f"{algo}.yml", yaml.safe_dump(shipped, sort_keys=False))
-    outs.commit()
+    if commit:
+        outs.commit()
     return dest / f"{algo}.zip"
 
 

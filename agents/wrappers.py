@@ -272,7 +272,7 @@ class ObsFeatures:
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], env: gym.Env | Any) -> ObsFeatures:
         """``env``: the (wrapped) single env or the native VecEnv, for its config and observation names."""
-        base = getattr(env, "vector_env", None) or getattr(env, "unwrapped", env)
+        base: Any = getattr(env, "vector_env", None) or getattr(env, "unwrapped", env)
         env_cfg = base.cfg
         names = tuple(getattr(base, "obs_names", OBS_NAMES))[len(OBS_NAMES):]
         aids = []
