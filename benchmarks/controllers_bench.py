@@ -3,7 +3,7 @@ and the oracle's cost and time per 24 h episode, on held-out seeds (the settings
 0-4; these default to seeds 100-109, never looked at while building).
 
     python benchmarks/controllers_bench.py compensators [--seed 100 --episodes 10 --band 0.1]
-    python benchmarks/controllers_bench.py oracle [--seed 100 --episodes 3]
+    python benchmarks/controllers_bench.py oracle [--seed 100 --episodes 3 --tasks ID ...]
 
 Prints markdown tables (means over the episodes; paired differences against ``pi``).
 """
@@ -15,7 +15,7 @@ import time
 
 import pandas as pd
 
-import valve_env  # noqa: F401
+import valve_env
 from valve_env.controllers import make_controller
 from valve_env.evaluation.evaluator import run_episodes
 
@@ -49,25 +49,32 @@ def compensators(seed: int, episodes: int, band: float) -> None:
         print(_table(rows))
 
 
-def oracle(seed: int, episodes: int) -> None:
-    rows = {}
-    pi = run_episodes(make_controller("pi"), "ThermoValve-v0", episodes, seed)
-    times = []
-    recs = []
-    for i in range(episodes):
-        o = make_controller("oracle")
-        t0 = time.perf_counter()
-        recs.append(run_episodes(o, "ThermoValve-v0", 1, seed + i))
-        times.append(time.perf_counter() - t0)
-        print(f"seed {seed + i}: oracle 24 h episode in {times[-1]:.1f} s ({o.plans_made} plans, "
-              f"{o.sim_steps} batched steps of {o.settings.samples} envs)", flush=True)
-    rows["pi"] = pi
-    rows["oracle"] = pd.concat(recs, ignore_index=True)
-    print(f"\nThermoValve-v0, default scenario, seeds {seed}..{seed + episodes - 1}; oracle time per 24 h episode: "
-          f"mean {sum(times) / len(times):.1f} s, max {max(times):.1f} s\n")
-    print(_table(rows))
-    cost_pi, cost_or = -pi["return"].mean(), -rows["oracle"]["return"].mean()
-    print(f"\ncost (-return): pi {cost_pi:.2f}, oracle {cost_or:.2f} ({100 * (cost_or / cost_pi - 1):+.1f} %)")
+def oracle(seed: int, episodes: int, tasks: list[str]) -> None:
+    """The oracle's cost against pi's and its wall time per 24 h episode, on each task."""
+    summary = []
+    for task in tasks:
+        rows = {}
+        pi = run_episodes(make_controller("pi", task), task, episodes, seed)
+        times = []
+        recs = []
+        for i in range(episodes):
+            o = make_controller("oracle", task)
+            t0 = time.perf_counter()
+            recs.append(run_episodes(o, task, 1, seed + i))
+            times.append(time.perf_counter() - t0)
+            print(f"{task} seed {seed + i}: oracle 24 h episode in {times[-1]:.1f} s ({o.plans_made} plans, "
+                  f"{o.sim_steps} batched steps of {o.settings.samples} envs)", flush=True)
+        rows["pi"] = pi
+        rows["oracle"] = pd.concat(recs, ignore_index=True)
+        print(f"\n{task}, seeds {seed}..{seed + episodes - 1}; oracle time per 24 h episode: "
+              f"mean {sum(times) / len(times):.1f} s, max {max(times):.1f} s\n")
+        print(_table(rows))
+        cost_pi, cost_or = -pi["return"].mean(), -rows["oracle"]["return"].mean()
+        print(f"\ncost (-return): pi {cost_pi:.2f}, oracle {cost_or:.2f} ({100 * (cost_or / cost_pi - 1):+.1f} %)\n")
+        summary.append((task, sum(times) / len(times), max(times)))
+    print("| task | oracle s per 24 h episode (mean) | max |\n|---|---:|---:|")
+    for task, mean, mx in summary:
+        print(f"| {task} | {mean:.1f} | {mx:.1f} |")
 
 
 def main() -> None:
@@ -76,11 +83,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=100)
     ap.add_argument("--episodes", type=int, default=None)
     ap.add_argument("--band", type=float, default=0.1)
+    ap.add_argument("--tasks", nargs="+", default=["ThermoValve-v0", *valve_env.TASK_IDS],
+                    help="env ids for `oracle` (default: ThermoValve-v0 and every benchmark task)")
     a = ap.parse_args()
     if a.what == "compensators":
         compensators(a.seed, a.episodes or 10, a.band)
     else:
-        oracle(a.seed, a.episodes or 3)
+        oracle(a.seed, a.episodes or 3, a.tasks)
 
 
 if __name__ == "__main__":

@@ -95,11 +95,11 @@ def test_fit_writes_a_valve_file_the_env_reads(tmp_path) -> None:
 @pytest.mark.parametrize(("text", "match"), [
     ("valve:\n  effects:\n    stickiness: {band_mm: 0.04}\n", r"unknown effect.*stickiness"),
     ("valve:\n  effects:\n    stiction: {band_mm: -0.04}\n", r"band_mm must be in"),
-    ("valve:\n  effects:\n    stiction: {band_mm: .nan}\n", r"band_mm must be finite"),
-    ("valve:\n  effects:\n    stiction: {band_mm: wide}\n", r"band_mm must be a number"),
-    ("valve:\n  effects:\n    stiction: {band_mm: [0.04]}\n", r"band_mm must be a number"),
+    ("valve:\n  effects:\n    stiction: {band_mm: .nan}\n", r"band_mm must be a finite number"),
+    ("valve:\n  effects:\n    stiction: {band_mm: wide}\n", r"band_mm must be a finite number"),
+    ("valve:\n  effects:\n    stiction: {band_mm: [0.04]}\n", r"band_mm must be a finite number"),
     ("valve:\n  effects: [stiction]\n", r"must be a mapping"),
-    ("valve:\n  sigma: fast\n", r"sigma must be a number"),
+    ("valve:\n  sigma: fast\n", r"sigma must be a finite number"),
     ("valve: 3\n", r"must hold a 'valve:' mapping"),
     ("valve: {effects: {stiction: {band_mm: 0.04}\n", r"not valid YAML"),
 ])

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from valve_env.params import ConfigError
+from valve_env.params import ConfigError, Spec
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,12 @@ class EffectParameter:
     sde_upper: float = 1.0
     transform: str = "none"
     draw: tuple[str, float, float] | None = None
+
+    @property
+    def spec(self) -> Spec:
+        """The values a config may give: a finite number in ``[lower, upper]`` (the one checker of a
+        configured number, :class:`valve_env.params.Spec`)."""
+        return Spec(lo=self.lower, hi=self.upper, unit=self.unit)
 
 
 @dataclass(frozen=True)
@@ -201,15 +207,6 @@ def effect_names() -> list[str]:
     return list(REGISTRY)
 
 
-def _number(where: str, v: Any) -> float:
-    if v is None or isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise ConfigError(f"{where} must be a number, got {v!r}")
-    f = float(v)
-    if not math.isfinite(f):
-        raise ConfigError(f"{where} must be finite, got {v!r}")
-    return f
-
-
 def check_parameters(name: str, pars: Any, where: str = "effects", fill_defaults: bool = True) -> dict[str, float]:
     """The checked parameters of effect ``name`` from a mapping (ConfigError naming an unknown effect or
     parameter, a missing mapping, a value that is None, NaN, a bool, not a number or out of range).
@@ -238,10 +235,7 @@ def check_parameters(name: str, pars: Any, where: str = "effects", fill_defaults
                 continue
             out[p.name] = float(p.default)
             continue
-        v = _number(f"{where}.{name}.{p.name}", pars[p.name])
-        if not p.lower <= v <= p.upper:
-            raise ConfigError(f"{where}.{name}.{p.name} must be in [{p.lower:g}, {p.upper:g}] {p.unit}, got {v!r}")
-        out[p.name] = v
+        out[p.name] = float(p.spec.check(f"{where}.{name}.{p.name}", pars[p.name]))
     return out
 
 

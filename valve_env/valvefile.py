@@ -20,7 +20,6 @@ atomically).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import fields
 from pathlib import Path
@@ -31,7 +30,7 @@ import yaml
 from valve_env.config import EnvConfig, make_config
 from valve_env.effects import Effects, parse_effects
 from valve_env.outputs import OutputSet, PathLike
-from valve_env.params import ConfigError, ValveParams
+from valve_env.params import ConfigError, ValveParams, field_spec
 
 #: the fitted base parameters, always written
 BASE_FIELDS: tuple[str, ...] = ("sigma", "F_hmax", "p_bset")
@@ -46,10 +45,8 @@ def valve_mapping(params: Mapping[str, float], effects: Mapping[str, Mapping[str
     default = ValveParams()
     out: dict[str, Any] = {}
     for name in BASE_FIELDS:
-        v = params.get(name, getattr(base, name))
-        if v is None or isinstance(v, bool) or not math.isfinite(float(v)):
-            raise ConfigError(f"valve parameter {name} must be a finite number, got {v!r}")
-        out[name] = float(v)
+        out[name] = float(field_spec(ValveParams, name).check(f"valve parameter {name}",
+                                                              params.get(name, getattr(base, name))))
     for f in fields(ValveParams):
         if f.name not in out and getattr(base, f.name) != getattr(default, f.name):
             out[f.name] = float(getattr(base, f.name))
@@ -97,9 +94,6 @@ def load_valve_config(path: PathLike) -> EnvConfig:
         raise ConfigError(f"valve file {str(p)!r} is not valid YAML: {' '.join(str(exc).split())}") from None
     if not isinstance(data, Mapping) or not isinstance(data.get("valve"), Mapping):
         raise ConfigError(f"valve file {str(p)!r} must hold a 'valve:' mapping")
-    for key, v in data["valve"].items():
-        if key != "effects" and (isinstance(v, bool) or not isinstance(v, (int, float))):
-            raise ConfigError(f"valve file {str(p)!r}: valve.{key} must be a number, got {v!r}")
     try:
         return make_config(str(p))
     except ConfigError as exc:

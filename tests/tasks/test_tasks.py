@@ -92,10 +92,12 @@ def test_batched_equals_single_across_autoresets(task_id: str) -> None:
 
 
 def test_district_heating_bill_by_hand() -> None:
-    """The bill in info['kpis'] is the price times the heat, plus 1 % per K of return above 40 degC."""
+    """The bill in info['kpis'] is the price times the heat, plus 1 % per K of return above 40 degC,
+    plus the stored heat's change settled at the mean price at the end."""
     env = gym.make("ThermoValveDistrictHeating-v0", **SHORT)
     layer = env.unwrapped.layer
     env.reset(seed=2)
+    E0 = env.unwrapped.stored_energy_J()
     energy = tariff = 0.0
     total_r = 0.0
     for k in range(120):
@@ -109,7 +111,9 @@ def test_district_heating_bill_by_hand() -> None:
     kp = info["kpis"]
     assert kp["energy_cost_eur"] == pytest.approx(energy, rel=1e-9)
     assert kp["return_tariff_eur"] == pytest.approx(tariff, rel=1e-9)
-    assert kp["cost_eur"] == pytest.approx(energy + tariff, rel=1e-9) and energy > 0
+    settle = 80.0 * (E0 - env.unwrapped.stored_energy_J()) / 3.6e9
+    assert kp["storage_settlement_eur"] == pytest.approx(settle, rel=1e-9) and settle < 0  # 70 degC: a surplus
+    assert kp["cost_eur"] == pytest.approx(energy + tariff + settle, rel=1e-9) and energy > 0
 
 
 def test_district_heating_price_and_network_swing() -> None:
@@ -149,3 +153,27 @@ def test_batched_equals_single_with_sensor_noise_on_the_forecast_task() -> None:
         np.testing.assert_allclose(r1, r2, rtol=1e-9)
     layer = native.layer
     np.testing.assert_allclose(o1[:, 12], layer.price_at(native.step_index), rtol=1e-6)  # forecasts are exact
+
+
+@pytest.mark.parametrize("task_id", ["ThermoValve-v0", "ThermoValveDistrictHeating-v0"])
+def test_plan_step_follows_step_from_a_snapshot(task_id: str) -> None:
+    """The oracle's lean step (plan_step) gives the same plant observations and rewards, task
+    terms included, as step() from the same snapshot, and ends where a real episode ends."""
+    env = gym.make(task_id, control={"horizon_h": 0.25})
+    env.reset(seed=3)
+    for _ in range(10):
+        env.step(np.array([58.0], np.float32))
+    st = env.unwrapped.get_state()
+    a = np.array([[55.0], [62.0], [70.0]])
+    ref = gym.make_vec(task_id, num_envs=3, vectorization_mode="vector_entry_point", control={"horizon_h": 0.25})
+    lean = gym.make_vec(task_id, num_envs=3, vectorization_mode="vector_entry_point", control={"horizon_h": 0.25})
+    for v in (ref, lean):
+        v.reset(seed=0)
+        v.set_state(st)
+    for _ in range(30 - 10):
+        o_ref, r_ref, *_ = ref.step(a)
+        o, r = lean.plan_step(a)
+        np.testing.assert_array_equal(o, o_ref[:, : sim.N_OBS])
+        np.testing.assert_array_equal(r, r_ref)
+    with pytest.raises(RuntimeError, match="ended"):
+        lean.plan_step(a)

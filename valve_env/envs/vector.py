@@ -292,6 +292,28 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._any_autoreset = any_end
         return obs, rewards, np.zeros(n, bool), truncated.copy(), info
 
+    def plan_step(self, actions: Any) -> tuple[np.ndarray, np.ndarray]:
+        """A planner's step (valve_env.controllers.oracle): every env steps once by the same
+        kernel as :meth:`step`, without autoreset, info or sensor noise. Returns the kernel's
+        plant observations (N, 12) and rewards (N,) as views (valid until the next step).
+        Every env must be mid-episode (after :meth:`set_state` with k < the episode's steps)."""
+        n, adim = self.num_envs, self._a_lo.shape[0]
+        A_in = np.asarray(actions, dtype=np.float64).reshape(n, adim)
+        if bool((self._K >= self._limit).any()):
+            raise RuntimeError("plan_step: some env's episode has ended; load a snapshot with set_state()")
+        args = (
+            self._Z, self._OBS, self._INFO, self._vp, self._pp, self._RK, self._RV, self._CUR, self._NRUN, self._ROW,
+            self._NEXT, self._K,
+            A_in, self._bounds, self._A, self._clipped, self._mode_code, self._SD, self._all_envs,
+        )
+        if n >= self.parallel_threshold:
+            bad = sim.env_step_batch(*args, self.block_size)
+        else:
+            bad = sim.env_step_batch_serial(*args, self.block_size)
+        if bad >= 0:
+            raise ValueError(f"action must be finite, got {A_in[bad].tolist()} for env {bad}")
+        return self._OBS, self._R
+
     def render(self) -> None:
         return None
 
@@ -405,6 +427,8 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._ACC[idx] = st.acc
         self._OUT[idx] = st.out
         self._K[idx] = k
+        self._autoreset[idx] = False  # a loaded env continues its episode
+        self._any_autoreset = bool(self._autoreset.any())
         self._SD[idx, sim.SD_SET] = st.setting_C
         self._SD[idx, sim.SD_DP] = st.dp_mbar
         self._E0[idx] = st.E0_J

@@ -73,8 +73,12 @@ _SMALL: dict[str, Mapping[str, Any]] = {
     "tank": {"volume_l": 50.0, "UA_loss": 0.9},
     "scenario": {"tapping_profile": "L"},
 }
+#: a loop in continuous operation: the day starts with the tank at its target, not from a cold
+#: tank (docs/tasks.md, "Steady start")
+_STEADY_START = {"T_init_C": 60.0, "T_init_spread_K": 0.5}
 _DH: dict[str, Mapping[str, Any]] = {
     "scenario": {
+        **_STEADY_START,
         "supply_profile": "network", "supply_C": 75.0, "supply_amplitude_K": 5.0, "supply_noise_K": 1.5,
         "supply_tau_h": 1.0,
         "dp_profile": "network", "dp_mbar": 150.0, "dp_swing": 0.5, "dp_noise_mbar": 15.0, "dp_tau_s": 600.0,
@@ -82,7 +86,11 @@ _DH: dict[str, Mapping[str, Any]] = {
     "control": {"w_energy": 0.0, "w_track": 0.004},
 }
 
-_STICKY = {"valve": {"effects": {"stiction": {"band_mm": 0.1}}}}
+_STICKY: dict[str, Mapping[str, Any]] = {
+    "valve": {"effects": {"stiction": {"band_mm": 0.1}}},
+    "scenario": _STEADY_START,
+    "control": {"w_energy": 0.0},
+}
 
 TASKS: dict[str, Task] = {
     "ThermoValve-v0": Task(
@@ -104,6 +112,12 @@ TASKS: dict[str, Task] = {
                 "5 % of the 2 mm stroke, the upper end of the 0.5-5 % of travel reported for industrial valves "
                 "(Choudhury, Thornhill and Shah 2005, Control Eng. Practice 13:641-658; Jelali and Huang 2010, "
                 "Detection and Diagnosis of Stiction in Control Loops, Springer)",
+            "scenario.T_init_C = 60, T_init_spread_K = 0.5":
+                "steady operation: the tank held at its 60 degC target (docs/reference.md, section 5) around "
+                "the clock, so the day starts there, not from a cold tank (docs/tasks.md)",
+            "control.w_energy = 0":
+                "the heat is what the draws and standing losses need, the same for every controller that "
+                "holds the target (reported as heat_kWh); the reward prices what the stem spoils (docs/tasks.md)",
             "everything else": "ThermoValve-v0's defaults (docs/reference.md, section 5, paper Tables 2-4)",
         },
         env_class="ThermoValveStickyValveEnv",
@@ -139,6 +153,11 @@ TASKS: dict[str, Task] = {
             "network_load": "Gadd and Werner (2013), Applied Energy 106: daily heat-load variations",
             "tariff": "REFA Energi Holeby / Lemvig Varmevaerk motivation tariffs (1 % of the MWh price per K), "
                       "peak-load price after Song, Wallin and Li (2017), Applied Energy 194",
+            "scenario.T_init_C = 60, T_init_spread_K = 0.5":
+                "steady operation: the tank held at its 60 degC target (docs/reference.md, section 5)",
+            "storage settlement at 80 EUR/MWh":
+                "the change of the stored heat valued at the tariff's mean price: the next day recharges "
+                "a tank left colder (docs/tasks.md)",
         },
         env_class="ThermoValveDistrictHeatingEnv",
     ),

@@ -38,6 +38,12 @@ class TaskLayer:
         n = out.shape[0]
         return np.zeros(n), np.zeros((n, self.n_acc))
 
+    def settle(self, stored_change_J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The reward added at an episode's last step for the change of the heat stored in the
+        tank since the reset (n,), J, and the accumulator increments (n, n_acc): none here."""
+        n = np.shape(stored_change_J)[0]
+        return np.zeros(n), np.zeros((n, self.n_acc))
+
     def kpis(self, acc: np.ndarray) -> dict[str, float]:
         """The task KPIs from one env's accumulators (n_acc,)."""
         return {}
@@ -119,10 +125,18 @@ class DistrictHeatingLayer(TaskLayer):
 
     (utilities apply the surcharge to a year's flow-weighted mean return;
     here it applies step by step, which makes it a per-step incentive.)
+
+    At the episode's last step the heat stored in the tank is settled: the
+    change since the reset is paid (a deficit) or credited (a surplus) at the
+    tariff's mean price, ``storage_eur = price_eur_MWh x (E_0 - E_end)``. A
+    real installation's day does not end at midnight: a tank left colder is
+    recharged the next day. Without it a controller that sees the end coming
+    (the oracle) saves by emptying the tank (docs/tasks.md).
     """
 
-    kpi_names: ClassVar[tuple[str, ...]] = ("cost_eur", "energy_cost_eur", "return_tariff_eur", "mean_price_eur_MWh")
-    n_acc: ClassVar[int] = 3  # energy EUR, tariff EUR, heat J
+    kpi_names: ClassVar[tuple[str, ...]] = (
+        "cost_eur", "energy_cost_eur", "return_tariff_eur", "storage_settlement_eur", "mean_price_eur_MWh")
+    n_acc: ClassVar[int] = 4  # energy EUR, tariff EUR, heat J, storage settlement EUR
 
     def __init__(self, tariff: DistrictHeatingTariff, scenario: ScenarioParams, dt_s: float) -> None:
         self.tariff = tariff
@@ -136,6 +150,15 @@ class DistrictHeatingLayer(TaskLayer):
         per_day = int(round(86400.0 / self.dt_s))
         self._price = tariff.price(np.arange(per_day) * self.dt_s)
         self._per_day = per_day
+        # the observation's forecast columns of every step of a day, tabled likewise (the
+        # operator's plan repeats daily): looked up per step, not recomputed
+        steps = np.array([int(round(h * 3600.0 / self.dt_s)) for h in tariff.forecast_h], np.int64)
+        grid = np.arange(per_day, dtype=np.int64)
+        self._obs_table = np.concatenate([
+            self._price[:, None],
+            self._price[(grid[:, None] + steps[None, :]) % per_day],
+            supply_plan(scenario, ((grid[:, None] + steps[None, :]) % per_day) * self.dt_s),
+        ], axis=1).astype(np.float32)
 
     def obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         m = len(self.tariff.forecast_h)
@@ -153,25 +176,27 @@ class DistrictHeatingLayer(TaskLayer):
         energy = self.price_at(k) * heat_J / 3.6e9
         excess = np.maximum(out[:, sim.O_T_RET] - t.T_return_ref_C, 0.0)
         tariff = energy * t.surcharge_per_K * excess
-        acc = np.stack([energy, tariff, heat_J], axis=1)
+        acc = np.stack([energy, tariff, heat_J, np.zeros_like(energy)], axis=1)
         return -t.w_eur * (energy + tariff), acc
+
+    def settle(self, stored_change_J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        eur = -self.tariff.price_eur_MWh * np.asarray(stored_change_J, dtype=float) / 3.6e9
+        acc = np.zeros((eur.shape[0], self.n_acc))
+        acc[:, 3] = eur
+        return -self.tariff.w_eur * eur, acc
 
     def kpis(self, acc: np.ndarray) -> dict[str, float]:
         heat_MWh = acc[2] / 3.6e9
         return {
-            "cost_eur": float(acc[0] + acc[1]),
+            "cost_eur": float(acc[0] + acc[1] + acc[3]),
             "energy_cost_eur": float(acc[0]),
             "return_tariff_eur": float(acc[1]),
+            "storage_settlement_eur": float(acc[3]),
             "mean_price_eur_MWh": float(acc[0] / heat_MWh) if heat_MWh > 0 else float("nan"),
         }
 
     def observation(self, k: np.ndarray) -> np.ndarray:
-        k = np.asarray(k, dtype=np.int64)
-        cols = [self.price_at(k)]
-        steps = [int(round(h * 3600.0 / self.dt_s)) for h in self.tariff.forecast_h]
-        cols += [self.price_at(k + s) for s in steps]
-        cols += [supply_plan(self.scenario, (k + s) * self.dt_s) for s in steps]
-        return np.stack(cols, axis=1).astype(np.float32)
+        return self._obs_table[np.asarray(k, dtype=np.int64) % self._per_day]
 
 
 def make_layer(name: str | None, params: Mapping[str, Any], scenario: ScenarioParams, dt_s: float) -> TaskLayer:
