@@ -95,7 +95,11 @@ def run(args: argparse.Namespace) -> int:
         for r in runs:
             by_env.setdefault(str(r["cfg"]["env_id"]), []).append(r)
         outs = OutputSet(force=args.force)
-        paths = {env: outs.add(Path(args.out) / f"curves_{env}.png") for env in by_env}
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise OutputError(f"--out {out} exists and is not a directory")
+        out.mkdir(parents=True, exist_ok=True)
+        paths = {env: outs.add(out / f"curves_{env}.png") for env in by_env}
     except (ValueError, OutputError) as exc:
         print(f"thermovalve: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2

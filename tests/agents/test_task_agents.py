@@ -138,7 +138,7 @@ def test_shipped_task_agent_is_scored_by_thermovalve_evaluate(task: str, name: s
     out = tmp_path / "eval.json"
     res = subprocess.run([sys.executable, "-m", "valve_env.cli", "evaluate", "--env", task, "--controllers",
                           f"{name},pi", "--episodes", "1", "--seed", "5000", "--json", str(out),
-                          "--env-kwargs", "control.horizon_h=2"],
+                          "--env-kwargs", "horizon_h=2"],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     data = json.loads(out.read_text())
