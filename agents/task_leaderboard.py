@@ -14,8 +14,8 @@ Per task (default: every benchmark task with a shipped agent in agents/zoo/<task
   (5000-5009 by default: the benchmark's held-out seeds; agents train on seeds 0 .. n_envs - 1
   and their autoresets, and select checkpoints on seeds 10000+);
 * the oracle's per-episode results are read from ``--oracle-cache`` (the ``episodes.csv`` of
-  ``thermovalve benchmark``, whose oracle takes 20-300 s per episode), never recomputed here;
-  without them the scores are n/a;
+  ``thermovalve benchmark`` runs, by default out/benchmark/ and out/benchmark_*/; its oracle
+  takes 20-300 s per episode), never recomputed here; without them the scores are n/a;
 * cost = -return, score = (cost_self_acting - cost) / (cost_self_acting - cost_oracle) on the
   mean costs (valve_env.tasks.benchmark.normalised_scores: 0 = self_acting, 1 = oracle);
 * the goal check per agent: the best non-oracle baseline (its own base law included), the share
@@ -47,7 +47,8 @@ import pandas as pd
 
 from agents.leaderboard import TDIS_TOL_KH
 
-DEFAULT_CACHE = "out/benchmark/episodes.csv"
+#: the episodes.csv files of ``thermovalve benchmark`` runs (glob patterns; the first with all seeds wins)
+DEFAULT_CACHE = "out/benchmark/episodes.csv,out/benchmark_*/episodes.csv"
 ORACLE = "oracle"
 SELF_ACTING = "self_acting"
 REFERENCE = "pi"
@@ -78,8 +79,12 @@ def task_controllers(task: str, zoo: str | Path | None = None, deploy_on: str | 
 
 
 def oracle_episodes(cache: Sequence[str | Path], task: str, seeds: Sequence[int]) -> pd.DataFrame | None:
-    """The oracle's rows for ``task`` and exactly ``seeds`` from the first cache file that has them all."""
-    for path in cache:
+    """The oracle's rows for ``task`` and exactly ``seeds`` from the first cache file (glob patterns
+    expanded, sorted) that has them all."""
+    import glob
+
+    files = [f for pattern in cache for f in (sorted(glob.glob(str(pattern))) or [str(pattern)])]
+    for path in files:
         p = Path(path)
         if not p.is_file():
             continue
@@ -329,7 +334,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--episodes", type=int, default=10, help="episodes per controller (default 10)")
     p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help=f"first seed (default {HELD_OUT_SEED}, held out)")
     p.add_argument("--oracle-cache", default=DEFAULT_CACHE,
-                   help=f"comma-separated episodes.csv files of thermovalve benchmark (default {DEFAULT_CACHE})")
+                   help="comma-separated episodes.csv files (glob patterns) of thermovalve benchmark runs "
+                        f"(default {DEFAULT_CACHE})")
     p.add_argument("--out", default="out/task_leaderboard", help="output directory (default out/task_leaderboard)")
     p.add_argument("--docs", action="store_true", help="write the tracked docs/task_leaderboard.* instead")
     p.add_argument("--force", action="store_true", help="replace existing output files")
