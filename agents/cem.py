@@ -153,8 +153,8 @@ def cem_train(env_id: str, cfg: Mapping[str, Any], seed: int, run_dir: Path, mod
         from stable_baselines3 import PPO
 
         src = Path(str(opt["init"]))
-        net = PPO.load(src / "best" / "best_model.zip", device="cpu").policy.action_net
-        mu = np.concatenate([net.weight.detach().numpy().ravel(), net.bias.detach().numpy().ravel()]).astype(float)
+        net: Any = PPO.load(src / "best" / "best_model.zip", device="cpu").policy.action_net
+        mu = np.concatenate([p.detach().numpy().ravel() for p in (net.weight, net.bias)]).astype(float)
         if mu.shape != (pols.n_params,):
             raise ValueError(f"cem.init {src}: {mu.size} parameters, this config has {pols.n_params}")
     sigma = np.full(pols.n_params, float(opt["sigma"]))
