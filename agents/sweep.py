@@ -2,6 +2,8 @@
 
     thermovalve sweep --algos ppo,sac --seeds 0,1,2 --scenarios default,profile_L --timesteps 200000
         --out out/sweep [--workers 2 | --scheduler tcp://host:8786]
+    thermovalve sweep --env ThermoValveStickyValve-v0,ThermoValveDistrictHeating-v0 --seeds 0,1
+        --out out/sweep_tasks --ship-best ppo --force      # train, select on seeds 1000+, ship
     python -m agents.sweep ...
 
 Each cell (algo, seed, scenario) trains an agent on that scenario
@@ -291,7 +293,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--algos", default="ppo", help="comma-separated algorithms, from ppo, sac, td3")
     p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds or ranges, e.g. 0-4 (default 0,1,2)")
     p.add_argument("--scenarios", default="default", help="comma-separated training scenarios (agents.scenarios)")
-    p.add_argument("--env", default="ThermoValve-v0", help="environment id")
+    p.add_argument("--env", default="ThermoValve-v0", help="environment id, or comma-separated ids (a grid per id)")
     p.add_argument("--timesteps", type=int, default=100_000, help="training steps per cell")
     p.add_argument("--eval-episodes", type=int, default=5, help="held-out evaluation episodes per cell")
     p.add_argument("--eval-seed", type=int, default=1000, help="first evaluation seed")
@@ -302,13 +304,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="use a non-empty --out that is not a sweep")
     p.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
     p.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument("--ship-best", default=None, metavar="NAME",
+                   help="after the sweep, ship each env's best cell (highest mean evaluation return on the "
+                        "scenario 'default') into agents/zoo/<env>/NAME.* (replacing needs --force)")
+
+
+def best_cells(out_dir: str | Path, scenario: str = "default") -> dict[str, dict[str, Any]]:
+    """Per env id, the finished cell with the highest mean evaluation return on ``scenario``."""
+    best: dict[str, dict[str, Any]] = {}
+    for path in sorted((Path(out_dir) / "results").glob("*.json")):
+        r = json.loads(path.read_text())
+        c = r["cell"]
+        if c["scenario"] != scenario:
+            continue
+        if c["env_id"] not in best or r["return"]["mean"] > best[c["env_id"]]["return"]["mean"]:
+            best[c["env_id"]] = r
+    return best
 
 
 def run(args: argparse.Namespace) -> int:
-    cells = make_grid(
+    envs = [e for e in args.env.split(",") if e]
+    cells = [c for env in envs for c in make_grid(
         [a for a in args.algos.split(",") if a], _ints(args.seeds), [s for s in args.scenarios.split(",") if s],
-        args.env, args.timesteps, args.eval_episodes, args.eval_seed, args.overrides,
-    )
+        env, args.timesteps, args.eval_episodes, args.eval_seed, args.overrides,
+    )]
     from valve_env.outputs import OutputError, atomic_write_text
 
     out = Path(args.out)
@@ -318,11 +337,34 @@ def run(args: argparse.Namespace) -> int:
         raise OutputError(f"--out {out} is not empty and holds no sweep (grid.json); use --force to sweep into it")
     import distributed  # noqa: F401  (ImportError here names the extra: pip install -e '.[rl]')
 
+    ship_outs = None
+    if args.ship_best:  # checked before the sweep: a shipped agent is replaced only with --force
+        from agents.train import ZOO_DIR, ship_files
+        from valve_env.outputs import OutputSet
+
+        ship_outs = OutputSet(force=args.force)
+        for env in envs:
+            ship_outs.add_in_dir(ZOO_DIR / env, ship_files(args.ship_best), "--ship-best")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "command.txt", shlex.join(sys.argv) + "\n")
     stats = run_sweep(cells, out, scheduler=args.scheduler, workers=args.workers)
     print(json.dumps(stats))
     print(f"summary: {out / 'summary.md'}")
+    if ship_outs is not None:
+        from agents.train import ship
+
+        best = best_cells(out)
+        for env, rec in best.items():
+            if env in envs:
+                ship(rec["run_dir"], outs=ship_outs, name=args.ship_best, commit=False)
+                print(f"[sweep] {env}: shipping {rec['cell']['key']} (evaluation return "
+                      f"{rec['return']['mean']:.2f} on seeds {rec['eval']['seed']}+)", file=sys.stderr)
+        missing = [e for e in envs if e not in best]
+        if missing:
+            print(f"thermovalve: error: no finished cell to ship for {', '.join(missing)}", file=sys.stderr)
+            return 1
+        ship_outs.commit()
+        print(f"shipped: {ship_outs.summary()}")
     return 0 if stats.get("failed", 0) == 0 else 1
 
 

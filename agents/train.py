@@ -261,6 +261,24 @@ def train(
 
     torch.set_num_threads(int(n_threads))
     set_random_seed(seed)
+    if cfg.get("optimizer", "sgd") == "cem":  # policy search on the native batched env (agents.cem)
+        from agents.cem import cem_train
+
+        if algo != "ppo":
+            raise ValueError("optimizer: cem is for the ppo configs (a PPO policy with a linear action head)")
+        venv = make_vec_env(env_id, cfg, seed=seed, n_envs=1, training=False, vec="native")
+        n_act = int(venv.action_space.shape[0])  # type: ignore[index]
+        kwargs = build_model_kwargs(algo, cfg, n_act)
+        kwargs["batch_size"] = kwargs.get("n_steps", 2048)  # no PPO update runs: one env, one batch
+        model = algo_class(algo)(cfg.get("policy", "MlpPolicy"), venv, seed=seed, device="cpu", verbose=verbose,
+                                 **kwargs)
+        meta.update(cem_train(env_id, cfg, seed, run_dir, model, meta))
+        meta["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        (run_dir / "run.json").write_text(json.dumps(meta, indent=1))
+        venv.close()
+        return run_dir
+    elif cfg.get("optimizer", "sgd") != "sgd":
+        raise ValueError(f"optimizer must be sgd (the algo's own updates) or cem, got {cfg.get('optimizer')!r}")
     (run_dir / "monitor").mkdir(exist_ok=True)
     venv = make_vec_env(env_id, cfg, seed=seed, monitor_dir=run_dir / "monitor", training=True)
     n_actions = int(venv.action_space.shape[0])  # type: ignore[index]
@@ -339,16 +357,18 @@ def ship_files(algo: str) -> list[str]:
 
 
 def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool = True,
-         outs: Any = None) -> Path:
-    """Copy a run's model into ``agents/zoo/<env_id>/<algo>.zip`` with its config
-    (``<algo>.yml``) and observation statistics (``<algo>_obs_norm.json``), the three
-    together and atomically (an :class:`valve_env.outputs.OutputSet`, replacing existing
-    files only when it was made with ``force``; by default it is)."""
+         outs: Any = None, name: str | None = None, commit: bool = True) -> Path:
+    """Copy a run's model into ``agents/zoo/<env_id>/<name>.zip`` (``name`` defaults to the
+    algo) with its config (``<name>.yml``) and observation statistics
+    (``<name>_obs_norm.json``), the three together and atomically (an
+    :class:`valve_env.outputs.OutputSet`, replacing existing files only when it was made
+    with ``force``; by default it is)."""
     from valve_env.outputs import OutputSet
 
     run_dir = Path(run_dir)
     cfg = yaml.safe_load((run_dir / "config.yml").read_text())
-    algo, env_id = cfg["algo"], cfg["env_id"]
+    env_id = cfg["env_id"]
+    algo = name or cfg["algo"]
     src = run_dir / "best" if use_best and (run_dir / "best" / "best_model.zip").is_file() else run_dir
     model = src / ("best_model.zip" if src.name == "best" else "model.zip")
     dest = Path(zoo_dir or ZOO_DIR) / env_id
@@ -366,7 +386,8 @@ def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool 
         },
     }
     outs.write_text(dest / f"{algo}.yml", yaml.safe_dump(shipped, sort_keys=False))
-    outs.commit()
+    if commit:
+        outs.commit()
     return dest / f"{algo}.zip"
 
 
@@ -392,6 +413,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar (tests, CI)")
     p.add_argument("--ship", action="store_true", help="copy the best model into agents/zoo/<env>/<algo>.* "
                    "(replacing a shipped agent needs --force)")
+    p.add_argument("--name", default=None, help="shipped agent's name (default: the algo), e.g. ppo_pi")
+    p.add_argument("--ship-run", default=None, metavar="RUN_DIR",
+                   help="ship this finished run directory (its best checkpoint) instead of training")
     p.add_argument("--force", action="store_true", help="train into a non-empty --out; replace a shipped agent")
     p.add_argument("--verbose", type=int, default=0)
 
@@ -400,8 +424,8 @@ def run(args: argparse.Namespace) -> int:
     import valve_env
     from valve_env.outputs import OutputError, OutputSet
 
-    if args.env not in valve_env.ENV_IDS:
-        raise ValueError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ENV_IDS)}")
+    if args.env not in valve_env.ALL_ENV_IDS:
+        raise ValueError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
     if args.seed < 0:
         raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
     if args.timesteps is not None and args.timesteps < 1:
@@ -410,10 +434,24 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out)
         if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
             raise OutputError(f"--out {out} exists and is not empty; use --force to train into it")
+    name = args.name or args.algo
+    if not name.replace("_", "").isalnum():
+        raise ValueError(f"--name must be letters, digits and underscores, got {name!r}")
     ship_outs = None
-    if args.ship:  # checked before training: a shipped agent is replaced only with --force
+    if args.ship or args.ship_run:  # checked before training: a shipped agent is replaced only with --force
         ship_outs = OutputSet(force=args.force)
-        ship_outs.add_in_dir(ZOO_DIR / args.env, ship_files(args.algo), "--ship")
+        ship_outs.add_in_dir(ZOO_DIR / args.env, ship_files(name), "--ship")
+    if args.ship_run:
+        run_cfg = Path(args.ship_run) / "config.yml"
+        if not run_cfg.is_file():
+            raise ValueError(f"--ship-run {args.ship_run} is not a training run directory (no config.yml)")
+        got = yaml.safe_load(run_cfg.read_text())
+        if (got.get("env_id"), got.get("algo")) != (args.env, args.algo):
+            raise ValueError(f"--ship-run {args.ship_run} trained {got.get('algo')} on {got.get('env_id')}, "
+                             f"not {args.algo} on {args.env}")
+        ship(args.ship_run, outs=ship_outs, name=name)
+        print(f"shipped: {ship_outs.summary()}")  # type: ignore[union-attr]
+        return 0
     import stable_baselines3  # noqa: F401  (ImportError here names the extra: pip install -e '.[rl]')
 
     progress = not args.no_progress and os.environ.get("THERMOVALVE_NO_PROGRESS", "") == ""
@@ -437,7 +475,7 @@ def run(args: argparse.Namespace) -> int:
     if "best_eval" in meta:
         print(f"best evaluation: return {meta['best_eval']['mean_return']:.2f} at {meta['best_eval']['timesteps']}")
     if ship_outs is not None:
-        ship(run_dir, outs=ship_outs)
+        ship(run_dir, outs=ship_outs, name=name)
         print(f"shipped: {ship_outs.summary()}")
     return 0
 

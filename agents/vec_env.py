@@ -50,7 +50,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
 )
 
 import valve_env
-from agents.wrappers import KPI_KEYS, ResidualCore, push_history, scale_obs
+from agents.wrappers import KPI_KEYS, ObsFeatures, ResidualCore, push_history
 from valve_env.envs.vector import ThermoValveVectorEnv
 
 #: attributes/methods that differ between envs: answered for env i (see the module docstring)
@@ -98,8 +98,8 @@ class ThermoValveVecEnv(VecEnv):
     def __init__(
         self, env_id: str = "ThermoValve-v0", num_envs: int = 1, threads: bool = False, **env_kwargs: Any
     ) -> None:
-        if env_id not in valve_env.ENV_IDS:
-            raise ValueError(f"unknown env id {env_id!r}; known: {', '.join(valve_env.ENV_IDS)}")
+        if env_id not in valve_env.ALL_ENV_IDS:
+            raise ValueError(f"unknown env id {env_id!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
         vec = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **env_kwargs)
         base = vec.unwrapped
         if not threads:
@@ -358,17 +358,21 @@ class _ObsTransform(VecEnvWrapper):
 
 
 class VecScaleObservation(_ObsTransform):
-    """agents.wrappers.ScaleObservation for all envs (fixed physical scaling, error for target)."""
+    """agents.wrappers.ScaleObservation for all envs (ObsFeatures: fixed physical scaling,
+    error for target, observation aids)."""
 
-    def __init__(self, venv: VecEnv) -> None:
+    def __init__(self, venv: VecEnv, features: ObsFeatures | None = None) -> None:
         shape = venv.observation_space.shape
-        super().__init__(venv, observation_space=gym.spaces.Box(-np.inf, np.inf, shape=shape, dtype=np.float32))
+        assert shape is not None
+        self.features = features or ObsFeatures(True, (), ())
+        super().__init__(venv, observation_space=gym.spaces.Box(-np.inf, np.inf, shape=(self.features.size(shape[0]),),
+                                                                dtype=np.float32))
 
     def transform(self, obs: np.ndarray, dones: np.ndarray | None) -> np.ndarray:
-        return scale_obs(obs)
+        return self.features(obs)
 
     def terminal(self, i: int, obs: np.ndarray) -> np.ndarray:
-        return scale_obs(obs)
+        return self.features(obs)
 
 
 class VecHistory(_ObsTransform):
@@ -414,8 +418,9 @@ def make_native_stack(
         venv = VecEnergyShaping(venv, float((cfg.get("hyperparams") or {}).get("gamma", 0.99)), active=training)
     residual = cfg.get("residual")
     venv = VecResidualAction(venv, residual) if residual else VecRescaleAction(venv)
-    if cfg.get("obs_scaling") == "physical":
-        venv = VecScaleObservation(venv)
+    features = ObsFeatures.from_config(cfg, native_of(venv))
+    if features.active:
+        venv = VecScaleObservation(venv, features)
     k = int(cfg.get("frame_stack", 1) or 1)
     if k > 1:
         venv = VecHistory(venv, k)

@@ -45,6 +45,7 @@ from valve_env.envs.thermovalve import OBS_NAMES
 
 I_T_OUT = OBS_NAMES.index("T_out_C")
 I_TARGET = OBS_NAMES.index("T_target_C")
+I_DRAW = OBS_NAMES.index("draw_l_min")
 KPI_KEYS: tuple[str, ...] = (
     "rmse_K",
     "iae_Kh",
@@ -66,7 +67,9 @@ class ResidualCore:
     ``center[j]`` is a number or the string ``"target"`` (the observed outlet
     target, obs index T_target_C); ``kp``/``ki`` (per K and per K h) give the
     PI part on the outlet error e = T_target - T_out (0 for a fixed centre);
-    ``span`` is the residual's half-range in the action's unit.
+    ``span`` is the residual's half-range in the action's unit; ``kff`` (per l/min, optional)
+    a feedforward of the observed hot-water draw (obs draw_l_min), added to the base law: a draw
+    empties a small cylinder faster than the outlet error can tell (docs/agents.md).
     """
 
     low: np.ndarray
@@ -76,6 +79,7 @@ class ResidualCore:
     kp: np.ndarray
     ki: np.ndarray
     dt_h: float
+    kff: np.ndarray | None = None
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], space: gym.spaces.Box, dt_s: float) -> ResidualCore:
@@ -105,6 +109,7 @@ class ResidualCore:
             kp=vec("kp", 0.0),
             ki=vec("ki", 0.0),
             dt_h=float(dt_s) / 3600.0,
+            kff=vec("kff", 0.0) if "kff" in cfg else None,
         )
 
     @property
@@ -126,6 +131,8 @@ class ResidualCore:
         base = np.empty_like(a)
         for j, c in enumerate(self.center):
             base[:, j] = target if c == "target" else float(c)
+        if self.kff is not None:
+            base = base + self.kff * obs[:, I_DRAW, None]
         new_integ = integ + e[:, None] * self.dt_h
         pi = base + self.kp * e[:, None] + self.ki * new_integ + self.span * a
         # conditional integration: do not integrate while the output saturates in the error's direction
@@ -160,23 +167,151 @@ _CENTER = np.array([OBS_SCALING[n][0] for n in OBS_NAMES])
 _SCALE = np.array([OBS_SCALING[n][1] for n in OBS_NAMES])
 
 
-def scale_obs(obs: np.ndarray) -> np.ndarray:
-    """The policy's input features from raw observations (n, 12) or (12,)."""
+#: Fixed scaling of a task layer's extra observation columns (docs/tasks.md), by name prefix.
+TASK_OBS_SCALING: dict[str, tuple[float, float]] = {
+    "price": (80.0, 40.0),  # EUR/MWh: district-heating price now and ahead
+    "supply_plan": (75.0, 10.0),  # degC: the operator's supply plan ahead
+}
+
+
+def _extra_scaling(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    cs = []
+    for n in names:
+        hit = [v for k, v in TASK_OBS_SCALING.items() if n.startswith(k)]
+        if not hit:
+            raise ValueError(f"no fixed scaling for the task observation {n!r} (agents.wrappers.TASK_OBS_SCALING)")
+        cs.append(hit[0])
+    arr = np.asarray(cs, np.float64).reshape(-1, 2)
+    return arr[:, 0], arr[:, 1]
+
+
+def scale_obs(obs: np.ndarray, extra_names: Sequence[str] = ()) -> np.ndarray:
+    """The policy's input features from raw observations (n, 12 + extra) or (12 + extra,):
+    the 12 plant columns by OBS_SCALING, a task layer's extra columns (``extra_names``)
+    by TASK_OBS_SCALING."""
     o = np.array(obs, dtype=np.float64, copy=True)
     o[..., I_TARGET] = o[..., I_TARGET] - o[..., I_T_OUT]
-    return ((o - _CENTER) / _SCALE).astype(np.float32)
+    center, scale = _CENTER, _SCALE
+    if extra_names:
+        c2, s2 = _extra_scaling(extra_names)
+        center, scale = np.concatenate([_CENTER, c2]), np.concatenate([_SCALE, s2])
+    return ((o - center) / scale).astype(np.float32)
+
+
+def time_of_day_s(obs: np.ndarray) -> np.ndarray:
+    """The time of day, s in [0, 86400), from the observation's tod_sin / tod_cos columns."""
+    o = np.atleast_2d(np.asarray(obs, np.float64))
+    ang = np.arctan2(o[:, OBS_NAMES.index("tod_sin")], o[:, OBS_NAMES.index("tod_cos")])
+    return np.mod(ang, 2.0 * np.pi) * 86400.0 / (2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class DrawForecast:
+    """Observation aid ``draw_forecast``: the household's *habitual* draws ahead.
+
+    From the time of day alone (the observation's tod_sin / tod_cos) and the
+    published tapping cycle of the scenario (EU 814/2013 Annex III, the
+    ``scenario.tapping_profile`` of the env's config), the expected tabled
+    draw energy, kWh, starting in each window ``[edges[j], edges[j+1])`` hours
+    ahead, under the scenario's Gaussian start-time jitter (sd
+    ``draw_jitter_min``; 0 when ``stochastic_draws`` is off). It is what a
+    thermostat that knows the household's habits can know: it reads neither
+    the episode's drawn scenario nor any hidden state (the actual draws are
+    jittered and scaled per episode). docs/agents.md, "Observation aids".
+    """
+
+    starts_s: np.ndarray
+    energy_kWh: np.ndarray
+    sigma_s: float
+    edges_h: tuple[float, ...]
+
+    @classmethod
+    def from_config(cls, aid: Mapping[str, Any], scenario: Any) -> DrawForecast:
+        from valve_env.scenario import tapping_cycle
+
+        if scenario.tapping_profile == "none":
+            raise ValueError("obs_aids.draw_forecast needs a tapping profile (scenario.tapping_profile is 'none')")
+        cyc = tapping_cycle(scenario.tapping_profile)
+        edges = tuple(float(h) for h in aid.get("edges_h", (0.0, 0.5, 1.0, 2.0, 4.0)))
+        if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) or edges[0] < 0:
+            raise ValueError(f"obs_aids.draw_forecast.edges_h must increase from >= 0, got {edges}")
+        sigma = float(scenario.draw_jitter_min) * 60.0 if scenario.stochastic_draws else 0.0
+        return cls(cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma, edges)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(f"draw_kWh_{a:g}-{b:g}h" for a, b in zip(self.edges_h, self.edges_h[1:], strict=False))
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        from scipy.special import ndtr
+
+        t = time_of_day_s(obs)[:, None, None]  # (n, 1, 1)
+        s = (self.starts_s[None, :] + np.array([-86400.0, 0.0, 86400.0])[:, None])[None]  # (1, 3, draws)
+        cdf = []
+        for h in self.edges_h:  # P(the draw starts before t + h) over the draw's jittered start
+            x = t + h * 3600.0 - s
+            cdf.append(ndtr(x / self.sigma_s) if self.sigma_s > 0 else (x >= 0).astype(np.float64))
+        out = [((cdf[j + 1] - cdf[j]) * self.energy_kWh).sum(axis=(1, 2)) for j in range(len(self.edges_h) - 1)]
+        return np.stack(out, axis=1)
+
+
+#: the observation aids a config may name (``obs_aids:``), docs/agents.md
+OBS_AIDS: dict[str, Any] = {"draw_forecast": DrawForecast}
+
+
+@dataclass(frozen=True)
+class ObsFeatures:
+    """The policy's input features from raw observations: :func:`scale_obs` (``obs_scaling:
+    physical``; else the raw columns) followed by the columns of the observation aids
+    (``obs_aids:``). The training wrappers and the deployed controller call this one map."""
+
+    scaled: bool
+    extra_names: tuple[str, ...]
+    aids: tuple[Any, ...]
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], env: gym.Env | Any) -> ObsFeatures:
+        """``env``: the (wrapped) single env or the native VecEnv, for its config and observation names."""
+        base: Any = getattr(env, "vector_env", None) or getattr(env, "unwrapped", env)
+        env_cfg = base.cfg
+        names = tuple(getattr(base, "obs_names", OBS_NAMES))[len(OBS_NAMES):]
+        aids = []
+        for name, spec in (cfg.get("obs_aids") or {}).items():
+            if name not in OBS_AIDS:
+                raise ValueError(f"unknown observation aid {name!r}; known: {', '.join(OBS_AIDS)}")
+            aids.append(OBS_AIDS[name].from_config(spec or {}, env_cfg.scenario))
+        return cls(cfg.get("obs_scaling") == "physical", names, tuple(aids))
+
+    @property
+    def active(self) -> bool:
+        return self.scaled or bool(self.aids)
+
+    def size(self, obs_dim: int) -> int:
+        return obs_dim + sum(len(a.names) for a in self.aids)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        o = np.asarray(obs)
+        x = scale_obs(o, self.extra_names) if self.scaled else o.astype(np.float32)
+        if not self.aids:
+            return x
+        o2 = np.atleast_2d(o)
+        cols = np.concatenate([a(o2) for a in self.aids], axis=1).astype(np.float32)
+        return np.concatenate([np.atleast_2d(x), cols], axis=1).reshape(*x.shape[:-1], -1)
 
 
 class ScaleObservation(gym.ObservationWrapper[np.ndarray, np.ndarray, np.ndarray]):
-    """Applies :func:`scale_obs` (fixed physical scaling, error instead of target)."""
+    """Applies :class:`ObsFeatures` (fixed physical scaling, error instead of target; observation aids)."""
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, features: ObsFeatures | None = None) -> None:
         super().__init__(env)
+        self.features = features or ObsFeatures(True, (), ())
         shape = env.observation_space.shape
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=shape, dtype=np.float32)
+        assert shape is not None
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.features.size(shape[0]),),
+                                                dtype=np.float32)
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
-        return scale_obs(observation)
+        return self.features(observation)
 
 
 def push_history(hist: np.ndarray, obs: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -287,8 +422,9 @@ def wrap_env(
     else:
         shape: tuple[int, ...] = tuple(env.action_space.shape or (1,))
         env = RescaleAction(env, np.full(shape, -1.0, np.float32), np.full(shape, 1.0, np.float32))
-    if cfg.get("obs_scaling") == "physical":
-        env = ScaleObservation(env)
+    features = ObsFeatures.from_config(cfg, env)
+    if features.active:
+        env = ScaleObservation(env, features)
     k = int(cfg.get("frame_stack", 1) or 1)
     if k > 1:
         env = FrameStackObservation(env, k, padding_type="reset")

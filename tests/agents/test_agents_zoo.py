@@ -14,7 +14,7 @@ import valve_env
 from agents.loader import available_agents
 from agents.train import ZOO_DIR
 
-SHIPPED = [(env_id, name) for env_id in valve_env.ENV_IDS for name in available_agents(env_id)]
+SHIPPED = [(env_id, name) for env_id in valve_env.ALL_ENV_IDS for name in available_agents(env_id)]
 
 
 def test_at_least_the_setting_env_has_a_shipped_agent() -> None:

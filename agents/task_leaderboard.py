@@ -1,0 +1,399 @@
+"""The benchmark tasks' leaderboard: shipped agents against every baseline and the oracle, on
+held-out seeds, with the normalised score of ``thermovalve benchmark``.
+
+    thermovalve task-leaderboard [--tasks A,B] [--episodes 10] [--seed 5000]
+                                 [--oracle-cache out/benchmark/episodes.csv] [--out out/task_leaderboard]
+    thermovalve task-leaderboard --docs --force      # regenerate the tracked docs/task_leaderboard.*
+    python -m agents.task_leaderboard ...
+
+Per task (default: every benchmark task with a shipped agent in agents/zoo/<task>/):
+
+* every built-in non-oracle controller (the baselines and compensators that apply to the task),
+  each shipped agent and, for a residual agent, its base law alone (``<agent>_base_law``: the
+  same controller with the policy off), on the episodes seeded ``--seed .. --seed + episodes - 1``
+  (5000-5009 by default: the benchmark's held-out seeds; agents train on seeds 0 .. n_envs - 1
+  and their autoresets, and select checkpoints on seeds 10000+);
+* the oracle's per-episode results are read from ``--oracle-cache`` (the ``episodes.csv`` of
+  ``thermovalve benchmark`` runs, by default out/benchmark/ and out/benchmark_*/; its oracle
+  takes 20-300 s per episode), never recomputed here; without them the scores are n/a;
+* cost = -return, score = (cost_self_acting - cost) / (cost_self_acting - cost_oracle) on the
+  mean costs (valve_env.tasks.benchmark.normalised_scores: 0 = self_acting, 1 = oracle);
+* the goal check per agent: the best non-oracle baseline (its own base law included), the share
+  of that baseline's gap to the oracle the agent closes, the learned share (the agent's score
+  minus its base law's: what the learning adds), paired wins, tdis_Kh against ``pi``'s, wear;
+* a generalisation table: each agent run on the other tasks with the same action (observation
+  aids computed from the deployment task's scenario), scored with that task's references.
+
+Writes ``task_leaderboard.md``, ``task_leaderboard.json``, ``task_episodes.csv`` and
+``figures/task_leaderboard.png`` into ``--out`` (default out/task_leaderboard; ``--docs``: the
+tracked docs/), all together and atomically; existing files are replaced only with ``--force``.
+docs/agents.md, "The benchmark tasks".
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shlex
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from agents.leaderboard import TDIS_TOL_KH
+
+#: the episodes.csv files of ``thermovalve benchmark`` runs (glob patterns; the first with all seeds wins)
+DEFAULT_CACHE = "out/benchmark/episodes.csv,out/benchmark_*/episodes.csv"
+ORACLE = "oracle"
+SELF_ACTING = "self_acting"
+REFERENCE = "pi"
+#: the goal: the best agent closes at least this share of the best baseline's gap to the oracle
+GAP_GOAL = 0.5
+KPI_COLUMNS: tuple[str, ...] = ("tdis_Kh", "iae_Kh", "rmse_K", "heat_kWh", "reversals", "travel_mm", "cost_eur")
+
+
+def task_controllers(task: str, zoo: str | Path | None = None, deploy_on: str | None = None) -> dict[str, Any]:
+    """name -> controller: the non-oracle built-ins for ``task`` (none when ``deploy_on`` is given),
+    the shipped agents of ``task`` and their base laws. With ``deploy_on`` the agents of ``task``
+    are built to run on that task instead (the generalisation table)."""
+    from agents.loader import available_agents, load_agent
+    from valve_env.controllers import make_controller
+    from valve_env.tasks.benchmark import known_controllers
+
+    out: dict[str, Any] = {}
+    if deploy_on is None:
+        for name in known_controllers(task):
+            if name != ORACLE:
+                out[name] = make_controller(name, task)
+    for name in available_agents(task, zoo):
+        ctrl = load_agent(name, task, zoo=zoo, deploy_on=deploy_on)
+        out[name] = ctrl
+        if ctrl.residual is not None:
+            out[f"{name}_base_law"] = ctrl.base_law()
+    return out
+
+
+def oracle_episodes(cache: Sequence[str | Path], task: str, seeds: Sequence[int]) -> pd.DataFrame | None:
+    """The oracle's rows for ``task`` and exactly ``seeds`` from the first cache file (glob patterns
+    expanded, sorted) that has them all."""
+    import glob
+
+    files = [f for pattern in cache for f in (sorted(glob.glob(str(pattern))) or [str(pattern)])]
+    for path in files:
+        p = Path(path)
+        if not p.is_file():
+            continue
+        df = pd.read_csv(p)
+        if not {"task", "controller", "seed", "return"} <= set(df.columns):
+            raise ValueError(f"{p}: not an episodes.csv of thermovalve benchmark "
+                             "(needs task, controller, seed, return)")
+        sub = df[(df["task"] == task) & (df["controller"] == ORACLE) & df["seed"].isin(list(seeds))]
+        sub = sub.drop_duplicates("seed", keep="last")
+        if len(sub) == len(seeds):
+            return sub.drop(columns=["task", "controller"]).sort_values("seed").reset_index(drop=True)
+    return None
+
+
+def run_task(task: str, controllers: Mapping[str, Any], episodes: int, seed: int) -> dict[str, pd.DataFrame]:
+    from valve_env.evaluation.evaluator import run_episodes
+
+    out = {}
+    for name, ctrl in controllers.items():
+        t0 = time.perf_counter()
+        out[name] = run_episodes(ctrl, task, episodes, seed)
+        print(f"[task-leaderboard] {task} {name}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    return out
+
+
+def kind_of(name: str, agents: Sequence[str]) -> str:
+    if name == ORACLE:
+        return "oracle"
+    if name.endswith("_base_law"):
+        return "base law"
+    return "agent" if name in agents else "baseline"
+
+
+def summary_table(per_ep: Mapping[str, pd.DataFrame], agents: Sequence[str]) -> pd.DataFrame:
+    """One row per controller: cost (mean, std), the normalised score and the KPI means."""
+    from valve_env.tasks.benchmark import normalised_scores
+
+    rows = []
+    for name, df in per_ep.items():
+        cost = -df["return"].to_numpy(float)
+        row: dict[str, Any] = {"controller": name, "kind": kind_of(name, agents),
+                               "cost": float(cost.mean()), "cost_std": float(cost.std())}
+        for k in KPI_COLUMNS:
+            if k in df.columns:
+                row[k] = float(df[k].mean())
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    scores = normalised_scores(dict(zip(table["controller"], table["cost"], strict=True)))
+    table["score"] = table["controller"].map(scores)
+    return table.sort_values("cost").reset_index(drop=True)
+
+
+def goal_check(per_ep: Mapping[str, pd.DataFrame], table: pd.DataFrame, agent: str) -> dict[str, Any]:
+    """The issue's learning goal for one agent (see the module docstring): every non-oracle
+    baseline and every agent's base law (not the other agents) is a baseline."""
+    cost = dict(zip(table["controller"], table["cost"], strict=True))
+    score = dict(zip(table["controller"], table["score"], strict=True))
+    kinds = dict(zip(table["controller"], table["kind"], strict=True))
+    base = {c: v for c, v in cost.items() if kinds[c] in ("baseline", "base law")}
+    best = min(base, key=base.__getitem__)
+    law = f"{agent}_base_law"
+    out: dict[str, Any] = {"agent": agent, "best_baseline": best, "best_baseline_cost": base[best],
+                           "agent_cost": cost[agent]}
+    oracle = cost.get(ORACLE, math.nan)
+    gap = base[best] - oracle
+    out["oracle_cost"] = oracle
+    out["gap_closed"] = (base[best] - cost[agent]) / gap if math.isfinite(gap) and gap > 0 else math.nan
+    a = per_ep[agent].set_index("seed").sort_index()
+    if law in per_ep:
+        b = per_ep[law].set_index("seed").sort_index()
+        d = (a["return"] - b["return"]).to_numpy(float)
+        out["base_law_cost"] = cost[law]
+        out["learned_score"] = score[agent] - score[law]  # normalised-score points learning adds
+        out["learned_cost"] = cost[law] - cost[agent]
+        out["learned_wins"] = int(np.sum(d > 0))
+        out["learned_share_of_gap"] = (cost[law] - cost[agent]) / gap if math.isfinite(gap) and gap > 0 else math.nan
+    bb = per_ep[best].set_index("seed").sort_index()
+    out["wins_vs_best_baseline"] = int(np.sum((a["return"] - bb["return"]).to_numpy(float) > 0))
+    out["n"] = len(a)
+    if REFERENCE in per_ep:
+        out["tdis_Kh"] = float(a["tdis_Kh"].mean())
+        out["tdis_Kh_pi"] = float(per_ep[REFERENCE]["tdis_Kh"].mean())
+        out["tdis_ok"] = bool(out["tdis_Kh"] <= out["tdis_Kh_pi"] + TDIS_TOL_KH)
+        out["reversals_ratio_pi"] = float(a["reversals"].mean() / max(per_ep[REFERENCE]["reversals"].mean(), 1e-9))
+    out["goal_met"] = bool(out.get("gap_closed", math.nan) >= GAP_GOAL and out.get("tdis_ok", False))
+    return out
+
+
+def _f(v: Any, digits: int = 3) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "n/a"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    return f"{v:.{digits}g}" if abs(v) < 1000 else f"{v:.0f}"
+
+
+def _pct(v: float) -> str:
+    return "n/a" if not math.isfinite(v) else f"{100 * v:.1f} %"
+
+
+def markdown(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
+    lines = ["# Benchmark tasks: agents against the baselines and the oracle", "",
+             f"Generated by `{meta['command']}`. Held-out seeds {meta['seeds'][0]}-{meta['seeds'][1]} "
+             "(never used in training or checkpoint selection: agents train on seeds 0 .. n_envs - 1 and select "
+             "on 10000+). cost = -return (mean over the episodes); score 0 = self_acting, 1 = oracle "
+             "(`thermovalve benchmark`'s normalisation, on the mean costs); the oracle's episodes come from "
+             f"the cache {', '.join(meta['oracle_cache'])} (`thermovalve benchmark`).", ""]
+    for task, b in boards.items():
+        t: pd.DataFrame = b["table"]
+        kpis = [k for k in KPI_COLUMNS if k in t.columns and t[k].notna().any()]
+        lines += [f"## {task}", "", "| controller | kind | cost | score | " + " | ".join(kpis) + " |",
+                  "|---|---|---:|---:|" + "---:|" * len(kpis)]
+        for _, r in t.iterrows():
+            name = f"**{r['controller']}**" if r["kind"] == "agent" else r["controller"]
+            lines.append(f"| {name} | {r['kind']} | {_f(r['cost'])} ± {_f(r['cost_std'], 2)} | {_f(r['score'])} | "
+                         + " | ".join(_f(r[k]) for k in kpis) + " |")
+        if not b["oracle"]:
+            lines += ["", f"No oracle episodes for {task} in the cache: scores n/a "
+                      f"(`thermovalve benchmark --tasks {task} --controllers oracle`)."]
+        lines += ["", "| agent | best baseline (cost) | agent cost | gap closed | learned: score points (cost, "
+                  "wins vs base law) | wins vs best baseline | tdis_Kh agent / pi | reversals / pi | goal met |",
+                  "|---|---|---:|---:|---:|---:|---:|---:|:---:|"]
+        for g in b["goals"]:
+            learned = (f"{_f(g.get('learned_score'))} ({_f(g.get('learned_cost'))}, {g.get('learned_wins', 'n/a')}/"
+                       f"{g['n']})" if "learned_score" in g else "n/a (no base law)")
+            lines.append(f"| {g['agent']} | {g['best_baseline']} ({_f(g['best_baseline_cost'])}) | "
+                         f"{_f(g['agent_cost'])} | {_pct(g['gap_closed'])} | {learned} | "
+                         f"{g['wins_vs_best_baseline']}/{g['n']} | "
+                         f"{_f(g.get('tdis_Kh'))} / {_f(g.get('tdis_Kh_pi'))} | "
+                         f"{_f(g.get('reversals_ratio_pi'), 2)}x | {'yes' if g['goal_met'] else 'no'} |")
+        lines += ["", "Goal (issue 19): gap closed >= 50 % of the best non-oracle baseline's gap to the oracle "
+                  "(the agent's own base law counts as a baseline), with tdis_Kh no worse than pi's "
+                  f"(+{TDIS_TOL_KH} K h). Learned = the agent's score minus its base law's.", ""]
+    if gen:
+        lines += ["## Generalisation: each agent on the tasks it was not trained on", "",
+                  "| agent (trained on) | task | cost | score | pi cost | best baseline (cost) | tdis_Kh | reversals |",
+                  "|---|---|---:|---:|---:|---|---:|---:|"]
+        for g in gen:
+            lines.append(f"| {g['agent']} ({g['trained_on']}) | {g['task']} | {_f(g['cost'])} | {_f(g['score'])} | "
+                         f"{_f(g['pi_cost'])} | {g['best_baseline']} ({_f(g['best_baseline_cost'])}) | "
+                         f"{_f(g['tdis_Kh'])} | {_f(g['reversals'])} |")
+        lines.append("")
+    return "\n".join(lines) + "\n"
+
+
+def plot(boards: Mapping[str, Any], path: Any) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(boards)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.0 * len(tasks), 4.2), squeeze=False)
+    colours = {"agent": "tab:red", "base law": "tab:orange", "baseline": "tab:blue", "oracle": "tab:green"}
+    for ax, task in zip(axes[0], tasks, strict=True):
+        t = boards[task]["table"]
+        y = np.arange(len(t))
+        ax.barh(y, t["cost"], xerr=t["cost_std"], color=[colours[k] for k in t["kind"]], alpha=0.85)
+        ax.set_yticks(y, t["controller"], fontsize=7)
+        ax.invert_yaxis()
+        for yi, (c, s) in enumerate(zip(t["cost"], t["score"], strict=True)):
+            if math.isfinite(s):
+                ax.annotate(f"{s:.2f}", (c, yi), xytext=(3, 0), textcoords="offset points", va="center", fontsize=7)
+        ax.set_title(task, fontsize=9)
+        ax.set_xlabel("cost = -return (normalised score at the bar)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
+def build(tasks: Sequence[str], episodes: int, seed: int, cache: Sequence[str], zoo: str | Path | None = None,
+          generalisation: bool = True) -> tuple[dict[str, Any], list[dict[str, Any]], pd.DataFrame]:
+    from agents.loader import available_agents
+    from valve_env.tasks import TASK_IDS
+
+    seeds = list(range(seed, seed + episodes))
+    boards: dict[str, Any] = {}
+    frames = []
+    for task in tasks:
+        per_ep = run_task(task, task_controllers(task, zoo), episodes, seed)
+        orc = oracle_episodes(cache, task, seeds)
+        if orc is not None:
+            per_ep[ORACLE] = orc
+        agents = available_agents(task, zoo)
+        table = summary_table(per_ep, agents)
+        boards[task] = {"table": table, "oracle": orc is not None,
+                        "goals": [goal_check(per_ep, table, a) for a in agents], "per_episode": per_ep}
+        frames += [df.assign(task=task, controller=name) for name, df in per_ep.items()]
+    gen: list[dict[str, Any]] = []
+    if generalisation:
+        for train_task in tasks:
+            for other in TASK_IDS:
+                if other == train_task:
+                    continue
+                try:
+                    ctrls = task_controllers(train_task, zoo, deploy_on=other)
+                except ValueError as exc:  # another action or observation: not applicable
+                    print(f"[task-leaderboard] {train_task} agents on {other}: n/a ({exc})", file=sys.stderr)
+                    continue
+                ctrls = {n: c for n, c in ctrls.items() if not n.endswith("_base_law")}
+                refs = boards[other]["per_episode"] if other in boards else run_task(
+                    other, task_controllers(other, zoo), episodes, seed)
+                if other not in boards:
+                    orc = oracle_episodes(cache, other, seeds)
+                    if orc is not None:
+                        refs[ORACLE] = orc
+                ref_table = summary_table({n: d for n, d in refs.items() if kind_of(n, []) != "agent"
+                                           and n not in available_agents(other, zoo)}, [])
+                per_ep = run_task(other, ctrls, episodes, seed)
+                frames += [df.assign(task=other, controller=f"{n}@{train_task}") for n, df in per_ep.items()]
+                for name, df in per_ep.items():
+                    t = summary_table({**{n: refs[n] for n in ref_table["controller"]}, name: df}, [name])
+                    row = t[t["controller"] == name].iloc[0]
+                    base = ref_table[ref_table["kind"].isin(["baseline"])]
+                    best = base.iloc[int(np.argmin(base["cost"].to_numpy()))]
+                    gen.append({"agent": name, "trained_on": train_task, "task": other, "cost": float(row["cost"]),
+                                "score": float(row["score"]),
+                                "pi_cost": float(ref_table.loc[ref_table["controller"] == REFERENCE, "cost"].iloc[0]),
+                                "best_baseline": str(best["controller"]), "best_baseline_cost": float(best["cost"]),
+                                "tdis_Kh": float(row["tdis_Kh"]), "reversals": float(row["reversals"])})
+    return boards, gen, pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
+def _json(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
+    def clean(v: Any) -> Any:
+        if isinstance(v, Mapping):
+            return {str(k): clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if isinstance(v, (np.floating, np.integer, np.bool_)):
+            v = v.item()
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        return v
+
+    data = {"meta": meta, "tasks": {t: {"table": b["table"].to_dict(orient="records"), "goals": b["goals"],
+                                         "oracle": b["oracle"]} for t, b in boards.items()},
+            "generalisation": list(gen)}
+    return json.dumps(clean(data), indent=1) + "\n"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from valve_env.tasks.benchmark import HELD_OUT_SEED
+
+    p.add_argument("--tasks", default=None, help="comma-separated task ids (default: every benchmark task with a "
+                   "shipped agent)")
+    p.add_argument("--episodes", type=int, default=10, help="episodes per controller (default 10)")
+    p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help=f"first seed (default {HELD_OUT_SEED}, held out)")
+    p.add_argument("--oracle-cache", default=DEFAULT_CACHE,
+                   help="comma-separated episodes.csv files (glob patterns) of thermovalve benchmark runs "
+                        f"(default {DEFAULT_CACHE})")
+    p.add_argument("--out", default="out/task_leaderboard", help="output directory (default out/task_leaderboard)")
+    p.add_argument("--docs", action="store_true", help="write the tracked docs/task_leaderboard.* instead")
+    p.add_argument("--force", action="store_true", help="replace existing output files")
+    p.add_argument("--zoo", default=None, help="directory of shipped agents (default agents/zoo)")
+    p.add_argument("--no-generalisation", action="store_true", help="skip the generalisation table")
+
+
+def run(args: argparse.Namespace) -> int:
+    import valve_env
+    from agents.loader import available_agents
+    from agents.train import REPO_ROOT
+    from valve_env.outputs import OutputError, OutputSet
+
+    try:
+        tasks = ([t for t in args.tasks.split(",") if t] if args.tasks
+                 else [t for t in valve_env.TASK_IDS if available_agents(t, args.zoo)])
+        for t in tasks:
+            if t not in valve_env.TASK_IDS:
+                raise ValueError(f"unknown benchmark task {t!r}; known: {', '.join(valve_env.TASK_IDS)}")
+        if not tasks:
+            raise ValueError("no benchmark task has a shipped agent (agents/zoo/<task>/)")
+        if args.episodes < 1:
+            raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+        cache = [c for c in args.oracle_cache.split(",") if c]
+        outs = OutputSet(force=args.force)
+        # --docs: the tracked files (each replaced only with --force); else a directory of its own
+        out = REPO_ROOT / "docs" if args.docs else outs.add_dir(args.out)
+        paths = {n: outs.add(out / n) for n in ("task_leaderboard.md", "task_leaderboard.json", "task_episodes.csv")}
+        figdir = out / "figures"
+        if not args.docs:
+            figdir.mkdir(exist_ok=True)
+        fig = outs.add(figdir / "task_leaderboard.png")
+    except (ValueError, OutputError) as exc:
+        print(f"thermovalve: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    boards, gen, episodes = build(tasks, args.episodes, args.seed, cache, args.zoo, not args.no_generalisation)
+    meta = {"command": "thermovalve task-leaderboard " + shlex.join(sys.argv[2:] if len(sys.argv) > 1
+                                                                    and sys.argv[1] == "task-leaderboard"
+                                                                    else sys.argv[1:]),
+            "seeds": [args.seed, args.seed + args.episodes - 1], "oracle_cache": cache,
+            "wall_s": round(time.perf_counter() - t0, 1)}
+    text = markdown(boards, gen, meta)
+    outs.write_text(paths["task_leaderboard.md"], text)
+    outs.write_text(paths["task_leaderboard.json"], _json(boards, gen, meta))
+    outs.stage(paths["task_episodes.csv"], lambda tmp: episodes.to_csv(tmp, index=False))
+    outs.stage(fig, lambda tmp: plot(boards, tmp))
+    outs.commit()
+    print(text)
+    print(outs.summary())
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m agents.task_leaderboard", description=__doc__.split("\n\n")[0])
+    add_arguments(p)
+    return run(p.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
