@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import re
 import sys
 import time
 from collections import defaultdict
@@ -22,12 +23,23 @@ from pathlib import Path
 
 import numpy as np
 
-from valve_env.loops.detectors import DETECTORS
+from valve_env.loops.detectors import DETECTORS, horch
 from valve_env.loops.diagnose import diagnose
 from valve_env.loops.io import LoopDataError, read_loop
 from valve_env.loops.sim import simulate_loop
 
 SPLIT = Path(__file__).with_name("plant_loops_split.csv")
+
+
+def is_level_tag(tag: str) -> bool:
+    """An ISA-5.1 level loop (first letter L: LIC, LC): the plant's own word that the process integrates."""
+    m = re.search(r"([A-Z]+)I?C\d", tag)
+    return bool(m and m.group(1).startswith("L"))
+
+
+def horch_by_tag(loop, tag: str) -> dict:
+    """Horch's test as published: the integrating variant (PV increments) on the level loops by their tag."""
+    return horch(loop, integrating=is_level_tag(tag))
 
 
 def balanced_accuracy(truth: list[bool], pred: list[bool]) -> float:
@@ -38,14 +50,15 @@ def balanced_accuracy(truth: list[bool], pred: list[bool]) -> float:
 
 def real_loops(data: Path, which: str) -> None:
     rows = [r for r in csv.DictReader(open(SPLIT)) if which == "all" or r["set"] == which]
-    names = ["greybox", *DETECTORS]
+    dets = {**DETECTORS, "horch_L": None}
+    names = ["greybox", *dets]
     pred: dict[str, list[bool]] = defaultdict(list)
     truth: list[bool] = []
     tags: list[str] = []
     times: list[float] = []
     sizes: list[int] = []
     print(f"real loops, set {which}: {len(rows)} files")
-    print(f"{'file':40s} {'label':13s} {'greybox':22s} " + " ".join(f"{d:>6s}" for d in DETECTORS) + "  time_s")
+    print(f"{'file':40s} {'label':13s} {'greybox':22s} " + " ".join(f"{d:>7s}" for d in dets) + "  time_s")
     for r in rows:
         try:
             loop = read_loop(data / r["label"] / r["file"])
@@ -64,11 +77,14 @@ def real_loops(data: Path, which: str) -> None:
         tags.append(r["loop_tag"])
         pred["greybox"].append(d.cause == "stiction")
         det = {k: f(loop)["stiction"] for k, f in DETECTORS.items()}
+        det["horch_L"] = horch_by_tag(loop, r["loop_tag"])["stiction"]
         for k, v in det.items():
             pred[k].append(v)
         band = f" {d.result['stiction']['band_pct']:.2f}%" if "stiction" in d.result else ""
+        dec = d.result["decision"]
+        band += ("L" if dec["by_likelihood"] else "") + ("H" if dec["by_shape"] else "")
         print(f"{r['file'][:40]:40s} {r['label']:13s} {(d.cause + band)[:22]:22s} "
-              + " ".join(f"{int(v):6d}" for v in det.values()) + f"  {times[-1]:.2f}")
+              + " ".join(f"{int(v):7d}" for v in det.values()) + f"  {times[-1]:.2f}")
     print(f"\nbalanced accuracy, set {which} ({sum(truth)} stiction, {len(truth) - sum(truth)} not):")
     for k in names:
         print(f"  {k:8s} {100 * balanced_accuracy(truth, pred[k]):5.1f} %")

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from valve_env.diagnosis.engine import monotone_path, ou_loglik, smooth_temperature, stick_loglik
+from valve_env.diagnosis.engine import monotone_path, ou_loglik, stick_loglik
 from valve_env.diagnosis.fitting import Model, RunData
+from valve_env.estimation.temperature import smooth_temperature
 from valve_env.experiment import simulate_experiment
 
 

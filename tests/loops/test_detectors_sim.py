@@ -28,8 +28,16 @@ def test_horch_even_vs_odd_cross_correlation() -> None:
     op = np.sin(2 * np.pi * t / 80.0)
     in_phase = horch(_loop(op, -op))        # extremum at lag 0: not stiction
     quarter = horch(_loop(op, np.cos(2 * np.pi * t / 80.0)))  # odd: stiction
-    assert not in_phase["stiction"] and in_phase["statistic"] > 0.95
-    assert quarter["stiction"] and quarter["statistic"] < 0.2
+    assert not in_phase["stiction"] and in_phase["statistic"] < 60 and in_phase["ratio"] > 0.95
+    assert quarter["stiction"] and quarter["statistic"] > 120 and quarter["ratio"] < 0.2
+    # an integrating process: PV is the integral of OP (a quarter period behind) - odd on PV, even on its increments
+    level = np.cumsum(op)
+    assert horch(_loop(op, level))["stiction"]
+    assert not horch(_loop(op, level), integrating=True)["stiction"]
+    # white noise fed back with one sample's delay: no resolved cycle, no verdict of stiction
+    rng = np.random.default_rng(1)
+    noise = rng.normal(size=720)
+    assert not horch(_loop(-np.roll(noise, 1), noise))["stiction"]
 
 
 def test_kano_sees_a_stuck_valve() -> None:

@@ -134,11 +134,11 @@ class PIController(Controller):
             return obs[:, I_T_TARGET]
         return np.full(obs.shape[0], _SCEN.dp_mbar)
 
-    def _limits(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.full(obs.shape[0], self.u_min)
+    def _limits(self, obs: np.ndarray) -> tuple[np.ndarray | float, float]:
+        """The output's limits for a batch (scalars where they do not depend on the observation)."""
         if self.closed_margin_K is not None:
-            lo = np.clip(obs[:, I_T_POCKET] - self.closed_margin_K, self.u_min, self.u_max)
-        return lo, np.full(obs.shape[0], self.u_max)
+            return np.clip(obs[:, I_T_POCKET] - self.closed_margin_K, self.u_min, self.u_max), self.u_max
+        return self.u_min, self.u_max
 
     def initial_state(self, obs: np.ndarray) -> np.ndarray:
         y = obs[:, I_T_OUT]

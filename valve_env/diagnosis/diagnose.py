@@ -48,12 +48,11 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from valve_env.data_io import DataError, load_run, validate_run
+from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
 from valve_env.diagnosis.effects import EFFECTS, check_effects
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
 from valve_env.params import ValveParams
 
-REQUIRED = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar")
 MIN_SAMPLES = 200
 MIN_DURATION_S = 2.0 * 3600.0
 MIN_T_RANGE_K = 1.0
@@ -108,8 +107,7 @@ def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
 
 def prepare(df: pd.DataFrame, name: str = "run") -> RunData:
     """RunData (latent temperatures estimated) from a checked run."""
-    return RunData.from_arrays(df["time_s"].to_numpy(), df["T_tank_C"].to_numpy(), df["T_med_C"].to_numpy(),
-                               df["x_mm"].to_numpy(), df["dp_mbar"].to_numpy(), df["ps_bar"].to_numpy(), name)
+    return RunData.from_frame(df, name)
 
 
 def _one_line(s: str) -> str:

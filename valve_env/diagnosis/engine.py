@@ -2,15 +2,11 @@
 
 Three pieces, each a small state-space computation:
 
-1. **Latent temperatures.** The temperature channels are noisy measurements of
-   smooth latent temperatures. Each channel is modelled as an integrated random
-   walk (``dT = v dt, dv = s_v dw``; observation ``T + e``, sd ``s_T``), the
-   same prior as the estimator's base valve model; ``s_v`` and ``s_T`` are
-   found by maximum likelihood of the channel alone and the
-   Rauch-Tung-Striebel smoother gives ``T`` and ``v = dT/dt`` at every sample.
-   The smoother is two-sided (zero phase), so it adds no lag: a lag found later
-   is in the valve, not in the pre-processing. A raw finite difference of the
-   channel is never used as the Dahl driver.
+1. **Latent temperatures** (:func:`valve_env.estimation.temperature.smooth_temperature`, the
+   estimation's temperature pre-processing): each channel is an integrated random walk observed
+   with white noise, smoothed by Rauch-Tung-Striebel (two-sided, zero phase: a lag found later is
+   in the valve, not in the pre-processing). A raw finite difference of the channel is never used
+   as the Dahl driver.
 2. **The valve simulation** of docs/reference.md, section 1 with every effect of
    section 3 as an optional term (all switched off by zero parameters), on a
    fine grid between samples (cubic Hermite interpolation of the smoothed
@@ -31,7 +27,6 @@ import math
 
 import numpy as np
 from numba import njit
-from scipy.optimize import minimize
 
 from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.physics import valve as phys
@@ -61,143 +56,6 @@ LANDING_SD = 0.2
 DECIDE_MOVING = 0.5
 #: log-likelihood ratio at which a measurement overturns the stick-slip filter's decision that the stem moves
 STUCK_LLR = 2.0
-
-
-# --------------------------------------------------------------------------- 1. latent temperatures
-@njit(cache=True)
-def _irw_pass(t: np.ndarray, y: np.ndarray, q: float, r: float, smooth: bool,
-              w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Kalman filter (and RTS smoother) of an integrated random walk observed with white noise.
-
-    ``w[k]`` scales the process noise of the interval ending at sample k (1 = the nominal q).
-    Returns (log-likelihood, level, rate); level/rate are smoothed when ``smooth``."""
-    n = t.shape[0]
-    mf = np.empty((n, 2))
-    Pf = np.empty((n, 2, 2))
-    mp = np.empty((n, 2))
-    Pp = np.empty((n, 2, 2))
-    m0 = y[0]
-    m1 = 0.0
-    p00 = r + 1.0
-    p01 = 0.0
-    p11 = 1e-4
-    ll = 0.0
-    for k in range(n):
-        if k > 0:
-            h = t[k] - t[k - 1]
-            qk = q * w[k]
-            a0 = m0 + h * m1
-            a1 = m1
-            # F P F' + Q
-            q00 = p00 + 2.0 * h * p01 + h * h * p11 + qk * h * h * h / 3.0
-            q01 = p01 + h * p11 + qk * h * h / 2.0
-            q11 = p11 + qk * h
-            m0, m1, p00, p01, p11 = a0, a1, q00, q01, q11
-        mp[k, 0] = m0
-        mp[k, 1] = m1
-        Pp[k, 0, 0] = p00
-        Pp[k, 0, 1] = p01
-        Pp[k, 1, 0] = p01
-        Pp[k, 1, 1] = p11
-        S = p00 + r
-        nu = y[k] - m0
-        ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
-        k0 = p00 / S
-        k1 = p01 / S
-        m0 = m0 + k0 * nu
-        m1 = m1 + k1 * nu
-        n00 = p00 - k0 * p00
-        n01 = p01 - k0 * p01
-        n11 = p11 - k1 * p01
-        p00, p01, p11 = n00, n01, n11
-        mf[k, 0] = m0
-        mf[k, 1] = m1
-        Pf[k, 0, 0] = p00
-        Pf[k, 0, 1] = p01
-        Pf[k, 1, 0] = p01
-        Pf[k, 1, 1] = p11
-    level = np.empty(n)
-    rate = np.empty(n)
-    if not smooth:
-        for k in range(n):
-            level[k] = mf[k, 0]
-            rate[k] = mf[k, 1]
-        return ll, level, rate
-    ms0 = mf[n - 1, 0]
-    ms1 = mf[n - 1, 1]
-    level[n - 1] = ms0
-    rate[n - 1] = ms1
-    for k in range(n - 2, -1, -1):
-        h = t[k + 1] - t[k]
-        # C = Pf F' Pp^-1
-        f00 = Pf[k, 0, 0] + h * Pf[k, 0, 1]
-        f01 = Pf[k, 0, 1]
-        f10 = Pf[k, 1, 0] + h * Pf[k, 1, 1]
-        f11 = Pf[k, 1, 1]
-        a = Pp[k + 1, 0, 0]
-        b = Pp[k + 1, 0, 1]
-        d = Pp[k + 1, 1, 1]
-        det = a * d - b * b
-        i00 = d / det
-        i01 = -b / det
-        i11 = a / det
-        c00 = f00 * i00 + f01 * i01
-        c01 = f00 * i01 + f01 * i11
-        c10 = f10 * i00 + f11 * i01
-        c11 = f10 * i01 + f11 * i11
-        d0 = ms0 - mp[k + 1, 0]
-        d1 = ms1 - mp[k + 1, 1]
-        ms0 = mf[k, 0] + c00 * d0 + c01 * d1
-        ms1 = mf[k, 1] + c10 * d0 + c11 * d1
-        level[k] = ms0
-        rate[k] = ms1
-    return ll, level, rate
-
-
-def smooth_temperature(t: np.ndarray, y: np.ndarray, robust_passes: int = 3,
-                       z_thr: float = 3.0) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """Latent temperature and its rate from a noisy channel (ML integrated random walk + RTS smoother).
-
-    A step of the tank's heating puts a kink in the temperature (the rate jumps). A Gaussian random
-    walk of the rate would round each kink symmetrically: the smoothed temperature would start to
-    move before the water does, which the Dahl friction turns into a spurious lead. The rate's
-    process noise is therefore a scale mixture (iteratively reweighted, as for a Student-t): where
-    the smoothed rate changes by more than ``z_thr`` standard deviations in one interval, that
-    interval's process noise is raised to match, and the smoother is run again.
-
-    Returns (level degC, rate K/s, s_T degC, s_v K/s/sqrt(s))."""
-    t = np.ascontiguousarray(t, dtype=np.float64)
-    y = np.ascontiguousarray(y, dtype=np.float64)
-    n = t.shape[0]
-    d2 = np.diff(y, 2)
-    r0 = max(float(np.var(d2)) / 6.0, 1e-8)
-    w = np.ones(n)
-
-    def nll(z: np.ndarray) -> float:
-        return -_irw_pass(t, y, math.exp(z[0]), math.exp(z[1]), False, w)[0]
-
-    best = None
-    for lq in (-18.0, -14.0):
-        res = minimize(nll, np.array([lq, math.log(r0)]), method="Nelder-Mead",
-                       options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 400})
-        if best is None or res.fun < best.fun:
-            best = res
-    assert best is not None
-    q, r = math.exp(best.x[0]), math.exp(best.x[1])
-    _, level, rate = _irw_pass(t, y, q, r, True, w)
-    h = np.empty(n)
-    h[0] = 1.0
-    h[1:] = np.diff(t)
-    for _ in range(robust_passes):
-        z2 = np.zeros(n)
-        z2[1:] = np.diff(rate) ** 2 / (q * h[1:])
-        w = np.maximum(1.0, z2 / z_thr**2)
-        # the likelihood of the nominal level moves when kinks are freed: re-estimate q and r
-        res = minimize(nll, np.array([math.log(q), math.log(r)]), method="Nelder-Mead",
-                       options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 200})
-        q, r = math.exp(res.x[0]), math.exp(res.x[1])
-        _, level, rate = _irw_pass(t, y, q, r, True, w)
-    return level, rate, math.sqrt(r), math.sqrt(q)
 
 
 # --------------------------------------------------------------------------- 2. the valve simulation

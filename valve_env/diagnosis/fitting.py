@@ -13,6 +13,14 @@ the HAC-sandwich ones (delta method to the natural scale); they ignore the
 smoothing error of the temperatures and are optimistic, so the diagnosis
 replaces them for the named effects by a model-based bootstrap
 (:mod:`valve_env.diagnosis.uncertainty`).
+
+This is the output-error back-end of the identification framework
+(docs/estimation.md, "Architecture"): the data container is
+:class:`valve_env.estimation.data.RunData`, the parameters and their
+transforms are :mod:`valve_env.estimation.model`'s, the standard errors
+:func:`valve_env.estimation.covariance.hessian_sandwich_sd`; the scikit-learn
+style front is ``ValveEstimator(effects, likelihood="output_error")``
+(:mod:`valve_env.estimation.estimator`).
 """
 
 from __future__ import annotations
@@ -30,64 +38,36 @@ from valve_env.diagnosis.engine import (
     LANDING_SD,
     ou_loglik,
     simulate_valve,
-    smooth_temperature,
     stick_loglik,
     stick_simulate,
 )
 from valve_env.diagnosis.stiction import jump_band
+from valve_env.estimation.covariance import hessian_sandwich_sd
+from valve_env.estimation.data import RunData
+from valve_env.estimation.model import Parameter, dnat_dwork, from_work, to_work, work_bounds
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
 
-#: (name, unit, lower, upper) of the base and noise parameters, all on a log scale.
-BASE_PARAMS: tuple[tuple[str, str, float, float], ...] = (
-    ("sigma", "N/K", 0.3, 100.0),
-    ("F_hmax", "N", 0.01, 20.0),
-    ("p_bset", "MPa", 0.01, 0.5),
+_PAPER = ValveParams()
+#: the base (paper Table 4) and residual-model parameters, all on a log scale (the estimation's
+#: :class:`~valve_env.estimation.model.Parameter` and its transforms); ``init`` is only nominal:
+#: :meth:`Model.default_start` sets the start
+BASE_PARAMS: tuple[Parameter, ...] = (
+    Parameter("sigma", _PAPER.sigma, 0.3, 100.0, "log", unit="N/K"),
+    Parameter("F_hmax", _PAPER.F_hmax, 0.01, 20.0, "log", unit="N"),
+    Parameter("p_bset", _PAPER.p_bset, 0.01, 0.5, "log", unit="MPa"),
 )
-NOISE_PARAMS: tuple[tuple[str, str, float, float], ...] = (
-    ("s_w", "mm", 1e-5, 1.0),
-    ("s_e", "mm", 1e-6, 1.0),
-    ("tau_e", "s", 1.0, 900.0),
+NOISE_PARAMS: tuple[Parameter, ...] = (
+    Parameter("s_w", 1e-3, 1e-5, 1.0, "log", unit="mm"),
+    Parameter("s_e", 1e-2, 1e-6, 1.0, "log", unit="mm"),
+    Parameter("tau_e", 300.0, 1.0, 900.0, "log", unit="s"),
 )
-NOISE_NAMES: frozenset[str] = frozenset(n for n, *_ in NOISE_PARAMS)
+NOISE_NAMES: frozenset[str] = frozenset(q.name for q in NOISE_PARAMS)
 
 
-@dataclass
-class RunData:
-    """A measured run prepared for the diagnosis: raw channels and latent temperatures."""
-
-    t: np.ndarray
-    T_raw: np.ndarray
-    M_raw: np.ndarray
-    x: np.ndarray
-    dp: np.ndarray
-    ps: np.ndarray
-    T: np.ndarray
-    vT: np.ndarray
-    M: np.ndarray
-    vM: np.ndarray
-    s_T: float
-    s_M: float
-    name: str = "run"
-    @classmethod
-    def from_arrays(cls, t: np.ndarray, T_tank: np.ndarray, T_med: np.ndarray, x: np.ndarray, dp: np.ndarray,
-                    ps: np.ndarray, name: str = "run") -> RunData:
-        f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-        t, T_tank, T_med, x, dp, ps = map(f, (t, T_tank, T_med, x, dp, ps))
-        T, vT, s_T, _ = smooth_temperature(t, T_tank)
-        M, vM, s_M, _ = smooth_temperature(t, T_med)
-        return cls(t, T_tank, T_med, x, dp, ps, T, vT, M, vM, s_T, s_M, name)
-
-    def __len__(self) -> int:
-        return int(self.t.shape[0])
-
-    def slice(self, a: int, b: int) -> RunData:
-        s = slice(a, b)
-        return RunData(self.t[s], self.T_raw[s], self.M_raw[s], self.x[s], self.dp[s], self.ps[s], self.T[s],
-                       self.vT[s], self.M[s], self.vM[s], self.s_T, self.s_M, self.name)
-
-    @property
-    def median_dt(self) -> float:
-        return float(np.median(np.diff(self.t)))
+def effect_parameter(p: EffectParameter) -> Parameter:
+    """An effect's parameter as the output-error fit sees it: its search range, on the scale of its
+    typical size (``value / scale``), starting at its null value."""
+    return Parameter(p.name, p.null, p.fit_lower, p.fit_upper, "none", unit=p.unit, scale=p.scale)
 
 
 @dataclass
@@ -112,7 +92,7 @@ class FitResult:
 
     @property
     def physical_params(self) -> dict[str, float]:
-        return {k: self.params[k] for k, *_ in BASE_PARAMS}
+        return {q.name: self.params[q.name] for q in BASE_PARAMS}
 
 
 #: whether Model.fit profiles stiction's band by the likelihood after the fit at the slips' band (off: on a
@@ -128,7 +108,10 @@ class Model:
         self.valve = valve if valve is not None else ValveParams()
         self.max_step_s = float(max_step_s)
         self.eff_params = [p for e in self.effects for p in EFFECTS[e].parameters]
-        self.names = [n for n, *_ in BASE_PARAMS] + [p.name for p in self.eff_params] + [n for n, *_ in NOISE_PARAMS]
+        #: every parameter of the fit, in order (the estimation's Parameter: bounds and transform)
+        self.parameters: tuple[Parameter, ...] = (*BASE_PARAMS, *map(effect_parameter, self.eff_params),
+                                                  *NOISE_PARAMS)
+        self.names = [q.name for q in self.parameters]
         self._vp = self.valve.to_array()
         #: the stick-slip filter's breakaway spread and landing sd, relative to the band
         self.band_spread = BAND_SPREAD
@@ -136,41 +119,16 @@ class Model:
         #: after the fit with the band measured from the slips, profile it by the likelihood (see fit)
         self.profile_band = PROFILE_BAND
 
-    # --- the work (optimiser) scale ---------------------------------------------------
-    def _spec(self, name: str) -> tuple[str, float, float, float]:
-        """(transform, lower, upper, scale)."""
-        for n, _, lo, hi in (*BASE_PARAMS, *NOISE_PARAMS):
-            if n == name:
-                return "log", lo, hi, 1.0
-        for p in self.eff_params:
-            if p.name == name:
-                return "lin", p.fit_lower, p.fit_upper, p.scale
-        raise KeyError(name)
-
+    # --- the work (optimiser) scale: the transforms of valve_env.estimation.model ----------
     def to_work(self, values: dict[str, float]) -> np.ndarray:
-        z = []
-        for n in self.names:
-            kind, lo, hi, sc = self._spec(n)
-            v = min(max(values[n], lo), hi)
-            z.append(math.log(v) if kind == "log" else v / sc)
-        return np.array(z)
+        """Natural values (clipped to their bounds) -> the optimiser's scale."""
+        return np.array([to_work(min(max(values[q.name], q.lower), q.upper), q) for q in self.parameters])
 
     def from_work(self, z: np.ndarray) -> dict[str, float]:
-        out = {}
-        for n, zi in zip(self.names, z, strict=True):
-            kind, lo, hi, sc = self._spec(n)
-            out[n] = math.exp(zi) if kind == "log" else zi * sc
-        return out
+        return {q.name: from_work(zi, q) for q, zi in zip(self.parameters, z, strict=True)}
 
     def work_bounds(self) -> list[tuple[float, float]]:
-        b = []
-        for n in self.names:
-            kind, lo, hi, sc = self._spec(n)
-            b.append((math.log(lo), math.log(hi)) if kind == "log" else (lo / sc, hi / sc))
-        return b
-
-    def dnat_dwork(self, values: dict[str, float]) -> np.ndarray:
-        return np.array([values[n] if self._spec(n)[0] == "log" else self._spec(n)[3] for n in self.names])
+        return [work_bounds(q) for q in self.parameters]  # type: ignore[misc]  # every bound is finite
 
     def delta(self, data: RunData, values: dict[str, float] | None = None) -> float:
         """Smallest reversal of the sensed temperature that drives the friction: 5 sd of its noise.
@@ -374,7 +332,7 @@ class Model:
                        effects: tuple[EffectParameter, ...]) -> dict[str, float]:
         """sigma, F_hmax, p_bset (log scale) and the given effect parameters (scaled) by trust-region
         least squares of the simulation error."""
-        names = [n for n, *_ in BASE_PARAMS if n not in fixed] + [p.name for p in effects]
+        names = [q.name for q in BASE_PARAMS if q.name not in fixed] + [p.name for p in effects]
         if not names:
             return {}
         z0 = self.to_work(start)
@@ -455,85 +413,15 @@ class Model:
     def _std(self, nll: Callable[[np.ndarray], float], contrib: Callable[[np.ndarray], np.ndarray],
              zf: np.ndarray, names: list[str], vals: dict[str, float], free: list[int]) -> dict[str, float]:
         """Standard deviations: the larger of the model-based one (inverse Hessian of the negative
-        log-likelihood) and the robust one (Newey-West HAC sandwich of the per-sample scores, which
-        stays honest where the residual model is only approximate). Delta method to natural scale."""
-        k = zf.size
-        h = 1e-3
-        H = np.empty((k, k))
-        f0 = nll(zf)
-        for i in range(k):
-            e = np.zeros(k)
-            e[i] = h
-            H[i, i] = (nll(zf + e) - 2 * f0 + nll(zf - e)) / h**2
-            for j in range(i):
-                ej = np.zeros(k)
-                ej[j] = h
-                H[i, j] = H[j, i] = (nll(zf + e + ej) - nll(zf + e - ej) - nll(zf - e + ej) + nll(zf - e - ej)) / (
-                    4 * h * h)
-        g = self.dnat_dwork(vals)[free]
-        out = {n: float("nan") for n in names}
-        Hi = self._identified_inverse(H, [self.work_bounds()[i] for i in free])
-        if Hi is None:
-            return out
-        # per-sample scores by central differences
-        n = None
-        G = None
-        for i in range(k):
-            e = np.zeros(k)
-            e[i] = h
-            col = (contrib(zf + e) - contrib(zf - e)) / (2 * h)
-            if G is None:
-                n = col.size
-                G = np.empty((n, k))
-            G[:, i] = col
-        assert G is not None and n is not None
-        G = G - G.mean(axis=0)
-        L = int(4.0 * (n / 100.0) ** (2.0 / 9.0))
-        M = G.T @ G
-        for lag in range(1, L + 1):
-            w = 1.0 - lag / (L + 1.0)
-            Gam = G[lag:].T @ G[:-lag]
-            M += w * (Gam + Gam.T)
-        cov_model = Hi
-        # The robust (sandwich) covariance of the physical parameters holds the residual model's
-        # parameters fixed at their estimates: they are a working covariance, and the sandwich for the
-        # parameters of the mean stays valid however wrong it is (Liang and Zeger 1986). Letting their
-        # own scores in would carry the misfit of a nearly flat noise direction into every physical sd
-        # (issue 16: 500 times the bootstrap sd of beta). The noise parameters keep the full sandwich.
-        phys = np.array([n not in NOISE_NAMES for n in names])
-        cov_robust = Hi @ M @ Hi
-        if phys.any():
-            Hp = self._identified_inverse(H[np.ix_(phys, phys)], [self.work_bounds()[free[i]]
-                                                                  for i in np.flatnonzero(phys)])
-            if Hp is not None:
-                cov_robust[np.ix_(phys, phys)] = Hp @ M[np.ix_(phys, phys)] @ Hp
-        for i, name in enumerate(names):
-            v = max(cov_model[i, i], cov_robust[i, i])
-            out[name] = float(math.sqrt(v) * abs(g[i])) if v > 0 and math.isfinite(v) else float("nan")
-        return out
-
-    @staticmethod
-    def _identified_inverse(H: np.ndarray, bounds: list[tuple[float, float]]) -> np.ndarray | None:
-        """The inverse of the Hessian over the directions the data identify.
-
-        A direction ``v`` (eigenvector of ``H``, eigenvalue ``lam``) is unidentified when the data
-        constrain it less than the parameter box does: the +-1 sd interval of the likelihood along
-        ``v`` (``2 / sqrt(lam)`` wide) is wider than the box along ``v``, or ``lam <= 0``. Such directions
-        (typically the residual model's ``s_e``/``tau_e`` when the OU error is negligible) are held
-        fixed: they carry no information, and inverting them lets finite-difference noise and the HAC
-        scores of a flat direction inflate every sd (a 500-fold inflated sd of beta on numpy 2.4 /
-        scipy 1.17, issue 16). Returns ``None`` when no direction is identified."""
-        Hs = 0.5 * (H + H.T)
-        if not np.all(np.isfinite(Hs)):
-            return None
-        lam, V = np.linalg.eigh(Hs)
-        width = np.array([hi - lo for lo, hi in bounds], dtype=float)
-        extent = np.abs(V).T @ width  # the box's extent along each eigenvector
-        keep = (lam > 0) & (2.0 / np.sqrt(np.where(lam > 0, lam, 1.0)) < extent)
-        if not keep.any():
-            return None
-        Vk = V[:, keep]
-        return np.asarray((Vk / lam[keep]) @ Vk.T)
+        log-likelihood over the identified directions) and the robust one (Newey-West HAC sandwich of
+        the per-sample scores, the residual model's parameters held as a working covariance); delta
+        method to natural scale. The one implementation of :mod:`valve_env.estimation.covariance`."""
+        bounds = self.work_bounds()
+        widths = np.array([bounds[i][1] - bounds[i][0] for i in free], dtype=float)
+        g = np.array([dnat_dwork(zf[j], self.parameters[i]) for j, i in enumerate(free)])
+        working = np.array([n in NOISE_NAMES for n in names])
+        sd = hessian_sandwich_sd(nll, contrib, zf, widths, g, working)
+        return {n: float(v) for n, v in zip(names, sd, strict=True)}
 
     @staticmethod
     def _profile_std(pts: dict[float, float], ll_best: float) -> float:

@@ -247,20 +247,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         stepping = ~resetting if any_reset else self._all_envs
         A_in = A_in.reshape(n, adim)
         clipped = self._clipped
-        args = (
-            self._Z, self._OBS, self._INFO, self._vp, self._pp, self._RK, self._RV, self._CUR, self._NRUN, self._ROW,
-            self._NEXT, self._K,
-            A_in, self._bounds, self._A, clipped, self._mode_code, self._SD, stepping,
-        )
-        if n >= self.parallel_threshold:
-            # blocks of ``block_size`` envs, scheduled statically: each thread gets
-            # the same blocks every step, so their rows stay in its core's cache
-            # (dynamic scheduling moved blocks between cores: 5-10 % slower)
-            bad = sim.env_step_batch(*args, self.block_size)
-        else:
-            bad = sim.env_step_batch_serial(*args, self.block_size)
-        if bad >= 0:
-            raise ValueError(f"action must be finite, got {A_in[bad].tolist()} for env {bad}")
+        bad = self._kernel_step(A_in, stepping)
         truncated = self._K >= self._limit
         if any_reset:
             truncated &= stepping
@@ -301,18 +288,27 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         A_in = np.asarray(actions, dtype=np.float64).reshape(n, adim)
         if bool((self._K >= self._limit).any()):
             raise RuntimeError("plan_step: some env's episode has ended; load a snapshot with set_state()")
+        self._kernel_step(A_in, self._all_envs)
+        return self._OBS, self._R
+
+    def _kernel_step(self, A_in: np.ndarray, stepping: np.ndarray) -> int:
+        """One kernel call on the envs ``stepping`` with actions ``A_in`` (n, act_dim): the kernel's
+        flag (-1 fine, -2 some action clipped); a non-finite action raises."""
         args = (
             self._Z, self._OBS, self._INFO, self._vp, self._pp, self._RK, self._RV, self._CUR, self._NRUN, self._ROW,
             self._NEXT, self._K,
-            A_in, self._bounds, self._A, self._clipped, self._mode_code, self._SD, self._all_envs,
+            A_in, self._bounds, self._A, self._clipped, self._mode_code, self._SD, stepping,
         )
-        if n >= self.parallel_threshold:
+        if self.num_envs >= self.parallel_threshold:
+            # blocks of ``block_size`` envs, scheduled statically: each thread gets
+            # the same blocks every step, so their rows stay in its core's cache
+            # (dynamic scheduling moved blocks between cores: 5-10 % slower)
             bad = sim.env_step_batch(*args, self.block_size)
         else:
             bad = sim.env_step_batch_serial(*args, self.block_size)
         if bad >= 0:
             raise ValueError(f"action must be finite, got {A_in[bad].tolist()} for env {bad}")
-        return self._OBS, self._R
+        return int(bad)
 
     def render(self) -> None:
         return None
@@ -401,7 +397,7 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             E0_J=float(self._E0[i]),
         )
 
-    def set_state(self, st: SimState, envs: Any = None) -> None:
+    def set_state(self, st: SimState, envs: Any = None, rng: bool = True) -> None:
         """Load the snapshot ``st`` (from this env's or the single env's ``get_state``, same
         configuration) into the envs ``envs`` (indices, a boolean mask or a slice; all by
         default): each continues exactly as the snapshotted env would, stepped by the same
@@ -412,8 +408,13 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             raise ValueError("state snapshot does not match this environment's configuration")
         k = int(st.k)
         scen = st.scenario
-        change = np.flatnonzero((scen[1:] != scen[:-1]).any(axis=1)) + 1
-        starts = np.concatenate(([0], change))
+        cached = getattr(self, "_runs_of", None)
+        if cached is not None and cached[0] is scen:  # the same snapshot again (a planner's iterations)
+            starts = cached[1]
+        else:
+            change = np.flatnonzero((scen[1:] != scen[:-1]).any(axis=1)) + 1
+            starts = np.concatenate(([0], change))
+            self._runs_of = (scen, starts)
         m = starts.size
         if m > self._RK.shape[1]:
             # grow the run tables through the one place that does it
@@ -432,13 +433,15 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._SD[idx, sim.SD_SET] = st.setting_C
         self._SD[idx, sim.SD_DP] = st.dp_mbar
         self._E0[idx] = st.E0_J
-        for i in idx:  # the state setter copies the values (the snapshot's dict is not kept)
-            rng = self._rngs[i]
-            if rng is None:
+        # the generators (sensor noise, the next reset's scenario); ``rng=False`` leaves them, for a
+        # planner whose plan_step never draws from them (valve_env.controllers.oracle)
+        for i in idx if rng else ():  # the state setter copies the values (the snapshot's dict is not kept)
+            gen = self._rngs[i]
+            if gen is None:
                 self._rngs[i], self._seeds[i] = seeding.np_random()
-                rng = self._rngs[i]
-            assert rng is not None
-            rng.bit_generator.state = st.rng_state
+                gen = self._rngs[i]
+            assert gen is not None
+            gen.bit_generator.state = st.rng_state
         obs = np.zeros(sim.N_OBS, np.float32)
         sim.fill_obs(obs, st.out, self._pp, k, st.setting_C)
         self._OBS[idx] = obs

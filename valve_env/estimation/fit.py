@@ -7,8 +7,9 @@
 The optimiser (scipy's L-BFGS-B, bounded, several starts) works on each
 parameter's transformed scale (``Parameter.transform``). Standard errors come
 from the inverse of the Hessian of the negative log-likelihood, computed by
-central finite differences on the transformed scale, and are mapped to the
-natural scale with the delta method. A parameter that ends on a bound is
+central finite differences on the transformed scale, over the directions the
+data identify (:mod:`valve_env.estimation.covariance`, shared with the
+diagnosis), and are mapped to the natural scale with the delta method. A parameter that ends on a bound is
 reported with a NaN standard error; a (near-)singular Hessian names the
 parameters that the data do not identify (``identifiability_`` and an
 :class:`IdentifiabilityWarning`).
@@ -25,16 +26,15 @@ import numpy as np
 import pandas as pd
 import scipy.optimize
 
+from valve_env.estimation.base import Estimator
+from valve_env.estimation.base import NotFittedError as NotFittedError  # re-exported: raised by predict etc.
+from valve_env.estimation.covariance import fd_hessian, identified_directions
 from valve_env.estimation.filters import Arrays, FilterResult, rts_smooth, run_filter, to_arrays
 from valve_env.estimation.model import Parameter, SDEModel, dnat_dwork, from_work, to_work, work_bounds
 
 
 class IdentifiabilityWarning(UserWarning):
     """The data do not identify some parameters (flat or singular likelihood)."""
-
-
-class NotFittedError(RuntimeError):
-    """The estimator is used before ``fit``."""
 
 
 def negloglik(model: SDEModel, params: Mapping[str, float] | np.ndarray | None, data: pd.DataFrame | Arrays, *,
@@ -53,7 +53,7 @@ def negloglik(model: SDEModel, params: Mapping[str, float] | np.ndarray | None, 
         return float("inf")
 
 
-class MLEstimator:
+class MLEstimator(Estimator):
     """Maximum-likelihood estimator of a continuous-discrete stochastic model.
 
     Parameters: ``n_starts`` optimiser starts (the first at the parameters'
@@ -231,30 +231,27 @@ class MLEstimator:
         inner = [j for j in range(k) if j not in at_bound]
         if self.hessian and inner:
             Hs = self._hessian(theta, arr, base, free, inner)
-            ok = np.all(np.isfinite(Hs))
-            if ok:
-                w, V = np.linalg.eigh(Hs)
-                tol = max(abs(w).max(), 1e-300) * 1e-10
-                if np.any(w <= tol):
-                    for m in np.flatnonzero(w <= tol):
-                        comp = np.abs(V[:, m])
-                        who = [names[inner[i]] for i in np.argsort(-comp) if comp[i] > 0.2]
+            widths = [(bounds[j][1] - bounds[j][0]) if bounds[j][0] is not None and bounds[j][1] is not None
+                      else np.inf for j in inner]
+            ident = identified_directions(Hs, widths, rtol=1e-10)
+            if ident is not None:
+                bad = set()
+                for m, members in zip(np.flatnonzero(~ident.keep), ident.unidentified_members(), strict=True):
+                    who = [names[inner[i]] for i in members]
+                    bad |= {inner[i] for i in members}
+                    if ident.eigenvalues[m] <= 1e-10 * max(float(np.max(np.abs(ident.eigenvalues))), 1e-300):
                         msgs.append(f"the likelihood is flat or not concave along a combination of {who}: "
                                     "these parameters are not identifiable from the data (fix one or more)")
-                    Cinv = np.linalg.pinv(Hs)
-                else:
-                    Cinv = np.linalg.inv(Hs)
+                    else:
+                        msgs.append(f"the data constrain a combination of {who} less than its bounds do: "
+                                    "these parameters are not identifiable from the data (fix one or more)")
                 for a, ja in enumerate(inner):
                     for b, jb in enumerate(inner):
-                        cov_w[ja, jb] = Cinv[a, b]
+                        cov_w[ja, jb] = ident.inverse[a, b]
                 d = np.diag(cov_w)
                 std_w = np.where(np.isfinite(d) & (d > 0), np.sqrt(np.abs(d)), np.nan)
-                if np.any(w <= tol):
-                    bad = set()
-                    for m in np.flatnonzero(w <= tol):
-                        bad |= {inner[i] for i in np.flatnonzero(np.abs(V[:, m]) > 0.2)}
-                    for j in bad:
-                        std_w[j] = np.nan
+                for j in bad:
+                    std_w[j] = np.nan
             else:
                 msgs.append("the Hessian could not be computed (non-finite likelihood near the optimum)")
         jac = np.array([dnat_dwork(theta[j], q) for j, q in enumerate(qs)])
@@ -275,39 +272,23 @@ class MLEstimator:
 
     def _hessian(self, theta: np.ndarray, arr: Arrays, base: np.ndarray, free: list[int],
                  inner: list[int]) -> np.ndarray:
-        n = len(inner)
-        h = self.hessian_step * np.maximum(1.0, np.abs(theta[inner]))
-        f0 = self._nll_work(theta, arr, base, free)
+        """The Hessian over the ``inner`` coordinates (:func:`valve_env.estimation.covariance.fd_hessian`,
+        relative steps); NaN when the filter fails near the optimum."""
+        seen: list[float] = []
 
-        seen: list[float] = [f0]
-
-        def f(delta: dict[int, float]) -> float:
+        def f(z: np.ndarray) -> float:
             th = theta.copy()
-            for a, dv in delta.items():
-                th[inner[a]] += dv
+            th[inner] = z
             v = self._nll_work(th, arr, base, free)
             seen.append(v)
             return v
 
-        H = np.zeros((n, n))
-        fp = np.array([f({a: h[a]}) for a in range(n)])
-        fm = np.array([f({a: -h[a]}) for a in range(n)])
-        for a in range(n):
-            H[a, a] = (fp[a] - 2.0 * f0 + fm[a]) / h[a] ** 2
-        for a in range(n):
-            for b in range(a + 1, n):
-                v = (f({a: h[a], b: h[b]}) - f({a: h[a], b: -h[b]}) - f({a: -h[a], b: h[b]})
-                     + f({a: -h[a], b: -h[b]})) / (4.0 * h[a] * h[b])
-                H[a, b] = H[b, a] = v
-        if max(seen) - f0 > 1e5:  # a failed filter near the optimum
+        H = fd_hessian(f, theta[inner], self.hessian_step * np.maximum(1.0, np.abs(theta[inner])))
+        if max(seen) - seen[0] > 1e5:  # a failed filter near the optimum
             H[:] = np.nan
         return H
 
     # ------------------------------------------------------------------ outputs
-    def _check(self) -> None:
-        if not hasattr(self, "params_"):
-            raise NotFittedError("call fit(data) first")
-
     def _run(self, data: pd.DataFrame | Arrays | None, mask_outputs: tuple[str, ...] = ()) -> tuple[Arrays,
                                                                                                     FilterResult]:
         self._check()

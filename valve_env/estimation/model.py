@@ -23,6 +23,7 @@ effects, the diagnosis).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -39,7 +40,10 @@ class Parameter:
     ``init`` is the starting value on the natural scale; ``lower``/``upper``
     bound it (also on the natural scale); ``transform`` is the scale the
     optimiser works on ("log" requires lower > 0 or None, "logit" maps
-    (lower, upper) to the real line); ``fixed`` keeps it at ``init``.
+    (lower, upper) to the real line, "none" divides by ``scale``, the typical
+    size); ``fixed`` keeps it at ``init``. These transforms are the one set
+    both likelihoods use (the EKF of :mod:`valve_env.estimation.fit` and the
+    output error of :mod:`valve_env.diagnosis.fitting`).
     """
 
     name: str
@@ -50,39 +54,40 @@ class Parameter:
     fixed: bool = False
     unit: str = ""
     doc: str = ""
+    scale: float = 1.0
 
 
 def to_work(value: float, q: Parameter) -> float:
     """Natural scale -> the optimiser's (transformed) scale."""
     if q.transform == "log":
-        return float(np.log(value))
+        return _log(value)
     if q.transform == "logit":
         lo, hi = _finite_bounds(q)
         z = (value - lo) / (hi - lo)
         z = min(max(z, 1e-15), 1.0 - 1e-15)
-        return float(np.log(z / (1.0 - z)))
-    return float(value)
+        return _log(z / (1.0 - z))
+    return float(value) / q.scale
 
 
 def from_work(theta: float, q: Parameter) -> float:
     """The optimiser's scale -> natural scale."""
     if q.transform == "log":
-        return float(np.exp(theta))
+        return _exp(theta)
     if q.transform == "logit":
         lo, hi = _finite_bounds(q)
-        return float(lo + (hi - lo) / (1.0 + np.exp(-theta)))
-    return float(theta)
+        return float(lo + (hi - lo) / (1.0 + _exp(-theta)))
+    return float(theta) * q.scale
 
 
 def dnat_dwork(theta: float, q: Parameter) -> float:
     """Derivative of the natural value with respect to the transformed one (delta method)."""
     if q.transform == "log":
-        return float(np.exp(theta))
+        return _exp(theta)
     if q.transform == "logit":
         lo, hi = _finite_bounds(q)
-        s = 1.0 / (1.0 + np.exp(-theta))
+        s = 1.0 / (1.0 + _exp(-theta))
         return float((hi - lo) * s * (1.0 - s))
-    return 1.0
+    return float(q.scale)
 
 
 def work_bounds(q: Parameter) -> tuple[float | None, float | None]:
@@ -90,10 +95,20 @@ def work_bounds(q: Parameter) -> tuple[float | None, float | None]:
     if q.transform == "logit":
         return (None, None)
     if q.transform == "log":
-        lo = None if q.lower is None or q.lower <= 0 else float(np.log(q.lower))
-        hi = None if q.upper is None else float(np.log(q.upper))
+        lo = None if q.lower is None or q.lower <= 0 else _log(q.lower)
+        hi = None if q.upper is None else _log(q.upper)
         return (lo, hi)
-    return (q.lower, q.upper)
+    return (None if q.lower is None else q.lower / q.scale, None if q.upper is None else q.upper / q.scale)
+
+
+def _log(v: float) -> float:
+    """log of a scalar (math's, the diagnosis's historical values), -inf at 0 and NaN below as numpy."""
+    return math.log(v) if v > 0 else (-math.inf if v == 0 else math.nan)
+
+
+def _exp(v: float) -> float:
+    """exp of a scalar (math's), inf on overflow as numpy."""
+    return math.exp(v) if not v > 709.0 else math.inf
 
 
 def _finite_bounds(q: Parameter) -> tuple[float, float]:

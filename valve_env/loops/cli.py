@@ -54,7 +54,7 @@ def _cmd(args: argparse.Namespace) -> int:
     if "stiction" in R:
         band = f", band {R['stiction']['band_pct']:.3g} +/- {R['stiction']['std_pct']:.2g} % of OP"
     print(f"{loop.tag}: {R['cause']}{band}; {outs.summary()}")
-    for note in loop.notes:
+    for note in R["notes"]:
         print(f"note: {note}")
     return 0
 

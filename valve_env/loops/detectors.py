@@ -4,8 +4,17 @@
   *Control Engineering Practice* 7(10), 1221-1231. For a self-regulating loop the cross-correlation
   of OP and PV is an even function (extremum at lag 0) when the oscillation is caused by tuning or a
   disturbance and an odd one (zero near lag 0, extrema either side) when it is caused by stiction.
-  Statistic: ``|r(0)| / max_tau |r(tau)|`` over lags within half the oscillation period; stiction
-  when it is below 0.5 (the midpoint between odd, 0, and even, 1; fixed a priori, not tuned).
+  The decision is Horch's, from the first zero crossings of the CCF right (``tau_r``) and left
+  (``tau_l``) of lag 0: the phase ``|phi| = 180 |tau_r - tau_l| / (tau_r + tau_l)`` degrees is 0 for an
+  even CCF and 180 for an odd one; ``|phi| > 120`` stiction, ``< 60`` none, between undetermined
+  (counted as no stiction). The CCF is taken over lags up to half the record (the slow cycles of a
+  sticky valve span hours). For an integrating (level) process the PV is the integral of the flow,
+  which shifts the CCF by a quarter period, so the test correlates OP with the PV's increments instead
+  (Horch's variant for integrating loops). Horch's test is a diagnosis of an oscillation: when the
+  CCF's half period ``tau_r + tau_l`` is shorter than 5 samples (a noise-driven loop, no resolved
+  cycle), the verdict is none. Also reported: ``ratio = |r(0)| / max |r|`` (the even-ness of the CCF) and
+  the signed phase ``180 (tau_r - tau_l) / (tau_r + tau_l)`` (positive: the far zero crossing lies at
+  positive lags, where PV follows OP; used by the grey-box decision, docs/loops.md "Decision").
 * :func:`he_curve_fit` - He, Q.P., Wang, J., Pottmann, M., Qin, S.J. (2007). A curve fitting method
   for detecting valve stiction in oscillating control loops. *Ind. Eng. Chem. Res.* 46(13),
   4549-4560. Each half cycle of the mean-removed controller output is fitted by a half sine and
@@ -34,19 +43,51 @@ def _detrend(y: np.ndarray) -> np.ndarray:
     return y - np.polyval(np.polyfit(t, y, 1), t)
 
 
-def horch(loop: LoopData, threshold: float = 0.5) -> dict[str, Any]:
+#: Horch's phase limits, degrees: above ODD the CCF is odd (stiction), below EVEN it is even (none)
+HORCH_ODD_DEG = 120.0
+HORCH_EVEN_DEG = 60.0
+#: the shortest CCF half period (tau_r + tau_l, samples) read as a resolved cycle
+HORCH_MIN_HALF_PERIOD = 5.0
+
+
+def _first_zero(r: np.ndarray) -> float:
+    """Fractional lag of the first sign change of ``r`` (``r[0]`` at lag 0); the end when none."""
+    s0 = np.sign(r[0])
+    for i in range(1, r.size):
+        if np.sign(r[i]) != s0 or r[i] == 0.0:
+            return float(i - 1 + r[i - 1] / (r[i - 1] - r[i])) if r[i - 1] != r[i] else float(i)
+    return float(r.size - 1)
+
+
+def cross_correlation(op: np.ndarray, y: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """``corr(y[k + tau], op[k])`` for ``tau = -max_lag..max_lag`` (linear trends removed first)."""
     from statsmodels.tsa.stattools import ccf
 
-    op, pv = _detrend(loop.op), _detrend(loop.pv)
-    max_lag = min(60, loop.n // 4)
-    fwd = ccf(pv, op, adjusted=False, fft=True)[: max_lag + 1]   # corr(pv[k+tau], op[k])
-    bwd = ccf(op, pv, adjusted=False, fft=True)[: max_lag + 1]   # corr(op[k+tau], pv[k])
-    r = np.concatenate([bwd[:0:-1], fwd])                          # lags -max_lag..max_lag
-    lags = np.arange(-max_lag, max_lag + 1)
-    # half period: first zero crossing on each side of the extremum nearest to lag 0
+    op, y = _detrend(op), _detrend(y)
+    fwd = ccf(y, op, adjusted=False, fft=True)[: max_lag + 1]
+    bwd = ccf(op, y, adjusted=False, fft=True)[: max_lag + 1]
+    return np.arange(-max_lag, max_lag + 1), np.concatenate([bwd[:0:-1], fwd])
+
+
+def horch(loop: LoopData, integrating: bool = False) -> dict[str, Any]:
+    """Horch's cross-correlation test (module doc); ``integrating`` uses the PV's increments."""
+    op, y = (loop.op[1:], np.diff(loop.pv)) if integrating else (loop.op, loop.pv)
+    max_lag = max(op.size // 2 - 1, 2)
+    lags, r = cross_correlation(op, y, max_lag)
+    i0 = max_lag
+    tau_r, tau_l = _first_zero(r[i0:]), _first_zero(r[i0::-1])
+    half = tau_r + tau_l
+    signed = 180.0 * (tau_r - tau_l) / half if half > 0 else 0.0
+    phase = abs(signed)
     peak = float(np.max(np.abs(r)))
-    stat = float(abs(r[lags == 0][0]) / peak) if peak > 0 else 1.0
-    return {"detector": "horch", "statistic": stat, "threshold": threshold, "stiction": bool(stat < threshold)}
+    ratio = float(abs(r[i0]) / peak) if peak > 0 else 1.0
+    if half < HORCH_MIN_HALF_PERIOD:
+        verdict = "none"
+    else:
+        verdict = "stiction" if phase > HORCH_ODD_DEG else ("none" if phase < HORCH_EVEN_DEG else "undetermined")
+    return {"detector": "horch", "statistic": float(phase), "phase_signed_deg": float(signed), "ratio": ratio,
+            "tau_r": tau_r, "tau_l": tau_l,
+            "integrating": bool(integrating), "verdict": verdict, "stiction": verdict == "stiction"}
 
 
 def _half_cycles(y: np.ndarray) -> list[tuple[int, int]]:
@@ -111,4 +152,5 @@ def kano(loop: LoopData, threshold: float = 0.25) -> dict[str, Any]:
 
 DETECTORS = {"horch": horch, "he": he_curve_fit, "kano": kano}
 
-__all__ = ["DETECTORS", "horch", "he_curve_fit", "kano"]
+__all__ = ["DETECTORS", "HORCH_EVEN_DEG", "HORCH_MIN_HALF_PERIOD", "HORCH_ODD_DEG", "cross_correlation", "horch",
+           "he_curve_fit", "kano"]

@@ -1,9 +1,11 @@
-"""Loop records from the project's own environment: a PI on ThermoValve-v0 trimming the valve's
-temperature setting, written as a loop CSV (docs/loops.md, "Loops from the environment").
+"""Loop records from the project's own environment: a PI on the sticky-valve task
+(ThermoValveStickyValve-v0) trimming the valve's temperature setting, written as a loop CSV
+(docs/loops.md, "Loops from the environment").
 
 OP is the setting as % of the action range (40-80 degC -> 0-100 %), PV the outlet temperature,
-SP the outlet target. The valve's stiction is the env's named effect
-(``valve={"effects": {"stiction": {"band_mm": ...}}}``); ``band_mm=None`` is the smooth valve.
+SP the outlet target. The valve is always set explicitly through the env's named effect,
+``valve={"effects": {"stiction": {"band_mm": band_mm}}}``: ``band_mm = 0`` (or ``None``) is the smooth
+valve, whatever band the task itself uses.
 """
 
 from __future__ import annotations
@@ -15,23 +17,24 @@ import valve_env  # noqa: F401  (registers the environments)
 from valve_env.controllers.baselines import PIController
 from valve_env.loops.io import LoopData
 
-ENV_ID = "ThermoValve-v0"
+ENV_ID = "ThermoValveStickyValve-v0"
 
 
 def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, warmup_h: float = 3.0,
-                    noise_K: float = 0.05) -> LoopData:
-    """Run the PI for ``warmup_h + hours`` on ThermoValve-v0 (30 s steps) and return the record of the
-    last ``hours`` (the warm-up holds the tank's start-up heating, when the loop is saturated). The
-    temperature sensors carry white noise of ``noise_K`` (the paper's 0.05 K uncertainty)."""
+                    noise_K: float = 0.01, env_id: str = ENV_ID, filter_s: float = 0.0) -> LoopData:
+    """Run the PI for ``warmup_h + hours`` on ``env_id`` (30 s steps) with the stem's stick band
+    ``band_mm`` (0 or None: a smooth stem) and return the record of the last ``hours`` (the warm-up
+    holds the tank's start-up heating, when the loop is saturated). The temperature sensors carry
+    white noise of ``noise_K`` per sample (docs/loops.md, "Loops from the environment", on the choice);
+    ``filter_s`` is the PI's first-order measurement filter (the historian records the unfiltered PV)."""
     total = hours + warmup_h
-    kw: dict = {"horizon_h": total, "max_episode_steps": int(round(total * 120)), "sensors": {"noise_K": noise_K}}
-    if band_mm is not None:
-        kw["valve"] = {"effects": {"stiction": {"band_mm": band_mm}}}
-    env = gym.make(ENV_ID, **kw)
+    kw: dict = {"horizon_h": total, "max_episode_steps": int(round(total * 120)), "sensors": {"noise_K": noise_K},
+                "valve": {"effects": {"stiction": {"band_mm": float(band_mm or 0.0)}}}}
+    env = gym.make(env_id, **kw)
     space = env.action_space
     assert isinstance(space, gym.spaces.Box)
     lo, hi = float(space.low[0]), float(space.high[0])
-    ctrl = PIController(ENV_ID)
+    ctrl = PIController(env_id, filter_s=filter_s)
     obs, _ = env.reset(seed=seed)
     state = None
     t, sp, pv, op = [], [], [], []
@@ -53,9 +56,9 @@ def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, wa
     env.close()
     skip = int(round(warmup_h * 3600.0 / dt))
     t, sp, pv, op = t[skip:], sp[skip:], pv[skip:], op[skip:]
-    tag = f"env-pi-{'stiction-' + format(band_mm, 'g') + 'mm' if band_mm is not None else 'smooth'}-seed{seed}"
+    tag = f"env-pi-{'stiction-' + format(band_mm, 'g') + 'mm' if band_mm else 'smooth'}-seed{seed}"
     return LoopData(time_s=np.asarray(t) - t[0], sp=np.asarray(sp), pv=np.asarray(pv), op=np.asarray(op), tag=tag,
-                    source=ENV_ID)
+                    source=env_id)
 
 
 __all__ = ["record_env_loop", "ENV_ID"]

@@ -103,8 +103,14 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
                      f"{f['lr_stat_adjusted']:.1f} | {f['p_value']:.3g} | {f['delta_bic']:.1f} | {f['S_pct']:.3g} | "
                      f"{f['J_pct']:.3g} | {f['process']} |")
     d = R["decision"]
+    sh = d["shape"]
+    basis = " and ".join(k for k, v in (("likelihood", d["by_likelihood"]), ("cross-correlation shape", d["by_shape"]))
+                         if v) or "neither"
     lines += ["", f"n_eff/n of the linear residuals: {d['neff_factor']:.3f}; held-out log-likelihood gain of "
               f"{d['best_nonlinear']} over linear: {d['heldout_loglik_gain']:.1f}.", "",
+              f"Stiction evidence: {basis}. OP-{'dPV' if sh['integrating'] else 'PV'} cross-correlation (Horch): "
+              f"signed phase {sh['phase_signed_deg']:.0f} deg (tau_r {sh['tau_r']:.1f}, tau_l {sh['tau_l']:.1f} "
+              f"samples), |r(0)|/max|r| = {sh['ratio']:.2f}.", "",
               f"Oscillation: {R['oscillation']}", "",
               "Ljung-Box on the residuals of the chosen model: " + ", ".join(
                   f"lag {int(k)}: Q = {row.lb_stat:.1f}, p = {row.lb_pvalue:.2g}" for k, row in lb.iterrows()), "",

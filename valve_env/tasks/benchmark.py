@@ -186,16 +186,24 @@ def limit_cycle(
     """The limit cycle of a rollout (valve_env.evaluation.rollout) between ``t0_h`` and ``t1_h`` (a
     window without draws on the M cycle, whose first draw is at 07:00): the stem's break-aways
     (openings by more than ``min_jump_mm`` in a step), their median period (min), and the peak-to-peak
-    swings of the setting (the controller output) and of the outlet."""
+    swings of the setting (the controller output) and of the outlet; and what sets the period: the
+    fraction of the time the stem rests on its seat (x < 1 um), the primary flow while it is open
+    and the mean flow the heat balance needs (kg/h)."""
     w = traj[(traj["t_h"] > t0_h) & (traj["t_h"] < t1_h)]
-    dx = np.diff(w["x_mm"].to_numpy())
+    x = w["x_mm"].to_numpy()
+    dx = np.diff(x)
     opens = np.flatnonzero(dx > min_jump_mm)
     dt_min = float(np.median(np.diff(w["t_h"].to_numpy()))) * 60.0 if len(w) > 1 else math.nan
+    q = w["q_primary_kgh"].to_numpy() if "q_primary_kgh" in w else np.full(len(w), math.nan)
+    is_open = x >= 1e-3
     return {
         "break_aways": float(opens.size),
         "period_min": float(np.median(np.diff(opens)) * dt_min) if opens.size > 1 else math.nan,
         "setting_p2p_K": float(np.ptp(w["setting_C"])) if len(w) else math.nan,
         "outlet_p2p_K": float(np.ptp(w["T_out_C"])) if len(w) else math.nan,
+        "seated_frac": float(np.mean(~is_open)) if len(w) else math.nan,
+        "q_open_kgh": float(np.median(q[is_open])) if is_open.any() else math.nan,
+        "q_mean_kgh": float(np.mean(q)) if len(w) else math.nan,
     }
 
 
@@ -249,7 +257,10 @@ def markdown_report(table: pd.DataFrame, found: Mapping[str, Mapping[str, Any]])
             lines.append(f"* pi's limit cycle, 02:00-05:00 (median over the seeds): {lc['break_aways']:.0f} "
                          f"break-aways of the stem, period {_f(lc['period_min'])} min, setting swing "
                          f"{_f(lc['setting_p2p_K'])} K ({100 * lc['setting_p2p_K'] / 40:.1f} % of its 40 K range), "
-                         f"outlet swing {_f(lc['outlet_p2p_K'])} K")
+                         f"outlet swing {_f(lc['outlet_p2p_K'])} K; the stem rests on its seat "
+                         f"{100 * lc.get('seated_frac', math.nan):.0f} % of the time, passes "
+                         f"{_f(lc.get('q_open_kgh', math.nan))} kg/h when open against a mean "
+                         f"{_f(lc.get('q_mean_kgh', math.nan))} kg/h")
         if "valve_change_pct" in f:
             lines.append(f"* valve matters: pi iae_Kh {_f(f['pi_iae_Kh_task_valve'])} K h on the task's valve, "
                          f"{_f(f['pi_iae_Kh_smooth_valve'])} on a smooth valve: {f['valve_change_pct']:+.1f} % "

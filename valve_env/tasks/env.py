@@ -198,8 +198,8 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
         """The task KPIs of env i's episode so far."""
         return self.layer.kpis(self._TACC[i])
 
-    def set_state(self, st: SimState, envs: Any = None) -> None:
-        super().set_state(st, envs)
+    def set_state(self, st: SimState, envs: Any = None, rng: bool = True) -> None:
+        super().set_state(st, envs, rng)
         idx = self._all_idx[envs] if envs is not None else self._all_idx
         acc = getattr(st, "task_acc", None)
         self._TACC[idx] = 0.0 if acc is None else np.asarray(acc, dtype=float)
@@ -245,7 +245,7 @@ class ThermoValveStickyValveEnv(ThermoValveTaskEnv):
     target (60 +- 0.5 degC), not from a cold tank, and the reward prices
     only what the stem spoils (tracking and the floor), not the heat the
     draws and losses need (reported as heat_kWh): with a cold start and the
-    energy term, 90 % of the cost was the warm-up and the heat, which no
+    energy term, 99 % of the cost was the warm-up and the heat, which no
     controller can change (docs/tasks.md, "Why the oracle was within 4 %").
 
     ## Action space
@@ -280,7 +280,8 @@ class ThermoValveStickyValveEnv(ThermoValveTaskEnv):
 
     * v0: initial release (started at 55 +- 3 degC, ThermoValve-v0's reward).
     * v0, revised (issue 18, 23 Nov 2026): steady start at 60 +- 0.5 degC and no energy term, so the
-      cost is what the sticky stem spoils; the id was kept (no results had been published on it).
+      cost is what the sticky stem spoils; the id was kept (the tasks are not released yet; the
+      earlier figures are in git history).
     """
 
     task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
@@ -408,7 +409,7 @@ class ThermoValveDistrictHeatingEnv(ThermoValveTaskEnv):
     * v0: initial release (started at 55 +- 3 degC, no settlement).
     * v0, revised (issue 18, 23 Nov 2026): steady start at 60 +- 0.5 degC and the end-of-day
       settlement of the stored heat (an oracle seeing the end emptied the tank); the id was kept
-      (no results had been published on it).
+      (the tasks are not released yet; the earlier figures are in git history).
     """
 
     task_id: ClassVar[str] = "ThermoValveDistrictHeating-v0"

@@ -1,0 +1,200 @@
+"""One identification framework (issue 20): one loader, one set of transforms, one standard-error
+implementation, one temperature pre-processing module, one estimator interface.
+
+The structural checks read the source (an AST walk): the diagnosis modules import these pieces from
+their one owner and define no second copy."""
+
+from __future__ import annotations
+
+import ast
+import math
+from importlib import import_module
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from valve_env.diagnosis.fitting import Model
+from valve_env.estimation import covariance, model, temperature
+from valve_env.estimation.base import Estimator
+from valve_env.estimation.estimator import ValveEstimator
+from valve_env.estimation.fit import MLEstimator
+from valve_env.experiment import simulate_experiment
+
+PKG = Path(__file__).resolve().parents[2] / "valve_env"
+
+#: each shared piece, its one owner, and the names no other module of the package may define
+OWNERS: dict[str, tuple[str, ...]] = {
+    "estimation/model.py": ("to_work", "from_work", "dnat_dwork", "work_bounds"),
+    "estimation/covariance.py": ("fd_hessian", "identified_directions", "identified_inverse", "_identified_inverse",
+                                 "hac_meat", "score_matrix", "hessian_sandwich_sd"),
+    "estimation/temperature.py": ("smooth_temperature", "_irw_pass", "tv_denoise", "relaxed_tv",
+                                  "denoise_temperature", "noise_sd"),
+    "data_io.py": ("load_run", "validate_run"),
+    "estimation/data.py": ("RunData",),
+}
+#: a method of this name may exist elsewhere only as a thin wrapper that calls the owner's function
+WRAPPERS = {"to_work", "from_work", "work_bounds", "noise_sd"}
+
+
+def _tree(rel: str) -> ast.Module:
+    return ast.parse((PKG / rel).read_text(encoding="utf-8"))
+
+
+def _modules() -> list[str]:
+    return sorted(str(p.relative_to(PKG)) for p in PKG.rglob("*.py"))
+
+
+def _definitions(tree: ast.Module) -> list[ast.FunctionDef | ast.ClassDef | ast.AsyncFunctionDef]:
+    return [n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))]
+
+
+def _calls(node: ast.AST) -> set[str]:
+    out = set()
+    for n in ast.walk(node):
+        if isinstance(n, ast.Call):
+            f = n.func
+            out.add(f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else "")
+    return out
+
+
+def _import_origins(tree: ast.Module) -> dict[str, tuple[str, str]]:
+    """imported name (as bound) -> (module, name there)"""
+    return {a.asname or a.name: (n.module, a.name) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)
+            and n.module for a in n.names}
+
+
+def _imports(tree: ast.Module) -> dict[str, str]:
+    """imported name -> module it comes from"""
+    out = {}
+    for n in ast.walk(tree):
+        if isinstance(n, ast.ImportFrom) and n.module:
+            for a in n.names:
+                out[a.asname or a.name] = n.module
+    return out
+
+
+def test_no_second_copy_of_a_shared_piece_is_defined() -> None:
+    """No module but the owner defines a loader, a transform, a standard error or a smoother (a
+    same-named method that only delegates to the owner's function is allowed)."""
+    for owner, names in OWNERS.items():
+        for rel in _modules():
+            if rel == owner:
+                continue
+            for d in _definitions(_tree(rel)):
+                if d.name not in names:
+                    continue
+                if d.name in WRAPPERS and isinstance(d, ast.FunctionDef):
+                    owner_mod = import_module("valve_env." + owner[:-3].replace("/", "."))
+                    origin = _import_origins(_tree(rel))
+                    delegates = any(c in origin and getattr(import_module(origin[c][0]), origin[c][1], None)
+                                    is getattr(owner_mod, origin[c][1], ()) for c in _calls(d))
+                    assert delegates, f"{rel}: {d.name} does not delegate to valve_env/{owner}"
+                    continue
+                pytest.fail(f"{rel} defines {d.name}, which valve_env/{owner} owns")
+
+
+def test_the_diagnosis_imports_the_shared_pieces_from_their_owner() -> None:
+    fitting = _imports(_tree("diagnosis/fitting.py"))
+    for name in ("to_work", "from_work", "dnat_dwork", "work_bounds", "Parameter"):
+        assert fitting.get(name) == "valve_env.estimation.model", name
+    assert fitting.get("hessian_sandwich_sd") == "valve_env.estimation.covariance"
+    assert fitting.get("RunData") == "valve_env.estimation.data"
+    assert _imports(_tree("estimation/data.py")).get("smooth_temperature") == "valve_env.estimation.temperature"
+    diagnose = _imports(_tree("diagnosis/diagnose.py"))
+    assert diagnose.get("load_run") == diagnose.get("validate_run") == "valve_env.data_io"
+    assert _imports(_tree("estimation/fit.py")).get("identified_directions") == "valve_env.estimation.covariance"
+    # no module of the diagnosis inverts a Hessian, computes a HAC meat or reads a CSV itself
+    for rel in _modules():
+        if not rel.startswith("diagnosis/"):
+            continue
+        src = (PKG / rel).read_text(encoding="utf-8")
+        for banned in ("np.linalg.inv(", "np.linalg.pinv(", "np.linalg.eigh(", "S_hac", "read_csv("):
+            assert banned not in src, f"{rel} uses {banned}"
+
+
+def test_only_the_loader_reads_a_run_csv() -> None:
+    """pandas.read_csv appears only in the loader (and in the packaged tapping-profile table)."""
+    readers = sorted(rel for rel in _modules() if "read_csv(" in (PKG / rel).read_text(encoding="utf-8"))
+    assert readers == ["data_io.py", "scenario.py"]
+
+
+def test_the_diagnosis_parameters_are_the_estimation_parameters() -> None:
+    m = Model(("medium_temperature", "sensor_lag"))
+    assert all(isinstance(q, model.Parameter) for q in m.parameters)
+    values = {q.name: (q.lower * q.upper) ** 0.5 if q.transform == "log" else 0.5 * q.upper for q in m.parameters}
+    z = m.to_work(values)
+    assert z.tolist() == [model.to_work(values[q.name], q) for q in m.parameters]
+    back = m.from_work(z)
+    assert all(math.isclose(back[k], v, rel_tol=1e-12) for k, v in values.items())
+    # a scaled linear parameter: value / scale on the optimiser's side
+    beta = m.parameters[m.names.index("beta")]
+    assert beta.transform == "none" and model.to_work(0.2, beta) == pytest.approx(0.2 / beta.scale)
+
+
+def test_identified_inverse_drops_a_direction_the_box_constrains_better() -> None:
+    """A direction whose +-1 sd interval is wider than the parameter box is held fixed (not inverted);
+    the other is the plain inverse."""
+    H = np.diag([1.0e4, 1.0e-2])  # sd 0.01 and 10 on the work scale
+    inv = covariance.identified_inverse(H, [5.0, 5.0])
+    assert inv is not None
+    assert inv[0, 0] == pytest.approx(1.0e-4) and inv[1, 1] == 0.0
+    assert np.allclose(covariance.identified_inverse(H, [5.0, 100.0]), np.linalg.inv(H))
+    assert np.allclose(covariance.identified_inverse(H, None), np.linalg.inv(H))
+    assert covariance.identified_inverse(np.diag([-1.0, 0.0]), None) is None
+
+
+def test_hac_meat_is_newey_west() -> None:
+    rng = np.random.default_rng(0)
+    G = rng.standard_normal((400, 2))
+    G[1:] += 0.8 * G[:-1]
+    M = covariance.hac_meat(G)
+    Gc = G - G.mean(axis=0)
+    L = int(4.0 * (400 / 100.0) ** (2.0 / 9.0))
+    ref = Gc.T @ Gc
+    for lag in range(1, L + 1):
+        S = Gc[lag:].T @ Gc[:-lag]
+        ref += (1.0 - lag / (L + 1.0)) * (S + S.T)
+    assert np.allclose(M, ref)
+
+
+def test_one_temperature_module_serves_both_likelihoods() -> None:
+    """The EKF's inputs (TV) and the output error's latent temperatures (IRW-RTS) both come from
+    valve_env.estimation.temperature; each is closer to the truth than the raw channel."""
+    from valve_env.estimation.data import RunData
+    from valve_env.estimation.valve_model import prepare_inputs
+
+    df = simulate_experiment(seed=3, duration_h=3.0, dt_s=10.0, T_noise_C=0.01)
+    truth = df["true_T_tank_C"].to_numpy()
+    raw = float(np.sqrt(np.mean((df["T_tank_C"].to_numpy() - truth) ** 2)))
+    tv = prepare_inputs(df)["T_tank_s"].to_numpy()
+    assert np.array_equal(tv, temperature.denoise_temperature(df["T_tank_C"].to_numpy(), df["time_s"].to_numpy())[0])
+    irw = RunData.from_frame(df).T
+    for level in (tv, irw):
+        assert float(np.sqrt(np.mean((level - truth) ** 2))) < 0.8 * raw
+
+
+def test_both_estimators_share_the_interface() -> None:
+    assert issubclass(MLEstimator, Estimator) and issubclass(ValveEstimator, Estimator)
+    with pytest.raises(ValueError, match="unknown likelihood"):
+        ValveEstimator(likelihood="nope")
+    with pytest.raises(ValueError, match="unknown effect"):
+        ValveEstimator(("nope",))
+
+
+def test_valve_estimator_wraps_each_likelihood_without_changing_its_numbers() -> None:
+    """fit returns self with the back-end's own numbers, for the EKF and for the output error."""
+    from valve_env.estimation.data import RunData
+    from valve_env.estimation.valve_model import base_valve_model
+
+    df = simulate_experiment(seed=11, duration_h=4.0, dt_s=20.0, T_noise_C=0.005, x_noise_mm=2.0e-3)
+    ekf = ValveEstimator(n_starts=1, hessian=False)
+    assert ekf.fit(df) is ekf
+    ref = MLEstimator(base_valve_model(), n_starts=1, hessian=False).fit(df)
+    assert ekf.params_ == ref.params_ and ekf.loglik_ == ref.loglik_ and ekf.n_free_ == ref.n_free_
+    oe = ValveEstimator(likelihood="output_error", with_std=False).fit(df)
+    res = Model(()).fit(RunData.from_frame(df), with_std=False)
+    assert oe.params_ == res.params and oe.loglik_ == res.loglik
+    assert oe.n_free_ == res.n_free == 6 and oe.aic_ == pytest.approx(-2.0 * res.loglik + 12.0)
+    assert abs(oe.params_["sigma"] / ekf.params_["sigma"] - 1.0) < 0.1  # the two likelihoods agree on sigma
+    assert list(oe.summary().index) == list(oe.params_)

@@ -1,0 +1,112 @@
+"""One estimator of the valve and its effects, behind which sit the project's two likelihoods.
+
+    est = ValveEstimator(effects=("medium_temperature",), likelihood="output_error").fit(df)
+    est.params_, est.std_, est.loglik_, est.n_obs_, est.n_free_, est.aic_, est.bic_, est.rms_
+
+``data`` is a run as :func:`valve_env.data_io.load_run` reads it (a path is read with it; a
+DataFrame is validated with :func:`~valve_env.data_io.validate_run`). ``effects`` are names of the
+registry :mod:`valve_env.effects`. The two likelihood back-ends:
+
+* ``"ekf"``: the continuous-discrete SDE valve model with the effects as extra states and
+  parameters (:func:`valve_env.diagnosis.sde_effects.effect_model`), extended Kalman filter,
+  :class:`~valve_env.estimation.fit.MLEstimator`; the inputs are the TV-denoised temperatures.
+* ``"output_error"``: the valve simulated from the IRW-RTS-smoothed temperatures, the residual an
+  Ornstein-Uhlenbeck model error plus white noise (:class:`valve_env.diagnosis.fitting.Model`, the
+  diagnosis's likelihood); standard errors the larger of the identified inverse Hessian and the HAC
+  sandwich (:mod:`valve_env.estimation.covariance`).
+
+Both use the same parameter transforms (:mod:`valve_env.estimation.model`) and the same standard
+errors (:mod:`valve_env.estimation.covariance`). The back-end object is ``backend_`` (and, for the
+output error, the diagnosis's :class:`~valve_env.diagnosis.fitting.FitResult` is ``result_``): the
+numbers are the back-end's, unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from typing import Any
+
+import pandas as pd
+
+from valve_env.data_io import load_run, validate_run
+from valve_env.estimation.base import Estimator
+from valve_env.estimation.data import RunData
+from valve_env.params import ValveParams
+
+#: the likelihood back-ends, by name
+LIKELIHOODS: tuple[str, ...] = ("ekf", "output_error")
+
+
+class ValveEstimator(Estimator):
+    """Maximum likelihood of the valve with ``effects`` under the ``likelihood`` back-end.
+
+    ``fixed`` holds parameters at given values; ``start`` (output error only) starts from given
+    values; ``options`` go to the back-end (:class:`~valve_env.estimation.fit.MLEstimator`'s
+    keywords, or :meth:`valve_env.diagnosis.fitting.Model.fit`'s ``maxiter``/``with_std``)."""
+
+    def __init__(self, effects: tuple[str, ...] | list[str] = (), *, likelihood: str = "ekf",
+                 valve: ValveParams | None = None, fixed: Mapping[str, float] | None = None,
+                 start: Mapping[str, float] | None = None, **options: Any) -> None:
+        from valve_env.diagnosis.effects import check_effects
+
+        if likelihood not in LIKELIHOODS:
+            raise ValueError(f"unknown likelihood {likelihood!r}; choose one of {', '.join(LIKELIHOODS)}")
+        self.effects = check_effects(list(effects))
+        self.likelihood = likelihood
+        self.valve = valve
+        self.fixed = dict(fixed or {})
+        self.start = dict(start or {})
+        self.options = dict(options)
+        if self.start and likelihood != "output_error":
+            raise ValueError("start values are an option of the output_error likelihood only")
+
+    def fit(self, data: pd.DataFrame | str | os.PathLike[str]) -> ValveEstimator:
+        df = load_run(data, self.valve) if isinstance(data, (str, os.PathLike)) else validate_run(data,
+                                                                                                  valve=self.valve)
+        if self.likelihood == "ekf":
+            self._fit_ekf(df)
+        else:
+            self._fit_output_error(df)
+        return self
+
+    def _fit_ekf(self, df: pd.DataFrame) -> None:
+        from valve_env.diagnosis.sde_effects import effect_model
+        from valve_env.estimation.fit import MLEstimator
+        from valve_env.estimation.valve_model import base_valve_model
+
+        model = effect_model(self.effects, valve=self.valve) if self.effects else base_valve_model(self.valve)
+        est = MLEstimator(model, fixed=self.fixed, **self.options).fit(df)
+        self.backend_ = est
+        self.params_ = dict(est.params_)
+        self.std_ = dict(est.std_)
+        self.loglik_ = float(est.loglik_)
+        self.n_obs_ = int(est.n_obs_)
+        self.n_free_ = int(est.n_free_)
+        self.aic_ = float(est.aic_)
+        self.bic_ = float(est.bic_)
+        self.converged_ = bool(est.converged_)
+        self.rms_ = dict(est.rms_)
+
+    def _fit_output_error(self, df: pd.DataFrame) -> None:
+        from valve_env.diagnosis.fitting import Model
+
+        run = RunData.from_frame(df, str(df.attrs.get("source", "run")))
+        model = Model(self.effects, self.valve)
+        res = model.fit(run, start=self.start or None, fixed=self.fixed or None, **self.options)
+        self.backend_ = model
+        self.result_ = res
+        self.data_ = run
+        self.params_ = dict(res.params)
+        self.std_ = {k: v for k, v in res.std.items() if k not in self.fixed}
+        self.loglik_ = float(res.loglik)
+        self.n_obs_ = int(res.n)
+        self.n_free_ = int(res.n_free)
+        self.aic_ = -2.0 * self.loglik_ + 2.0 * self.n_free_
+        self.bic_ = -2.0 * self.loglik_ + math.log(max(self.n_obs_, 1)) * self.n_free_
+        self.converged_ = bool(res.converged)
+        self.rms_ = {"x_mm": float(res.rms_mm)}
+
+
+__all__ = ["ValveEstimator", "LIKELIHOODS"]
