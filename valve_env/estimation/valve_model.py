@@ -212,19 +212,32 @@ def relaxed_tv(y: np.ndarray, lam: float) -> np.ndarray:
     return out
 
 
-def denoise_temperature(y: np.ndarray, t: np.ndarray, tv_factor: float = 4.5) -> tuple[np.ndarray, np.ndarray]:
-    """Denoised temperature (:func:`relaxed_tv` with lam = tv_factor x :func:`noise_sd`) and its
-    rate over the following interval (K/s; 0 at the end)."""
+#: the denoisers of :func:`denoise_temperature`: ``relaxed`` (the default, :func:`relaxed_tv`) and
+#: ``tv`` (plain :func:`tv_denoise`); they bracket a reversal's excursion (docs/uncertainty.md)
+DENOISERS: tuple[str, ...] = ("relaxed", "tv")
+
+
+def denoise_temperature(y: np.ndarray, t: np.ndarray, tv_factor: float = 4.5,
+                        denoiser: str = "relaxed") -> tuple[np.ndarray, np.ndarray]:
+    """Denoised temperature (:func:`relaxed_tv`, or plain :func:`tv_denoise` with
+    ``denoiser="tv"``, with lam = tv_factor x :func:`noise_sd`) and its rate over the following
+    interval (K/s; 0 at the end)."""
+    if denoiser not in DENOISERS:
+        raise ValueError(f"unknown denoiser {denoiser!r}; use one of {DENOISERS}")
     y = np.ascontiguousarray(y, dtype=float)
     lam = tv_factor * noise_sd(y)
-    ys = relaxed_tv(y, lam) if lam > 0 else y.copy()
+    if lam <= 0:
+        ys = y.copy()
+    else:
+        ys = relaxed_tv(y, lam) if denoiser == "relaxed" else tv_denoise(y, lam)
     v = np.zeros_like(ys)
     if len(ys) > 1:
         v[:-1] = np.diff(ys) / np.diff(np.asarray(t, dtype=float))
     return ys, v
 
 
-def prepare_inputs(data: pd.DataFrame, tv_factor: float = 4.5, time: str = "time_s") -> pd.DataFrame:
+def prepare_inputs(data: pd.DataFrame, tv_factor: float = 4.5, time: str = "time_s",
+                   denoiser: str = "relaxed") -> pd.DataFrame:
     """A copy of ``data`` with ``T_tank_s``, ``v_tank`` (from ``T_tank_C``) and ``T_med_s``,
     ``v_med`` (from ``T_med_C``): the denoised temperatures and their rates (see the module doc),
     and ``t_in``, the sample time (so that a hook can interpolate inside an interval, see
@@ -232,9 +245,11 @@ def prepare_inputs(data: pd.DataFrame, tv_factor: float = 4.5, time: str = "time
     out = data.copy()
     t = out[time].to_numpy(dtype=float)
     out["t_in"] = t
-    out["T_tank_s"], out["v_tank"] = denoise_temperature(out["T_tank_C"].to_numpy(dtype=float), t, tv_factor)
+    out["T_tank_s"], out["v_tank"] = denoise_temperature(out["T_tank_C"].to_numpy(dtype=float), t, tv_factor,
+                                                         denoiser)
     if "T_med_C" in out.columns:
-        out["T_med_s"], out["v_med"] = denoise_temperature(out["T_med_C"].to_numpy(dtype=float), t, tv_factor)
+        out["T_med_s"], out["v_med"] = denoise_temperature(out["T_med_C"].to_numpy(dtype=float), t, tv_factor,
+                                                           denoiser)
     else:
         out["T_med_s"], out["v_med"] = out["T_tank_s"], out["v_tank"]
     return out
@@ -497,7 +512,7 @@ class ValveModel(SDEModel):
     ``sign_eps`` (K/s) the scale of a smooth sign in the Dahl drift (0: sgn, the
     default: the rate input does not depend on the parameters, so the
     likelihood stays smooth); ``tv_factor`` the total-variation penalty in units
-    of the temperature noise sd.
+    of the temperature noise sd; ``denoiser`` "relaxed" (default) or "tv" (:func:`denoise_temperature`).
 
     Subclasses extend ``extra_states``, ``extra_parameters`` and the hook
     class attributes (see docs/estimation.md).
@@ -522,7 +537,10 @@ class ValveModel(SDEModel):
 
     def __init__(self, valve: ValveParams | None = None, *, fixed: dict[str, float] | None = None,
                  init: dict[str, float] | None = None, clip_width_mm: float = 0.01, sign_eps: float = 0.0,
-                 tv_factor: float = 4.5) -> None:
+                 tv_factor: float = 4.5, denoiser: str = "relaxed") -> None:
+        if denoiser not in DENOISERS:
+            raise ValueError(f"unknown denoiser {denoiser!r}; use one of {DENOISERS}")
+        self.denoiser = denoiser
         self.valve = valve if valve is not None else ValveParams()
         self.clip_width_mm = float(clip_width_mm)
         self.sign_eps = float(sign_eps)
@@ -555,7 +573,7 @@ class ValveModel(SDEModel):
         """Add the model's input columns (denoised temperatures and rates) unless present."""
         if all(c in data.columns for c in ("T_tank_s", "v_tank", "T_med_s", "v_med", "t_in")):
             return data
-        return prepare_inputs(data, self.tv_factor)
+        return prepare_inputs(data, self.tv_factor, denoiser=self.denoiser)
 
     # --- constants and hooks from Python ------------------------------------
     @property
@@ -685,6 +703,7 @@ __all__ = [
     "base_valve_model",
     "prepare_inputs",
     "denoise_temperature",
+    "DENOISERS",
     "tv_denoise",
     "relaxed_tv",
     "noise_sd",
