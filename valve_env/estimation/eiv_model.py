@@ -50,7 +50,7 @@ from typing import Any
 import numba as nb
 import numpy as np
 
-from valve_env.estimation.model import Parameter, SDEModel
+from valve_env.estimation.model import Parameter, SDEModel, with_overrides
 from valve_env.estimation.valve_model import (
     C_CLIP_W,
     C_SIGN_EPS,
@@ -108,17 +108,7 @@ class InputErrorModel(SDEModel):
             Parameter("tau_d", tau_d, 1.0, 1e6, "log", unit="s", doc="correlation time of the input error"),
             *([Parameter("s_e", s_e, 1e-7, 10.0, "log", doc="measurement noise sd of the input")] if measured else []),
         )
-        init = dict(init or {})
-        fixed = dict(fixed or {})
-        params = [*base.parameters, *extra]
-        known = {q.name for q in params}
-        for name in (*init, *fixed):
-            if name not in known:
-                raise KeyError(f"{self.name}: unknown parameter {name!r}; known: {sorted(known)}")
-        self.parameters = tuple(
-            Parameter(q.name, float(fixed.get(q.name, init.get(q.name, q.init))), q.lower, q.upper, q.transform,
-                      q.fixed or q.name in fixed, q.unit, q.doc)
-            for q in params)
+        self.parameters = with_overrides(self.name, [*base.parameters, *extra], init, fixed)
         self.n_base_params = len(base.parameters)
         self.n_base_states = base.n_states
 
@@ -182,6 +172,32 @@ class InputErrorModel(SDEModel):
 
 # --------------------------------------------------------------------------- the valve's fast kernel
 @nb.njit(cache=True)
+def _scalar_update(F: float, d: float, P00: float, P01: float, P11: float, ek: float, h0: float, h1: float,
+                   Rk: float) -> tuple[float, float, float, float, float, float]:  # pragma: no cover - compiled
+    """One scalar measurement update of the 2-state filter (Joseph form) and its nll term."""
+    PH0 = P00 * h0 + P01 * h1
+    PH1 = P01 * h0 + P11 * h1
+    Sk = h0 * PH0 + h1 * PH1 + Rk
+    if not Sk > 0.0:
+        return F, d, P00, P01, P11, np.inf
+    K0 = PH0 / Sk
+    K1 = PH1 / Sk
+    B00 = 1.0 - K0 * h0
+    B01 = -K0 * h1
+    B10 = -K1 * h0
+    B11 = 1.0 - K1 * h1
+    M00 = B00 * P00 + B01 * P01
+    M01 = B00 * P01 + B01 * P11
+    M10 = B10 * P00 + B11 * P01
+    M11 = B10 * P01 + B11 * P11
+    n00 = M00 * B00 + M01 * B01 + K0 * K0 * Rk
+    n01 = M00 * B10 + M01 * B11 + K0 * K1 * Rk
+    n11 = M10 * B10 + M11 * B11 + K1 * K1 * Rk
+    term = 0.5 * np.log(Sk) + 0.5 * ek * ek / Sk + 0.5 * np.log(2.0 * np.pi)
+    return F + K0 * ek, d + K1 * ek, n00, n01, n11, term
+
+
+@nb.njit(cache=True)
 def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarray, c: np.ndarray,
                            k_extra: int, s_e: float, x_pred: np.ndarray, P_pred: np.ndarray, x_filt: np.ndarray,
                            P_filt: np.ndarray, y_pred: np.ndarray, S_out: np.ndarray, innov: np.ndarray,
@@ -189,7 +205,7 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
     """EKF of :class:`ValveEIVModel` (states F_h, d; outputs x_mm, T_tank_C), allocation-free: per
     interval the exact OU step of d and the exact Dahl step for the interval's temperature travel
     dT_s + dd (the denoised travel plus the error's), linearised in dd (the bulb is driven by the
-    true temperature); at each sample a joint update with whichever outputs are present."""
+    true temperature); at each sample the update with whichever outputs are present."""
     N = t.shape[0]
     sig = p[P_SIGMA]
     Fm = p[P_F_HMAX]
@@ -208,7 +224,6 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
     P01 = 0.0
     P11 = s_d * s_d
     nll = 0.0
-    log2pi = np.log(2.0 * np.pi)
     hT = 1e-4
     for k in range(N):
         A00 = 1.0
@@ -258,8 +273,6 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
         # S = H P H' + R with H = [[hF, hd], [0, 1]]
         PH00 = P00 * hF + P01 * hd  # (P H')[:, 0]
         PH10 = P01 * hF + P11 * hd
-        PH01 = P01  # (P H')[:, 1]
-        PH11 = P11
         S00 = hF * PH00 + hd * PH10 + R0
         S01 = PH10
         S11 = P11 + R1
@@ -269,75 +282,23 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
         S_out[k, 0, 1] = S01
         S_out[k, 1, 0] = S01
         S_out[k, 1, 1] = S11
-        o0 = np.isfinite(Y[k, 0])
-        o1 = np.isfinite(Y[k, 1])
-        if o0 and o1:
-            det = S00 * S11 - S01 * S01
-            if not det > 0.0:
-                return np.inf
-            e0 = Y[k, 0] - y0
-            e1 = Y[k, 1] - T_g
-            i00 = S11 / det
-            i01 = -S01 / det
-            i11 = S00 / det
-            nll += 0.5 * np.log(det) + 0.5 * (e0 * (i00 * e0 + i01 * e1) + e1 * (i01 * e0 + i11 * e1)) + log2pi
-            K00 = PH00 * i00 + PH01 * i01
-            K01 = PH00 * i01 + PH01 * i11
-            K10 = PH10 * i00 + PH11 * i01
-            K11 = PH10 * i01 + PH11 * i11
-            F += K00 * e0 + K01 * e1
-            d += K10 * e0 + K11 * e1
-            # Joseph form: (I - K H) P (I - K H)' + K R K'
-            B00 = 1.0 - K00 * hF
-            B01 = -K00 * hd - K01
-            B10 = -K10 * hF
-            B11 = 1.0 - K10 * hd - K11
-            M00 = B00 * P00 + B01 * P01
-            M01 = B00 * P01 + B01 * P11
-            M10 = B10 * P00 + B11 * P01
-            M11 = B10 * P01 + B11 * P11
-            n00 = M00 * B00 + M01 * B01 + K00 * K00 * R0 + K01 * K01 * R1
-            n01 = M00 * B10 + M01 * B11 + K00 * K10 * R0 + K01 * K11 * R1
-            n11 = M10 * B10 + M11 * B11 + K10 * K10 * R0 + K11 * K11 * R1
-            P00, P01, P11 = n00, n01, n11
-            innov[k, 0] = e0
-            innov[k, 1] = e1
-        elif o0 or o1:
-            if o0:
-                ek = Y[k, 0] - y0
-                Sk = S00
-                Rk = R0
-                K0 = PH00 / Sk
-                K1 = PH10 / Sk
-                h0 = hF
-                h1 = hd
-                innov[k, 0] = ek
+        # the joint update of the present outputs as sequential scalar updates with the same
+        # linearisation (exact for independent measurement noises: same state, covariance and nll)
+        F0 = F
+        d0 = d
+        for j in range(2):
+            if not np.isfinite(Y[k, j]):
+                continue
+            if j == 0:
+                h0, h1, Rk, ek = hF, hd, R0, Y[k, 0] - y0
             else:
-                ek = Y[k, 1] - T_g
-                Sk = S11
-                Rk = R1
-                K0 = PH01 / Sk
-                K1 = PH11 / Sk
-                h0 = 0.0
-                h1 = 1.0
-                innov[k, 1] = ek
-            if not Sk > 0.0:
+                h0, h1, Rk, ek = 0.0, 1.0, R1, Y[k, 1] - T_g
+            innov[k, j] = ek
+            ek -= h0 * (F - F0) + h1 * (d - d0)  # against the state updated by the first output
+            F, d, P00, P01, P11, term = _scalar_update(F, d, P00, P01, P11, ek, h0, h1, Rk)
+            if not np.isfinite(term):
                 return np.inf
-            nll += 0.5 * np.log(Sk) + 0.5 * ek * ek / Sk + 0.5 * log2pi
-            F += K0 * ek
-            d += K1 * ek
-            B00 = 1.0 - K0 * h0
-            B01 = -K0 * h1
-            B10 = -K1 * h0
-            B11 = 1.0 - K1 * h1
-            M00 = B00 * P00 + B01 * P01
-            M01 = B00 * P01 + B01 * P11
-            M10 = B10 * P00 + B11 * P01
-            M11 = B10 * P01 + B11 * P11
-            n00 = M00 * B00 + M01 * B01 + K0 * K0 * Rk
-            n01 = M00 * B10 + M01 * B11 + K0 * K1 * Rk
-            n11 = M10 * B10 + M11 * B11 + K1 * K1 * Rk
-            P00, P01, P11 = n00, n01, n11
+            nll += term
         x_filt[k, 0] = F
         x_filt[k, 1] = d
         P_filt[k, 0, 0] = P00

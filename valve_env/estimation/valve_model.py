@@ -47,7 +47,7 @@ import numpy as np
 import pandas as pd
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-from valve_env.estimation.model import CompiledFunctions, Parameter, SDEModel
+from valve_env.estimation.model import CompiledFunctions, Parameter, SDEModel, with_overrides
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, N_VALVE, ValveParams
 from valve_env.physics import valve as phys
 
@@ -555,18 +555,7 @@ class ValveModel(SDEModel):
             Parameter("s_F", 1e-3, 1e-6, 10.0, "log", unit="N/sqrt(s)", doc="diffusion of the friction force"),
             Parameter("s_x", 5e-3, 1e-5, 1.0, "log", unit="mm", doc="opening observation noise sd"),
         )
-        params = [*base, *self.extra_parameters]
-        init = dict(init or {})
-        fixed = dict(fixed or {})
-        known = {q.name for q in params}
-        for name in (*init, *fixed):
-            if name not in known:
-                raise KeyError(f"{self.name}: unknown parameter {name!r}; known: {sorted(known)}")
-        self.parameters = tuple(
-            Parameter(q.name, float(fixed.get(q.name, init.get(q.name, q.init))), q.lower, q.upper, q.transform,
-                      q.fixed or q.name in fixed, q.unit, q.doc)
-            for q in params
-        )
+        self.parameters = with_overrides(self.name, [*base, *self.extra_parameters], init, fixed)
 
     # --- data ---------------------------------------------------------------
     def prepare(self, data: pd.DataFrame) -> pd.DataFrame:
