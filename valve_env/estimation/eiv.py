@@ -49,6 +49,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.estimation.fit import MLEstimator
+from valve_env.estimation.model import SDEModel
 from valve_env.estimation.valve_model import ValveModel, noise_sd
 
 #: the fitted parameters the bootstrap reports on (docs/reference.md, section 7's params, and the noise parameters)
@@ -232,10 +233,8 @@ def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: i
     t0 = time.perf_counter()
     fits: dict[str, MLEstimator] = {}
     for den in ("relaxed", "tv"):
-        if model == "eiv":
-            m = valve_eiv_model(data, valve, seed=seed, denoiser=den)
-        else:
-            m = ValveModel(valve, denoiser=den)
+        m: SDEModel = (valve_eiv_model(data, valve, seed=seed, denoiser=den) if model == "eiv"
+                       else ValveModel(valve, denoiser=den))
         fits[den] = MLEstimator(m, n_starts=n_starts, seed=seed, fixed=fixed, hessian=(den == "relaxed")).fit(data)
     est = fits["relaxed"]
     rob = robust_std(est, lags=lags)
