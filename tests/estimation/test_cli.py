@@ -58,3 +58,30 @@ def test_fit_bad_input_exits_nonzero_with_one_line(tmp_path: Path, run_csv: Path
     assert len(lines) == 1 and "missing column 'T_med_C'" in lines[0]
     assert "Traceback" not in proc.stderr
     assert not (tmp_path / "o.json").exists()
+
+
+def test_fit_eiv_and_robust_fields(tmp_path: Path, run_csv: Path) -> None:
+    """The default JSON keeps params/std (inverse Hessian) and adds the sandwich and the
+    misspecification check; --eiv reports the errors-in-variables estimates and sd."""
+    out = tmp_path / "out.json"
+    assert main(["fit", str(run_csv), "--json", str(out), "--n-starts", "1"]) == 0
+    res = json.loads(out.read_text())
+    assert res["std"] == res["std_hessian"]
+    assert res["std_method"].startswith("inverse Hessian")
+    assert set(res["std_robust"]) == {"sigma", "F_hmax", "p_bset"} and res["robust_lags"] > 0
+    assert all(v > 0 for v in res["std_robust"].values())
+    mis = res["misspecification"]
+    assert isinstance(mis["misspecified"], bool) and "x_mm" in mis["outputs"]
+    eiv_out = tmp_path / "eiv.json"
+    assert main(["fit", str(run_csv), "--json", str(eiv_out), "--n-starts", "1", "--eiv", "--bootstrap", "2"]) == 0
+    e = json.loads(eiv_out.read_text())
+    assert set(e["params"]) == {"sigma", "F_hmax", "p_bset"}
+    ests = e["eiv"]["estimates"]
+    for k in ("sigma", "F_hmax", "p_bset"):  # the midpoint of the two denoisers' fits (log scale)
+        lo, hi = sorted((ests["relaxed"][k], ests["tv"][k]))
+        assert lo <= e["params"][k] <= hi
+        assert e["std"][k] >= e["eiv"]["std_parts"]["robust"][k] * e["params"][k] * 0.999
+    assert e["eiv"]["B"] == 2 and set(e["eiv"]["std_parts"]) == {"robust", "denoiser", "temperature"}
+    proc = subprocess.run([sys.executable, "-m", "valve_env.cli", "fit", str(run_csv), "--json",
+                           str(tmp_path / "x.json"), "--bootstrap", "4"], capture_output=True, text=True, check=False)
+    assert proc.returncode == 2 and "--bootstrap needs --eiv" in proc.stderr

@@ -1,7 +1,7 @@
 """``thermovalve fit``: the base valve model fitted to a measured run (docs/reference.md, section 7).
 
     thermovalve fit RUN.csv --json OUT.json [--report DIR] [--config OUT.yaml]
-                            [--validate OTHER.csv] [--n-starts N] [--seed S]
+                            [--validate OTHER.csv] [--n-starts N] [--seed S] [--eiv [--bootstrap B]]
 
 writes {"params": {"sigma", "F_hmax", "p_bset"}, "std": {...}, "loglik", "rms_mm", "n", ...}.
 ``params`` holds ValveParams fields only, so it passes straight to
@@ -42,6 +42,11 @@ def register(subparsers: Any) -> None:
                    "(docs/reference.md)")
     p.add_argument("--validate", metavar="OTHER.csv", default=None,
                    help="an independent run for cross-validation (paper Fig. 7)")
+    p.add_argument("--eiv", action="store_true",
+                   help="errors in variables: the temperature noise inside the likelihood and the denoiser's "
+                   "bracket in the standard errors (docs/uncertainty.md); params are then the EIV estimates")
+    p.add_argument("--bootstrap", type=int, default=0, metavar="B",
+                   help="with --eiv: add the temperature bootstrap's variance from B refits (0: none)")
     p.add_argument("--n-starts", type=int, default=3, help="optimiser starts (>= 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the extra starts (>= 0)")
     add_force(p)
@@ -57,6 +62,10 @@ def run_fit(args: argparse.Namespace) -> int:
         raise UsageError(f"--n-starts must be at least 1, got {args.n_starts}")
     if args.seed < 0:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
+    if args.bootstrap < 0 or args.bootstrap == 1:
+        raise UsageError(f"--bootstrap must be 0 or at least 2, got {args.bootstrap}")
+    if args.bootstrap and not args.eiv:
+        raise UsageError("--bootstrap needs --eiv")
     # every output checked before the long work (never an input, never replaced without --force);
     # further outputs (e.g. a fitted valve file) join this set
     outs = OutputSet(inputs=[args.run, args.validate], force=args.force)
@@ -69,15 +78,23 @@ def run_fit(args: argparse.Namespace) -> int:
         outs.add_in_dir(report_dir, names, "--report")
     data = load_run(args.run)
     validation = load_run(args.validate) if args.validate else None
-    from valve_env.estimation.report import fit_run, fit_summary, write_report
+    from valve_env.estimation.report import eiv_summary, fit_run, fit_summary, write_report
 
     bar = progress_bar(3 if report_dir is not None else 2, desc="fit", unit="step")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            est = fit_run(data, n_starts=args.n_starts, seed=args.seed)
-            bar.update(1)
-            summary = fit_summary(est, data, validation)
+            if args.eiv:
+                from valve_env.estimation.eiv import fit_eiv
+
+                eiv = fit_eiv(data, n_starts=args.n_starts, seed=args.seed, B=args.bootstrap)
+                est = eiv.estimator
+                bar.update(1)
+                summary = eiv_summary(eiv, data, validation)
+            else:
+                est = fit_run(data, n_starts=args.n_starts, seed=args.seed)
+                bar.update(1)
+                summary = fit_summary(est, data, validation)
             bar.update(1)
             if report_dir is not None:
                 write_report(est, data, outs.stage_dir(report_dir), summary, validation, name=Path(args.run).stem)
@@ -105,6 +122,8 @@ def run_fit(args: argparse.Namespace) -> int:
           f"rms {summary['rms_mm']:.3g} mm, n {summary['n']}")
     for m in summary["identifiability"]:
         print(f"warning: {m}")
+    if summary["misspecification"]["misspecified"]:
+        print(f"warning: {summary['misspecification']['message']}")
     print(outs.summary())
     return 0
 

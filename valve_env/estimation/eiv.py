@@ -49,6 +49,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.estimation.fit import MLEstimator
+from valve_env.estimation.model import SDEModel
 from valve_env.estimation.valve_model import ValveModel, noise_sd
 
 #: the fitted parameters the bootstrap reports on (docs/reference.md, section 7's params, and the noise parameters)
@@ -121,7 +122,7 @@ def temperature_bootstrap(est: MLEstimator, data: pd.DataFrame, *, B: int = 16, 
         d["T_tank_C"] = T_s + sT * rng.standard_normal(len(d))
         d["T_med_C"] = M_s + sM * rng.standard_normal(len(d))
         m = ValveModel(model.valve, init=init, clip_width_mm=model.clip_width_mm, sign_eps=model.sign_eps,
-                       tv_factor=model.tv_factor)
+                       tv_factor=model.tv_factor, denoiser=model.denoiser)
         try:
             r = MLEstimator(m, n_starts=1, seed=None, fixed=fixed, hessian=False, method=est.method,
                             n_sub=est.n_sub, foh=est.foh).fit(d)
@@ -165,4 +166,105 @@ def temperature_bootstrap(est: MLEstimator, data: pd.DataFrame, *, B: int = 16, 
                      T_noise_C=sT, T_med_noise_C=sM, B=B, failed=failed)
 
 
-__all__ = ["EIVResult", "temperature_bootstrap", "REPORTED"]
+
+
+
+# --------------------------------------------------------------------------- the errors-in-variables fit
+#: the reported parameters of :func:`fit_eiv`
+EIV_REPORTED: tuple[str, ...] = ("sigma", "F_hmax", "p_bset")
+
+
+@dataclass(frozen=True)
+class EIVFit:
+    """The errors-in-variables fit of :func:`fit_eiv`.
+
+    ``params``/``std``: the reported estimates and standard deviations (natural scale) of
+    ``sigma, F_hmax, p_bset``; ``std_parts``: the parts of the variance on the log scale (``robust``
+    the sandwich of the relaxed-denoiser fit, ``denoiser`` the bracket's, ``temperature`` the
+    temperature bootstrap's, if run), each as a relative sd; ``estimates``: the fits with each
+    denoiser; ``estimator``: the relaxed-denoiser :class:`MLEstimator` (residuals, report);
+    ``misspecification``: :func:`valve_env.estimation.robust.misspecification_check`;
+    ``fit_time_s``: wall time of the whole procedure."""
+
+    params: dict[str, float]
+    std: dict[str, float]
+    std_parts: dict[str, dict[str, float]]
+    estimates: dict[str, dict[str, float]]
+    estimator: MLEstimator
+    misspecification: dict[str, Any]
+    robust_lags: int
+    model: str
+    B: int
+    fit_time_s: float
+    bootstrap: EIVResult | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"params": dict(self.params), "std": dict(self.std), "std_parts": self.std_parts,
+                "estimates": self.estimates, "robust_lags": self.robust_lags, "model": self.model, "B": self.B,
+                "misspecification": self.misspecification, "fit_time_s": self.fit_time_s,
+                "method": "errors in variables (docs/uncertainty.md): midpoint of the fits with the two "
+                          "denoisers, var = sandwich + bracket^2 / 12 (+ temperature bootstrap)"}
+
+
+def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: int = 0, model: str = "base",
+            B: int = 8, lags: int | None = None, fixed: dict[str, float] | None = None) -> EIVFit:
+    """Errors-in-variables fit of the valve (docs/uncertainty.md, "Errors in variables").
+
+    1. The model: ``"base"`` (default) the base valve model; ``"eiv"`` the temperature error inside
+       the likelihood, :class:`~valve_env.estimation.eiv_model.ValveEIVModel` (the denoised
+       temperature plus an error state of the denoiser's calibrated size; measured less well
+       calibrated on the independent simulator, docs/uncertainty.md).
+    2. The reversal excursion, which the white-noise model cannot carry: the model is fitted on the
+       temperature denoised two ways, ``relaxed`` (the default, which overshoots a smooth reversal)
+       and plain ``tv`` (which shaves it); the estimate is their midpoint on the log scale and the
+       bracket's width w adds w^2 / 12 (a uniform distribution over it) to the variance.
+    3. The sampling variance: the sandwich (HAC, :func:`valve_env.estimation.robust.robust_std`) of
+       the relaxed fit, plus (``B > 0``, default 8) the temperature noise's variance from the
+       temperature bootstrap (:func:`temperature_bootstrap` of the relaxed base fit, its bias
+       correction not applied; kept in ``bootstrap``).
+    """
+    import time
+
+    from valve_env.estimation.eiv_model import valve_eiv_model
+    from valve_env.estimation.robust import misspecification_check, robust_std
+
+    if model not in ("eiv", "base"):
+        raise ValueError(f"model must be 'eiv' or 'base', got {model!r}")
+    t0 = time.perf_counter()
+    fits: dict[str, MLEstimator] = {}
+    for den in ("relaxed", "tv"):
+        m: SDEModel = (valve_eiv_model(data, valve, seed=seed, denoiser=den) if model == "eiv"
+                       else ValveModel(valve, denoiser=den))
+        fits[den] = MLEstimator(m, n_starts=n_starts, seed=seed, fixed=fixed, hessian=(den == "relaxed")).fit(data)
+    est = fits["relaxed"]
+    rob = robust_std(est, lags=lags)
+    parts: dict[str, dict[str, float]] = {"robust": {}, "denoiser": {}}
+    params: dict[str, float] = {}
+    std: dict[str, float] = {}
+    boot = None
+    if B > 0:
+        base_est = est if model == "base" else MLEstimator(ValveModel(valve), n_starts=1, seed=seed,
+                                                            fixed=fixed).fit(data)
+        boot = temperature_bootstrap(base_est, data, B=B, seed=seed)
+        parts["temperature"] = {}
+    for k in EIV_REPORTED:
+        a = np.log(fits["relaxed"].params_[k])
+        b = np.log(fits["tv"].params_[k])
+        mid = 0.5 * (a + b)
+        var = rob.std_work.get(k, np.nan) ** 2 + (a - b) ** 2 / 12.0
+        parts["robust"][k] = float(rob.std_work.get(k, np.nan))
+        parts["denoiser"][k] = float(abs(a - b) / np.sqrt(12.0))
+        if boot is not None:
+            sT = boot.std_temperature[k] / boot.params[k]
+            var += (1.0 + 1.0 / max(len(boot.replicates), 1)) * sT**2
+            parts["temperature"][k] = float(sT)
+        params[k] = float(np.exp(mid))
+        std[k] = float(np.sqrt(var) * params[k])
+    mis = misspecification_check(est)
+    return EIVFit(params=params, std=std, std_parts=parts,
+                  estimates={d: {k: float(f.params_[k]) for k in f.params_} for d, f in fits.items()},
+                  estimator=est, misspecification=mis, robust_lags=rob.lags, model=model, B=int(B),
+                  fit_time_s=time.perf_counter() - t0, bootstrap=boot)
+
+
+__all__ = ["EIVResult", "temperature_bootstrap", "REPORTED", "EIVFit", "fit_eiv", "EIV_REPORTED"]

@@ -68,7 +68,8 @@ class MLEstimator(Estimator):
     compute standard errors (default True); ``hessian_step`` finite-difference step on the transformed scale.
 
     Learned attributes end in ``_``: ``params_``, ``std_`` (natural scale),
-    ``params_work_``/``std_work_`` (transformed scale), ``corr_`` (DataFrame),
+    ``params_work_``/``std_work_``/``cov_work_`` (transformed scale; ``cov_work_`` the inverse
+    Hessian, the bread of :func:`valve_env.estimation.robust.robust_std`), ``corr_`` (DataFrame),
     ``cov_`` (natural scale, DataFrame), ``tstat_``, ``loglik_``, ``nll_``,
     ``n_obs_`` (scalar observations), ``n_samples_``, ``n_free_``, ``aic_``,
     ``bic_``, ``free_``, ``at_bound_``, ``identifiability_`` (messages),
@@ -257,6 +258,7 @@ class MLEstimator(Estimator):
         jac = np.array([dnat_dwork(theta[j], q) for j, q in enumerate(qs)])
         cov_n = cov_w * np.outer(jac, jac)
         std_n = std_w * np.abs(jac)
+        self.cov_work_ = pd.DataFrame(cov_w, index=names, columns=names)
         self.std_work_ = {n: float(s) for n, s in zip(names, std_w, strict=True)}
         self.std_ = {n: float(s) for n, s in zip(names, std_n, strict=True)}
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -23,8 +23,9 @@ effects, the diagnosis).
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -115,6 +116,22 @@ def _finite_bounds(q: Parameter) -> tuple[float, float]:
     if q.lower is None or q.upper is None:
         raise ValueError(f"parameter {q.name!r}: the logit transform needs finite lower and upper bounds")
     return float(q.lower), float(q.upper)
+
+
+def with_overrides(model_name: str, params: Sequence[Parameter], init: Mapping[str, float] | None = None,
+                   fixed: Mapping[str, float] | None = None) -> tuple[Parameter, ...]:
+    """``params`` with starting values from ``init`` and values held fixed from ``fixed`` (natural
+    scale); a KeyError names an unknown parameter."""
+    init = dict(init or {})
+    fixed = dict(fixed or {})
+    known = {q.name for q in params}
+    for name in (*init, *fixed):
+        if name not in known:
+            raise KeyError(f"{model_name}: unknown parameter {name!r}; known: {sorted(known)}")
+    return tuple(
+        dataclasses.replace(q, init=float(fixed.get(q.name, init.get(q.name, q.init))), fixed=q.fixed or q.name in fixed)
+        for q in params
+    )
 
 
 @dataclass(frozen=True)

@@ -60,6 +60,7 @@ def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame |
         "fit_time_s": float(est.fit_time_s_),
         "model": "base valve model, docs/reference.md, section 1 (valve_env.estimation.valve_model.ValveModel)",
     }
+    out.update(uncertainty_summary(est))
     if validation is not None:
         res = est.residuals(validation, standardised=False)["x_mm"].to_numpy()
         vsim = est.simulate(validation)["x_mm"].to_numpy()
@@ -69,6 +70,35 @@ def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame |
             "rms_sim_mm": float(np.sqrt(np.nanmean((validation["x_mm"].to_numpy(dtype=float) - vsim) ** 2))),
             "loglik": float(-est.nll(data=validation)),
         }
+    return out
+
+
+def uncertainty_summary(est: MLEstimator) -> dict[str, Any]:
+    """The robust standard errors and the misspecification check of a fit, for the JSON:
+    ``std_hessian`` (inverse Hessian), ``std_robust`` (the HAC sandwich of
+    :func:`valve_env.estimation.robust.robust_std`), ``robust_lags``, ``std_method`` (which of them
+    ``std`` holds) and ``misspecification`` (:func:`~valve_env.estimation.robust.misspecification_check`,
+    which also warns)."""
+    from valve_env.estimation.robust import misspecification_check, robust_std
+
+    rob = robust_std(est)
+    return {"std_hessian": {k: _f(est.std_.get(k, float("nan"))) for k in VALVE_FIELDS},
+            "std_robust": {k: _f(rob.std.get(k, float("nan"))) for k in VALVE_FIELDS},
+            "robust_lags": rob.lags, "std_method": "inverse Hessian (ML)",
+            "misspecification": misspecification_check(est)}
+
+
+def eiv_summary(fit: Any, data: pd.DataFrame, validation: pd.DataFrame | None = None) -> dict[str, Any]:
+    """The ``thermovalve fit --eiv`` JSON: :func:`fit_summary` of the relaxed-denoiser fit with
+    ``params`` and ``std`` replaced by the errors-in-variables result
+    (:class:`valve_env.estimation.eiv.EIVFit`) and its details under ``eiv``."""
+    out = fit_summary(fit.estimator, data, validation)
+    out["params"] = {k: float(fit.params[k]) for k in VALVE_FIELDS}
+    out["std"] = {k: _f(fit.std[k]) for k in VALVE_FIELDS}
+    out["std_method"] = "errors in variables (valve_env.estimation.eiv.fit_eiv, docs/uncertainty.md)"
+    out["eiv"] = fit.to_dict()
+    out["fit_time_s"] = float(fit.fit_time_s)
+    out["model"] = f"{fit.model} valve model with errors in variables (valve_env.estimation.eiv.fit_eiv)"
     return out
 
 
@@ -154,4 +184,5 @@ def _diag_md(rep: Any) -> str:
             f"- white at 5 %: {s['white']}")
 
 
-__all__ = ["fit_run", "fit_summary", "table4_markdown", "write_report", "VALVE_FIELDS", "PAPER_TABLE4"]
+__all__ = ["fit_run", "fit_summary", "eiv_summary", "uncertainty_summary",
+            "table4_markdown", "write_report", "VALVE_FIELDS", "PAPER_TABLE4"]

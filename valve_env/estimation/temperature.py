@@ -167,12 +167,24 @@ def relaxed_tv(y: np.ndarray, lam: float) -> np.ndarray:
     return out
 
 
-def denoise_temperature(y: np.ndarray, t: np.ndarray, tv_factor: float = 4.5) -> tuple[np.ndarray, np.ndarray]:
-    """Denoised temperature (:func:`relaxed_tv` with lam = tv_factor x :func:`noise_sd`) and its
-    rate over the following interval (K/s; 0 at the end)."""
+#: the denoisers of :func:`denoise_temperature`: ``relaxed`` (the default, :func:`relaxed_tv`) and
+#: ``tv`` (plain :func:`tv_denoise`); they bracket a reversal's excursion (docs/uncertainty.md)
+DENOISERS: tuple[str, ...] = ("relaxed", "tv")
+
+
+def denoise_temperature(y: np.ndarray, t: np.ndarray, tv_factor: float = 4.5,
+                        denoiser: str = "relaxed") -> tuple[np.ndarray, np.ndarray]:
+    """Denoised temperature (:func:`relaxed_tv`, or plain :func:`tv_denoise` with
+    ``denoiser="tv"``, with lam = tv_factor x :func:`noise_sd`) and its rate over the following
+    interval (K/s; 0 at the end)."""
+    if denoiser not in DENOISERS:
+        raise ValueError(f"unknown denoiser {denoiser!r}; use one of {DENOISERS}")
     y = np.ascontiguousarray(y, dtype=float)
     lam = tv_factor * noise_sd(y)
-    ys = relaxed_tv(y, lam) if lam > 0 else y.copy()
+    if lam <= 0:
+        ys = y.copy()
+    else:
+        ys = relaxed_tv(y, lam) if denoiser == "relaxed" else tv_denoise(y, lam)
     v = np.zeros_like(ys)
     if len(ys) > 1:
         v[:-1] = np.diff(ys) / np.diff(np.asarray(t, dtype=float))
@@ -316,4 +328,4 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, robust_passes: int = 3,
     return level, rate, math.sqrt(r), math.sqrt(q)
 
 
-__all__ = ["smooth_temperature", "denoise_temperature", "relaxed_tv", "tv_denoise", "noise_sd"]
+__all__ = ["smooth_temperature", "denoise_temperature", "DENOISERS", "relaxed_tv", "tv_denoise", "noise_sd"]

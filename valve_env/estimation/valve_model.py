@@ -47,8 +47,8 @@ import numpy as np
 import pandas as pd
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-from valve_env.estimation.model import CompiledFunctions, Parameter, SDEModel
-from valve_env.estimation.temperature import denoise_temperature, noise_sd, relaxed_tv, tv_denoise
+from valve_env.estimation.model import CompiledFunctions, Parameter, SDEModel, with_overrides
+from valve_env.estimation.temperature import DENOISERS, denoise_temperature, noise_sd, relaxed_tv, tv_denoise
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, N_VALVE, ValveParams
 from valve_env.physics import valve as phys
 
@@ -74,7 +74,8 @@ N_BASE_CONSTANTS = N_VALVE + 2
 
 
 # --------------------------------------------------------------------------- input preparation
-def prepare_inputs(data: pd.DataFrame, tv_factor: float = 4.5, time: str = "time_s") -> pd.DataFrame:
+def prepare_inputs(data: pd.DataFrame, tv_factor: float = 4.5, time: str = "time_s",
+                   denoiser: str = "relaxed") -> pd.DataFrame:
     """A copy of ``data`` with ``T_tank_s``, ``v_tank`` (from ``T_tank_C``) and ``T_med_s``,
     ``v_med`` (from ``T_med_C``): the denoised temperatures and their rates (see the module doc),
     and ``t_in``, the sample time (so that a hook can interpolate inside an interval, see
@@ -82,9 +83,11 @@ def prepare_inputs(data: pd.DataFrame, tv_factor: float = 4.5, time: str = "time
     out = data.copy()
     t = out[time].to_numpy(dtype=float)
     out["t_in"] = t
-    out["T_tank_s"], out["v_tank"] = denoise_temperature(out["T_tank_C"].to_numpy(dtype=float), t, tv_factor)
+    out["T_tank_s"], out["v_tank"] = denoise_temperature(out["T_tank_C"].to_numpy(dtype=float), t, tv_factor,
+                                                         denoiser)
     if "T_med_C" in out.columns:
-        out["T_med_s"], out["v_med"] = denoise_temperature(out["T_med_C"].to_numpy(dtype=float), t, tv_factor)
+        out["T_med_s"], out["v_med"] = denoise_temperature(out["T_med_C"].to_numpy(dtype=float), t, tv_factor,
+                                                           denoiser)
     else:
         out["T_med_s"], out["v_med"] = out["T_tank_s"], out["v_tank"]
     return out
@@ -347,7 +350,7 @@ class ValveModel(SDEModel):
     ``sign_eps`` (K/s) the scale of a smooth sign in the Dahl drift (0: sgn, the
     default: the rate input does not depend on the parameters, so the
     likelihood stays smooth); ``tv_factor`` the total-variation penalty in units
-    of the temperature noise sd.
+    of the temperature noise sd; ``denoiser`` "relaxed" (default) or "tv" (:func:`denoise_temperature`).
 
     Subclasses extend ``extra_states``, ``extra_parameters`` and the hook
     class attributes (see docs/estimation.md).
@@ -372,7 +375,10 @@ class ValveModel(SDEModel):
 
     def __init__(self, valve: ValveParams | None = None, *, fixed: dict[str, float] | None = None,
                  init: dict[str, float] | None = None, clip_width_mm: float = 0.01, sign_eps: float = 0.0,
-                 tv_factor: float = 4.5) -> None:
+                 tv_factor: float = 4.5, denoiser: str = "relaxed") -> None:
+        if denoiser not in DENOISERS:
+            raise ValueError(f"unknown denoiser {denoiser!r}; use one of {DENOISERS}")
+        self.denoiser = denoiser
         self.valve = valve if valve is not None else ValveParams()
         self.clip_width_mm = float(clip_width_mm)
         self.sign_eps = float(sign_eps)
@@ -387,25 +393,14 @@ class ValveModel(SDEModel):
             Parameter("s_F", 1e-3, 1e-6, 10.0, "log", unit="N/sqrt(s)", doc="diffusion of the friction force"),
             Parameter("s_x", 5e-3, 1e-5, 1.0, "log", unit="mm", doc="opening observation noise sd"),
         )
-        params = [*base, *self.extra_parameters]
-        init = dict(init or {})
-        fixed = dict(fixed or {})
-        known = {q.name for q in params}
-        for name in (*init, *fixed):
-            if name not in known:
-                raise KeyError(f"{self.name}: unknown parameter {name!r}; known: {sorted(known)}")
-        self.parameters = tuple(
-            Parameter(q.name, float(fixed.get(q.name, init.get(q.name, q.init))), q.lower, q.upper, q.transform,
-                      q.fixed or q.name in fixed, q.unit, q.doc)
-            for q in params
-        )
+        self.parameters = with_overrides(self.name, [*base, *self.extra_parameters], init, fixed)
 
     # --- data ---------------------------------------------------------------
     def prepare(self, data: pd.DataFrame) -> pd.DataFrame:
         """Add the model's input columns (denoised temperatures and rates) unless present."""
         if all(c in data.columns for c in ("T_tank_s", "v_tank", "T_med_s", "v_med", "t_in")):
             return data
-        return prepare_inputs(data, self.tv_factor)
+        return prepare_inputs(data, self.tv_factor, denoiser=self.denoiser)
 
     # --- constants and hooks from Python ------------------------------------
     @property
@@ -535,6 +530,7 @@ __all__ = [
     "base_valve_model",
     "prepare_inputs",
     "denoise_temperature",
+    "DENOISERS",
     "tv_denoise",
     "relaxed_tv",
     "noise_sd",

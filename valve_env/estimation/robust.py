@@ -1,0 +1,183 @@
+"""Misspecification-robust standard errors and the misspecification check of a fitted model.
+
+**Sandwich.** The prediction-error decomposition makes the negative log-likelihood a
+sum of per-sample terms ``l_k(theta)`` (the filter's innovation ``e_k`` and its
+covariance ``S_k``: ``0.5 log det S_k + 0.5 e_k' S_k^-1 e_k + 0.5 m_k log 2 pi``).
+Their gradients ``g_k`` (central differences on the optimiser's scale, one filter
+pass per step and parameter) are the score contributions. With a correct model they
+are martingale differences and ``sum g_k g_k'`` equals the Hessian ``H`` on average;
+when the model is wrong (here: the denoised temperature treated as exact, a
+different friction law, ...) they are not, and
+
+    cov = H^-1 M H^-1,    M = sum_k g_k g_k' + sum_{l=1..L} w_l sum_k (g_k g_{k-l}' + g_{k-l} g_k')
+
+(Huber 1967, White 1982; with L > 0 the Newey-West HAC form, Bartlett weights
+w_l = 1 - l / (L + 1), statsmodels' ``S_hac_simple``) is consistent for the
+estimator's covariance (the quasi-ML, "sandwich" covariance). ``H^-1`` is the fit's
+inverse Hessian (``MLEstimator.cov_work_``). ``lags=0`` gives Huber-White.
+
+**Misspecification check.** :func:`misspecification_check` runs the residual
+whiteness tests of :mod:`valve_env.estimation.diagnostics` (statsmodels' Ljung-Box;
+the cumulated periodogram with its Kolmogorov-Smirnov band) on each output's
+standardised one-step residuals and warns (:class:`MisspecificationWarning`) when
+either rejects at ``alpha``: the model does not explain the data's dynamics, so its
+inverse-Hessian standard errors are not to be trusted (docs/uncertainty.md).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from statsmodels.stats.sandwich_covariance import S_hac_simple
+
+from valve_env.estimation.diagnostics import residual_report
+from valve_env.estimation.filters import FilterResult, run_filter
+from valve_env.estimation.fit import MLEstimator, NotFittedError
+from valve_env.estimation.model import dnat_dwork
+
+LOG2PI = float(np.log(2.0 * np.pi))
+
+
+class MisspecificationWarning(UserWarning):
+    """The residuals say the model does not fit the data (not white)."""
+
+
+def step_nll(res: FilterResult) -> np.ndarray:
+    """The per-sample terms of the negative log-likelihood from a filter pass (sum = ``res.nll``)."""
+    innov = res.innov
+    N, ny = innov.shape
+    if ny == 1:
+        e = innov[:, 0]
+        S = res.S[:, 0, 0]
+        ok = np.isfinite(e)
+        out = np.zeros(N)
+        out[ok] = 0.5 * np.log(S[ok]) + 0.5 * e[ok] ** 2 / S[ok] + 0.5 * LOG2PI
+        return out
+    out = np.zeros(N)
+    for k in range(N):
+        obs = np.isfinite(innov[k])
+        if not obs.any():
+            continue
+        e = innov[k, obs]
+        S = res.S[k][np.ix_(obs, obs)]
+        sign, logdet = np.linalg.slogdet(S)
+        out[k] = 0.5 * logdet + 0.5 * float(e @ np.linalg.solve(S, e)) + 0.5 * obs.sum() * LOG2PI
+    return out
+
+
+def score_contributions(est: MLEstimator, step: float = 1e-4) -> pd.DataFrame:
+    """Per-sample score contributions d l_k / d theta_j (optimiser's scale) at the estimate, for the
+    free parameters that have a standard error (central differences, 2 filter passes each)."""
+    if not hasattr(est, "params_"):
+        raise NotFittedError("call fit(data) first")
+    model = est.model
+    names = [n for n in est.free_ if np.isfinite(est.std_work_.get(n, np.nan))]
+    arr = est._arr
+    G = np.zeros((len(arr.t), len(names)))
+    for j, name in enumerate(names):
+        i = model.param_names.index(name)
+        q = model.parameters[i]
+        th = est.params_work_[name]
+        h = step * max(1.0, abs(th))
+        parts = []
+        for sgn in (1.0, -1.0):
+            p = est.p_.copy()
+            p[i] = _from_work(th + sgn * h, q)
+            res = run_filter(model, p, arr, method=est.method, n_sub=est.n_sub, foh=est.foh,
+                             compiled=est.compiled, fast=est.fast)
+            parts.append(step_nll(res))
+        G[:, j] = (parts[0] - parts[1]) / (2.0 * h)
+    return pd.DataFrame(G, columns=names)
+
+
+def _from_work(theta: float, q: Any) -> float:
+    from valve_env.estimation.model import from_work
+
+    return from_work(theta, q)
+
+
+@dataclass(frozen=True)
+class RobustResult:
+    """Sandwich standard errors. ``std`` natural scale, ``std_work`` optimiser's scale, ``cov_work``
+    the sandwich on the optimiser's scale, ``lags`` the HAC lag window (0: Huber-White),
+    ``ratio`` std / the inverse Hessian's std."""
+
+    std: dict[str, float]
+    std_work: dict[str, float]
+    cov_work: pd.DataFrame
+    lags: int
+    ratio: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"std": dict(self.std), "lags": self.lags, "ratio": dict(self.ratio),
+                "method": "sandwich H^-1 M H^-1, M the Newey-West (Bartlett) HAC of the EKF score contributions"
+                          if self.lags > 0 else "sandwich H^-1 M H^-1 (Huber-White), M the outer product of "
+                                                "the EKF score contributions"}
+
+
+def newey_west_lags(n: int) -> int:
+    """The Newey-West (1994) rule floor(4 (n / 100)^(2/9)) (statsmodels' default)."""
+    return int(np.floor(4.0 * (n / 100.0) ** (2.0 / 9.0)))
+
+
+def robust_std(est: MLEstimator, *, lags: int | None = None, scores: pd.DataFrame | None = None) -> RobustResult:
+    """Sandwich (HAC) standard errors of a fitted estimator (see the module doc). ``lags``: the
+    Bartlett window (default :func:`newey_west_lags`; 0 = Huber-White); ``scores`` precomputed
+    :func:`score_contributions` (to try several windows at the cost of one)."""
+    G = score_contributions(est) if scores is None else scores
+    names = list(G.columns)
+    n = len(G)
+    L = newey_west_lags(n) if lags is None else int(lags)
+    M = S_hac_simple(G.to_numpy(), nlags=L) if L > 0 else G.to_numpy().T @ G.to_numpy()
+    C = est.cov_work_.loc[names, names].to_numpy()
+    V = C @ M @ C
+    sd_w = np.sqrt(np.clip(np.diag(V), 0.0, None))
+    model = est.model
+    std_w = {k: float(s) for k, s in zip(names, sd_w, strict=True)}
+    std = {k: float(s * abs(dnat_dwork(est.params_work_[k], model.parameter(k))))
+           for k, s in zip(names, sd_w, strict=True)}
+    ratio = {k: float(std_w[k] / est.std_work_[k]) for k in names}
+    return RobustResult(std=std, std_work=std_w, cov_work=pd.DataFrame(V, index=names, columns=names), lags=L,
+                        ratio=ratio)
+
+
+def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float = 0.01, nlags: int = 40,
+                           warn: bool = True) -> dict[str, Any]:
+    """Whiteness of each output's standardised one-step residuals (Ljung-Box at ``nlags`` and the
+    cumulated periodogram's KS band, both at level ``alpha``); a :class:`MisspecificationWarning` when
+    either rejects. Returns the JSON-ready result: per output the statistics, then ``misspecified``
+    and ``message``."""
+    from scipy.stats import kstwobign
+
+    res = est.residuals(data)
+    out: dict[str, Any] = {"alpha": alpha, "outputs": {}}
+    bad: list[str] = []
+    c_alpha = float(kstwobign.isf(alpha))
+    for name in est.model.outputs:
+        e = res[name].to_numpy(dtype=float)
+        rep = residual_report(e, nlags=nlags)
+        lb = rep.ljung_box.iloc[-1]
+        band = c_alpha / np.sqrt(max(len(rep.cpgram) - 1, 1))
+        entry = {"ljung_box_lag": int(rep.ljung_box.index[-1]), "ljung_box_stat": float(lb["lb_stat"]),
+                 "ljung_box_p": float(lb["lb_pvalue"]), "cpgram_max_dev": float(rep.cpgram_max_dev),
+                 "cpgram_band": float(band), "acf_lag1": float(rep.acf[1]) if len(rep.acf) > 1 else float("nan")}
+        entry["white"] = bool(entry["ljung_box_p"] > alpha and entry["cpgram_max_dev"] < band)
+        out["outputs"][name] = entry
+        if not entry["white"]:
+            bad.append(f"{name} (Ljung-Box p = {entry['ljung_box_p']:.2g} at lag {entry['ljung_box_lag']}, "
+                       f"cumulated periodogram {entry['cpgram_max_dev']:.3f} against its band {band:.3f})")
+    out["misspecified"] = bool(bad)
+    out["message"] = ("the one-step residuals of " + "; ".join(bad) + " are not white at the "
+                      f"{alpha:g} level: the model does not explain the data's dynamics; trust the robust "
+                      "standard errors, not the inverse Hessian's") if bad else ""
+    if bad and warn:
+        warnings.warn(f"{est.model.name}: {out['message']}", MisspecificationWarning, stacklevel=2)
+    return out
+
+
+__all__ = ["MisspecificationWarning", "RobustResult", "misspecification_check", "newey_west_lags", "robust_std",
+           "score_contributions", "step_nll"]
