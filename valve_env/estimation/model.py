@@ -129,7 +129,8 @@ def with_overrides(model_name: str, params: Sequence[Parameter], init: Mapping[s
         if name not in known:
             raise KeyError(f"{model_name}: unknown parameter {name!r}; known: {sorted(known)}")
     return tuple(
-        dataclasses.replace(q, init=float(fixed.get(q.name, init.get(q.name, q.init))), fixed=q.fixed or q.name in fixed)
+        dataclasses.replace(q, init=float(fixed.get(q.name, init.get(q.name, q.init))),
+                            fixed=q.fixed or q.name in fixed)
         for q in params
     )
 
