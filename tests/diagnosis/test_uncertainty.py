@@ -66,7 +66,8 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
         band_sampling(df["true_x_mm"].to_numpy(), 2.5e-3, stroke, draws=1)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 20 (the stiction diagnosis under the (S, J) stem), known and reported: the stick-slip filter now re-sticks only "
+@pytest.mark.xfail(strict=True, reason="issue 20 (the stiction diagnosis under the (S, J) stem), known and "
+                   "reported: the stick-slip filter now re-sticks only "
                    "at "
                    "real reversals of the demand and lets a measurement re-stick a moving stem (which names stiction "
                    "on all three stick-slip variants of the independent simulator and in the small randomised "

@@ -100,6 +100,13 @@ class FitResult:
 PROFILE_BAND = False
 
 
+def _clip(v: float, q: Parameter) -> float:
+    """``v`` clipped to ``q``'s bounds (an open side does not clip)."""
+    lo = -math.inf if q.lower is None else q.lower
+    hi = math.inf if q.upper is None else q.upper
+    return min(max(v, lo), hi)
+
+
 class Model:
     """The base valve model with a set of effects switched on (the simulation likelihood)."""
 
@@ -122,7 +129,7 @@ class Model:
     # --- the work (optimiser) scale: the transforms of valve_env.estimation.model ----------
     def to_work(self, values: dict[str, float]) -> np.ndarray:
         """Natural values (clipped to their bounds) -> the optimiser's scale."""
-        return np.array([to_work(min(max(values[q.name], q.lower), q.upper), q) for q in self.parameters])
+        return np.array([to_work(_clip(values[q.name], q), q) for q in self.parameters])
 
     def from_work(self, z: np.ndarray) -> dict[str, float]:
         return {q.name: from_work(zi, q) for q, zi in zip(self.parameters, z, strict=True)}

@@ -78,7 +78,7 @@ class ValveEstimator(Estimator):
 
         model = effect_model(self.effects, valve=self.valve) if self.effects else base_valve_model(self.valve)
         est = MLEstimator(model, fixed=self.fixed, **self.options).fit(df)
-        self.backend_ = est
+        self.backend_: Any = est
         self.params_ = dict(est.params_)
         self.std_ = dict(est.std_)
         self.loglik_ = float(est.loglik_)

@@ -17,6 +17,7 @@ parameters that the data do not identify (``identifiability_`` and an
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from collections.abc import Mapping
@@ -51,6 +52,11 @@ def negloglik(model: SDEModel, params: Mapping[str, float] | np.ndarray | None, 
                                 fast=fast).nll)
     except np.linalg.LinAlgError:
         return float("inf")
+
+
+def _width(lo: float | None, hi: float | None) -> float:
+    """The width of a work-scale box (infinite where a side is open)."""
+    return float(hi - lo) if lo is not None and hi is not None else math.inf
 
 
 class MLEstimator(Estimator):
@@ -232,8 +238,7 @@ class MLEstimator(Estimator):
         inner = [j for j in range(k) if j not in at_bound]
         if self.hessian and inner:
             Hs = self._hessian(theta, arr, base, free, inner)
-            widths = [(bounds[j][1] - bounds[j][0]) if bounds[j][0] is not None and bounds[j][1] is not None
-                      else np.inf for j in inner]
+            widths = [_width(*bounds[j]) for j in inner]
             ident = identified_directions(Hs, widths, rtol=1e-10)
             if ident is not None:
                 bad = set()
