@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from valve_env import simulator as sim
-from valve_env.params import ConfigError, _from_mapping
+from valve_env.params import ConfigError, _from_mapping, check_fields, param
 from valve_env.scenario import ScenarioParams, network_load, supply_plan
 
 
@@ -67,20 +67,18 @@ class DistrictHeatingTariff:
     | forecast_h | h | horizons of the price and supply-plan forecasts in the observation; (1, 3, 6) |
     """
 
-    price_eur_MWh: float = 80.0
-    price_min_rel: float = 0.6
-    price_max_rel: float = 1.5
-    surcharge_per_K: float = 0.01
-    T_return_ref_C: float = 40.0
-    w_eur: float = 100.0
+    price_eur_MWh: float = param(80.0, 0.0, None, "EUR/MWh")
+    price_min_rel: float = param(0.6, 0.0, None, "-")
+    price_max_rel: float = param(1.5, 0.0, None, "-")
+    surcharge_per_K: float = param(0.01, 0.0, None, "1/K")
+    T_return_ref_C: float = param(40.0, 0.0, None, "degC")
+    w_eur: float = param(100.0, 0.0, None, "1/EUR")
     forecast_h: tuple[float, ...] = (1.0, 3.0, 6.0)
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            vals = v if isinstance(v, tuple) else (v,)
-            if not all(np.isfinite(x) and x >= 0 for x in vals):
-                raise ConfigError(f"DistrictHeatingTariff.{f.name} must be finite and >= 0, got {v!r}")
+        check_fields(self)  # the scalar fields, against their param() ranges
+        if not all(np.isfinite(x) and x >= 0 for x in self.forecast_h):
+            raise ConfigError(f"DistrictHeatingTariff.forecast_h must be finite and >= 0, got {self.forecast_h!r}")
         if not self.price_min_rel <= self.price_max_rel:
             raise ConfigError("DistrictHeatingTariff.price_min_rel must be <= price_max_rel")
         object.__setattr__(self, "forecast_h", tuple(float(x) for x in self.forecast_h))
