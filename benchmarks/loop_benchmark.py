@@ -98,18 +98,28 @@ def real_loops(data: Path, which: str) -> None:
           f"(records of {np.mean(sizes):.0f} samples on average, 10 s sampling)")
 
 
-def sim_loops(seed0: int, n: int) -> None:
+def sim_cases(seed0: int, n: int) -> list[dict]:
+    """The simulated benchmark loops of seeds ``seed0 .. seed0 + n - 1``: process, band S and jump J of the
+    sticky loop (its seed), and the seed of its smooth twin."""
     rng = np.random.default_rng(seed0)
     procs = ["flow", "pressure", "temperature", "level"]
+    out = []
+    for i in range(n):
+        S = float(rng.uniform(1.0, 4.0))
+        J = S * float(rng.uniform(0.3, 1.0))
+        out.append({"process": procs[i % len(procs)], "S": S, "J": J, "seed": seed0 + i,
+                    "smooth_seed": seed0 + 10_000 + i})
+    return out
+
+
+def sim_loops(seed0: int, n: int) -> None:
     hits = cover = found = 0
     false_alarm = 0
     times = []
     print(f"\nsimulated loops, seeds {seed0}..{seed0 + n - 1}: sticky valve, S ~ U(1, 4) %, J/S ~ U(0.3, 1)")
-    for i in range(n):
-        proc = procs[i % len(procs)]
-        S = float(rng.uniform(1.0, 4.0))
-        J = S * float(rng.uniform(0.3, 1.0))
-        loop, truth = simulate_loop(proc, S=S, J=J, seed=seed0 + i)
+    for c in sim_cases(seed0, n):
+        proc, S, J = c["process"], c["S"], c["J"]
+        loop, truth = simulate_loop(proc, S=S, J=J, seed=c["seed"])
         t0 = time.perf_counter()
         d = diagnose(loop)
         times.append(time.perf_counter() - t0)
@@ -122,7 +132,7 @@ def sim_loops(seed0: int, n: int) -> None:
             cover += abs(st["band_pct"] - S) <= 2 * st["std_pct"]
             line += f" band {st['band_pct']:.2f} +/- {st['std_pct']:.2f} (error {100 * err:.0f} %)"
         print(line)
-        smooth, _ = simulate_loop(proc, S=0.0, seed=seed0 + 10_000 + i)
+        smooth, _ = simulate_loop(proc, S=0.0, seed=c["smooth_seed"])
         false_alarm += diagnose(smooth).cause == "stiction"
     print(f"named stiction on {found}/{n} sticky loops; band within 20 % of the truth: {hits}/{found}; "
           f"2-sd coverage: {cover}/{found}; smooth valves called stiction: {false_alarm}/{n}; "

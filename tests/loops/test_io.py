@@ -73,3 +73,43 @@ def test_manual_mode_dropped_with_a_note(tmp_path: Path) -> None:
     mode[150:] = 0.0
     with pytest.raises(LoopDataError, match="too short a record in automatic mode"):
         read_loop(_write_csv(tmp_path / "m2.csv", n=400, mode=mode))
+
+
+def _write_historian(path: Path, rows: list[tuple[str, float, float, float, int]]) -> Path:
+    """A small synthetic export in the historian format of tests/data/plant_loops (5 header lines)."""
+    head = ["PROCESSDATA\tX Data\tyyyy-MM-dd HH:mm:ss", f"8\t10\t2024-01-01 00:00:00\t{len(rows)}",
+            "tagname\tX.MV\tX.PV\tX.SV\tX.MODE\tbOpOFL\tbPvOFL\tbSpOFL\tbAutOFL", "desc\tOP\tPV\tSP\tAut\ta\tb\tc\td",
+            "fsMax=1\tfsMin=0"]
+    body = [f"{ts}\t{op:.6f}\t{pv:.6f}\t{sp:.6f}\t{mode}\t0\t0\t0\t0" for ts, op, pv, sp, mode in rows]
+    path.write_text("\r\n".join(head + body) + "\r\n")
+    return path
+
+
+def _rows(n: int = 300) -> list[tuple[str, float, float, float, int]]:
+    from datetime import datetime, timedelta
+
+    t0 = datetime(2024, 1, 1)
+    return [((t0 + timedelta(seconds=10 * k)).strftime("%Y-%m-%d %H:%M:%S"), 40.0 + 5.0 * np.cos(k / 30.0),
+             50.0 + np.sin(k / 30.0), 50.0, 1) for k in range(n)]
+
+
+def test_repeated_timestamps_are_merged_with_a_note(tmp_path: Path) -> None:
+    rows = _rows()
+    rows.insert(31, rows[30])                                  # an exact duplicate row
+    ts, op, pv, sp, mode = rows[101]
+    rows.insert(102, (ts, op + 2.0, pv + 1.0, sp, mode))       # a second, different value in the same second
+    loop = read_loop(_write_historian(tmp_path / "dup.txt", rows))
+    assert loop.n == 300 and loop.dt == pytest.approx(10.0)
+    assert np.all(np.diff(loop.time_s) > 0)
+    assert loop.op[100] == pytest.approx(op + 1.0, abs=1e-6) and loop.pv[100] == pytest.approx(pv + 0.5, abs=1e-6)
+    assert loop.op[30] == pytest.approx(rows[30][1], abs=1e-6)
+    assert loop.notes == ["merged 2 row(s) repeating a timestamp (first at sample 31): 1 exact duplicate(s) "
+                          "dropped, 1 group(s) of differing rows averaged"]
+    # the same rule for the loop CSV; time that goes backwards stays the one-line error
+    t = np.r_[np.arange(150), 149, np.arange(150, 300)] * 10.0
+    assert read_loop(_write_csv(tmp_path / "dup.csv", n=301, time_s=t)).n == 300
+    back = _rows()
+    back[50], back[51] = back[51], back[50]
+    with pytest.raises(LoopDataError, match="time is not strictly increasing at sample 52") as exc:
+        read_loop(_write_historian(tmp_path / "back.txt", back))
+    assert "\n" not in str(exc.value)

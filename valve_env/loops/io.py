@@ -8,6 +8,10 @@ Two formats are read:
   5 header lines, then ``timestamp  OP  PV  SP  MODE  flags...``; the tag names in line 3 end
   in ``.MV`` (controller output), ``.PV``, ``.SV`` (set point) and ``.MODE``).
 
+Rows that repeat a timestamp (historian exports do: duplicate rows, two values stored in one second)
+are merged with a note: exact duplicates dropped, differing rows averaged
+(:func:`merge_repeated_timestamps`); time that goes backwards stays an error.
+
 Every problem with a record raises :class:`LoopDataError` whose message is one line naming the
 problem (NaN, non-increasing time, constant OP, too short a record, ...). Samples in manual mode
 are dropped with a note when enough automatic data remains (the longest automatic stretch is kept).
@@ -173,6 +177,29 @@ def _longest_true_run(mask: np.ndarray) -> tuple[int, int]:
     return b0, b0 + best
 
 
+def merge_repeated_timestamps(cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], str]:
+    """One row per timestamp (docs/loops.md, "Input formats"): consecutive rows that repeat a timestamp
+    (a historian's duplicate rows, or two values stored in the same second) become one row; exact
+    duplicates are dropped and rows that differ are averaged, column by column (``mode`` too: an average
+    other than 1 counts as manual). Time must be non-decreasing (checked before). Returns the merged
+    columns and a note saying what was merged."""
+    t = cols["time_s"]
+    start = np.flatnonzero(np.r_[True, np.diff(t) != 0])
+    counts = np.diff(np.r_[start, t.size])
+    multi = counts > 1
+    spread = np.zeros(start.size)
+    out: dict[str, np.ndarray] = {}
+    for c, v in cols.items():
+        out[c] = np.add.reduceat(v, start) / counts
+        spread = np.maximum(spread, np.maximum.reduceat(v, start) - np.minimum.reduceat(v, start))
+    exact = int(np.sum(multi & (spread == 0)))
+    differing = int(np.sum(multi & (spread > 0)))
+    first = int(start[np.flatnonzero(multi)[0]]) + 1
+    note = (f"merged {int(np.sum(counts[multi] - 1))} row(s) repeating a timestamp (first at sample {first}): "
+            f"{exact} exact duplicate(s) dropped, {differing} group(s) of differing rows averaged")
+    return out, note
+
+
 def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
                min_samples: int = MIN_SAMPLES) -> LoopData:
     """Validate raw columns (``time_s, sp, pv, op`` and optional ``mv, mode``); see the module doc."""
@@ -188,11 +215,15 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
                 raise LoopDataError(f"{where}: column {c} has {bad.size} NaN/infinite value(s), first at "
                                     f"sample {bad[0] + 1}")
     dt = np.diff(cols["time_s"])
-    bad = np.flatnonzero(dt <= 0)
+    bad = np.flatnonzero(dt < 0)
     if bad.size:
         k = int(bad[0])
         raise LoopDataError(f"{where}: time is not strictly increasing at sample {k + 2} "
                             f"(time_s {cols['time_s'][k]:g} then {cols['time_s'][k + 1]:g})")
+    if np.any(dt == 0):
+        cols, note = merge_repeated_timestamps(cols)
+        notes.append(note)
+        n = cols["time_s"].size
     keep = np.ones(n, dtype=bool)
     if "mode" in cols:
         auto = cols["mode"] == 1
@@ -232,4 +263,4 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
 
 
 __all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "read_loop", "read_loop_csv", "read_historian",
-           "check_loop"]
+           "check_loop", "merge_repeated_timestamps"]
