@@ -81,8 +81,6 @@ def real_loops(data: Path, which: str) -> None:
         for k, v in det.items():
             pred[k].append(v)
         band = f" {d.result['stiction']['band_pct']:.2f}%" if "stiction" in d.result else ""
-        dec = d.result["decision"]
-        band += ("L" if dec["by_likelihood"] else "") + ("H" if dec["by_shape"] else "")
         print(f"{r['file'][:40]:40s} {r['label']:13s} {(d.cause + band)[:22]:22s} "
               + " ".join(f"{int(v):7d}" for v in det.values()) + f"  {times[-1]:.2f}")
     print(f"\nbalanced accuracy, set {which} ({sum(truth)} stiction, {len(truth) - sum(truth)} not):")

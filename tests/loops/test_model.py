@@ -17,6 +17,8 @@ def test_valve_is_the_project_stick_slip() -> None:
     op = 50 + np.cumsum(rng.normal(0, 0.5, 400))
     for S, J in ((2.0, 2.0), (2.0, 0.0), (3.0, 1.0)):
         np.testing.assert_array_equal(valve_path(op, S, J), stickslip.simulate(op, S, J))
+        # stuck after a downward motion: the mirror image of the same model
+        np.testing.assert_allclose(valve_path(op, S, J, -1.0), -stickslip.simulate(-op, S, J), atol=1e-12)
     np.testing.assert_array_equal(valve_path(op, 0.0, 0.0), op)
 
 

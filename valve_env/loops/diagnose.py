@@ -15,13 +15,11 @@ referred to chi-square and before the BIC difference is taken. A valve nonlinear
    halves, must exceed ``-0.1`` times the adjusted LR statistic (a half often holds none of the
    record's few valve reversals, so a small loss there is no evidence against the valve).
 
-It is also named when the loop's OP-PV cross-correlation has the shape of a sticky valve
-(:func:`valve_env.loops.detectors.horch` on the same record, with the PV's increments when the fitted
-process integrates): odd by Horch's phase (``> 120`` degrees) with the far zero crossing at positive lags,
-i.e. PV follows OP's moves late, as it does when the valve slips after OP has crossed the band (a load
-disturbance corrected by the controller puts it at negative lags), over a resolved cycle. The shape is
-the prior evidence the likelihood lacks when a record holds one valve reversal; the band then still
-comes from the fit, with a note when the likelihood does not resolve it.
+Nothing else names it. The OP-PV cross-correlation's shape (:func:`valve_env.loops.detectors.horch` on
+the same record, with the PV's increments when the fitted process integrates) is reported beside the
+decision (``decision.shape``) but does not vote: the second session's route that named stiction from the
+shape alone was dropped in the third session after the grouped cross-validation (benchmarks/loop_cv.py;
+docs/loops.md, "Grouped cross-validation").
 
 Otherwise the cause is ``none`` when the loop does not oscillate, or, for an oscillating loop,
 ``aggressive_tuning`` when the linear loop model reproduces the PV oscillation from the OP
@@ -37,7 +35,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from valve_env.loops.detectors import HORCH_MIN_HALF_PERIOD, HORCH_ODD_DEG, horch
+from valve_env.loops.detectors import horch
 from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
     VALVE_EXTRA_PARAMS,
@@ -215,11 +213,10 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     nonlin["heldout_loglik_gain"] = gain
     by_likelihood = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
                      and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
-    # the shape evidence: Horch's CCF test on the same loop (PV increments for an integrating process)
+    # reported beside the decision, not part of it: Horch's CCF test on the same loop (PV increments for an
+    # integrating process)
     shape = horch(loop, integrating=lin.process.integrating)
-    by_shape = bool(shape["phase_signed_deg"] > HORCH_ODD_DEG
-                    and shape["tau_r"] + shape["tau_l"] >= HORCH_MIN_HALF_PERIOD)
-    justified = by_likelihood or by_shape
+    justified = by_likelihood
     osc = oscillation(loop.pv - loop.sp, loop.dt)
     sim_lin = simulate(loop.op, lin.process)
     r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
@@ -238,7 +235,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "jump_pct": fit.J,
             "kind": "deadband (backlash, J = 0)" if nonlin["candidate"] == "backlash" else "stick-slip",
             "model": nonlin["candidate"],
-            "resolved_by_likelihood": bool(nonlin["p_value"] < alpha),
+            "initial_direction": "up" if fit.direction > 0 else "down",
         }
     elif osc["oscillating"]:
         result["cause"] = "aggressive_tuning" if r2 > 0.5 else "external_oscillation"
@@ -250,7 +247,6 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "heldout_loglik_gain": gain,
         "justified": bool(justified),
         "by_likelihood": bool(by_likelihood),
-        "by_shape": by_shape,
         "shape": {k: shape[k] for k in ("statistic", "phase_signed_deg", "ratio", "tau_r", "tau_l", "integrating",
                                         "verdict")},
     }
@@ -259,9 +255,6 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
                       "op_range_pct": [float(loop.op.min()), float(loop.op.max())],
                       "process": lin.process.describe(s.dt)}
     result["notes"] = list(loop.notes)
-    if justified and nonlin["p_value"] >= alpha:
-        result["notes"].append(f"the likelihood does not resolve the band (adjusted LR p = {nonlin['p_value']:.2g}): "
-                               "stiction named from the OP-PV cross-correlation's shape; the band is weak")
     return Diagnosis(result, fits, s, loop, f)
 
 

@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import minimize_scalar
 
-from valve_env.physics.stickslip import stick_slip_path
+from valve_env.physics.stickslip import initial_state, stick_slip_step
 
 #: valve candidates, nested: linear (S = 0) in backlash (J = 0) in stiction (S, J free)
 VALVES: tuple[str, ...] = ("linear", "backlash", "stiction")
@@ -43,17 +43,32 @@ TAUS_S: tuple[float, ...] = (1e-3, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0, 640.0)
 S_FRACTIONS = (0.01, 3.0)
 
 
+#: the valve's last direction of motion before the record (both tried: docs/loops.md, "Model")
+DIRECTIONS: tuple[float, ...] = (1.0, -1.0)
+
+
 @njit(cache=True)
-def _valve_path(op: np.ndarray, S: float, J: float, out: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    return stick_slip_path(op, S, J, -np.inf, np.inf, out)
+def _valve_path(op: np.ndarray, S: float, J: float, d0: float, out: np.ndarray) -> np.ndarray:
+    # pragma: no cover - compiled
+    y, u_prev, du_prev, u_s, stuck, d = initial_state(op[0], S, J, -np.inf, np.inf)
+    if d0 < 0.0:  # at rest after a motion downwards: the mirror image of initial_state
+        d = -1.0
+        y = u_prev + (S - J) * 0.5
+    out[0] = y
+    for k in range(1, op.shape[0]):
+        y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(op[k], y, u_prev, du_prev, u_s, stuck, d, S, J,
+                                                            -np.inf, np.inf)
+        out[k] = y
+    return out
 
 
-def valve_path(op: np.ndarray, S: float, J: float) -> np.ndarray:
-    """The valve position (% of OP) for the controller output ``op`` (valve at rest at ``op[0]``)."""
+def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0) -> np.ndarray:
+    """The valve position (% of OP) for the controller output ``op``: at rest at ``op[0]``, stuck after a
+    motion upwards (``direction`` +1, :func:`valve_env.physics.stickslip.initial_state`) or downwards (-1)."""
     op = np.ascontiguousarray(op, dtype=float)
     if S <= 0.0:
         return op.copy()
-    return _valve_path(op, float(S), float(J), np.empty_like(op))
+    return _valve_path(op, float(S), float(J), float(direction), np.empty_like(op))
 
 
 @njit(cache=True)
@@ -263,6 +278,7 @@ class ValveFit:
     process: ProcessFit
     n_params: int
     profile: list[tuple[float, float]] = field(default_factory=list)  # (S, loglik maximised over J and process)
+    direction: float = 1.0  # the valve's last motion before the record (+1 up, -1 down)
 
     @property
     def loglik(self) -> float:
@@ -277,7 +293,7 @@ class ValveFit:
         return -2.0 * self.loglik + self.n_params * math.log(self.n)
 
     def path(self, op: np.ndarray) -> np.ndarray:
-        return valve_path(op, self.S, self.J)
+        return valve_path(op, self.S, self.J, self.direction)
 
 
 def op_scale(op: np.ndarray) -> float:
@@ -296,31 +312,32 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
     r = op_scale(op)
     grid = r * np.geomspace(S_FRACTIONS[0], S_FRACTIONS[1], s.n_grid)
 
-    def best_over_j(S: float) -> tuple[float, float, ProcessFit]:
-        cand = [(fit_process(pv, valve_path(op, S, f * S), s, k1, k0), f * S) for f in fracs]
-        pf, J = max(cand, key=lambda c: c[0].loglik)
-        return pf.loglik, J, pf
+    def best_over_j(S: float) -> tuple[float, float, float, ProcessFit]:
+        cand = [(fit_process(pv, valve_path(op, S, f * S, d0), s, k1, k0), f * S, d0)
+                for f in fracs for d0 in DIRECTIONS]
+        pf, J, d0 = max(cand, key=lambda c: c[0].loglik)
+        return pf.loglik, J, d0, pf
 
     profile: list[tuple[float, float]] = []
-    best: tuple[float, float, float, ProcessFit] | None = None  # (ll, S, J, fit)
+    best: tuple[float, float, float, float, ProcessFit] | None = None  # (ll, S, J, direction, fit)
     for S in grid:
-        ll, J, pf = best_over_j(float(S))
+        ll, J, d0, pf = best_over_j(float(S))
         profile.append((float(S), ll))
         if best is None or ll > best[0]:
-            best = (ll, float(S), J, pf)
+            best = (ll, float(S), J, d0, pf)
     assert best is not None
     i = int(np.argmax([p[1] for p in profile]))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, s.n_grid - 1)]
     if hi > lo:
         res = minimize_scalar(lambda v: -best_over_j(float(v))[0], bounds=(lo, hi), method="bounded",
                               options={"xatol": 2e-3 * r, "maxiter": 12})
-        ll, J, pf = best_over_j(float(res.x))
+        ll, J, d0, pf = best_over_j(float(res.x))
         profile.append((float(res.x), ll))
         if ll > best[0]:
-            best = (ll, float(res.x), J, pf)
+            best = (ll, float(res.x), J, d0, pf)
     profile.sort()
-    ll, S, J, pf = best
-    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile)
+    ll, S, J, d0, pf = best
+    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile, d0)
 
 
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",

@@ -104,11 +104,11 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
                      f"{f['J_pct']:.3g} | {f['process']} |")
     d = R["decision"]
     sh = d["shape"]
-    basis = " and ".join(k for k, v in (("likelihood", d["by_likelihood"]), ("cross-correlation shape", d["by_shape"]))
-                         if v) or "neither"
+    basis = "justifies stiction" if d["by_likelihood"] else "does not justify stiction"
     lines += ["", f"n_eff/n of the linear residuals: {d['neff_factor']:.3f}; held-out log-likelihood gain of "
               f"{d['best_nonlinear']} over linear: {d['heldout_loglik_gain']:.1f}.", "",
-              f"Stiction evidence: {basis}. OP-{'dPV' if sh['integrating'] else 'PV'} cross-correlation (Horch): "
+              f"The likelihood comparison {basis}. OP-{'dPV' if sh['integrating'] else 'PV'} cross-correlation (Horch, "
+              "reported, not part of the decision): "
               f"signed phase {sh['phase_signed_deg']:.0f} deg (tau_r {sh['tau_r']:.1f}, tau_l {sh['tau_l']:.1f} "
               f"samples), |r(0)|/max|r| = {sh['ratio']:.2f}.", "",
               f"Oscillation: {R['oscillation']}", "",
