@@ -46,6 +46,7 @@ from valve_env.envs.thermovalve import OBS_NAMES
 I_T_OUT = OBS_NAMES.index("T_out_C")
 I_TARGET = OBS_NAMES.index("T_target_C")
 I_DRAW = OBS_NAMES.index("draw_l_min")
+I_POCKET = OBS_NAMES.index("T_pocket_C")
 KPI_KEYS: tuple[str, ...] = (
     "rmse_K",
     "iae_Kh",
@@ -80,6 +81,11 @@ class ResidualCore:
     ki: np.ndarray
     dt_h: float
     kff: np.ndarray | None = None
+    #: ``shut_band`` (K, optional; a temperature setting only): also hold the integrator while the
+    #: outlet is above target and the output is more than this below the bulb's pocket temperature.
+    #: There the thermostatic valve is shut and a lower setting changes nothing (the tank cools by
+    #: its losses alone), so integrating would only wind the setting down, to undershoot later.
+    shut_band: float | None = None
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], space: gym.spaces.Box, dt_s: float) -> ResidualCore:
@@ -110,6 +116,7 @@ class ResidualCore:
             ki=vec("ki", 0.0),
             dt_h=float(dt_s) / 3600.0,
             kff=vec("kff", 0.0) if "kff" in cfg else None,
+            shut_band=_shut_band(cfg),
         )
 
     @property
@@ -139,9 +146,20 @@ class ResidualCore:
         sat = ((pi > self.high) & (e[:, None] * np.sign(self.ki) > 0)) | (
             (pi < self.low) & (e[:, None] * np.sign(self.ki) < 0)
         )
+        if self.shut_band is not None:
+            sat |= (pi < obs[:, I_POCKET, None] - self.shut_band) & (e[:, None] < 0)
         new_integ = np.where(sat, integ, new_integ)
         u = base + self.kp * e[:, None] + self.ki * new_integ + self.span * a
         return np.clip(u, self.low, self.high), new_integ
+
+
+def _shut_band(cfg: Mapping[str, Any]) -> float | None:
+    if cfg.get("shut_band") is None:
+        return None
+    band = cfg["shut_band"]
+    if isinstance(band, bool) or not isinstance(band, int | float) or not np.isfinite(band) or band < 0:
+        raise ValueError(f"residual.shut_band must be a number of kelvin >= 0, got {band!r}")
+    return float(band)
 
 
 #: Fixed physical scaling of the policy's inputs: (obs - center) / scale, per OBS_NAMES.

@@ -239,3 +239,22 @@ def test_cem_warm_start_with_more_features_is_the_old_policy(tmp_path: Path) -> 
     with pytest.raises(ValueError, match="ranking"):
         train("ppo", SMALL, seed=995, out=tmp_path / "bad", env_kwargs=short, progress_bar=False, command="pytest",
               overrides=["cem={popsize: 4, episodes: 2, elite: 2, generations: 3}"])
+
+
+def test_residual_shut_band_holds_the_integrator_while_the_valve_is_shut() -> None:
+    """shut_band: with the outlet above target and the output more than the band below the pocket
+    temperature (the valve is shut), the integrator holds; elsewhere it integrates as before."""
+    space = gym.make("ThermoValveStickyValve-v0").action_space
+    cfg = {"center": ["target"], "span": [5.0], "kp": [8.0], "ki": [20.0]}
+    plain = ResidualCore.from_config(cfg, space, 30.0)
+    held = ResidualCore.from_config({**cfg, "shut_band": 0.5}, space, 30.0)
+    obs = np.zeros((3, 12))
+    obs[:, 11] = 60.0
+    obs[:, [0, 1]] = [[60.5, 60.5], [60.1, 60.1], [59.5, 59.5]]
+    integ = np.array([[-0.1], [0.3], [-0.1]])  # row 0: output 60 - 4 - 2 < 60.5 - 0.5: shut; row 1: 65 open
+    _, i_plain = plain.step(obs, np.zeros((3, 1)), integ)
+    _, i_held = held.step(obs, np.zeros((3, 1)), integ)
+    np.testing.assert_allclose(i_plain[:, 0], integ[:, 0] + np.array([-0.5, -0.1, 0.5]) * 30.0 / 3600.0)
+    np.testing.assert_allclose(i_held[:, 0], [integ[0, 0], i_plain[1, 0], i_plain[2, 0]])
+    with pytest.raises(ValueError, match="shut_band"):
+        ResidualCore.from_config({**cfg, "shut_band": -1.0}, space, 30.0)
