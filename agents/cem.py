@@ -239,3 +239,33 @@ def cem_train(env_id: str, cfg: Mapping[str, Any], seed: int, run_dir: Path, mod
             "num_timesteps": int(steps), "optimizer": "cem", "cem": opt,
             "best_eval": {"mean_return": best[0],
                           "timesteps": int(evals_t[int(np.argmax([r.mean() for r in evals_r]))])}}
+
+
+def warm_start_chain(cfg: Mapping[str, Any]) -> list[dict[str, str]]:
+    """The commands that made a config's ``cem.init`` model, nearest first (each earlier run's
+    own warm start follows it), read from the run directories' command.txt and config.yml or a
+    shipped agent's <name>.yml: what ``--ship`` records beside an agent so it can be rebuilt."""
+    chain: list[dict[str, str]] = []
+    init = (cfg.get("cem") or {}).get("init") if cfg.get("optimizer") == "cem" else None
+    while init and len(chain) < 20:
+        src = Path(str(init))
+        run = src.parent.parent if src.name == "best_model.zip" else (src if src.suffix != ".zip" else None)
+        if run is not None and (run / "command.txt").is_file():
+            chain.append({"init": str(init), "command": (run / "command.txt").read_text().strip()})
+            nxt = yaml_load(run / "config.yml")
+        elif src.suffix == ".zip" and src.with_suffix(".yml").is_file():
+            nxt = yaml_load(src.with_suffix(".yml"))
+            chain.append({"init": str(init), "command": str((nxt.get("shipped_from") or {}).get("command", "?"))})
+            chain.extend(nxt.get("warm_start") or [])
+            break
+        else:
+            chain.append({"init": str(init), "command": "unknown (no command.txt or shipped .yml beside it)"})
+            break
+        init = (nxt.get("cem") or {}).get("init") if nxt.get("optimizer") == "cem" else None
+    return chain
+
+
+def yaml_load(path: Path) -> dict[str, Any]:
+    import yaml
+
+    return dict(yaml.safe_load(path.read_text()) or {})
