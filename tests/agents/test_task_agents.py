@@ -236,6 +236,14 @@ def test_cem_warm_start_with_more_features_is_the_old_policy(tmp_path: Path) -> 
     np.testing.assert_allclose(new.returns(theta2[None], [3, 4]), old.returns(theta[None], [3, 4]), rtol=1e-9)
     with pytest.raises(ValueError, match="does not fit"):
         warm_start(zip_, 1, old.feat_dim, old.n_act)
+    from agents.cem import warm_start_chain
+
+    run2 = train("ppo", SMALL, seed=0, out=tmp_path / "cem2", env_kwargs=short, progress_bar=False,
+                 command="pytest 2", overrides=["cem={popsize: 4, episodes: 2, elite: 2, generations: 1, "
+                                                f"sigma: 0.01, eval_every: 1, init: {zip_}}}", "eval.episodes=2"])
+    cfg2 = yaml.safe_load((run2 / "config.yml").read_text())
+    assert warm_start_chain(cfg2) == [{"init": str(zip_), "command": "pytest"}]
+    assert warm_start_chain(cfg) == []
     with pytest.raises(ValueError, match="ranking"):
         train("ppo", SMALL, seed=995, out=tmp_path / "bad", env_kwargs=short, progress_bar=False, command="pytest",
               overrides=["cem={popsize: 4, episodes: 2, elite: 2, generations: 3}"])
