@@ -19,13 +19,14 @@ Each generation (hyperparameters in the config's ``cem:`` block):
 
 * ``popsize`` candidates theta_c = mu + sigma * eps_c (candidate 0 is mu itself), each run on
   the same ``episodes`` training seeds (common random numbers), fresh seeds every generation
-  (seed + generation * episodes + j, far below the held-out 5000-5009 when seed < 100 and
-  generations * episodes < 4900);
+  (seed + generation * episodes + j; a run whose training seeds would include the held-out
+  5000-5009 or the ranking seeds 1000-1009 is refused);
 * all popsize x episodes envs in ONE native batched env, one kernel call per control step,
   the candidates' linear heads applied at once (an einsum);
 * mu <- mean of the ``elite`` best candidates (mean return over the episodes), sigma <- their
   std plus ``noise`` x (1 - g / generations) (extra noise against premature collapse);
-* ``init: RUN_DIR`` starts mu at an earlier CEM run's best checkpoint (same features);
+* ``init: RUN_DIR`` or ``init: MODEL.zip`` starts mu at an earlier CEM run's best checkpoint or a
+  shipped agent (observation-aid columns appended since, or older frames, start at weight 0);
 * every ``eval_every`` generations mu is scored on the fixed evaluation seeds (seed + 10000 ..,
   ``eval.episodes``; never the leaderboard's) and the best is kept in ``best/`` with
   ``evaluations.npz`` as PPO's EvalCallback writes it.
@@ -44,6 +45,8 @@ from typing import Any
 
 import numpy as np
 
+#: the first of the 10 seeds the sweep and the leaderboard rank agents on: never a training seed
+RANK_SEED = 1000
 CEM_DEFAULTS: dict[str, Any] = {
     "popsize": 32, "episodes": 8, "elite": 8, "generations": 30, "sigma": 0.3, "noise": 0.05,
     "eval_every": 5,
@@ -128,6 +131,28 @@ def set_linear_head(model: Any, theta: np.ndarray, k_feat: int, n_act: int) -> N
         net.bias.copy_(torch.as_tensor(theta[d * n_act:], dtype=net.bias.dtype))
 
 
+def warm_start(src: Path, k: int, feat_dim: int, n_act: int) -> np.ndarray:
+    """The linear head of ``src`` (a CEM run directory: its best/best_model.zip; or a model zip, e.g. a
+    shipped agent's) as one parameter row. If this config appends observation-aid columns to each
+    frame (same frame count), or keeps more frames (same features), the new weights start at 0: the
+    warm start is then exactly the old policy."""
+    from stable_baselines3 import PPO
+
+    path = src if src.suffix == ".zip" else src / "best" / "best_model.zip"
+    net: Any = PPO.load(path, device="cpu").policy.action_net
+    W = net.weight.detach().numpy().astype(float)
+    b = net.bias.detach().numpy().astype(float)
+    fits = [(k0, W.shape[1] // k0) for k0 in range(1, k + 1) if W.shape[1] % k0 == 0]
+    fits = [(k0, f0) for k0, f0 in fits if f0 <= feat_dim and (k0 == k or f0 == feat_dim)]
+    if W.shape[0] != n_act or not fits:
+        raise ValueError(f"cem.init {src}: a head of shape {W.shape} does not fit {k} frames x {feat_dim} "
+                         f"features -> {n_act} actions")
+    k0, f0 = fits[-1]
+    Wn = np.zeros((n_act, k, feat_dim))  # history is oldest first: the old frames are the newest ones
+    Wn[:, k - k0:, :f0] = W.reshape(n_act, k0, f0)
+    return np.concatenate([Wn.ravel(), b])
+
+
 def cem_train(env_id: str, cfg: Mapping[str, Any], seed: int, run_dir: Path, model: Any,
               meta: dict[str, Any]) -> dict[str, Any]:
     """Run the CEM (module docstring) and save model.zip, best/ and cem.csv; returns run.json's extras."""
@@ -142,6 +167,13 @@ def cem_train(env_id: str, cfg: Mapping[str, Any], seed: int, run_dir: Path, mod
     P, E, K, G = int(opt["popsize"]), int(opt["episodes"]), int(opt["elite"]), int(opt["generations"])
     if not (2 <= K < P and E >= 1 and G >= 1):
         raise ValueError(f"cem: need 2 <= elite < popsize, episodes >= 1, generations >= 1; got {opt}")
+    from valve_env.tasks.benchmark import HELD_OUT_SEED
+
+    train_seeds = range(seed, seed + G * E)
+    for lo, what in ((HELD_OUT_SEED, "held-out (thermovalve benchmark)"), (RANK_SEED, "ranking (sweep, leaderboard)")):
+        if lo < train_seeds.stop and train_seeds.start < lo + 10:
+            raise ValueError(f"cem: the training seeds {seed}..{train_seeds.stop - 1} include the {what} seeds "
+                             f"{lo}-{lo + 9}; pick another --seed")
     ev = dict(cfg.get("eval") or {})
     n_eval = int(ev.get("episodes", 4))
     pols = BatchedLinearPolicies(env_id, cfg, P * E)
@@ -149,14 +181,8 @@ def cem_train(env_id: str, cfg: Mapping[str, Any], seed: int, run_dir: Path, mod
     eval_seeds = [seed + 10_000 + j for j in range(n_eval)]
     rng = np.random.default_rng(seed)
     mu = np.zeros(pols.n_params)
-    if opt.get("init"):  # warm start: the best checkpoint of an earlier CEM run with the same features
-        from stable_baselines3 import PPO
-
-        src = Path(str(opt["init"]))
-        net: Any = PPO.load(src / "best" / "best_model.zip", device="cpu").policy.action_net
-        mu = np.concatenate([p.detach().numpy().ravel() for p in (net.weight, net.bias)]).astype(float)
-        if mu.shape != (pols.n_params,):
-            raise ValueError(f"cem.init {src}: {mu.size} parameters, this config has {pols.n_params}")
+    if opt.get("init"):  # warm start: an earlier CEM run's best checkpoint, or a shipped agent's zip
+        mu = warm_start(Path(str(opt["init"])), pols.k, pols.feat_dim, pols.n_act)
     sigma = np.full(pols.n_params, float(opt["sigma"]))
     rows: list[dict[str, float]] = []
     evals_t: list[int] = []
@@ -213,3 +239,33 @@ def cem_train(env_id: str, cfg: Mapping[str, Any], seed: int, run_dir: Path, mod
             "num_timesteps": int(steps), "optimizer": "cem", "cem": opt,
             "best_eval": {"mean_return": best[0],
                           "timesteps": int(evals_t[int(np.argmax([r.mean() for r in evals_r]))])}}
+
+
+def warm_start_chain(cfg: Mapping[str, Any]) -> list[dict[str, str]]:
+    """The commands that made a config's ``cem.init`` model, nearest first (each earlier run's
+    own warm start follows it), read from the run directories' command.txt and config.yml or a
+    shipped agent's <name>.yml: what ``--ship`` records beside an agent so it can be rebuilt."""
+    chain: list[dict[str, str]] = []
+    init = (cfg.get("cem") or {}).get("init") if cfg.get("optimizer") == "cem" else None
+    while init and len(chain) < 20:
+        src = Path(str(init))
+        run = src.parent.parent if src.name == "best_model.zip" else (src if src.suffix != ".zip" else None)
+        if run is not None and (run / "command.txt").is_file():
+            chain.append({"init": str(init), "command": (run / "command.txt").read_text().strip()})
+            nxt = yaml_load(run / "config.yml")
+        elif src.suffix == ".zip" and src.with_suffix(".yml").is_file():
+            nxt = yaml_load(src.with_suffix(".yml"))
+            chain.append({"init": str(init), "command": str((nxt.get("shipped_from") or {}).get("command", "?"))})
+            chain.extend(nxt.get("warm_start") or [])
+            break
+        else:
+            chain.append({"init": str(init), "command": "unknown (no command.txt or shipped .yml beside it)"})
+            break
+        init = (nxt.get("cem") or {}).get("init") if nxt.get("optimizer") == "cem" else None
+    return chain
+
+
+def yaml_load(path: Path) -> dict[str, Any]:
+    import yaml
+
+    return dict(yaml.safe_load(path.read_text()) or {})

@@ -385,6 +385,10 @@ def ship(run_dir: str | Path, zoo_dir: str | Path | None = None, use_best: bool 
             "command": (run_dir / "command.txt").read_text().strip(),
         },
     }
+    from agents.cem import warm_start_chain
+
+    if chain := warm_start_chain(cfg):  # a CEM run started from earlier models: how to rebuild them
+        shipped["warm_start"] = chain
     outs.write_text(dest / f"{algo}.yml", yaml.safe_dump(shipped, sort_keys=False))
     if commit:
         outs.commit()

@@ -46,6 +46,7 @@ from valve_env.envs.thermovalve import OBS_NAMES
 I_T_OUT = OBS_NAMES.index("T_out_C")
 I_TARGET = OBS_NAMES.index("T_target_C")
 I_DRAW = OBS_NAMES.index("draw_l_min")
+I_POCKET = OBS_NAMES.index("T_pocket_C")
 KPI_KEYS: tuple[str, ...] = (
     "rmse_K",
     "iae_Kh",
@@ -80,6 +81,11 @@ class ResidualCore:
     ki: np.ndarray
     dt_h: float
     kff: np.ndarray | None = None
+    #: ``shut_band`` (K, optional; a temperature setting only): also hold the integrator while the
+    #: outlet is above target and the output is more than this below the bulb's pocket temperature.
+    #: There the thermostatic valve is shut and a lower setting changes nothing (the tank cools by
+    #: its losses alone), so integrating would only wind the setting down, to undershoot later.
+    shut_band: float | None = None
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], space: gym.spaces.Box, dt_s: float) -> ResidualCore:
@@ -110,6 +116,7 @@ class ResidualCore:
             ki=vec("ki", 0.0),
             dt_h=float(dt_s) / 3600.0,
             kff=vec("kff", 0.0) if "kff" in cfg else None,
+            shut_band=_shut_band(cfg),
         )
 
     @property
@@ -139,9 +146,20 @@ class ResidualCore:
         sat = ((pi > self.high) & (e[:, None] * np.sign(self.ki) > 0)) | (
             (pi < self.low) & (e[:, None] * np.sign(self.ki) < 0)
         )
+        if self.shut_band is not None:
+            sat |= (pi < obs[:, I_POCKET, None] - self.shut_band) & (e[:, None] < 0)
         new_integ = np.where(sat, integ, new_integ)
         u = base + self.kp * e[:, None] + self.ki * new_integ + self.span * a
         return np.clip(u, self.low, self.high), new_integ
+
+
+def _shut_band(cfg: Mapping[str, Any]) -> float | None:
+    if cfg.get("shut_band") is None:
+        return None
+    band = cfg["shut_band"]
+    if isinstance(band, bool) or not isinstance(band, int | float) or not np.isfinite(band) or band < 0:
+        raise ValueError(f"residual.shut_band must be a number of kelvin >= 0, got {band!r}")
+    return float(band)
 
 
 #: Fixed physical scaling of the policy's inputs: (obs - center) / scale, per OBS_NAMES.
@@ -224,6 +242,10 @@ class DrawForecast:
     energy_kWh: np.ndarray
     sigma_s: float
     edges_h: tuple[float, ...]
+    #: ``times: [obs column, ...]``: also each window's forecast times that column's physically
+    #: scaled value (OBS_SCALING), e.g. T_bottom_C, the cylinder's state of charge: a linear head can
+    #: then weigh a draw ahead by how empty the store is (an interaction a linear head cannot form)
+    times: tuple[str, ...] = ()
 
     @classmethod
     def from_config(cls, aid: Mapping[str, Any], scenario: Any) -> DrawForecast:
@@ -236,11 +258,16 @@ class DrawForecast:
         if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) or edges[0] < 0:
             raise ValueError(f"obs_aids.draw_forecast.edges_h must increase from >= 0, got {edges}")
         sigma = float(scenario.draw_jitter_min) * 60.0 if scenario.stochastic_draws else 0.0
-        return cls(cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma, edges)
+        times = tuple(str(c) for c in aid.get("times", ()))
+        bad = [c for c in times if c not in OBS_SCALING or c == "T_target_C"]
+        if bad:
+            raise ValueError(f"obs_aids.draw_forecast.times: {bad} are not observation columns with a fixed scaling")
+        return cls(cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma, edges, times)
 
     @property
     def names(self) -> tuple[str, ...]:
-        return tuple(f"draw_kWh_{a:g}-{b:g}h" for a, b in zip(self.edges_h, self.edges_h[1:], strict=False))
+        win = tuple(f"draw_kWh_{a:g}-{b:g}h" for a, b in zip(self.edges_h, self.edges_h[1:], strict=False))
+        return win + tuple(f"{w}*{c}" for c in self.times for w in win)
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         from scipy.special import ndtr
@@ -252,11 +279,42 @@ class DrawForecast:
             x = t + h * 3600.0 - s
             cdf.append(ndtr(x / self.sigma_s) if self.sigma_s > 0 else (x >= 0).astype(np.float64))
         out = [((cdf[j + 1] - cdf[j]) * self.energy_kWh).sum(axis=(1, 2)) for j in range(len(self.edges_h) - 1)]
-        return np.stack(out, axis=1)
+        win = np.stack(out, axis=1)
+        if not self.times:
+            return win
+        o = np.atleast_2d(np.asarray(obs, np.float64))
+        cols = [win * ((o[:, OBS_NAMES.index(c)] - OBS_SCALING[c][0]) / OBS_SCALING[c][1])[:, None]
+                for c in self.times]
+        return np.concatenate([win, *cols], axis=1)
+
+
+@dataclass(frozen=True)
+class TimeOfDay:
+    """Observation aid ``time_of_day``: higher harmonics of the time of day, sin and cos of
+    ``k`` x 2 pi t / 24 h for each ``k`` in ``harmonics`` (the observation has k = 1 as tod_sin,
+    tod_cos). With them a linear head can shape a daily schedule of its correction (a sharper
+    morning or evening pre-charge) from the clock alone. docs/agents.md, "Observation aids"."""
+
+    harmonics: tuple[int, ...]
+
+    @classmethod
+    def from_config(cls, aid: Mapping[str, Any], scenario: Any) -> TimeOfDay:
+        ks = tuple(int(k) for k in aid.get("harmonics", (2, 3)))
+        if not ks or any(k < 2 for k in ks):
+            raise ValueError(f"obs_aids.time_of_day.harmonics must be integers >= 2, got {list(ks)}")
+        return cls(ks)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(f"tod_{f}{k}" for k in self.harmonics for f in ("sin", "cos"))
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        ang = time_of_day_s(obs)[:, None] * (2.0 * np.pi / 86400.0) * np.asarray(self.harmonics, np.float64)
+        return np.stack([np.sin(ang), np.cos(ang)], axis=2).reshape(ang.shape[0], -1)
 
 
 #: the observation aids a config may name (``obs_aids:``), docs/agents.md
-OBS_AIDS: dict[str, Any] = {"draw_forecast": DrawForecast}
+OBS_AIDS: dict[str, Any] = {"draw_forecast": DrawForecast, "time_of_day": TimeOfDay}
 
 
 @dataclass(frozen=True)

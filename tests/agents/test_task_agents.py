@@ -179,3 +179,90 @@ def test_task_leaderboard_regenerates_into_out(tmp_path: Path, monkeypatch: Any)
     assert (out / "figures" / "task_leaderboard.png").stat().st_size > 0
     assert tl.main(["--tasks", task, "--episodes", "2", "--oracle-cache", str(cache), "--out", str(out),
                     "--no-generalisation"]) == 2  # no replacing without --force
+
+
+def test_time_of_day_harmonics_and_forecast_interactions() -> None:
+    """time_of_day: sin/cos of k x the clock angle; draw_forecast.times: each window's forecast
+    times the named column's physical scaling (T_bottom_C: (T - 40) / 15)."""
+    from agents.wrappers import TimeOfDay
+
+    t = np.array([0.0, 21600.0, 30000.0])
+    tod = TimeOfDay.from_config({"harmonics": [2, 3]}, None)
+    assert tod.names == ("tod_sin2", "tod_cos2", "tod_sin3", "tod_cos3")
+    ang = 2 * np.pi * t / 86400.0
+    np.testing.assert_allclose(tod(_obs_at(t)), np.stack([np.sin(2 * ang), np.cos(2 * ang), np.sin(3 * ang),
+                                                          np.cos(3 * ang)], axis=1), atol=1e-5)
+    with pytest.raises(ValueError, match="harmonics"):
+        TimeOfDay.from_config({"harmonics": [1]}, None)
+    sc = ScenarioParams.from_dict({"tapping_profile": "L"})
+    plain = DrawForecast.from_config({"edges_h": [0, 1, 2]}, sc)
+    crossed = DrawForecast.from_config({"edges_h": [0, 1, 2], "times": ["T_bottom_C"]}, sc)
+    assert crossed.names[2:] == ("draw_kWh_0-1h*T_bottom_C", "draw_kWh_1-2h*T_bottom_C")
+    obs = _obs_at(np.array([25000.0, 70000.0]))
+    obs[:, 2] = [25.0, 55.0]
+    f, g = plain(obs), crossed(obs)
+    np.testing.assert_allclose(g[:, :2], f)
+    np.testing.assert_allclose(g[:, 2:], f * np.array([[-1.0], [1.0]]))
+    with pytest.raises(ValueError, match="times"):
+        DrawForecast.from_config({"times": ["T_target_C"]}, sc)
+
+
+def test_cem_warm_start_with_more_features_is_the_old_policy(tmp_path: Path) -> None:
+    """cem.init from a model zip into a config with more observation-aid columns and more frames:
+    the new weights start at 0, so the warm start earns exactly the old policy's returns; training
+    seeds that would include the held-out or ranking seeds are refused."""
+    from stable_baselines3 import PPO
+
+    from agents.cem import BatchedLinearPolicies, warm_start
+    from agents.train import train
+
+    short = {"control": {"horizon_h": 1.0}}
+    run = train("ppo", SMALL, seed=0, out=tmp_path / "cem", env_kwargs=short, progress_bar=False, command="pytest",
+                overrides=["cem={popsize: 4, episodes: 2, elite: 2, generations: 1, sigma: 0.3, eval_every: 1}",
+                           "eval.episodes=2"])
+    import yaml
+
+    cfg = yaml.safe_load((run / "config.yml").read_text())
+    zip_ = run / "best" / "best_model.zip"
+    old = BatchedLinearPolicies(SMALL, cfg, 2)
+    theta = warm_start(zip_, old.k, old.feat_dim, old.n_act)
+    net = PPO.load(zip_, device="cpu").policy.action_net
+    np.testing.assert_allclose(theta[:-1], net.weight.detach().numpy().ravel(), rtol=1e-6)
+    big = {**cfg, "frame_stack": cfg["frame_stack"] + 2,
+           "obs_aids": {**cfg["obs_aids"], "time_of_day": {"harmonics": [2, 3]}}}
+    new = BatchedLinearPolicies(SMALL, big, 2)
+    assert new.n_params > old.n_params
+    theta2 = warm_start(zip_, new.k, new.feat_dim, new.n_act)
+    np.testing.assert_allclose(new.returns(theta2[None], [3, 4]), old.returns(theta[None], [3, 4]), rtol=1e-9)
+    with pytest.raises(ValueError, match="does not fit"):
+        warm_start(zip_, 1, old.feat_dim, old.n_act)
+    from agents.cem import warm_start_chain
+
+    run2 = train("ppo", SMALL, seed=0, out=tmp_path / "cem2", env_kwargs=short, progress_bar=False,
+                 command="pytest 2", overrides=["cem={popsize: 4, episodes: 2, elite: 2, generations: 1, "
+                                                f"sigma: 0.01, eval_every: 1, init: {zip_}}}", "eval.episodes=2"])
+    cfg2 = yaml.safe_load((run2 / "config.yml").read_text())
+    assert warm_start_chain(cfg2) == [{"init": str(zip_), "command": "pytest"}]
+    assert warm_start_chain(cfg) == []
+    with pytest.raises(ValueError, match="ranking"):
+        train("ppo", SMALL, seed=995, out=tmp_path / "bad", env_kwargs=short, progress_bar=False, command="pytest",
+              overrides=["cem={popsize: 4, episodes: 2, elite: 2, generations: 3}"])
+
+
+def test_residual_shut_band_holds_the_integrator_while_the_valve_is_shut() -> None:
+    """shut_band: with the outlet above target and the output more than the band below the pocket
+    temperature (the valve is shut), the integrator holds; elsewhere it integrates as before."""
+    space = gym.make("ThermoValveStickyValve-v0").action_space
+    cfg = {"center": ["target"], "span": [5.0], "kp": [8.0], "ki": [20.0]}
+    plain = ResidualCore.from_config(cfg, space, 30.0)
+    held = ResidualCore.from_config({**cfg, "shut_band": 0.5}, space, 30.0)
+    obs = np.zeros((3, 12))
+    obs[:, 11] = 60.0
+    obs[:, [0, 1]] = [[60.5, 60.5], [60.1, 60.1], [59.5, 59.5]]
+    integ = np.array([[-0.1], [0.3], [-0.1]])  # row 0: output 60 - 4 - 2 < 60.5 - 0.5: shut; row 1: 65 open
+    _, i_plain = plain.step(obs, np.zeros((3, 1)), integ)
+    _, i_held = held.step(obs, np.zeros((3, 1)), integ)
+    np.testing.assert_allclose(i_plain[:, 0], integ[:, 0] + np.array([-0.5, -0.1, 0.5]) * 30.0 / 3600.0)
+    np.testing.assert_allclose(i_held[:, 0], [integ[0, 0], i_plain[1, 0], i_plain[2, 0]])
+    with pytest.raises(ValueError, match="shut_band"):
+        ResidualCore.from_config({**cfg, "shut_band": -1.0}, space, 30.0)
