@@ -105,7 +105,7 @@ def build_model_kwargs(algo: str, cfg: Mapping[str, Any], n_actions: int) -> dic
     if "activation_fn" in pk:
         from agents.activations import Tanh  # torch's tanh, through a faster CPU kernel (agents/activations.py)
 
-        acts = {"tanh": Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}
+        acts = {"tanh": Tanh, "torch_tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}
         pk["activation_fn"] = acts[str(pk["activation_fn"]).lower()]
     if pk:
         hp["policy_kwargs"] = pk
