@@ -194,7 +194,8 @@ def run(seconds: float, threads: int, quick: bool, progress: Any = None) -> dict
     plan.append(("ppo", "dummy", 8, sticky_overrides(8), "DummyVecEnv(8), sticky config", STICKY_ID,
                  "sticky config"))
     for n in (STICKY_N[1:2] if quick else STICKY_N):
-        plan.append(("ppo", "native", n, sticky_overrides(n), f"native({n}), sticky config", STICKY_ID, "sticky config"))
+        plan.append(("ppo", "native", n, sticky_overrides(n), f"native({n}), sticky config", STICKY_ID,
+                     "sticky config"))
     plan.append(("sac", "dummy", 1, [], "DummyVecEnv(1), shipped", ENV_ID, "sac"))
     for n in (SAC_FAST_N[:1] if quick else SAC_FAST_N):
         plan.append(("sac", "native", n, fast_sac_overrides(n), f"native({n}), many envs", ENV_ID, "sac"))
