@@ -35,9 +35,12 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
     frames = [f for f in frames if len(f)]
     ep = pd.concat(frames).sort_values("t") if frames else pd.DataFrame(columns=["r", "l", "t"])
     n_envs = int(cfg.get("n_envs", 1))
-    # the episodes end in order of wall time; the step count at an episode's end is about
-    # (episodes ended so far) x episode length (all ThermoValve episodes have the same length)
-    ep = ep.assign(steps=np.arange(1, len(ep) + 1) * ep["l"].to_numpy(float))
+    # the episodes end in order of wall time; the step count at an episode's end is about the
+    # steps of the episodes ended so far. A desynchronised run (desync: true) cuts each env's first
+    # episode short: those count as steps but are not plotted (a part of a day is not a day's return)
+    ep = ep.assign(steps=np.cumsum(ep["l"].to_numpy(float)))
+    if len(ep):
+        ep = ep[ep["l"] == ep["l"].max()]
     cem = pd.read_csv(r / "cem.csv") if (r / "cem.csv").is_file() else None
     evals = None
     npz = r / "best" / "evaluations.npz"

@@ -4,6 +4,8 @@
         --out out/sweep [--workers 2 | --scheduler tcp://host:8786]
     thermovalve sweep --env ThermoValveStickyValve-v0,ThermoValveDistrictHeating-v0 --seeds 0,1
         --out out/sweep_tasks --ship-best ppo --force      # train, select on seeds 1000+, ship
+    thermovalve sweep --grid configs/sweeps/sticky_ppo.yml --seeds 0 --eval-episodes 10 --out out/sweep_grid
+        # a hyperparameter grid (lists of values per key, keyed by env id) x seeds, ranked on seeds 1000+
     python -m agents.sweep ...
 
 Each cell (algo, seed, scenario) trains an agent on that scenario
@@ -21,6 +23,14 @@ whose result exists. A cell that raised writes ``<out>/failed/<cell>.json``
 cell leaves no result and is also rerun. A non-empty ``--out`` that is not a
 sweep (no ``grid.json``) is refused unless ``--force``. ``<out>/summary.csv`` and
 ``summary.md`` collect the results after every run.
+
+Hyperparameter grids (``--grid FILE``, docs/agents.md "Sweeps on Dask"): a YAML file keyed
+by env id, like configs/<algo>.yml; each env's block has ``grid:`` (a config key, dotted as in
+``--set``, to a list of values: the cells are the product of the lists), optionally ``set:``
+(key: value overrides for every cell of that env) and ``timesteps:``. Every grid point runs
+once per seed; its cells' directories hold the resolved ``config.yml`` and a ``command.txt``
+that retrains the cell with ``thermovalve train``, and ``summary.md`` ranks the grid points by
+their mean evaluation return on the held-out seeds (``--eval-seed``, 1000+ by default).
 """
 
 from __future__ import annotations
@@ -55,10 +65,88 @@ class Cell:
     eval_seed: int = 1000
     overrides: tuple[str, ...] = ()
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    #: the grid point's index in its env's grid (-1: not a grid cell) and its ``key=value`` overrides
+    grid_point: int = -1
+    params: tuple[str, ...] = ()
 
     @property
     def key(self) -> str:
-        return f"{self.env_id}__{self.algo}__{self.scenario}__s{self.seed}"
+        g = f"__g{self.grid_point:02d}" if self.grid_point >= 0 else ""
+        return f"{self.env_id}__{self.algo}__{self.scenario}{g}__s{self.seed}"
+
+    def train_command(self, run_dir: str | Path) -> str:
+        """The ``thermovalve train`` command that retrains this cell into ``run_dir``."""
+        args = ["thermovalve", "train", "--algo", self.algo, "--env", self.env_id, "--seed", str(self.seed),
+                "--timesteps", str(self.timesteps), "--eval-freq", "0", "--no-progress", "--out", str(run_dir)]
+        sets = [*self.overrides, *(f"env_kwargs.{k}={_yaml_value(v)}" for k, v in dict(self.env_kwargs).items())]
+        for o in sets:
+            args += ["--set", o]
+        return shlex.join(args)
+
+
+def _yaml_value(value: Any) -> str:
+    """One-line YAML of a value, read back by ``--set`` (agents.train.apply_overrides) as the same value."""
+    import yaml
+
+    text = yaml.safe_dump(value, default_flow_style=True, width=10**6).strip()
+    return text[:-4].strip() if text.endswith("\n...") else text
+
+
+GRID_KEYS = ("grid", "set", "timesteps")
+
+
+def load_grid(path: str | Path, env_ids: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+    """Read and check a grid file (see the module docstring): ``{env_id: {"grid": {key: [values]},
+    "set": {key: value}, "timesteps": int | None}}`` for ``env_ids`` (default: every id in the file)."""
+    import yaml
+
+    import valve_env
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"--grid {p}: no such file")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"--grid {p}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict) or not data:
+        raise ValueError(f"--grid {p}: expected a mapping of env ids to grid blocks")
+    for env in data:
+        if env not in valve_env.ALL_ENV_IDS:
+            raise ValueError(f"--grid {p}: unknown env id {env!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
+    ids = list(data) if env_ids is None else list(env_ids)
+    out: dict[str, dict[str, Any]] = {}
+    for env in ids:
+        if env not in data:
+            raise ValueError(f"--grid {p} has no block for {env}; it has {', '.join(data)}")
+        block = data[env]
+        if not isinstance(block, dict) or not isinstance(block.get("grid"), dict) or not block["grid"]:
+            raise ValueError(f"--grid {p}: {env} needs a non-empty 'grid:' mapping of config keys to lists")
+        extra = sorted(set(block) - set(GRID_KEYS))
+        if extra:
+            raise ValueError(f"--grid {p}: {env} has unknown keys {extra}; allowed: {', '.join(GRID_KEYS)}")
+        for key, values in block["grid"].items():
+            if not isinstance(key, str) or not key or "=" in key:
+                raise ValueError(f"--grid {p}: {env}: grid key {key!r} must be a config key like hyperparams.gamma")
+            if not isinstance(values, list) or not values:
+                raise ValueError(f"--grid {p}: {env}: grid.{key} must be a non-empty list of values, got {values!r}")
+        fixed = block.get("set") or {}
+        if not isinstance(fixed, dict):
+            raise ValueError(f"--grid {p}: {env}: 'set:' must be a mapping of config keys to values")
+        steps = block.get("timesteps")
+        if steps is not None and (isinstance(steps, bool) or not isinstance(steps, (int, float)) or steps < 1
+                                  or float(steps) != int(steps)):
+            raise ValueError(f"--grid {p}: {env}: timesteps must be an integer >= 1, got {steps!r}")
+        out[env] = {"grid": dict(block["grid"]), "set": dict(fixed),
+                    "timesteps": None if steps is None else int(steps)}
+    return out
+
+
+def grid_points(block: Mapping[str, Any]) -> list[tuple[str, ...]]:
+    """The ``key=value`` overrides of each point of a grid block (the product of its lists, in file order)."""
+    keys = list(block["grid"])
+    return [tuple(f"{k}={_yaml_value(v)}" for k, v in zip(keys, combo, strict=True))
+            for combo in itertools.product(*(block["grid"][k] for k in keys))]
 
 
 def make_grid(
@@ -71,8 +159,10 @@ def make_grid(
     eval_seed: int = 1000,
     overrides: Sequence[str] = (),
     env_kwargs: Mapping[str, Any] | None = None,
+    points: Sequence[tuple[str, ...]] | None = None,
 ) -> list[Cell]:
-    """The full grid algos x seeds x scenarios (scenarios: agents.scenarios's static ones)."""
+    """The full grid algos x seeds x scenarios (scenarios: agents.scenarios's static ones), and
+    x ``points`` (each a tuple of ``key=value`` overrides applied after ``overrides``; grid_points)."""
     from agents.scenarios import is_randomised
     from agents.train import ALGOS
 
@@ -90,14 +180,15 @@ def make_grid(
                 out.append(o)
         return tuple(out)
 
-    for algo, seed, scen in itertools.product(algos, seeds, scenarios):
+    grid = list(enumerate(points)) if points is not None else [(-1, ())]
+    for algo, (gp, params), seed, scen in itertools.product(algos, grid, seeds, scenarios):
         if algo not in ALGOS:
             raise ValueError(f"unknown algo {algo!r}; choose from {', '.join(ALGOS)}")
         if is_randomised(scen):
             raise ValueError(f"scenario {scen!r} changes per episode and cannot be a training scenario")
         cells.append(
-            Cell(algo, int(seed), scen, env_id, int(timesteps), int(eval_episodes), int(eval_seed), for_algo(algo),
-                 dict(env_kwargs or {}))
+            Cell(algo, int(seed), scen, env_id, int(timesteps), int(eval_episodes), int(eval_seed),
+                 (*for_algo(algo), *params), dict(env_kwargs or {}), gp, tuple(params))
         )
     return cells
 
@@ -147,7 +238,7 @@ def run_cell(cell: Cell, out_dir: str) -> dict[str, Any]:
             env_kwargs=env_kwargs,
             progress_bar=False,
             eval_freq=0,
-            command=f"agents.sweep.run_cell({cell!r})",
+            command=cell.train_command(out / "cells" / cell.key),
         )
         ctrl = load_agent(cell.algo, cell.env_id, run_dir=run_dir)
         summary, per_ep = evaluate_detailed(
@@ -195,6 +286,7 @@ def collect(out_dir: str | Path) -> pd.DataFrame:
         r = json.loads(p.read_text())
         c = r["cell"]
         row = {"env_id": c["env_id"], "algo": c["algo"], "scenario": c["scenario"], "seed": c["seed"],
+               "grid_point": c.get("grid_point", -1), "params": " ".join(c.get("params") or ()),
                "timesteps": c["timesteps"], "return": r["return"]["mean"], "return_std": r["return"]["std"]}
         row.update({k: v["mean"] for k, v in r["kpis"].items()})
         row["train_wall_s"] = r.get("train_wall_s")
@@ -221,6 +313,21 @@ def write_summary(out_dir: str | Path) -> pd.DataFrame:
         lines.append("|" + "---|" * len(agg.columns))
         for _, r in agg.iterrows():
             lines.append("| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |")
+    grid = df[df["grid_point"] >= 0] if len(df) else df
+    if len(grid):
+        lines += ["", "## Grid points, ranked by mean evaluation return (best first)", ""]
+        for (env, algo, scen), sub in grid.groupby(["env_id", "algo", "scenario"]):
+            eval_seed = next((json.loads(p.read_text())["cell"]["eval_seed"]
+                              for p in sorted((out / "results").glob(f"{env}__{algo}__{scen}__g*.json"))), None)
+            rank = sub.groupby(["grid_point", "params"]).agg(
+                seeds=("seed", "count"), return_mean=("return", "mean"), return_std_seeds=("return", "std"),
+                rmse_K=("rmse_K", "mean"), tdis_Kh=("tdis_Kh", "mean"), train_wall_s=("train_wall_s", "mean"),
+            ).reset_index().sort_values("return_mean", ascending=False)
+            lines += [f"{env}, {algo}, scenario {scen}; evaluated on seeds {eval_seed}+ (held out from training)", "",
+                      "| rank | " + " | ".join(rank.columns) + " |", "|" + "---|" * (len(rank.columns) + 1)]
+            for i, (_, r) in enumerate(rank.iterrows(), 1):
+                lines.append(f"| {i} | " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |")
+            lines.append("")
     failed = sorted(p.stem for p in (out / "failed").glob("*.json")) if (out / "failed").is_dir() else []
     if failed:
         lines += ["", f"Failed cells (retried on the next run): {', '.join(failed)}"]
@@ -293,8 +400,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--algos", default="ppo", help="comma-separated algorithms, from ppo, sac, td3")
     p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds or ranges, e.g. 0-4 (default 0,1,2)")
     p.add_argument("--scenarios", default="default", help="comma-separated training scenarios (agents.scenarios)")
-    p.add_argument("--env", default="ThermoValve-v0", help="environment id, or comma-separated ids (a grid per id)")
-    p.add_argument("--timesteps", type=int, default=100_000, help="training steps per cell")
+    p.add_argument("--env", default=None,
+                   help="environment id, or comma-separated ids (a grid per id); default ThermoValve-v0, "
+                        "or with --grid every id in the grid file")
+    p.add_argument("--grid", default=None, metavar="FILE.yml",
+                   help="hyperparameter grid, keyed by env id (configs/sweeps/*.yml; see the module docstring)")
+    p.add_argument("--timesteps", type=int, default=None,
+                   help="training steps per cell (default: the grid file's timesteps:, else 100000)")
     p.add_argument("--eval-episodes", type=int, default=5, help="held-out evaluation episodes per cell")
     p.add_argument("--eval-seed", type=int, default=1000, help="first evaluation seed")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -323,11 +435,21 @@ def best_cells(out_dir: str | Path, scenario: str = "default") -> dict[str, dict
 
 
 def run(args: argparse.Namespace) -> int:
-    envs = [e for e in args.env.split(",") if e]
-    cells = [c for env in envs for c in make_grid(
-        [a for a in args.algos.split(",") if a], _ints(args.seeds), [s for s in args.scenarios.split(",") if s],
-        env, args.timesteps, args.eval_episodes, args.eval_seed, args.overrides,
-    )]
+    if args.timesteps is not None and args.timesteps < 1:
+        raise ValueError(f"--timesteps must be >= 1, got {args.timesteps}")
+    env_arg = [e for e in args.env.split(",") if e] if args.env else None
+    grids = load_grid(args.grid, env_arg) if args.grid else None
+    envs = env_arg or (list(grids) if grids else ["ThermoValve-v0"])
+    cells = []
+    for env in envs:
+        block = grids[env] if grids else None
+        steps = args.timesteps or (block or {}).get("timesteps") or 100_000
+        fixed = [f"{k}={_yaml_value(v)}" for k, v in (block or {}).get("set", {}).items()]
+        cells += make_grid(
+            [a for a in args.algos.split(",") if a], _ints(args.seeds), [s for s in args.scenarios.split(",") if s],
+            env, steps, args.eval_episodes, args.eval_seed, [*args.overrides, *fixed],
+            points=grid_points(block) if block else None,
+        )
     from valve_env.outputs import OutputError, atomic_write_text
 
     out = Path(args.out)

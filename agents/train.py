@@ -103,7 +103,9 @@ def build_model_kwargs(algo: str, cfg: Mapping[str, Any], n_actions: int) -> dic
     hp = {k: _number(v) for k, v in copy.deepcopy(dict(cfg.get("hyperparams") or {})).items()}
     pk = {k: _number(v) for k, v in dict(hp.pop("policy_kwargs", {}) or {}).items()}
     if "activation_fn" in pk:
-        acts = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}
+        from agents.activations import Tanh  # torch's tanh, through a faster CPU kernel (agents/activations.py)
+
+        acts = {"tanh": Tanh, "torch_tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}
         pk["activation_fn"] = acts[str(pk["activation_fn"]).lower()]
     if pk:
         hp["policy_kwargs"] = pk

@@ -126,7 +126,22 @@ class ThermoValveVecEnv(VecEnv):
         #: each env's stored heat after the last step, before any autoreset (J): the potential of
         #: the state the step's reward led to (VecEnergyShaping)
         self.step_stored_energy_J: np.ndarray = np.zeros(vec.num_envs)
+        #: desync: the step at which each env's first episode after a reset() is cut (0: not cut)
+        self._desync_rng: np.random.Generator | None = None
+        self._cut_at: np.ndarray = np.zeros(vec.num_envs, np.int64)
         super().__init__(vec.num_envs, vec.single_observation_space, vec.single_action_space)
+
+    def set_desync(self, seed: int | None) -> None:
+        """Spread the envs over the time of day (docs/agents.md, "Desynchronised envs").
+
+        All ThermoValve episodes start at midnight and last the same number of steps, so N envs
+        reset together stay in step all day, and a rollout of n_steps < one day shows an update
+        only one slice of the day. With a seed, every ``reset()`` from now on cuts env i's first
+        episode at a step drawn uniformly from 1..episode_steps (truncated: ``TimeLimit.truncated``
+        is True, the value is bootstrapped from ``terminal_observation``, ``info["desync_cut"]``
+        marks it, the episode has no KPIs), after which env i runs whole days at its own phase;
+        the random-no-op starts of Atari training serve the same purpose. ``None`` turns it off."""
+        self._desync_rng = None if seed is None else np.random.default_rng(int(seed))
 
     @property
     def cfg(self) -> Any:
@@ -147,6 +162,8 @@ class ThermoValveVecEnv(VecEnv):
         self._reset_seeds()
         self._reset_options()
         self.step_stored_energy_J = self.vector_env.stored_energy_J()
+        if self._desync_rng is not None:
+            self._cut_at = self._desync_rng.integers(1, self.vector_env.episode_steps, self.num_envs, endpoint=True)
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -155,8 +172,16 @@ class ThermoValveVecEnv(VecEnv):
     def step_wait(self) -> VecEnvStepReturn:
         vec = self.vector_env
         obs, rewards, terminated, truncated, info = vec.step(self.actions)
+        cut = None
+        if self._cut_at.any():  # desync: cut the first episodes (set_desync)
+            cut = (self._cut_at > 0) & (vec.step_index >= self._cut_at) & ~(terminated | truncated)
+            self._cut_at[(terminated | truncated | cut) & (self._cut_at > 0)] = 0
+            truncated = truncated | cut
         dones = terminated | truncated
         infos = _unbatch_info(info, self.num_envs)
+        if cut is not None:
+            for i in np.flatnonzero(cut).tolist():
+                infos[i]["desync_cut"] = True
         for d, trunc in zip(infos, (truncated & ~terminated).tolist(), strict=True):
             d["TimeLimit.truncated"] = trunc
         self.step_stored_energy_J = vec.stored_energy_J()
@@ -413,6 +438,8 @@ def make_native_stack(
 
     kwargs = dict(cfg.get("env_kwargs") or {}) if env_kwargs is None else dict(env_kwargs)
     venv: VecEnv = ThermoValveVecEnv(env_id, n_envs, **kwargs)
+    if training and cfg.get("desync"):
+        venv.set_desync(seed)  # type: ignore[attr-defined]
     venv = VecMonitor(VecKPIInfo(venv), filename=monitor_file, info_keywords=KPI_KEYS)
     if cfg.get("energy_shaping"):
         venv = VecEnergyShaping(venv, float((cfg.get("hyperparams") or {}).get("gamma", 0.99)), active=training)

@@ -3,26 +3,25 @@
     python benchmarks/train_throughput.py [--json out/train_throughput.json] [--md out/train_throughput.md]
                                           [--seconds 20] [--threads 1] [--quick] [--force]
 
-Measures in one run, on ThermoValve-v0 (24 h episodes) with the training stack of
-configs/<algo>.yml (residual PI action, physical observation scaling, frame stack 4,
-energy shaping, VecNormalize; agents.wrappers.make_vec_env):
+Measures in one run, with the training stack of configs/<algo>.yml (residual PI action, physical
+observation scaling, frame stack 4, energy shaping, VecNormalize; agents.wrappers.make_vec_env).
+Every PPO comparison that is claimed runs the SAME PPO settings on both sides (samples per
+update = n_steps x N, minibatch, epochs, network, learning rate...): only the VecEnv and N differ.
 
-PPO
-  * ``DummyVecEnv(8)`` and ``SubprocVecEnv(2)`` of single wrapped envs with the shipped
-    hyperparameters of configs/ppo.yml (n_steps 1024, batch 1024, 5 epochs, target_kl 0.02);
-  * the native VecEnv (agents.vec_env) at N = 8 with the same hyperparameters (the env's
-    share of the gain alone);
-  * the native VecEnv at N = 8, 64, 256, 1024 with the *fast* hyperparameters: everything as
-    shipped (network, learning rate, gamma, GAE, clipping, 5 epochs, target_kl) except the
-    rollout and the minibatch: ``n_steps = clip(65536 / N, 32, 1024)`` and batch 4096, so a
-    rollout is 64k transitions at N >= 64 (16 minibatches per epoch);
-  * the same with 2 epochs instead of 5 at N = 256 and 1024: what the update's cost per
-    transition (epochs x one forward and backward pass of both networks) does to the rate.
-    Fewer epochs learn less per transition; the goal is judged on the 5-epoch settings.
-  * the fair comparison at the large-N settings: DummyVecEnv(8) and the native VecEnv at
-    N = 64, 256, 1024 with the *same* hyperparameters (``large_n_overrides``: batch 4096, 5
-    epochs, n_steps = clip(65536 / N, 32, 1024), the benchmark tasks' 64x64 networks): the
-    update costs the same per transition for both, only the collection differs.
+PPO on ThermoValve-v0 ("v0")
+  * ``DummyVecEnv(8)``, ``SubprocVecEnv(2)`` and the native VecEnv (agents.vec_env) at N = 8 with the
+    shipped hyperparameters of configs/ppo.yml (n_steps 1024, batch 1024, 5 epochs, 64x64 networks);
+  * the large-N settings, for DummyVecEnv(8) and the native VecEnv at N = 256 and 1024 alike: the
+    shipped ones except ``n_steps = clip(65536 / N, 32, 8192)`` (64k samples per update) and batch 4096;
+  * native(1024) with torch's own tanh kernel (``activation_fn: torch_tanh``), to show what the
+    faster kernel of agents/activations.py (``tanh``, the default) is worth;
+  * native(1024) with 2 epochs instead of 5: reported, not claimed (fewer epochs learn less per sample).
+
+PPO on ThermoValveStickyValve-v0 ("sticky")
+  * the training configuration of configs/sweeps/sticky_ppo.yml (configs/ppo.yml's sticky block with
+    the grid file's ``set:``: 32768 samples per update, batch 4096, 5 epochs, the linear action head
+    and the 64x64 value net) for DummyVecEnv(8) (n_steps 4096) and the native VecEnv at N = 256,
+    512 and 1024 (n_steps 32768 / N): the configuration PPO's own updates are trained with here.
 
 SAC (off-policy, many envs)
   * ``DummyVecEnv(1)`` with configs/sac.yml (train_freq 4, 1 gradient step of 256: 64 replayed
@@ -30,20 +29,23 @@ SAC (off-policy, many envs)
   * the native VecEnv at N = 64 and 256 with batch 1024, ``train_freq = max(1, 128 / N)`` steps
     and ``gradient_steps = max(1, N / 128)``: 8 replayed samples per env step (UTD 1/128). A
     replay ratio of 64 at N = 256 would be 16 gradient steps of 1024 per env step of 256
-    transitions: the updates, not the envs, would set the pace at any N.
+    transitions: the updates, not the envs, would set the pace at any N. Not the same settings.
 
-Each configuration is built, warmed up (one PPO rollout and update; SAC's learning_starts plus
-a few updates; numba and torch compiled and allocated), then ``learn`` runs on for about
-``--seconds`` (whole rollouts) and the rate is the env-steps it added over its wall time. For
-PPO the time inside rollout collection is reported beside it (callbacks at rollout start and
-end), the rest is the update. torch runs on ``--threads`` threads (default 1, as ``thermovalve
-train``) for every configuration. The machine is shared: quote ratios from one run.
+The two DummyVecEnv(8) references of the claimed comparisons run again at the end of the run;
+the ratios use the mean of the two measurements (the machine is shared: both are reported, their
+difference shows how much the load drifted). Each configuration is built, warmed up (one PPO
+rollout and update; SAC's learning_starts plus a few updates; numba and torch compiled and
+allocated), then ``learn`` runs on for about ``--seconds`` (whole rollouts) and the rate is the
+env-steps it added over its wall time. For PPO the time inside rollout collection is reported
+beside it (callbacks at rollout start and end), the rest is the update. torch runs on ``--threads``
+threads (default 1, as ``thermovalve train``) for every configuration. Quote ratios from one run.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -53,24 +55,38 @@ from typing import Any
 import numpy as np
 
 ENV_ID = "ThermoValve-v0"
-PPO_FAST_N: tuple[int, ...] = (8, 64, 256, 1024)
+STICKY_ID = "ThermoValveStickyValve-v0"
+STICKY_GRID = Path(__file__).resolve().parent.parent / "configs" / "sweeps" / "sticky_ppo.yml"
+PPO_LARGE_N: tuple[int, ...] = (256, 1024)
+STICKY_N: tuple[int, ...] = (256, 512, 1024)
 SAC_FAST_N: tuple[int, ...] = (64, 256)
 FAST_ROLLOUT = 65536
 FAST_BATCH = 4096
+STICKY_ROLLOUT = 32768
 SAC_BATCH = 1024
 SAC_REPLAY_RATIO = 8  # samples drawn from the buffer per env step
 
 
-def fast_ppo_overrides(n: int) -> list[str]:
-    n_steps = int(np.clip(FAST_ROLLOUT // n, 32, 1024))
-    return [f"hyperparams.n_steps={n_steps}", f"hyperparams.batch_size={FAST_BATCH}"]
-
-
 def large_n_overrides(n: int) -> list[str]:
-    """The PPO settings configs/ppo.yml gives the benchmark tasks for large N (batch 4096, the
-    tasks' network), with 5 epochs, for every VecEnv alike: n_steps = clip(65536 / N, 32, 1024)."""
-    return [*fast_ppo_overrides(n), "hyperparams.n_epochs=5",
-            "hyperparams.policy_kwargs.net_arch={pi: [64, 64], vf: [64, 64]}"]
+    """The large-N PPO settings on ThermoValve-v0, the same for every VecEnv: the shipped ones
+    (5 epochs, 64x64 networks) with 64k samples per update, n_steps = clip(65536 / N, 32, 8192),
+    and minibatch 4096."""
+    n_steps = int(np.clip(FAST_ROLLOUT // n, 32, 8192))
+    return [f"hyperparams.n_steps={n_steps}", f"hyperparams.batch_size={FAST_BATCH}", "hyperparams.n_epochs=5"]
+
+
+def sticky_overrides(n: int) -> list[str]:
+    """configs/sweeps/sticky_ppo.yml's ``set:`` (the training configuration of PPO on the sticky
+    task) at N envs with 32768 samples per update; desync only moves the first episode's end and
+    is left out, so that both VecEnvs run the same configuration."""
+    import yaml
+
+    from agents.sweep import _yaml_value
+
+    fixed = dict(yaml.safe_load(STICKY_GRID.read_text())[STICKY_ID]["set"])
+    fixed.pop("desync", None)
+    fixed.update({"n_envs": n, "hyperparams.n_steps": STICKY_ROLLOUT // n})
+    return [f"{k}={_yaml_value(v)}" for k, v in fixed.items()]
 
 
 def fast_sac_overrides(n: int) -> list[str]:
@@ -84,16 +100,17 @@ def fast_sac_overrides(n: int) -> list[str]:
     ]
 
 
-def measure(algo: str, vec: str, n: int, overrides: list[str], seconds: float, label: str) -> dict[str, Any]:
+def measure(algo: str, vec: str, n: int, overrides: list[str], seconds: float, label: str,
+            env_id: str = ENV_ID, group: str = "") -> dict[str, Any]:
     """Build, warm up and time one configuration; see the module docstring."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     from agents.train import algo_class, apply_overrides, build_model_kwargs, load_algo_config
     from agents.wrappers import make_vec_env
 
-    cfg = apply_overrides(load_algo_config(algo, ENV_ID), overrides)
+    cfg = apply_overrides(load_algo_config(algo, env_id), overrides)
     hp = cfg["hyperparams"]
-    venv = make_vec_env(ENV_ID, cfg, seed=0, n_envs=n, vec=vec, training=True)
+    venv = make_vec_env(env_id, cfg, seed=0, n_envs=n, vec=vec, training=True)
     n_actions = int(venv.action_space.shape[0])  # type: ignore[index]
     model = algo_class(algo)("MlpPolicy", venv, seed=0, device="cpu", **build_model_kwargs(algo, cfg, n_actions))
 
@@ -130,8 +147,11 @@ def measure(algo: str, vec: str, n: int, overrides: list[str], seconds: float, l
     wall = time.perf_counter() - t0
     steps = model.num_timesteps - start
     venv.close()
+    pk = hp.get("policy_kwargs") or {}
     row: dict[str, Any] = {
         "label": label,
+        "group": group,
+        "env_id": env_id,
         "algo": algo,
         "vec": vec,
         "n_envs": n,
@@ -139,6 +159,7 @@ def measure(algo: str, vec: str, n: int, overrides: list[str], seconds: float, l
         "wall_s": round(wall, 3),
         "env_steps_per_s": steps / wall,
         "hyperparams": {k: hp[k] for k in sorted(hp) if k != "policy_kwargs"},
+        "network": {"net_arch": pk.get("net_arch"), "activation_fn": pk.get("activation_fn", "tanh")},
     }
     if algo == "ppo":
         row["collect_share"] = split.collect_s / wall
@@ -154,109 +175,133 @@ def run(seconds: float, threads: int, quick: bool, progress: Any = None) -> dict
     import torch
 
     torch.set_num_threads(int(threads))
-    plan: list[tuple[str, str, int, list[str], str]] = [
-        ("ppo", "dummy", 8, [], "DummyVecEnv(8), shipped"),
-        ("ppo", "subproc", 2, [], "SubprocVecEnv(2), shipped"),
-        ("ppo", "native", 8, [], "native(8), shipped"),
+    load_start = list(os.getloadavg())
+    plan: list[tuple[str, str, int, list[str], str, str, str]] = [
+        ("ppo", "dummy", 8, [], "DummyVecEnv(8), shipped", ENV_ID, "v0 shipped"),
+        ("ppo", "subproc", 2, [], "SubprocVecEnv(2), shipped", ENV_ID, "v0 shipped"),
+        ("ppo", "native", 8, [], "native(8), shipped", ENV_ID, "v0 shipped"),
+        ("ppo", "dummy", 8, large_n_overrides(8), "DummyVecEnv(8), large-N", ENV_ID, "v0 large-N"),
     ]
-    for n in (PPO_FAST_N[1:3] if quick else PPO_FAST_N):
-        plan.append(("ppo", "native", n, fast_ppo_overrides(n), f"native({n}), fast"))
-    for n in (PPO_FAST_N[2:3] if quick else PPO_FAST_N[2:]):
-        plan.append(("ppo", "native", n, [*fast_ppo_overrides(n), "hyperparams.n_epochs=2"],
-                     f"native({n}), fast, 2 epochs"))
-    # the fair comparison at the large-N settings (the same PPO hyperparameters for both VecEnvs:
-    # batch 4096, 5 epochs, the tasks' network; only N and so the rollout differ)
-    for vec, n in (("dummy", 8), *(("native", n) for n in (PPO_FAST_N[1:3] if quick else PPO_FAST_N[1:]))):
-        plan.append(("ppo", vec, n, large_n_overrides(n), f"{'DummyVecEnv' if vec == 'dummy' else 'native'}({n}), "
-                     "large-N settings"))
-    plan.append(("sac", "dummy", 1, [], "DummyVecEnv(1), shipped"))
+    for n in (PPO_LARGE_N[:1] if quick else PPO_LARGE_N):
+        plan.append(("ppo", "native", n, large_n_overrides(n), f"native({n}), large-N", ENV_ID, "v0 large-N"))
+    n_top = PPO_LARGE_N[-1]
+    if not quick:
+        torch_tanh = "hyperparams.policy_kwargs.activation_fn=torch_tanh"
+        plan.append(("ppo", "native", n_top, [*large_n_overrides(n_top), torch_tanh],
+                     f"native({n_top}), large-N, torch's tanh kernel", ENV_ID, "v0 variants"))
+        plan.append(("ppo", "native", n_top, [*large_n_overrides(n_top)[:-1], "hyperparams.n_epochs=2"],
+                     f"native({n_top}), large-N but 2 epochs", ENV_ID, "v0 variants"))
+    plan.append(("ppo", "dummy", 8, sticky_overrides(8), "DummyVecEnv(8), sticky config", STICKY_ID,
+                 "sticky config"))
+    for n in (STICKY_N[1:2] if quick else STICKY_N):
+        plan.append(("ppo", "native", n, sticky_overrides(n), f"native({n}), sticky config", STICKY_ID,
+                     "sticky config"))
+    plan.append(("sac", "dummy", 1, [], "DummyVecEnv(1), shipped", ENV_ID, "sac"))
     for n in (SAC_FAST_N[:1] if quick else SAC_FAST_N):
-        plan.append(("sac", "native", n, fast_sac_overrides(n), f"native({n}), many envs"))
+        plan.append(("sac", "native", n, fast_sac_overrides(n), f"native({n}), many envs", ENV_ID, "sac"))
+    # the claimed comparisons' references again, at the end (load drift)
+    plan.append(("ppo", "dummy", 8, large_n_overrides(8), "DummyVecEnv(8), large-N (again)", ENV_ID, "v0 large-N"))
+    plan.append(("ppo", "dummy", 8, sticky_overrides(8), "DummyVecEnv(8), sticky config (again)", STICKY_ID,
+                 "sticky config"))
     rows = []
-    for algo, vec, n, ov, label in plan:
+    for algo, vec, n, ov, label, env_id, group in plan:
         if progress:
             progress(f"{algo} {label}")
-        rows.append(measure(algo, vec, n, ov, seconds, label))
+        rows.append(measure(algo, vec, n, ov, seconds, label, env_id, group))
     res: dict[str, Any] = {
-        "env_id": ENV_ID,
         "seconds_per_config": seconds,
         "torch_threads": int(threads),
         "machine": {
             "python": platform.python_version(),
             "torch": torch.__version__,
             "stable_baselines3": stable_baselines3.__version__,
-            "cpu_count": __import__("os").cpu_count(),
-            "load_avg": list(__import__("os").getloadavg()),
+            "cpu_count": os.cpu_count(),
+            "load_avg": list(os.getloadavg()),
+            "load_avg_start": load_start,
+            "nice": os.nice(0),
         },
         "rows": rows,
     }
-    ppo = {r["label"]: r["env_steps_per_s"] for r in rows if r["algo"] == "ppo"}
-    base = ppo["DummyVecEnv(8), shipped"]
-    fast = {r["n_envs"]: r["env_steps_per_s"] for r in rows if r["algo"] == "ppo" and r["label"].endswith("fast")}
-    fast2 = {r["n_envs"]: r["env_steps_per_s"] for r in rows if r["label"].endswith("2 epochs")}
-    best_n = max(fast, key=lambda k: fast[k])
-    sac = {r["label"]: r["env_steps_per_s"] for r in rows if r["algo"] == "sac"}
-    sac_fast = {r["n_envs"]: r["env_steps_per_s"] for r in rows if r["algo"] == "sac" and r["vec"] == "native"}
-    res["ratios"] = {
-        "ppo_native8_shipped_vs_dummy8": ppo["native(8), shipped"] / base,
-        "ppo_subproc2_vs_dummy8": ppo["SubprocVecEnv(2), shipped"] / base,
-        "ppo_best_fast_n": best_n,
-        "ppo_best_fast_vs_dummy8": fast[best_n] / base,
-        **{f"ppo_native{n}_fast_vs_dummy8": v / base for n, v in fast.items()},
-        **{f"ppo_native{n}_fast_2epochs_vs_dummy8": v / base for n, v in fast2.items()},
-        "sac_best_many_envs_vs_dummy1": max(sac_fast.values()) / sac["DummyVecEnv(1), shipped"],
-    }
-    large = {r["label"]: r["env_steps_per_s"] for r in rows if r["label"].endswith("large-N settings")}
-    large_base = large.pop("DummyVecEnv(8), large-N settings")
-    large_n = {int(k.split("(")[1].split(")")[0]): v for k, v in large.items()}
-    best_large = max(large_n, key=lambda k: large_n[k])
-    res["ratios"]["ppo_large_n_settings_best_n"] = best_large
-    res["ratios"]["ppo_large_n_settings_best_vs_dummy8_same_settings"] = large_n[best_large] / large_base
-    res["goal"] = {"ppo_best_fast_vs_dummy8": 10.0, "met": res["ratios"]["ppo_best_fast_vs_dummy8"] >= 10.0,
-                   "met_same_settings": res["ratios"]["ppo_large_n_settings_best_vs_dummy8_same_settings"] >= 10.0}
+    res["ratios"] = ratios(rows)
+    res["goal"] = {"ppo_same_settings_vs_dummy8": 10.0,
+                   "met_v0_large_n": res["ratios"]["v0 large-N"]["best_vs_dummy8"] >= 10.0,
+                   "met_sticky_config": res["ratios"]["sticky config"]["best_vs_dummy8"] >= 10.0}
     return res
 
 
+def ratios(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per PPO comparison group: each native row over the group's DummyVecEnv(8) reference (the mean of
+    its measurements), the best N; and the rows that are not same-settings comparisons."""
+    out: dict[str, Any] = {}
+    for group in ("v0 large-N", "sticky config"):
+        refs = [r["env_steps_per_s"] for r in rows if r["group"] == group and r["vec"] == "dummy"]
+        ref = float(np.mean(refs))
+        nat = {r["n_envs"]: r["env_steps_per_s"] for r in rows if r["group"] == group and r["vec"] == "native"}
+        best = max(nat, key=lambda k: nat[k])
+        out[group] = {"dummy8_measurements": refs, "dummy8_mean": ref, "best_n": best,
+                      "best_vs_dummy8": nat[best] / ref, **{f"native{n}_vs_dummy8": v / ref for n, v in nat.items()}}
+    by = {r["label"]: r["env_steps_per_s"] for r in rows}
+    ref = out["v0 large-N"]["dummy8_mean"]
+    shipped = by["DummyVecEnv(8), shipped"]
+    out["not same settings"] = {
+        "native8_shipped_vs_dummy8_shipped": by["native(8), shipped"] / shipped,
+        "subproc2_shipped_vs_dummy8_shipped": by["SubprocVecEnv(2), shipped"] / shipped,
+        **{f"{k} vs DummyVecEnv(8) large-N": v / ref for k, v in by.items() if "torch's tanh" in k or "2 epochs" in k},
+    }
+    sac = {r["vec"]: r["env_steps_per_s"] for r in rows if r["algo"] == "sac" and r["vec"] == "dummy"}
+    sac_fast = [r["env_steps_per_s"] for r in rows if r["algo"] == "sac" and r["vec"] == "native"]
+    out["sac_best_many_envs_vs_dummy1"] = max(sac_fast) / sac["dummy"]
+    return out
+
+
+def _settings(r: dict[str, Any]) -> str:
+    hp, net = r["hyperparams"], r["network"]
+    if r["algo"] == "ppo":
+        arch = net["net_arch"]
+        arch_s = (f"pi {arch.get('pi')}, vf {arch.get('vf')}" if isinstance(arch, dict) else f"pi = vf = {arch}")
+        return (f"n_steps {hp['n_steps']} (x N = {r['rollout']} per update), batch {hp['batch_size']}, epochs "
+                f"{hp['n_epochs']}, lr {hp['learning_rate']}, {arch_s}, {net['activation_fn']}")
+    return (f"batch {hp['batch_size']}, train_freq {hp['train_freq']}, gradient_steps {hp['gradient_steps']}"
+            f" (replay ratio {r['replay_ratio']:g})")
+
+
 def markdown(res: dict[str, Any]) -> str:
+    m = res["machine"]
     lines = [
-        f"Training throughput on {res['env_id']} (torch threads {res['torch_threads']}, "
-        f"about {res['seconds_per_config']:g} s per configuration, load average at the end "
-        f"{', '.join(f'{x:.1f}' for x in res['machine']['load_avg'])})",
+        f"Training throughput (torch threads {res['torch_threads']}, about {res['seconds_per_config']:g} s per "
+        f"configuration, nice {m['nice']}; load average at the start "
+        f"{', '.join(f'{x:.1f}' for x in m['load_avg_start'])}, "
+        f"at the end {', '.join(f'{x:.1f}' for x in m['load_avg'])})",
         "",
-        "| algo | VecEnv | envs | settings | env-steps/s | x DummyVecEnv | collection share |",
-        "|---|---|---:|---|---:|---:|---:|",
+        "| group | env | algo | VecEnv | N | settings | env-steps/s | x reference | collection share |",
+        "|---|---|---|---|---:|---|---:|---:|---:|",
     ]
-    base = {r["algo"]: r["env_steps_per_s"] for r in res["rows"] if r["vec"] == "dummy" and "large-N" not in r["label"]}
-    large_base = next((r["env_steps_per_s"] for r in res["rows"] if r["label"] == "DummyVecEnv(8), large-N settings"),
-                      None)
-    for r in res["rows"]:
-        hp = r["hyperparams"]
-        if r["algo"] == "ppo":
-            s = f"n_steps {hp['n_steps']}, batch {hp['batch_size']}, epochs {hp['n_epochs']}"
-            share = f"{r['collect_share']:.0%}"
-        else:
-            s = (f"batch {hp['batch_size']}, train_freq {hp['train_freq']}, gradient_steps {hp['gradient_steps']}"
-                 f" (replay ratio {r['replay_ratio']:g})")
-            share = ""
-        ref = large_base if "large-N" in r["label"] and large_base else base[r["algo"]]
-        if "large-N" in r["label"]:
-            s += " (large-N settings; x the DummyVecEnv(8) row with the same settings)"
-        lines.append(
-            f"| {r['algo']} | {r['vec']} | {r['n_envs']} | {s} | {r['env_steps_per_s']:,.0f} | "
-            f"{r['env_steps_per_s'] / ref:.1f} | {share} |"
-        )
     ra = res["ratios"]
+    shipped = next(r["env_steps_per_s"] for r in res["rows"] if r["label"] == "DummyVecEnv(8), shipped")
+    sac_ref = next(r["env_steps_per_s"] for r in res["rows"] if r["algo"] == "sac" and r["vec"] == "dummy")
+    for r in res["rows"]:
+        g = r["group"]
+        ref = (ra[g]["dummy8_mean"] if g in ("v0 large-N", "sticky config") else ra["v0 large-N"]["dummy8_mean"]
+               if g == "v0 variants" else sac_ref if r["algo"] == "sac" else shipped)
+        share = f"{r['collect_share']:.0%}" if r["algo"] == "ppo" else ""
+        lines.append(f"| {g} | {r['env_id'].replace('ThermoValve', '').replace('-v0', '') or 'v0'} | {r['algo']} | "
+                     f"{r['vec']} | {r['n_envs']} | {_settings(r)} | {r['env_steps_per_s']:,.0f} | "
+                     f"{r['env_steps_per_s'] / ref:.1f} | {share} |")
+    lines += ["", "x reference: over the DummyVecEnv row of the same group (v0 large-N, sticky config: the mean of "
+              "its two measurements; v0 variants: over v0 large-N's)."]
+    for g, what in (("v0 large-N", "ThermoValve-v0, the large-N settings"),
+                    ("sticky config", "ThermoValveStickyValve-v0, the sticky training configuration")):
+        x = ra[g]
+        lines.append(
+            f"* PPO, same settings on both sides, {what}: native({x['best_n']}) {x['best_vs_dummy8']:.1f}x "
+            f"DummyVecEnv(8) (its two measurements {', '.join(f'{v:,.0f}' for v in x['dummy8_measurements'])} "
+            f"env-steps/s; goal 10x: {'met' if x['best_vs_dummy8'] >= 10 else 'not met'}).")
+    ns = ra["not same settings"]
     lines += [
-        "",
-        f"PPO, best N ({ra['ppo_best_fast_n']}) of the fast settings against DummyVecEnv(8) shipped: "
-        f"{ra['ppo_best_fast_vs_dummy8']:.1f}x (goal 10x: {'met' if res['goal']['met'] else 'not met'}); "
-        f"native(8) with the shipped settings: {ra['ppo_native8_shipped_vs_dummy8']:.1f}x; "
-        f"SAC with many envs against DummyVecEnv(1): {ra['sac_best_many_envs_vs_dummy1']:.1f}x.",
-        "",
-        "PPO with the same large-N settings for both (batch 4096, 5 epochs): "
-        f"native({ra['ppo_large_n_settings_best_n']}) against DummyVecEnv(8) "
-        f"{ra['ppo_large_n_settings_best_vs_dummy8_same_settings']:.1f}x "
-        f"(goal 10x: {'met' if res['goal']['met_same_settings'] else 'not met'}).",
+        f"* Not the same settings, not claimed: native(8) shipped {ns['native8_shipped_vs_dummy8_shipped']:.1f}x "
+        f"DummyVecEnv(8) shipped; SubprocVecEnv(2) {ns['subproc2_shipped_vs_dummy8_shipped']:.1f}x; "
+        + "; ".join(f"{k} {v:.1f}x" for k, v in ns.items() if " vs " in k)
+        + f"; SAC with many envs against DummyVecEnv(1): {ra['sac_best_many_envs_vs_dummy1']:.1f}x.",
     ]
     return "\n".join(lines)
 

@@ -64,3 +64,85 @@ def test_grid_rejects_unknown_names() -> None:
         make_grid(["ppo"], [0], ["valve_random"])
     with pytest.raises(ValueError, match="unknown scenario"):
         make_grid(["ppo"], [0], ["mars"])
+
+
+GRID = """
+ThermoValve-v0:
+  timesteps: 128
+  set: {n_envs: 1, hyperparams.n_steps: 64, hyperparams.batch_size: 32, hyperparams.n_epochs: 1}
+  grid:
+    hyperparams.learning_rate: [1.0e-4, 3.0e-4]
+    hyperparams.policy_kwargs.log_std_init: [-3.0]
+"""
+
+
+def test_grid_file_parsing(tmp_path: Path) -> None:
+    import pytest
+
+    from agents.sweep import grid_points, load_grid
+
+    p = tmp_path / "g.yml"
+    p.write_text(GRID)
+    block = load_grid(p)["ThermoValve-v0"]
+    assert block["timesteps"] == 128 and block["set"]["n_envs"] == 1
+    pts = grid_points(block)
+    assert pts == [("hyperparams.learning_rate=0.0001", "hyperparams.policy_kwargs.log_std_init=-3.0"),
+                   ("hyperparams.learning_rate=0.0003", "hyperparams.policy_kwargs.log_std_init=-3.0")]
+    cells = make_grid(["ppo"], [0, 1], ["default"], timesteps=128, points=pts)
+    assert len(cells) == 4 and len({c.key for c in cells}) == 4 and cells[2].key.endswith("__g01__s0")
+    for text, match in (
+        ("NoSuchEnv-v0: {grid: {a: [1]}}", "unknown env id"),
+        ("ThermoValve-v0: {grid: {hyperparams.gamma: 0.99}}", "non-empty list"),
+        ("ThermoValve-v0: {grid: {hyperparams.gamma: []}}", "non-empty list"),
+        ("ThermoValve-v0: {set: {n_envs: 2}}", "non-empty 'grid:'"),
+        ("ThermoValve-v0: {grid: {a: [1]}, sett: {}}", "unknown keys"),
+        ("ThermoValve-v0: {grid: {a: [1]}, timesteps: -5}", "timesteps"),
+        ("ThermoValve-v0: [unclosed", "not valid YAML"),
+    ):
+        p.write_text(text)
+        with pytest.raises(ValueError, match=match):
+            load_grid(p)
+    p.write_text(GRID)
+    with pytest.raises(ValueError, match="no block for ThermoValveDual-v0"):
+        load_grid(p, ["ThermoValveDual-v0"])
+
+
+def test_grid_cell_saves_its_config_and_command(tmp_path: Path, short: dict[str, Any]) -> None:
+    """One grid cell run for real: its directory holds the resolved config with the grid point's
+    values and a thermovalve train command that resolves to the same config; the summary ranks it."""
+    import shlex
+
+    import yaml
+
+    from agents.sweep import grid_points, load_grid, write_summary
+    from agents.train import add_arguments, apply_overrides, load_algo_config
+    from valve_env.cli import main
+
+    g = tmp_path / "g.yml"
+    g.write_text(GRID)
+    block = load_grid(g)["ThermoValve-v0"]
+    fixed = [f"{k}={v}" for k, v in block["set"].items()]
+    cell = make_grid(["ppo"], [0], ["default"], timesteps=128, eval_episodes=1, overrides=fixed,
+                     env_kwargs=short, points=grid_points(block))[1]
+    rec = run_cell(cell, str(tmp_path / "sw"))
+    assert rec["status"] == "done", rec.get("error")
+    run_dir = tmp_path / "sw" / "cells" / cell.key
+    cfg = yaml.safe_load((run_dir / "config.yml").read_text())
+    assert cfg["hyperparams"]["learning_rate"] == 3.0e-4 and cfg["hyperparams"]["policy_kwargs"]["log_std_init"] == -3
+    assert cfg["env_kwargs"] == short and (run_dir / "model.zip").is_file()
+    argv = shlex.split((run_dir / "command.txt").read_text())
+    assert argv[:2] == ["thermovalve", "train"]
+    import argparse
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    a = p.parse_args(argv[2:])
+    again = apply_overrides(load_algo_config(a.algo, a.env), a.overrides)
+    assert again["hyperparams"] == cfg["hyperparams"] and again["env_kwargs"] == cfg["env_kwargs"]
+    assert a.timesteps == 128 and a.seed == 0 and a.out == str(run_dir)
+    write_summary(tmp_path / "sw")
+    md = (tmp_path / "sw" / "summary.md").read_text()
+    assert "ranked by mean evaluation return" in md and "learning_rate=0.0003" in md and "seeds 1000+" in md
+    # the CLI refuses a bad grid file with one line
+    g.write_text("ThermoValve-v0: {grid: {a: 1}}")
+    assert main(["sweep", "--grid", str(g), "--out", str(tmp_path / "sw2")]) == 2

@@ -201,3 +201,32 @@ def test_short_ppo_run_on_the_native_vec_env_learns(tmp_path: Any) -> None:
     means = evals["results"].mean(axis=1)
     assert evals["timesteps"][0] == 0 and len(means) >= 4
     assert means[-1] > means[0] + 0.5 * abs(means[0]), means
+
+
+def test_desync_cuts_each_first_episode_once() -> None:
+    """set_desync: env i's first episode after a reset ends (truncated, with its terminal
+    observation) at its drawn step; later episodes are whole, so the envs stay spread over the
+    day; a stack built for evaluation (training=False) is never desynchronised."""
+    n, length = 6, 60  # half-hour episodes
+    venv = ThermoValveVecEnv("ThermoValveStickyValve-v0", n, **HALF_HOUR)
+    venv.set_desync(11)
+    venv.seed(2)
+    venv.reset()
+    cut_at = venv._cut_at.copy()
+    assert ((cut_at >= 1) & (cut_at <= length)).all() and len(set(cut_at.tolist())) > 1
+    ends: list[list[tuple[int, bool]]] = [[] for _ in range(n)]
+    for t in range(1, 2 * length + 1):
+        obs, _, dones, infos = venv.step(np.full((n, 1), 60.0, np.float32))
+        for i in np.flatnonzero(dones).tolist():
+            assert infos[i]["TimeLimit.truncated"] and infos[i]["terminal_observation"].shape == (12,)
+            ends[i].append((t, bool(infos[i].get("desync_cut", False))))
+    for i in range(n):
+        first, cut = ends[i][0]
+        assert first == cut_at[i] and cut == (cut_at[i] < length)
+        assert ends[i][1] == (cut_at[i] + length, False)  # then whole episodes at the env's own phase
+    steps = venv.get_attr("step_index")
+    assert len(set(steps)) > 1
+    cfg = {**load_algo_config("ppo", "ThermoValveStickyValve-v0"), "desync": True, "env_kwargs": HALF_HOUR}
+    assert make_vec_env("ThermoValveStickyValve-v0", cfg, seed=0, n_envs=2, vec="native").unwrapped._desync_rng
+    assert make_vec_env("ThermoValveStickyValve-v0", cfg, seed=0, n_envs=2, vec="native",
+                        training=False).unwrapped._desync_rng is None
