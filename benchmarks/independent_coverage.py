@@ -146,8 +146,22 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
         name = EFFECT_PARAM[case["effect"]]
         f = next(f for f in d.findings if f.effect == case["effect"])
         js = f.to_json()
+        unc = js.get("uncertainty") or {}
+        mis = js.get("misspecification") or {}
         out.update({"true_value": effects[case["effect"]][name], "estimate_value": js["params"][name],
-                    "std_value": js["std"][name], "std_method": js.get("std_method", "")})
+                    "std_value": js["std"][name], "std_method": js.get("std_method", ""),
+                    "named": bool(d.cause == case["effect"] or case["effect"] in d.selected),
+                    # the ML estimate (before the bootstrap's bias correction) and the sds side by side
+                    "ml_value": (unc.get("uncorrected_estimate") or {}).get(name, js["params"][name]),
+                    "std_hessian": (js.get("std_hessian") or {}).get(name, float("nan")),
+                    "std_robust": (js.get("std_robust") or {}).get(name, float("nan")),
+                    "std_bootstrap": (unc.get("bootstrap_std") or {}).get(name, float("nan")),
+                    "std_from": (unc.get("std_from") or {}).get(name, ""),
+                    "misspecified": mis.get("misspecified"),
+                    "ljung_box_p": ((mis.get("outputs") or {}).get("x_mm") or {}).get("ljung_box_p")})
+    elif d.cause != "none":
+        js = d.findings[0].to_json()
+        out["misspecified_false_finding"] = (js.get("misspecification") or {}).get("misspecified")
     return out
 
 
@@ -227,13 +241,43 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
             entry.update(_coverage(z))
             entry["z"] = z
             entry["rel_err"] = [r["estimate_value"] / r["true_value"] - 1.0 for r in rs]
+            entry["by_sd"] = _effect_sd_coverage([r for r in rs if r.get("named")])
+            entry["misspecified"] = [r.get("misspecified") for r in rs]
         summ[key] = entry
     n_eff = [r for r in results if r["effect"] != "none"]
     summ["_total"] = {"named_right": sum(r["cause"] == r["effect"] for r in results), "runs": len(results),
                       "false_findings_on_none": sum(r["cause"] != "none" for r in results if r["effect"] == "none"),
                       "wrong_effect": sum(r["cause"] not in ("none", r["effect"]) for r in n_eff),
                       "median_seconds": float(np.median([r["seconds"] for r in results]))}
+    summ["_pooled"] = pooled_effects(results)
     return summ
+
+
+#: the sds of a named effect that the effects study compares (issue 20: "chosen by measured coverage")
+EFFECT_SDS: dict[str, str] = {
+    "reported": "the JSON's std (the bootstrap, at least the inverse-Hessian/HAC sd)",
+    "hessian": "inverse Hessian (std_hessian)",
+    "robust": "HAC sandwich of the per-sample scores (std_robust)",
+    "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std)",
+}
+
+
+def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Coverage of each candidate sd over named runs."""
+    key = {"reported": "std_value", "hessian": "std_hessian", "robust": "std_robust", "bootstrap": "std_bootstrap"}
+    # the likelihood's sds about the ML estimate, the bootstrap's about its (bias-corrected) estimate
+    centre = {"reported": "estimate_value", "hessian": "ml_value", "robust": "ml_value", "bootstrap": "estimate_value"}
+    return {name: _coverage([_z(r.get(centre[name], r["estimate_value"]), r["true_value"],
+                                r.get(key[name], float("nan"))) for r in rs]) for name in EFFECT_SDS}
+
+
+def pooled_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Coverage of each candidate sd pooled over the named runs of every effect (and of the smooth
+    effects alone, stiction's band being measured, not fitted)."""
+    named = [r for r in results if r["effect"] != "none" and r.get("named")]
+    smooth = [r for r in named if r["effect"] != "stiction"]
+    return {"all_named": _effect_sd_coverage(named), "smooth_named": _effect_sd_coverage(smooth),
+            "misspecified_named": int(sum(bool(r.get("misspecified")) for r in named)), "named": len(named)}
 
 
 def cases(study: str, generator: str, runs: int, eiv_B: int, seed: int) -> list[dict[str, Any]]:
@@ -270,14 +314,24 @@ def _print_base(summ: dict[str, Any]) -> None:
 
 def _print_effects(summ: dict[str, Any]) -> None:
     for key, e in summ.items():
-        if key == "_total":
+        if key.startswith("_"):
             continue
         line = f"{key:26s} named {e['named_right']}/{e['runs']}  causes {e['causes']}"
         if "z" in e:
             zs = ", ".join(f"{v:.1f}" for v in e["z"])
             rel = ", ".join(f"{v:+.0%}" for v in e["rel_err"])
             line += f"  z [{zs}]  1sd {e['cover_1sd']:.0%} 2sd {e['cover_2sd']:.0%}  rel err [{rel}]"
+            line += f"  misspecified {e['misspecified']}"
         print(line)
+        for name, c in e.get("by_sd", {}).items():
+            print(f"    {name:10s} over {c['n']} named: 1sd {c['cover_1sd']:.0%} 2sd {c['cover_2sd']:.0%} "
+                  f"rms z {c['rms_z']:.2f}")
+    p = summ["_pooled"]
+    print(f"pooled over {p['named']} named runs (misspecification warnings {p['misspecified_named']}):")
+    for grp in ("all_named", "smooth_named"):
+        for name, c in p[grp].items():
+            print(f"  {grp:12s} {name:10s} n {c['n']:3d} ({c['n_with_sd']} with sd): 1sd {c['cover_1sd']:.0%} "
+                  f"2sd {c['cover_2sd']:.0%} rms z {c['rms_z']:.2f} mean z {c['mean_z']:+.2f}")
     t = summ["_total"]
     print(f"total: named right {t['named_right']}/{t['runs']}, false findings on 'none' "
           f"{t['false_findings_on_none']}, wrong effect {t['wrong_effect']}, median {t['median_seconds']:.0f} s/run")
