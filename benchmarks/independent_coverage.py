@@ -100,6 +100,21 @@ def run_base(case: dict[str, Any]) -> dict[str, Any]:
     df, truth, _ = _simulate(case)
     data = _as_measured(df)
     out = dict(case)
+    if case.get("shipped_only"):
+        # only what `thermovalve fit` now runs by default (fit_eiv, B = 8): its relaxed-denoiser ML fit gives
+        # the inverse Hessian and the HAC sandwich beside the shipped sd
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            f = fit_eiv(data, model="base", B=case["eiv_B"], seed=case["i"])
+        rel = f.estimates["relaxed"]
+        out.update({"truth": truth, "estimate": {k: rel[k] for k in BASE_NAMES},
+                    "std_hessian": {k: f.estimator.std_[k] for k in BASE_NAMES},
+                    "std_hac": {k: f.std_parts["robust"][k] * rel[k] for k in BASE_NAMES},
+                    "fit_s": f.fit_time_s, "n": len(data),
+                    "base_bracket": {"params": f.params, "std": f.std, "std_parts": f.std_parts,
+                                     "estimates": {d: {k: e[k] for k in BASE_NAMES} for d, e in f.estimates.items()},
+                                     "misspecified": f.misspecification["misspecified"], "seconds": f.fit_time_s}})
+        return out
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         t0 = time.perf_counter()
@@ -204,25 +219,36 @@ def _candidate(r: dict[str, Any], name: str, k: str) -> tuple[float, float]:
     return r["eiv_bracket"]["estimates"]["relaxed"][k], r["eiv_bracket"]["std_hessian"][k]
 
 
+def _has(r: dict[str, Any], name: str) -> bool:
+    """Whether a base run's record holds candidate ``name`` (a --shipped-only run holds the default fit's)."""
+    need = {"hessian": "std_hessian", "hac": "std_hac", "bootstrap_bc": "std_eiv", "eiv": "base_bracket",
+            "eiv_state": "eiv_bracket", "eiv_state_hessian": "eiv_bracket"}
+    return need[name] in r
+
+
 def summarise_base(results: list[dict[str, Any]]) -> dict[str, Any]:
     summ: dict[str, Any] = {}
     for k in BASE_NAMES:
         rel = [r["estimate"][k] / r["truth"][k] - 1.0 for r in results]
         entry: dict[str, Any] = {"mean_rel_err": float(np.mean(rel)), "max_abs_rel_err": float(np.max(np.abs(rel)))}
         for name in SD_CANDIDATES:
+            if not all(_has(r, name) for r in results):
+                continue
             pairs = [_candidate(r, name, k) for r in results]
             c = _coverage([_z(e, r["truth"][k], s) for (e, s), r in zip(pairs, results, strict=True)])
             c["mean_rel_err"] = float(np.mean([e / r["truth"][k] - 1.0 for (e, _), r in zip(pairs, results,
                                                                                           strict=True)]))
             entry[name] = c
         summ[k] = entry
+    state = all("eiv_bracket" in r for r in results)
     summ["_misspecified"] = {"default": int(sum(r["base_bracket"]["misspecified"] for r in results)),
-                             "eiv_state": int(sum(r["eiv_bracket"]["misspecified"] for r in results)),
                              "runs": len(results)}
     summ["_seconds_median"] = {"fit": float(np.median([r["fit_s"] for r in results])),
                                "fit_eiv": float(np.median([r["base_bracket"]["seconds"] for r in results])),
-                               "fit_eiv_state": float(np.median([r["eiv_bracket"]["seconds"] for r in results])),
                                "n_median": float(np.median([r["n"] for r in results]))}
+    if state:
+        summ["_misspecified"]["eiv_state"] = int(sum(r["eiv_bracket"]["misspecified"] for r in results))
+        summ["_seconds_median"]["fit_eiv_state"] = float(np.median([r["eiv_bracket"]["seconds"] for r in results]))
     return summ
 
 
@@ -280,12 +306,13 @@ def pooled_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
             "misspecified_named": int(sum(bool(r.get("misspecified")) for r in named)), "named": len(named)}
 
 
-def cases(study: str, generator: str, runs: int, eiv_B: int, seed: int) -> list[dict[str, Any]]:
+def cases(study: str, generator: str, runs: int, eiv_B: int, seed: int, shipped_only: bool = False,
+          T_noise_C: float | None = 0.01) -> list[dict[str, Any]]:
     out: list[dict[str, Any]] = []
     if study == "base":
         for i in range(runs):
             out.append({"study": study, "generator": generator, "seed": seed, "i": i, "effect": "none",
-                        "T_noise_C": 0.01, "eiv_B": eiv_B})
+                        "T_noise_C": T_noise_C, "eiv_B": eiv_B, "shipped_only": shipped_only})
         return out
     classes: list[tuple[str, str | None]] = [("none", None), ("sensor_lag", None), ("medium_temperature", None),
                                              ("setpoint_drift", None)]
@@ -305,6 +332,8 @@ def _print_base(summ: dict[str, Any]) -> None:
         e = summ[k]
         print(f"{k}: ML mean rel. error {e['mean_rel_err']:+.2%}, max |rel. error| {e['max_abs_rel_err']:.2%}")
         for name, what in SD_CANDIDATES.items():
+            if name not in e:
+                continue
             c = e[name]
             print(f"  {name:18s} 1sd {c['cover_1sd']:5.0%}  2sd {c['cover_2sd']:5.0%}  rms z {c['rms_z']:5.2f}  "
                   f"mean z {c['mean_z']:+5.2f}  mean rel err {c['mean_rel_err']:+.2%}  ({what})")
@@ -348,6 +377,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", dest="json_out", default=None)
     ap.add_argument("--only", default="", help="effects study: only the runs of these effects (comma-separated "
                     "names, e.g. stiction: one run per stick-slip variant); run i keeps its seed")
+    ap.add_argument("--shipped-only", action="store_true",
+                    help="base: only the default `thermovalve fit` (fit_eiv, B = --eiv-B), with its ML fit's inverse "
+                    "Hessian and sandwich beside it")
+    ap.add_argument("--T-noise", type=float, default=0.01,
+                    help="base: temperature noise sd, degC (negative: drawn per run from U(0.001, 0.02))")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     seed = args.seed if args.seed is not None else SEEDS[(args.study, args.generator)]
@@ -357,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
     except OutputError as exc:
         print(f"thermovalve: error: {exc}", file=sys.stderr)
         return 2
-    cs = cases(args.study, args.generator, args.runs, args.eiv_B, seed)
+    cs = cases(args.study, args.generator, args.runs, args.eiv_B, seed, args.shipped_only,
+               None if args.T_noise < 0 else args.T_noise)
     if args.only:
         cs = [c for c in cs if c["effect"] in args.only.split(",")]
     fn = run_base if args.study == "base" else run_effects
