@@ -6,20 +6,26 @@ loader, so no tool sees the truth), on runs of the independent simulator
 (:mod:`valve_env.studies.independent`) and, for comparison, of the project's own
 generator (:mod:`valve_env.experiment`):
 
-* ``base``: ``thermovalve fit`` (``valve_env.estimation.report.fit_run``) and
-  ``thermovalve fit --eiv`` (:func:`valve_env.estimation.eiv.fit_eiv`) on runs
-  without effects at 0.01 degC of temperature noise: sigma, F_hmax, p_bset,
-  z = (estimate - truth) / sd, 1-sd and 2-sd coverage of each candidate sd
-  (``SD_CANDIDATES``: inverse Hessian, HAC sandwich, the bias-corrected
-  temperature bootstrap, ``--eiv``, the EIV state model).
+* ``base``: ``thermovalve fit --ml`` (``valve_env.estimation.report.fit_run``) and
+  ``thermovalve fit``, the default (:func:`valve_env.estimation.eiv.fit_eiv`) on runs
+  without effects at 0.01 degC of temperature noise (``--T-noise -1``: drawn per run
+  from 0.001-0.02 degC): sigma, F_hmax, p_bset, z = (estimate - truth) / sd, 1-sd and
+  2-sd coverage of each candidate sd (``SD_CANDIDATES``: inverse Hessian, HAC sandwich,
+  the bias-corrected temperature bootstrap, the default fit's, the EIV state model;
+  ``--shipped-only``: the default fit's with its ML fit's inverse Hessian and sandwich).
 * ``effects``: ``thermovalve diagnose`` (``valve_env.diagnosis.diagnose.diagnose``)
   on runs with one named effect each (stiction once per stick-slip variant) and
   runs without: the cause named, and the true effect's parameter against the truth
-  (z, coverage, relative error).
+  (z, coverage, relative error), with the coverage of each of its sds (``EFFECT_SDS``:
+  the reported one, the inverse Hessian, the HAC sandwich, the bootstrap alone) and
+  its misspecification check.
 
 Study seeds (chosen before any run, never tuned on): base 20261127 (the EIV
 study; 20261123 before it), effects 20261124; the project generator's runs use
-20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301.
+20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301. Issue 20's third
+round (docs/uncertainty.md, "Named effects"): held out 20261201 (effects, independent),
+20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
+development.
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
@@ -196,10 +202,10 @@ def _coverage(z: list[float]) -> dict[str, float]:
 
 #: the standard deviations a base study compares: name -> (estimate key, sd key) in a run's record
 SD_CANDIDATES: dict[str, str] = {
-    "hessian": "default fit, inverse Hessian (thermovalve fit's std)",
-    "hac": "default fit, HAC sandwich (std_robust)",
+    "hessian": "ML fit, inverse Hessian (thermovalve fit --ml's std; std_hessian)",
+    "hac": "ML fit, HAC sandwich (std_robust)",
     "bootstrap_bc": "temperature bootstrap, bias-corrected (the previous 'after')",
-    "eiv": "thermovalve fit --eiv (fit_eiv: denoiser bracket + HAC + temperature bootstrap, shipped)",
+    "eiv": "thermovalve fit, the default (fit_eiv: denoiser bracket + HAC + temperature bootstrap)",
     "eiv_state": "fit_eiv(model='eiv'): temperature error as a filter state, bracket + HAC",
     "eiv_state_hessian": "ValveEIVModel fit alone, inverse Hessian",
 }
