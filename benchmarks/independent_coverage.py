@@ -6,20 +6,26 @@ loader, so no tool sees the truth), on runs of the independent simulator
 (:mod:`valve_env.studies.independent`) and, for comparison, of the project's own
 generator (:mod:`valve_env.experiment`):
 
-* ``base``: ``thermovalve fit`` (``valve_env.estimation.report.fit_run``) and
-  ``thermovalve fit --eiv`` (:func:`valve_env.estimation.eiv.fit_eiv`) on runs
-  without effects at 0.01 degC of temperature noise: sigma, F_hmax, p_bset,
-  z = (estimate - truth) / sd, 1-sd and 2-sd coverage of each candidate sd
-  (``SD_CANDIDATES``: inverse Hessian, HAC sandwich, the bias-corrected
-  temperature bootstrap, ``--eiv``, the EIV state model).
+* ``base``: ``thermovalve fit --ml`` (``valve_env.estimation.report.fit_run``) and
+  ``thermovalve fit``, the default (:func:`valve_env.estimation.eiv.fit_eiv`) on runs
+  without effects at 0.01 degC of temperature noise (``--T-noise -1``: drawn per run
+  from 0.001-0.02 degC): sigma, F_hmax, p_bset, z = (estimate - truth) / sd, 1-sd and
+  2-sd coverage of each candidate sd (``SD_CANDIDATES``: inverse Hessian, HAC sandwich,
+  the bias-corrected temperature bootstrap, the default fit's, the EIV state model;
+  ``--shipped-only``: the default fit's with its ML fit's inverse Hessian and sandwich).
 * ``effects``: ``thermovalve diagnose`` (``valve_env.diagnosis.diagnose.diagnose``)
   on runs with one named effect each (stiction once per stick-slip variant) and
   runs without: the cause named, and the true effect's parameter against the truth
-  (z, coverage, relative error).
+  (z, coverage, relative error), with the coverage of each of its sds (``EFFECT_SDS``:
+  the reported one, the inverse Hessian, the HAC sandwich, the bootstrap alone) and
+  its misspecification check.
 
 Study seeds (chosen before any run, never tuned on): base 20261127 (the EIV
 study; 20261123 before it), effects 20261124; the project generator's runs use
-20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301.
+20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301. Issue 20's third
+round (docs/uncertainty.md, "Named effects"): held out 20261201 (effects, independent),
+20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
+development.
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
@@ -100,6 +106,21 @@ def run_base(case: dict[str, Any]) -> dict[str, Any]:
     df, truth, _ = _simulate(case)
     data = _as_measured(df)
     out = dict(case)
+    if case.get("shipped_only"):
+        # only what `thermovalve fit` now runs by default (fit_eiv, B = 8): its relaxed-denoiser ML fit gives
+        # the inverse Hessian and the HAC sandwich beside the shipped sd
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            f = fit_eiv(data, model="base", B=case["eiv_B"], seed=case["i"])
+        rel = f.estimates["relaxed"]
+        out.update({"truth": truth, "estimate": {k: rel[k] for k in BASE_NAMES},
+                    "std_hessian": {k: f.estimator.std_[k] for k in BASE_NAMES},
+                    "std_hac": {k: f.std_parts["robust"][k] * rel[k] for k in BASE_NAMES},
+                    "fit_s": f.fit_time_s, "n": len(data),
+                    "base_bracket": {"params": f.params, "std": f.std, "std_parts": f.std_parts,
+                                     "estimates": {d: {k: e[k] for k in BASE_NAMES} for d, e in f.estimates.items()},
+                                     "misspecified": f.misspecification["misspecified"], "seconds": f.fit_time_s}})
+        return out
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         t0 = time.perf_counter()
@@ -146,8 +167,22 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
         name = EFFECT_PARAM[case["effect"]]
         f = next(f for f in d.findings if f.effect == case["effect"])
         js = f.to_json()
+        unc = js.get("uncertainty") or {}
+        mis = js.get("misspecification") or {}
         out.update({"true_value": effects[case["effect"]][name], "estimate_value": js["params"][name],
-                    "std_value": js["std"][name], "std_method": js.get("std_method", "")})
+                    "std_value": js["std"][name], "std_method": js.get("std_method", ""),
+                    "named": bool(d.cause == case["effect"] or case["effect"] in d.selected),
+                    # the ML estimate (before the bootstrap's bias correction) and the sds side by side
+                    "ml_value": (unc.get("uncorrected_estimate") or {}).get(name, js["params"][name]),
+                    "std_hessian": (js.get("std_hessian") or {}).get(name, float("nan")),
+                    "std_robust": (js.get("std_robust") or {}).get(name, float("nan")),
+                    "std_bootstrap": (unc.get("bootstrap_std") or {}).get(name, float("nan")),
+                    "std_from": (unc.get("std_from") or {}).get(name, ""),
+                    "misspecified": mis.get("misspecified"),
+                    "ljung_box_p": ((mis.get("outputs") or {}).get("x_mm") or {}).get("ljung_box_p")})
+    elif d.cause != "none":
+        js = d.findings[0].to_json()
+        out["misspecified_false_finding"] = (js.get("misspecification") or {}).get("misspecified")
     return out
 
 
@@ -167,10 +202,10 @@ def _coverage(z: list[float]) -> dict[str, float]:
 
 #: the standard deviations a base study compares: name -> (estimate key, sd key) in a run's record
 SD_CANDIDATES: dict[str, str] = {
-    "hessian": "default fit, inverse Hessian (thermovalve fit's std)",
-    "hac": "default fit, HAC sandwich (std_robust)",
+    "hessian": "ML fit, inverse Hessian (thermovalve fit --ml's std; std_hessian)",
+    "hac": "ML fit, HAC sandwich (std_robust)",
     "bootstrap_bc": "temperature bootstrap, bias-corrected (the previous 'after')",
-    "eiv": "thermovalve fit --eiv (fit_eiv: denoiser bracket + HAC + temperature bootstrap, shipped)",
+    "eiv": "thermovalve fit, the default (fit_eiv: denoiser bracket + HAC + temperature bootstrap)",
     "eiv_state": "fit_eiv(model='eiv'): temperature error as a filter state, bracket + HAC",
     "eiv_state_hessian": "ValveEIVModel fit alone, inverse Hessian",
 }
@@ -190,25 +225,36 @@ def _candidate(r: dict[str, Any], name: str, k: str) -> tuple[float, float]:
     return r["eiv_bracket"]["estimates"]["relaxed"][k], r["eiv_bracket"]["std_hessian"][k]
 
 
+def _has(r: dict[str, Any], name: str) -> bool:
+    """Whether a base run's record holds candidate ``name`` (a --shipped-only run holds the default fit's)."""
+    need = {"hessian": "std_hessian", "hac": "std_hac", "bootstrap_bc": "std_eiv", "eiv": "base_bracket",
+            "eiv_state": "eiv_bracket", "eiv_state_hessian": "eiv_bracket"}
+    return need[name] in r
+
+
 def summarise_base(results: list[dict[str, Any]]) -> dict[str, Any]:
     summ: dict[str, Any] = {}
     for k in BASE_NAMES:
         rel = [r["estimate"][k] / r["truth"][k] - 1.0 for r in results]
         entry: dict[str, Any] = {"mean_rel_err": float(np.mean(rel)), "max_abs_rel_err": float(np.max(np.abs(rel)))}
         for name in SD_CANDIDATES:
+            if not all(_has(r, name) for r in results):
+                continue
             pairs = [_candidate(r, name, k) for r in results]
             c = _coverage([_z(e, r["truth"][k], s) for (e, s), r in zip(pairs, results, strict=True)])
             c["mean_rel_err"] = float(np.mean([e / r["truth"][k] - 1.0 for (e, _), r in zip(pairs, results,
                                                                                           strict=True)]))
             entry[name] = c
         summ[k] = entry
+    state = all("eiv_bracket" in r for r in results)
     summ["_misspecified"] = {"default": int(sum(r["base_bracket"]["misspecified"] for r in results)),
-                             "eiv_state": int(sum(r["eiv_bracket"]["misspecified"] for r in results)),
                              "runs": len(results)}
     summ["_seconds_median"] = {"fit": float(np.median([r["fit_s"] for r in results])),
                                "fit_eiv": float(np.median([r["base_bracket"]["seconds"] for r in results])),
-                               "fit_eiv_state": float(np.median([r["eiv_bracket"]["seconds"] for r in results])),
                                "n_median": float(np.median([r["n"] for r in results]))}
+    if state:
+        summ["_misspecified"]["eiv_state"] = int(sum(r["eiv_bracket"]["misspecified"] for r in results))
+        summ["_seconds_median"]["fit_eiv_state"] = float(np.median([r["eiv_bracket"]["seconds"] for r in results]))
     return summ
 
 
@@ -227,21 +273,52 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
             entry.update(_coverage(z))
             entry["z"] = z
             entry["rel_err"] = [r["estimate_value"] / r["true_value"] - 1.0 for r in rs]
+            entry["by_sd"] = _effect_sd_coverage([r for r in rs if r.get("named")])
+            entry["misspecified"] = [r.get("misspecified") for r in rs]
         summ[key] = entry
     n_eff = [r for r in results if r["effect"] != "none"]
     summ["_total"] = {"named_right": sum(r["cause"] == r["effect"] for r in results), "runs": len(results),
                       "false_findings_on_none": sum(r["cause"] != "none" for r in results if r["effect"] == "none"),
                       "wrong_effect": sum(r["cause"] not in ("none", r["effect"]) for r in n_eff),
                       "median_seconds": float(np.median([r["seconds"] for r in results]))}
+    summ["_pooled"] = pooled_effects(results)
     return summ
 
 
-def cases(study: str, generator: str, runs: int, eiv_B: int, seed: int) -> list[dict[str, Any]]:
+#: the sds of a named effect that the effects study compares (issue 20: "chosen by measured coverage")
+EFFECT_SDS: dict[str, str] = {
+    "reported": "the JSON's std (the bootstrap, at least the inverse-Hessian/HAC sd)",
+    "hessian": "inverse Hessian (std_hessian)",
+    "robust": "HAC sandwich of the per-sample scores (std_robust)",
+    "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std)",
+}
+
+
+def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Coverage of each candidate sd over named runs."""
+    key = {"reported": "std_value", "hessian": "std_hessian", "robust": "std_robust", "bootstrap": "std_bootstrap"}
+    # the likelihood's sds about the ML estimate, the bootstrap's about its (bias-corrected) estimate
+    centre = {"reported": "estimate_value", "hessian": "ml_value", "robust": "ml_value", "bootstrap": "estimate_value"}
+    return {name: _coverage([_z(r.get(centre[name], r["estimate_value"]), r["true_value"],
+                                r.get(key[name], float("nan"))) for r in rs]) for name in EFFECT_SDS}
+
+
+def pooled_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Coverage of each candidate sd pooled over the named runs of every effect (and of the smooth
+    effects alone, stiction's band being measured, not fitted)."""
+    named = [r for r in results if r["effect"] != "none" and r.get("named")]
+    smooth = [r for r in named if r["effect"] != "stiction"]
+    return {"all_named": _effect_sd_coverage(named), "smooth_named": _effect_sd_coverage(smooth),
+            "misspecified_named": int(sum(bool(r.get("misspecified")) for r in named)), "named": len(named)}
+
+
+def cases(study: str, generator: str, runs: int, eiv_B: int, seed: int, shipped_only: bool = False,
+          T_noise_C: float | None = 0.01) -> list[dict[str, Any]]:
     out: list[dict[str, Any]] = []
     if study == "base":
         for i in range(runs):
             out.append({"study": study, "generator": generator, "seed": seed, "i": i, "effect": "none",
-                        "T_noise_C": 0.01, "eiv_B": eiv_B})
+                        "T_noise_C": T_noise_C, "eiv_B": eiv_B, "shipped_only": shipped_only})
         return out
     classes: list[tuple[str, str | None]] = [("none", None), ("sensor_lag", None), ("medium_temperature", None),
                                              ("setpoint_drift", None)]
@@ -261,6 +338,8 @@ def _print_base(summ: dict[str, Any]) -> None:
         e = summ[k]
         print(f"{k}: ML mean rel. error {e['mean_rel_err']:+.2%}, max |rel. error| {e['max_abs_rel_err']:.2%}")
         for name, what in SD_CANDIDATES.items():
+            if name not in e:
+                continue
             c = e[name]
             print(f"  {name:18s} 1sd {c['cover_1sd']:5.0%}  2sd {c['cover_2sd']:5.0%}  rms z {c['rms_z']:5.2f}  "
                   f"mean z {c['mean_z']:+5.2f}  mean rel err {c['mean_rel_err']:+.2%}  ({what})")
@@ -270,14 +349,24 @@ def _print_base(summ: dict[str, Any]) -> None:
 
 def _print_effects(summ: dict[str, Any]) -> None:
     for key, e in summ.items():
-        if key == "_total":
+        if key.startswith("_"):
             continue
         line = f"{key:26s} named {e['named_right']}/{e['runs']}  causes {e['causes']}"
         if "z" in e:
             zs = ", ".join(f"{v:.1f}" for v in e["z"])
             rel = ", ".join(f"{v:+.0%}" for v in e["rel_err"])
             line += f"  z [{zs}]  1sd {e['cover_1sd']:.0%} 2sd {e['cover_2sd']:.0%}  rel err [{rel}]"
+            line += f"  misspecified {e['misspecified']}"
         print(line)
+        for name, c in e.get("by_sd", {}).items():
+            print(f"    {name:10s} over {c['n']} named: 1sd {c['cover_1sd']:.0%} 2sd {c['cover_2sd']:.0%} "
+                  f"rms z {c['rms_z']:.2f}")
+    p = summ["_pooled"]
+    print(f"pooled over {p['named']} named runs (misspecification warnings {p['misspecified_named']}):")
+    for grp in ("all_named", "smooth_named"):
+        for name, c in p[grp].items():
+            print(f"  {grp:12s} {name:10s} n {c['n']:3d} ({c['n_with_sd']} with sd): 1sd {c['cover_1sd']:.0%} "
+                  f"2sd {c['cover_2sd']:.0%} rms z {c['rms_z']:.2f} mean z {c['mean_z']:+.2f}")
     t = summ["_total"]
     print(f"total: named right {t['named_right']}/{t['runs']}, false findings on 'none' "
           f"{t['false_findings_on_none']}, wrong effect {t['wrong_effect']}, median {t['median_seconds']:.0f} s/run")
@@ -294,6 +383,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", dest="json_out", default=None)
     ap.add_argument("--only", default="", help="effects study: only the runs of these effects (comma-separated "
                     "names, e.g. stiction: one run per stick-slip variant); run i keeps its seed")
+    ap.add_argument("--shipped-only", action="store_true",
+                    help="base: only the default `thermovalve fit` (fit_eiv, B = --eiv-B), with its ML fit's inverse "
+                    "Hessian and sandwich beside it")
+    ap.add_argument("--T-noise", type=float, default=0.01,
+                    help="base: temperature noise sd, degC (negative: drawn per run from U(0.001, 0.02))")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     seed = args.seed if args.seed is not None else SEEDS[(args.study, args.generator)]
@@ -303,7 +397,8 @@ def main(argv: list[str] | None = None) -> int:
     except OutputError as exc:
         print(f"thermovalve: error: {exc}", file=sys.stderr)
         return 2
-    cs = cases(args.study, args.generator, args.runs, args.eiv_B, seed)
+    cs = cases(args.study, args.generator, args.runs, args.eiv_B, seed, args.shipped_only,
+               None if args.T_noise < 0 else args.T_noise)
     if args.only:
         cs = [c for c in cs if c["effect"] in args.only.split(",")]
     fn = run_base if args.study == "base" else run_effects

@@ -73,7 +73,7 @@ def test_sigterm_during_fit_keeps_previous_result(tmp_path: Path, run_csv: Path)
     out.write_text(PREVIOUS)
     env = {**os.environ, "THERMOVALVE_NO_PROGRESS": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "valve_env.cli", "fit", str(run_csv), "--json", str(out),
-                             "--force", "--n-starts", "20", "--report", str(tmp_path / "rep")],
+                             "--force", "--n-starts", "20", "--report", str(tmp_path / "rep"), "--ml"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     # wait until the report is being staged (a hidden temporary entry beside the outputs): mid-write
     deadline = time.monotonic() + 300

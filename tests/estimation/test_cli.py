@@ -29,7 +29,7 @@ def test_fit_json_report_and_config(tmp_path: Path, run_csv: Path) -> None:
     rep = tmp_path / "report"
     before = run_csv.read_bytes()
     code = main(["fit", str(run_csv), "--json", str(out), "--report", str(rep), "--config", str(cfg),
-                 "--n-starts", "1"])
+                 "--n-starts", "1", "--bootstrap", "2"])
     assert code == 0
     assert run_csv.read_bytes() == before
     res = json.loads(out.read_text())
@@ -61,27 +61,31 @@ def test_fit_bad_input_exits_nonzero_with_one_line(tmp_path: Path, run_csv: Path
 
 
 def test_fit_eiv_and_robust_fields(tmp_path: Path, run_csv: Path) -> None:
-    """The default JSON keeps params/std (inverse Hessian) and adds the sandwich and the
-    misspecification check; --eiv reports the errors-in-variables estimates and sd."""
+    """The default fit reports the errors-in-variables estimates and their sd (issue 20: the one a
+    study shows calibrated) with the sandwich, the inverse Hessian and the misspecification check
+    beside them; --ml keeps the plain ML fit, labelled as not calibrated."""
     out = tmp_path / "out.json"
-    assert main(["fit", str(run_csv), "--json", str(out), "--n-starts", "1"]) == 0
-    res = json.loads(out.read_text())
-    assert res["std"] == res["std_hessian"]
-    assert res["std_method"].startswith("inverse Hessian")
-    assert set(res["std_robust"]) == {"sigma", "F_hmax", "p_bset"} and res["robust_lags"] > 0
-    assert all(v > 0 for v in res["std_robust"].values())
-    mis = res["misspecification"]
-    assert isinstance(mis["misspecified"], bool) and "x_mm" in mis["outputs"]
-    eiv_out = tmp_path / "eiv.json"
-    assert main(["fit", str(run_csv), "--json", str(eiv_out), "--n-starts", "1", "--eiv", "--bootstrap", "2"]) == 0
-    e = json.loads(eiv_out.read_text())
+    assert main(["fit", str(run_csv), "--json", str(out), "--n-starts", "1", "--bootstrap", "2"]) == 0
+    e = json.loads(out.read_text())
     assert set(e["params"]) == {"sigma", "F_hmax", "p_bset"}
+    assert e["std_method"].startswith("errors in variables")
     ests = e["eiv"]["estimates"]
     for k in ("sigma", "F_hmax", "p_bset"):  # the midpoint of the two denoisers' fits (log scale)
         lo, hi = sorted((ests["relaxed"][k], ests["tv"][k]))
         assert lo <= e["params"][k] <= hi
         assert e["std"][k] >= e["eiv"]["std_parts"]["robust"][k] * e["params"][k] * 0.999
+        assert e["std_hessian"][k] > 0 and e["std_robust"][k] > 0
     assert e["eiv"]["B"] == 2 and set(e["eiv"]["std_parts"]) == {"robust", "denoiser", "temperature"}
+    assert e["robust_lags"] > 0
+    mis = e["misspecification"]
+    assert isinstance(mis["misspecified"], bool) and "x_mm" in mis["outputs"]
+    ml_out = tmp_path / "ml.json"
+    assert main(["fit", str(run_csv), "--json", str(ml_out), "--n-starts", "1", "--ml"]) == 0
+    res = json.loads(ml_out.read_text())
+    assert res["std"] == res["std_hessian"]
+    assert "not calibrated" in res["std_method"]
+    assert set(res["std_robust"]) == {"sigma", "F_hmax", "p_bset"}
+    assert res["params"]["sigma"] == pytest.approx(ests["relaxed"]["sigma"], rel=1e-6)
     proc = subprocess.run([sys.executable, "-m", "valve_env.cli", "fit", str(run_csv), "--json",
-                           str(tmp_path / "x.json"), "--bootstrap", "4"], capture_output=True, text=True, check=False)
-    assert proc.returncode == 2 and "--bootstrap needs --eiv" in proc.stderr
+                           str(tmp_path / "x.json"), "--ml", "--eiv"], capture_output=True, text=True, check=False)
+    assert proc.returncode == 2 and "--ml and --eiv" in proc.stderr

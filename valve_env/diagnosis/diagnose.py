@@ -143,6 +143,9 @@ class Finding:
     #: how the effect parameters' std were obtained, and the bootstrap's details where it ran
     std_method: str = "inverse Hessian / HAC sandwich (not calibrated)"
     uncertainty: dict[str, Any] | None = None
+    #: issue 20: the inverse-Hessian and HAC-sandwich sds side by side and the misspecification check
+    #: (valve_env.diagnosis.uncertainty.robust_finding), for a named effect
+    robust: dict[str, Any] | None = None
 
     @property
     def accepted(self) -> bool:
@@ -175,6 +178,7 @@ class Finding:
             "uncertainty": self.uncertainty,
             "all_params": {k: float(v) for k, v in self.fit.params.items()},
             "all_std": {k: float(v) for k, v in self.fit.std.items()},
+            **(self.robust or {}),
         }
 
 
@@ -508,10 +512,14 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                    best.validation_sim_rms_after_mm)
     # honest uncertainty of the named effects: a model-based bootstrap of the whole chain (smoothing
     # of the temperatures included), see valve_env.diagnosis.uncertainty
-    if bootstrap_B > 0:
-        for step in steps:
-            best = step[0]
-            if best.accepted:
+    for step in steps:
+        best = step[0]
+        if best.accepted:
+            # issue 20: sandwich beside the Hessian, and the misspecification check (at the ML estimate)
+            from valve_env.diagnosis.uncertainty import robust_finding
+
+            best.robust = robust_finding(Model(best.fit.effects, valve), train, best.fit)
+            if bootstrap_B > 0:
                 _bootstrap_finding(best, train, valve, bootstrap_B)
                 tick(f"bootstrap {best.effect}")
     final = ref_fit

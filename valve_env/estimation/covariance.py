@@ -131,13 +131,14 @@ def score_matrix(contrib: Callable[[np.ndarray], np.ndarray], z: np.ndarray, h: 
     return G
 
 
-def hessian_sandwich_sd(nll: Callable[[np.ndarray], float], contrib: Callable[[np.ndarray], np.ndarray],
-                        z: np.ndarray, widths: Sequence[float] | np.ndarray, dnat: np.ndarray,
-                        working: np.ndarray, h: float = 1e-3) -> np.ndarray:
-    """Natural-scale sd of each parameter: the larger of the model-based one (inverse Hessian of
-    ``nll`` over the identified directions) and the robust one (HAC sandwich of the per-sample
-    scores of ``contrib``, the log-likelihood contributions); delta method with ``dnat`` (the
-    derivative of each natural value with respect to its transformed one).
+def hessian_sandwich_parts(nll: Callable[[np.ndarray], float], contrib: Callable[[np.ndarray], np.ndarray],
+                           z: np.ndarray, widths: Sequence[float] | np.ndarray, dnat: np.ndarray,
+                           working: np.ndarray, h: float = 1e-3) -> tuple[np.ndarray, np.ndarray, int]:
+    """Natural-scale sd of each parameter two ways: the model-based one (inverse Hessian of ``nll``
+    over the identified directions) and the robust one (HAC sandwich of the per-sample scores of
+    ``contrib``, the log-likelihood contributions); delta method with ``dnat`` (the derivative of each
+    natural value with respect to its transformed one). Returns ``(sd_model, sd_robust, lags)``,
+    ``lags`` the Newey-West window used.
 
     ``working`` marks the residual model's parameters (noise levels, correlation time): in the
     sandwich of the others they are held at their estimates (a working covariance: the sandwich for
@@ -148,24 +149,36 @@ def hessian_sandwich_sd(nll: Callable[[np.ndarray], float], contrib: Callable[[n
     z = np.asarray(z, dtype=float)
     k = z.size
     widths = np.asarray(widths, dtype=float)
-    out = np.full(k, np.nan)
+    sd_model = np.full(k, np.nan)
+    sd_robust = np.full(k, np.nan)
     H = fd_hessian(nll, z, h)
     Hi = identified_inverse(H, widths)
     if Hi is None:
-        return out
-    M = hac_meat(score_matrix(contrib, z, h))
-    cov_model = Hi
+        return sd_model, sd_robust, 0
+    G = score_matrix(contrib, z, h)
+    lags = int(np.floor(4.0 * (G.shape[0] / 100.0) ** (2.0 / 9.0)))
+    M = hac_meat(G, lags)
     phys = ~np.asarray(working, dtype=bool)
     cov_robust = Hi @ M @ Hi
     if phys.any():
         Hp = identified_inverse(H[np.ix_(phys, phys)], widths[phys])
         if Hp is not None:
             cov_robust[np.ix_(phys, phys)] = Hp @ M[np.ix_(phys, phys)] @ Hp
-    for i in range(k):
-        v = max(cov_model[i, i], cov_robust[i, i])
-        out[i] = float(math.sqrt(v) * abs(dnat[i])) if v > 0 and math.isfinite(v) else float("nan")
-    return out
+    for out, cov in ((sd_model, Hi), (sd_robust, cov_robust)):
+        for i in range(k):
+            v = cov[i, i]
+            out[i] = float(math.sqrt(v) * abs(dnat[i])) if v > 0 and math.isfinite(v) else float("nan")
+    return sd_model, sd_robust, lags
+
+
+def hessian_sandwich_sd(nll: Callable[[np.ndarray], float], contrib: Callable[[np.ndarray], np.ndarray],
+                        z: np.ndarray, widths: Sequence[float] | np.ndarray, dnat: np.ndarray,
+                        working: np.ndarray, h: float = 1e-3) -> np.ndarray:
+    """Natural-scale sd of each parameter: the larger of the model-based one and the robust one of
+    :func:`hessian_sandwich_parts` (NaN where nothing is identified)."""
+    sd_model, sd_robust, _ = hessian_sandwich_parts(nll, contrib, z, widths, dnat, working, h)
+    return np.fmax(sd_model, sd_robust)
 
 
 __all__ = ["Identified", "fd_hessian", "identified_directions", "identified_inverse", "hac_meat", "score_matrix",
-           "hessian_sandwich_sd"]
+           "hessian_sandwich_parts", "hessian_sandwich_sd"]

@@ -151,15 +151,24 @@ def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float =
     cumulated periodogram's KS band, both at level ``alpha``); a :class:`MisspecificationWarning` when
     either rejects. Returns the JSON-ready result: per output the statistics, then ``misspecified``
     and ``message``."""
+    res = est.residuals(data)
+    return whiteness_check({name: res[name].to_numpy(dtype=float) for name in est.model.outputs},
+                           alpha=alpha, nlags=nlags, warn=warn, label=est.model.name)
+
+
+def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nlags: int = 40, warn: bool = True,
+                    label: str = "model") -> dict[str, Any]:
+    """The misspecification check of :func:`misspecification_check` on given standardised one-step
+    residuals (one array per output, NaN where unobserved); ``label`` names the model in the warning.
+    Used by the base fit and by the diagnosis's named effects
+    (:func:`valve_env.diagnosis.uncertainty.effect_misspecification`)."""
     from scipy.stats import kstwobign
 
-    res = est.residuals(data)
     out: dict[str, Any] = {"alpha": alpha, "outputs": {}}
     bad: list[str] = []
     c_alpha = float(kstwobign.isf(alpha))
-    for name in est.model.outputs:
-        e = res[name].to_numpy(dtype=float)
-        rep = residual_report(e, nlags=nlags)
+    for name, e in residuals.items():
+        rep = residual_report(np.asarray(e, dtype=float), nlags=nlags)
         lb = rep.ljung_box.iloc[-1]
         band = c_alpha / np.sqrt(max(len(rep.cpgram) - 1, 1))
         entry = {"ljung_box_lag": int(rep.ljung_box.index[-1]), "ljung_box_stat": float(lb["lb_stat"]),
@@ -175,9 +184,9 @@ def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float =
                       f"{alpha:g} level: the model does not explain the data's dynamics; trust the robust "
                       "standard errors, not the inverse Hessian's") if bad else ""
     if bad and warn:
-        warnings.warn(f"{est.model.name}: {out['message']}", MisspecificationWarning, stacklevel=2)
+        warnings.warn(f"{label}: {out['message']}", MisspecificationWarning, stacklevel=3)
     return out
 
 
 __all__ = ["MisspecificationWarning", "RobustResult", "misspecification_check", "newey_west_lags", "robust_std",
-           "score_contributions", "step_nll"]
+           "score_contributions", "step_nll", "whiteness_check"]
