@@ -56,7 +56,7 @@ import gymnasium as gym
 import numpy as np
 
 from valve_env import simulator as sim
-from valve_env.controllers.base import I_T_OUT, Controller
+from valve_env.controllers.base import I_T_OUT, I_T_TARGET, Controller
 from valve_env.controllers.baselines import PIController
 
 
@@ -82,6 +82,13 @@ class OracleSettings:
     """Floor of the knots' standard deviation, fraction of the action range."""
     seed: int = 0
     """Seed of the sampler (the oracle is deterministic for a given seed)."""
+    perturb: str = "output"
+    """What the plan moves: ``"output"`` adds it to the PI's output (the setting), ``"target"`` to
+    the PI's target (the outlet temperature the PI holds: a charge of the tank is one constant knot)."""
+    terminal_value: bool = False
+    """Value the heat stored in the tank at the horizon's end as the task layer settles it at the
+    episode's end (:meth:`TaskLayer.settle`; nothing on the original ids): a plan shorter than the
+    rest of the day then neither empties nor overfills the tank for free."""
 
     def __post_init__(self) -> None:
         for name in ("horizon_steps", "block_steps", "replan_steps", "samples", "iterations"):
@@ -95,6 +102,8 @@ class OracleSettings:
             raise ValueError(f"oracle samples must be >= 2, got {self.samples!r}")
         if not 0.0 < self.elite_frac <= 1.0:
             raise ValueError(f"oracle elite_frac must be in (0, 1], got {self.elite_frac!r}")
+        if self.perturb not in ("output", "target"):
+            raise ValueError(f"oracle perturb must be 'output' or 'target', got {self.perturb!r}")
         for name in ("init_std_frac", "min_std_frac"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
@@ -216,7 +225,12 @@ class Oracle(Controller):
     def _base_action(self, obs: np.ndarray, pi_mem: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """The PI's action perturbed by ``delta`` (n, act_dim): on the PI's manipulated variable
         inside its limits (anti-windup sees it), on a held channel (Dual's dp) added and clipped."""
-        u = self.base.pi_output(obs, pi_mem, feedforward=delta[:, 0])
+        if self.settings.perturb == "target":
+            shifted = obs.copy()
+            shifted[:, I_T_TARGET] += delta[:, 0]
+            u = self.base.pi_output(shifted, pi_mem)
+        else:
+            u = self.base.pi_output(obs, pi_mem, feedforward=delta[:, 0])
         a = self.base._assemble(u)
         if self.act_dim > 1:
             a[:, 1:] = np.clip(a[:, 1:] + delta[:, 1:], self._lo[1:], self._hi[1:])
@@ -269,6 +283,9 @@ class Oracle(Controller):
         mem = np.repeat(pi_mem[None, :], n, axis=0)
         o = np.repeat(np.asarray(obs, np.float64)[None, :], n, axis=0)
         ret = np.zeros(n)
+        settle = (self.settings.terminal_value and hasattr(vec, "layer")
+                  and int(st.k) + h_eff < int(vec.cfg.control.n_steps))
+        E_start = vec.stored_energy_J() if settle else None
         for t in range(h_eff):
             a = self._base_action(o, mem, seqs[:, t])
             if lean:
@@ -277,6 +294,8 @@ class Oracle(Controller):
                 o, r, _, _, _ = vec.step(a)
             o = o.astype(np.float64)
             ret += r
+        if settle:  # the horizon ends before the episode: its stored heat is settled as at the end
+            ret += vec.layer.settle(vec.stored_energy_J() - E_start)[0]
         self.sim_steps += h_eff
         return ret
 
