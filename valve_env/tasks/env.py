@@ -461,7 +461,7 @@ class ThermoValveDistrictHeatingPowerEnv(ThermoValveTaskEnv):
     |---|---|---|
     | everything of DistrictHeating-v0 | | its sources |
     | power charge basis | highest hourly mean power | SEVAB Strängnäs Energi, Prislista 2 (five highest winter hours) |
-    | power charge | 0.192 EUR/(kW day) | median power/energy price ratio of 7 Swedish utilities (0.876 MWh/kW-yr) x 80 EUR/MWh / 365 |
+    | power charge | 0.192 EUR/(kW day) | median power/energy price ratio, 7 Swedish utilities, x 80 EUR/MWh / 365 |
 
     ## Version history
 

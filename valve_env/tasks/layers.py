@@ -210,7 +210,7 @@ class PowerChargeTariff(DistrictHeatingTariff):
 
     | field | unit | meaning (default, source: docs/tasks.md, "ThermoValveDistrictHeatingPower-v0") |
     |---|---|---|
-    | power_eur_kW_day | EUR/(kW day) | the power charge's daily share per kW of the day's highest hourly mean power; 0.192 |
+    | power_eur_kW_day | EUR/(kW day) | daily share of the charge per kW of the day's highest hourly mean; 0.192 |
 
     The basis is SEVAB Strängnäs Energi's (Prislista 2: the billed power is the mean of the five
     highest hourly powers metered in the winter before); the rate is a year's power charge per kW
