@@ -177,12 +177,15 @@ class DistrictHeatingLayer(TaskLayer):
         self, k: np.ndarray, out: np.ndarray, dt_s: float, acc: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         t = self.tariff
-        heat_J = out[:, sim.O_HEAT_W] * dt_s
-        energy = self.price_at(k) * heat_J / 3.6e9
+        inc = np.zeros((out.shape[0], self.n_acc))  # a subclass's further columns start at zero
+        heat_J = inc[:, 2]
+        np.multiply(out[:, sim.O_HEAT_W], dt_s, out=heat_J)
+        energy = inc[:, 0]
+        np.multiply(self.price_at(k), heat_J, out=energy)
+        energy /= 3.6e9
         excess = np.maximum(out[:, sim.O_T_RET] - t.T_return_ref_C, 0.0)
-        tariff = energy * t.surcharge_per_K * excess
-        acc = np.stack([energy, tariff, heat_J, np.zeros_like(energy)], axis=1)
-        return -t.w_eur * (energy + tariff), acc
+        np.multiply(energy, t.surcharge_per_K * excess, out=inc[:, 1])
+        return -t.w_eur * (energy + inc[:, 1]), inc
 
     def settle(self, stored_change_J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         eur = -self.tariff.price_eur_MWh * np.asarray(stored_change_J, dtype=float) / 3.6e9
@@ -257,20 +260,14 @@ class DistrictHeatingPowerLayer(DistrictHeatingLayer):
     ) -> tuple[np.ndarray, np.ndarray]:
         if acc is None:
             raise ValueError("DistrictHeatingPowerLayer.step needs the accumulators (acc)")
-        r, base = super().step(k, out, dt_s)
-        heat_J = base[:, 2]
+        r, inc = super().step(k, out, dt_s)  # (n, n_acc): the bill's four columns, the rest zero
         new_hour = np.asarray(k, dtype=np.int64) % self._per_hour == 0
-        hour = np.where(new_hour, 0.0, acc[:, 4]) + heat_J
+        hour = np.where(new_hour, 0.0, acc[:, 4]) + inc[:, 2]
         peak = np.maximum(acc[:, 5], hour)
-        power = self.tariff.power_eur_kW_day * (peak - acc[:, 5]) / 3.6e6
-        inc = np.concatenate([base[:, :4], np.stack([hour - acc[:, 4], peak - acc[:, 5], power], axis=1)], axis=1)
-        return r - self.tariff.w_eur * power, inc
-
-    def settle(self, stored_change_J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r, base = super().settle(stored_change_J)
-        acc = np.zeros((base.shape[0], self.n_acc))
-        acc[:, :4] = base[:, :4]
-        return r, acc
+        inc[:, 4] = hour - acc[:, 4]
+        inc[:, 5] = peak - acc[:, 5]
+        inc[:, 6] = self.tariff.power_eur_kW_day * inc[:, 5] / 3.6e6
+        return r - self.tariff.w_eur * inc[:, 6], inc
 
     def kpis(self, acc: np.ndarray) -> dict[str, float]:
         k = super().kpis(acc)
