@@ -181,7 +181,7 @@ class Oracle(Controller):
         key = self._keys.get(id(core))
         if key is None:  # not bound through bind_envs (a direct plan() call)
             key = self._keys[id(core)] = (repr(core.cfg), type(core))
-        vec = self._sims.get(key)
+        vec: Any = self._sims.get(key)
         if vec is None:
             vec = self._sims[key] = gym.make_vec(
                 self.env_id, num_envs=int(self.settings.samples), vectorization_mode="vector_entry_point",

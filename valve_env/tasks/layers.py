@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
@@ -89,7 +89,7 @@ class DistrictHeatingTariff:
         object.__setattr__(self, "forecast_h", tuple(float(x) for x in self.forecast_h))
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> DistrictHeatingTariff:
+    def from_dict(cls, data: Mapping[str, Any] | None) -> Self:
         data = dict(data or {})
         horizons = data.pop("forecast_h", None)
         base = _from_mapping(cls, data)
