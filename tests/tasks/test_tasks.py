@@ -116,6 +116,33 @@ def test_district_heating_bill_by_hand() -> None:
     assert kp["cost_eur"] == pytest.approx(energy + tariff + settle, rel=1e-9) and energy > 0
 
 
+def test_power_charge_is_billed_on_the_highest_clock_hour() -> None:
+    """ThermoValveDistrictHeatingPower-v0 is ThermoValveDistrictHeating-v0 plus a power charge: the
+    rate times the highest clock hour's metered heat per hour, as much less return; the meter's two
+    observations are the hour so far and the peak so far."""
+    env = gym.make("ThermoValveDistrictHeatingPower-v0", control={"horizon_h": 2.5})
+    ref = gym.make("ThermoValveDistrictHeating-v0", control={"horizon_h": 2.5})
+    env.reset(seed=4)
+    ref.reset(seed=4)
+    heat, total_r, total_ref = [], 0.0, 0.0
+    for k in range(300):
+        a = np.array([75.0 if 150 <= k < 200 else 58.0], np.float32)  # a charge in the second hour
+        obs, r, _, trunc, info = env.step(a)
+        o_ref, r_ref, _, _, i_ref = ref.step(a)
+        np.testing.assert_array_equal(obs[:19], o_ref)  # the same plant and forecasts
+        heat.append(env.unwrapped._out[sim.O_HEAT_W] * 30.0)
+        total_r += r
+        total_ref += r_ref
+        hours = [sum(heat[i:i + 120]) / 3.6e6 for i in range(0, len(heat), 120)]
+        assert obs[20] == pytest.approx(max(hours), rel=1e-5)  # the peak so far, kW
+        assert obs[19] == pytest.approx(0.0 if (k + 1) % 120 == 0 else hours[-1], rel=1e-5, abs=1e-7)
+    kp, kp_ref = info["kpis"], i_ref["kpis"]
+    assert trunc and kp["peak_hourly_kW"] == pytest.approx(max(hours), rel=1e-9) and int(np.argmax(hours)) == 1
+    assert kp["power_charge_eur"] == pytest.approx(0.192 * max(hours), rel=1e-9)
+    assert kp["cost_eur"] == pytest.approx(kp_ref["cost_eur"] + kp["power_charge_eur"], rel=1e-9)
+    assert total_ref - total_r == pytest.approx(100.0 * kp["power_charge_eur"], rel=1e-9)
+
+
 def test_district_heating_price_and_network_swing() -> None:
     env = gym.make("ThermoValveDistrictHeating-v0")
     env.reset(seed=0)
@@ -155,7 +182,8 @@ def test_batched_equals_single_with_sensor_noise_on_the_forecast_task() -> None:
     np.testing.assert_allclose(o1[:, 12], layer.price_at(native.step_index), rtol=1e-6)  # forecasts are exact
 
 
-@pytest.mark.parametrize("task_id", ["ThermoValve-v0", "ThermoValveDistrictHeating-v0"])
+@pytest.mark.parametrize("task_id", ["ThermoValve-v0", "ThermoValveDistrictHeating-v0",
+                                     "ThermoValveDistrictHeatingPower-v0"])
 def test_plan_step_follows_step_from_a_snapshot(task_id: str) -> None:
     """The oracle's lean step (plan_step) gives the same plant observations and rewards, task
     terms included, as step() from the same snapshot, and ends where a real episode ends."""

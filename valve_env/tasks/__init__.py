@@ -161,6 +161,28 @@ TASKS: dict[str, Task] = {
         },
         env_class="ThermoValveDistrictHeatingEnv",
     ),
+    "ThermoValveDistrictHeatingPower-v0": Task(
+        "ThermoValveDistrictHeatingPower-v0", "setting",
+        "DistrictHeating-v0's network and bill plus a power charge on the day's highest hourly mean power: "
+        "recharging the tank at full flow after a draw sets the peak",
+        sections=_DH,
+        layer="district_heating_power",
+        layer_params={},
+        sources={
+            "everything of ThermoValveDistrictHeating-v0": "its sources (above; docs/tasks.md)",
+            "power charge basis: the highest hourly mean power":
+                "SEVAB Strängnäs Energi, district-heating Prislista 2 (sevab.com, Fjärrvärmepris): the billed "
+                "power is the mean of the five highest hourly powers metered in the previous winter; peak-load "
+                "components in Swedish price models: Song, Wallin and Li (2017), Applied Energy 194; Sernhed, "
+                "Gåverud and Sandgren (2017), Int. J. Sustainable Energy Planning and Management 13",
+            "power_eur_kW_day = 0.192":
+                "a year's power charge per kW against the winter energy price, median of 7 Swedish utilities "
+                "(0.876 MWh per kW-year, Lidköping Energi 2025; range 0.61 Halmstad Energi och Miljö to 2.28 "
+                "Bodens Energi 2024), at the task's 80 EUR/MWh: 70.1 EUR/kW-year, a 365th of it per day "
+                "(docs/tasks.md)",
+        },
+        env_class="ThermoValveDistrictHeatingPowerEnv",
+    ),
 }
 
 #: the task ids added to the original three, in the order `thermovalve tasks` lists them

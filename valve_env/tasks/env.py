@@ -88,7 +88,7 @@ class ThermoValveTaskEnv(ThermoValveEnv):
         if not self.layer.obs_names:
             return obs
         self._k_arr[0] = self._k
-        return np.concatenate([obs, self.layer.observation(self._k_arr)[0]]).astype(np.float32)
+        return np.concatenate([obs, self.layer.observation(self._k_arr, self._tacc[None, :])[0]]).astype(np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         obs, info = super().reset(seed=seed, options=options)
@@ -98,7 +98,7 @@ class ThermoValveTaskEnv(ThermoValveEnv):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         self._k_arr[0] = self._k
         obs, reward, terminated, truncated, info = super().step(action)
-        r_add, acc = self.layer.step(self._k_arr, self._out[None, :], self._dt_s)
+        r_add, acc = self.layer.step(self._k_arr, self._out[None, :], self._dt_s, self._tacc[None, :])
         self._tacc += acc[0]
         reward = float(reward + r_add[0])
         if "kpis" in info:  # the episode's last step: the layer settles the heat stored
@@ -155,7 +155,7 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
     def _extend(self, obs: np.ndarray) -> np.ndarray:
         if not self.layer.obs_names:
             return obs
-        return np.concatenate([obs, self.layer.observation(self._K)], axis=1).astype(np.float32)
+        return np.concatenate([obs, self.layer.observation(self._K, self._TACC)], axis=1).astype(np.float32)
 
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
@@ -174,7 +174,7 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
         obs, rewards, terminated, truncated, info = super().step(actions)
         idx = np.flatnonzero(stepping)
         if self.layer.n_acc:
-            r_add, acc = self.layer.step(k_before[idx], self._OUT[idx], self._dt_s)
+            r_add, acc = self.layer.step(k_before[idx], self._OUT[idx], self._dt_s, self._TACC[idx])
             rewards[idx] += r_add
             self._TACC[idx] += acc
         if "kpis" in info:  # some episodes ended: the layer settles the heat stored
@@ -211,7 +211,7 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
         obs, rewards = super().plan_step(actions)
         if not self.layer.n_acc:
             return obs, rewards
-        r_add, acc = self.layer.step(k_before, self._OUT, self._dt_s)
+        r_add, acc = self.layer.step(k_before, self._OUT, self._dt_s, self._TACC)
         self._TACC += acc
         rewards = rewards + r_add
         ended = np.flatnonzero(self._K >= self._n_steps)
@@ -415,6 +415,62 @@ class ThermoValveDistrictHeatingEnv(ThermoValveTaskEnv):
     task_id: ClassVar[str] = "ThermoValveDistrictHeating-v0"
 
 
+class ThermoValveDistrictHeatingPowerEnv(ThermoValveTaskEnv):
+    """## Description
+
+    ThermoValveDistrictHeatingPower-v0: ThermoValveDistrictHeating-v0 (the
+    same network, scenario, heat price, return tariff and settlement of the
+    stored heat) with one more component of real district-heating bills: a
+    power charge on the highest hourly mean power, the basis of SEVAB
+    Strängnäs Energi's Prislista 2 (the billed power is the mean of the five
+    highest hourly powers metered in the winter). A 200 l tank draws 0.25 kW
+    on average, but a PI recharging it at full flow after the evening draws
+    meters 1.5-2.4 kW in its highest hour: when the valve opens, and how far,
+    sets the charge. The day's share of a year's charge is billed on the
+    day's highest hourly mean power (every day alike: the winter's highest
+    hours are the days' highest).
+
+    ## Action space
+
+    Box(1,) float32: the valve temperature setting, degC, [40, 80].
+
+    ## Observation space
+
+    Box(21,) float32: the 19 observations of ThermoValveDistrictHeating-v0, then
+
+    | index | name | unit |
+    |---|---|---|
+    | 19 | hour_so_far_kW: the heat metered in the current clock hour so far, per hour | kW |
+    | 20 | peak_hourly_kW: the highest hourly mean power of the day so far | kW |
+
+    ## Reward
+
+    ThermoValveDistrictHeating-v0's, minus ``100 power_eur`` where
+    ``power_eur = 0.192 EUR/(kW day) x`` the rise of the day's highest hourly
+    mean power in the step (the running maximum of the current hour's energy
+    so far, per hour), so the episode's sum is the charge on its highest hour.
+
+    ## KPIs
+
+    ThermoValveDistrictHeating-v0's (``cost_eur`` includes the power charge),
+    plus ``power_charge_eur`` and ``peak_hourly_kW``.
+
+    ## Physical and economic parameters (sources: docs/tasks.md)
+
+    | parameter | value | source |
+    |---|---|---|
+    | everything of DistrictHeating-v0 | | its sources |
+    | power charge basis | highest hourly mean power | SEVAB Strängnäs Energi, Prislista 2 (five highest winter hours) |
+    | power charge | 0.192 EUR/(kW day) | median power/energy price ratio, 7 Swedish utilities, x 80 EUR/MWh / 365 |
+
+    ## Version history
+
+    * v0: initial release (issue 18, 24 Nov 2026).
+    """
+
+    task_id: ClassVar[str] = "ThermoValveDistrictHeatingPower-v0"
+
+
 class ThermoValveStickyValveVectorEnv(ThermoValveTaskVectorEnv):
     __doc__ = ThermoValveStickyValveEnv.__doc__
     task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
@@ -428,6 +484,11 @@ class ThermoValveSmallCylinderVectorEnv(ThermoValveTaskVectorEnv):
 class ThermoValveDistrictHeatingVectorEnv(ThermoValveTaskVectorEnv):
     __doc__ = ThermoValveDistrictHeatingEnv.__doc__
     task_id: ClassVar[str] = "ThermoValveDistrictHeating-v0"
+
+
+class ThermoValveDistrictHeatingPowerVectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveDistrictHeatingPowerEnv.__doc__
+    task_id: ClassVar[str] = "ThermoValveDistrictHeatingPower-v0"
 
 
 def make_task_env(task_id: str, render_mode: str | None = None, **kwargs: Any) -> gym.Env:
@@ -448,6 +509,8 @@ def make_task_env(task_id: str, render_mode: str | None = None, **kwargs: Any) -
 __all__ = [
     "TaskSimState",
     "ThermoValveDistrictHeatingEnv",
+    "ThermoValveDistrictHeatingPowerEnv",
+    "ThermoValveDistrictHeatingPowerVectorEnv",
     "ThermoValveDistrictHeatingVectorEnv",
     "ThermoValveSmallCylinderEnv",
     "ThermoValveSmallCylinderVectorEnv",

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
@@ -32,9 +32,13 @@ class TaskLayer:
         """Lower and upper bounds of the extra observations."""
         return np.zeros(0, np.float32), np.zeros(0, np.float32)
 
-    def step(self, k: np.ndarray, out: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def step(
+        self, k: np.ndarray, out: np.ndarray, dt_s: float, acc: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The reward added for the step that started at step index ``k`` (n,) with step
-        outputs ``out`` (n, N_OUT), and the step's increments of the layer's accumulators (n, n_acc)."""
+        outputs ``out`` (n, N_OUT), and the step's increments of the layer's accumulators (n, n_acc);
+        ``acc`` (n, n_acc) are the accumulators before the step (a layer whose charge depends on
+        the episode so far, such as a peak, reads them)."""
         n = out.shape[0]
         return np.zeros(n), np.zeros((n, self.n_acc))
 
@@ -48,8 +52,9 @@ class TaskLayer:
         """The task KPIs from one env's accumulators (n_acc,)."""
         return {}
 
-    def observation(self, k: np.ndarray) -> np.ndarray:
-        """The extra observations (n, len(obs_names)) at step index ``k`` (n,)."""
+    def observation(self, k: np.ndarray, acc: np.ndarray | None = None) -> np.ndarray:
+        """The extra observations (n, len(obs_names)) at step index ``k`` (n,), with the
+        accumulators ``acc`` (n, n_acc) of the episode so far."""
         return np.zeros((np.shape(k)[0], 0), np.float32)
 
 
@@ -84,7 +89,7 @@ class DistrictHeatingTariff:
         object.__setattr__(self, "forecast_h", tuple(float(x) for x in self.forecast_h))
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None) -> DistrictHeatingTariff:
+    def from_dict(cls, data: Mapping[str, Any] | None) -> Self:
         data = dict(data or {})
         horizons = data.pop("forecast_h", None)
         base = _from_mapping(cls, data)
@@ -168,14 +173,19 @@ class DistrictHeatingLayer(TaskLayer):
         """The price (EUR/MWh) in force during step index ``k``."""
         return self._price[np.asarray(k, dtype=np.int64) % self._per_day]
 
-    def step(self, k: np.ndarray, out: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def step(
+        self, k: np.ndarray, out: np.ndarray, dt_s: float, acc: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         t = self.tariff
-        heat_J = out[:, sim.O_HEAT_W] * dt_s
-        energy = self.price_at(k) * heat_J / 3.6e9
+        inc = np.zeros((out.shape[0], self.n_acc))  # a subclass's further columns start at zero
+        heat_J = inc[:, 2]
+        np.multiply(out[:, sim.O_HEAT_W], dt_s, out=heat_J)
+        energy = inc[:, 0]
+        np.multiply(self.price_at(k), heat_J, out=energy)
+        energy /= 3.6e9
         excess = np.maximum(out[:, sim.O_T_RET] - t.T_return_ref_C, 0.0)
-        tariff = energy * t.surcharge_per_K * excess
-        acc = np.stack([energy, tariff, heat_J, np.zeros_like(energy)], axis=1)
-        return -t.w_eur * (energy + tariff), acc
+        np.multiply(energy, t.surcharge_per_K * excess, out=inc[:, 1])
+        return -t.w_eur * (energy + inc[:, 1]), inc
 
     def settle(self, stored_change_J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         eur = -self.tariff.price_eur_MWh * np.asarray(stored_change_J, dtype=float) / 3.6e9
@@ -193,17 +203,97 @@ class DistrictHeatingLayer(TaskLayer):
             "mean_price_eur_MWh": float(acc[0] / heat_MWh) if heat_MWh > 0 else float("nan"),
         }
 
-    def observation(self, k: np.ndarray) -> np.ndarray:
+    def observation(self, k: np.ndarray, acc: np.ndarray | None = None) -> np.ndarray:
         return self._obs_table[np.asarray(k, dtype=np.int64) % self._per_day]
 
 
+@dataclass(frozen=True)
+class PowerChargeTariff(DistrictHeatingTariff):
+    """:class:`DistrictHeatingTariff` plus a power charge on the highest hourly mean power.
+
+    | field | unit | meaning (default, source: docs/tasks.md, "ThermoValveDistrictHeatingPower-v0") |
+    |---|---|---|
+    | power_eur_kW_day | EUR/(kW day) | daily share of the charge per kW of the day's highest hourly mean; 0.192 |
+
+    The basis is SEVAB Strängnäs Energi's (Prislista 2: the billed power is the mean of the five
+    highest hourly powers metered in the winter before); the rate is a year's power charge per kW
+    against the winter energy price of Swedish utilities, median 0.88 MWh per kW-year (Lidköping
+    Energi 2025: 795 kr/kW-yr, 90.8 ore/kWh; range 0.61-2.28 over Halmstad Energi och Miljö,
+    Karlskoga, Söderhamn Nära, Oxelö, Jönköping and Bodens Energi), at the task's 80 EUR/MWh:
+    70.1 EUR per kW-year, a 365th of it a day.
+    """
+
+    power_eur_kW_day: float = param(0.192, 0.0, None, "EUR/(kW day)")
+
+
+class DistrictHeatingPowerLayer(DistrictHeatingLayer):
+    """:class:`DistrictHeatingLayer`'s bill plus a power charge on the day's highest hourly
+    mean power (clock hours: energy metered in the hour / 1 h), as a heat meter's hourly
+    values bill it:
+
+        power_eur = power_eur_kW_day x max over the day's hours of E_hour / 1 h   (kW)
+
+    charged as it grows: a step that raises the running maximum of the current hour's energy so
+    far pays the rise, so the episode's sum is exactly the charge on its highest hour, and the
+    reward stays a per-step sum. Observed (two more columns): the current hour's energy so far
+    as a mean power over the hour (kW) and the highest hourly mean so far (kW): the meter's
+    readings, which the customer sees.
+    """
+
+    kpi_names: ClassVar[tuple[str, ...]] = (*DistrictHeatingLayer.kpi_names, "power_charge_eur", "peak_hourly_kW")
+    n_acc: ClassVar[int] = 7  # as DistrictHeatingLayer, then hour energy J, peak hour energy J, power EUR
+
+    tariff: PowerChargeTariff
+
+    def __init__(self, tariff: PowerChargeTariff, scenario: ScenarioParams, dt_s: float) -> None:
+        super().__init__(tariff, scenario, dt_s)
+        self.obs_names = (*self.obs_names, "hour_so_far_kW", "peak_hourly_kW")  # type: ignore[misc]
+        self._per_hour = int(round(3600.0 / self.dt_s))
+
+    def obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = super().obs_bounds()
+        return np.concatenate([lo, [0.0, 0.0]]).astype(np.float32), np.concatenate([hi, [100.0, 100.0]]).astype(
+            np.float32)
+
+    def step(
+        self, k: np.ndarray, out: np.ndarray, dt_s: float, acc: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if acc is None:
+            raise ValueError("DistrictHeatingPowerLayer.step needs the accumulators (acc)")
+        r, inc = super().step(k, out, dt_s)  # (n, n_acc): the bill's four columns, the rest zero
+        new_hour = np.asarray(k, dtype=np.int64) % self._per_hour == 0
+        hour = np.where(new_hour, 0.0, acc[:, 4]) + inc[:, 2]
+        peak = np.maximum(acc[:, 5], hour)
+        inc[:, 4] = hour - acc[:, 4]
+        inc[:, 5] = peak - acc[:, 5]
+        inc[:, 6] = self.tariff.power_eur_kW_day * inc[:, 5] / 3.6e6
+        return r - self.tariff.w_eur * inc[:, 6], inc
+
+    def kpis(self, acc: np.ndarray) -> dict[str, float]:
+        k = super().kpis(acc)
+        k["cost_eur"] = float(k["cost_eur"] + acc[6])
+        return {**k, "power_charge_eur": float(acc[6]), "peak_hourly_kW": float(acc[5] / 3.6e6)}
+
+    def observation(self, k: np.ndarray, acc: np.ndarray | None = None) -> np.ndarray:
+        base = super().observation(k)
+        n = base.shape[0]
+        meter = np.zeros((n, 2), np.float32) if acc is None else np.stack(
+            [np.where(np.asarray(k, dtype=np.int64) % self._per_hour == 0, 0.0, acc[:, 4]) / 3.6e6,
+             acc[:, 5] / 3.6e6], axis=1).astype(np.float32)
+        return np.concatenate([base, meter], axis=1)
+
+
 def make_layer(name: str | None, params: Mapping[str, Any], scenario: ScenarioParams, dt_s: float) -> TaskLayer:
-    """The task layer called ``name`` ("district_heating" or None) with its parameters."""
+    """The task layer called ``name`` ("district_heating", "district_heating_power" or None) with
+    its parameters."""
     if name is None:
         return TaskLayer()
     if name == "district_heating":
         return DistrictHeatingLayer(DistrictHeatingTariff.from_dict(params), scenario, dt_s)
-    raise ConfigError(f"unknown task layer {name!r}; known: district_heating")
+    if name == "district_heating_power":
+        return DistrictHeatingPowerLayer(PowerChargeTariff.from_dict(params), scenario, dt_s)
+    raise ConfigError(f"unknown task layer {name!r}; known: district_heating, district_heating_power")
 
 
-__all__ = ["DistrictHeatingLayer", "DistrictHeatingTariff", "TaskLayer", "make_layer"]
+__all__ = ["DistrictHeatingLayer", "DistrictHeatingPowerLayer", "DistrictHeatingTariff", "PowerChargeTariff",
+           "TaskLayer", "make_layer"]
