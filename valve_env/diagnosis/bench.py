@@ -8,8 +8,8 @@ default (:data:`DEFAULT_BOOTSTRAP_B`).
 
 from __future__ import annotations
 
-import time
 import inspect
+import time
 from typing import Any
 
 #: the target wall time of one diagnosis of 24 h at 10 s, bootstrap included (issue 20)

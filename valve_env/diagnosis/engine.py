@@ -417,8 +417,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     posterior probability (a decision-directed first-order generalised pseudo-Bayes filter). A slip
     is thus placed at the sample that shows it, whatever the hazard said beforehand; an earlier
     filter moment-matched the two hypotheses into one Gaussian before the measurement and decided at a
-    prior slip probability of 0.5: a slip that came while the hazard was below one half was followed
-    over several samples, and on exact (S, J) data its likelihood peaked at 1.15 times the band,
+    prior slip probability of 0.5: a slip that came while the hazard was below one half was caught
+    four samples late, and on exact (S, J) data its likelihood peaked at 1.15 times the band,
     183 log-units above the band (docs/diagnosis.md, "The stick-slip filter").
 
     A moving stem follows the demand's increments until the demand stops or reverses, judged on the
@@ -426,9 +426,9 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     there it sticks where it is and the hazard restarts (``dmax = 0``). A stuck stem's hazard does not
     restart at a reversal of the demand (its breakaway band is the same one). A moving stem may also
     have stuck again since the last sample without a reversal (prior probability ``RESTICK_P`` per
-    sample; the likelihood is again the two-component mixture, and the more probable one is taken): a valve that re-sticks after every slip (a
-    staircase) or at a pause of the demand is followed as well as an (S, J) one (docs/diagnosis.md,
-    "The (S, J) stick-slip").
+    sample; the likelihood is again the two-component mixture, and the more probable one is taken):
+    a valve that re-sticks after every slip (a staircase) or at a pause of the demand is followed as
+    well as an (S, J) one (docs/diagnosis.md, "The (S, J) stick-slip").
 
     Because the resting position is estimated from the data rather than simulated open loop, a
     small error in the demand does not put the simulated and the measured stems out of step.
