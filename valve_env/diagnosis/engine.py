@@ -394,6 +394,13 @@ def _logn(nu: float, S: float) -> float:
 
 
 @njit(cache=True)
+def _logaddexp(a0: float, a1: float) -> float:
+    """log(exp(a0) + exp(a1)) without overflow: the log-likelihood of a two-component mixture."""
+    top = max(a0, a1)
+    return top + math.log(math.exp(a0 - top) + math.exp(a1 - top))
+
+
+@njit(cache=True)
 def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.ndarray, band: float,
                  stroke: float, s_w: float, s_e: float, tau_e: float,
                  mask: np.ndarray, spread: float = BAND_SPREAD,
@@ -539,8 +546,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 nu1 = y[k] - h1 - me
                 a0 = math.log(max(q0, 1e-300)) + _logn(nu, S)
                 a1 = math.log(P1) + _logn(nu1, S1)
-                top = max(a0, a1)
-                l_k = top + math.log(math.exp(a0 - top) + math.exp(a1 - top))
+                l_k = _logaddexp(a0, a1)
                 if a1 > a0:
                     # it slipped: the stem is on the demand (and moves with it unless the demand reversed since)
                     took_slip = True
@@ -561,14 +567,13 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 nu_h = y[k] - s_hold - me
                 a0 = math.log(1.0 - RESTICK_P) + _logn(nu, S)
                 a1 = math.log(RESTICK_P) + _logn(nu_h, S)
-                top = max(a0, a1)
-                l_k = top + math.log(math.exp(a0 - top) + math.exp(a1 - top))
+                l_k = _logaddexp(a0, a1)
                 if a1 > a0:
                     moving = False
                     ms = s_hold
                     nu = nu_h
                     dmax = abs(x_sub[sub_idx[k]] - ms)
-        elif q0 < 1.0 - 0.5:
+        elif q0 < 0.5:
             # no measurement: the prior decides
             ms = h1
             Pss = vl
