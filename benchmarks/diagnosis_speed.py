@@ -7,8 +7,9 @@ generated 24 h runs at 10 s: no effect, a sensor lag and stiction
 
     python benchmarks/diagnosis_speed.py [--seed 2024] [--bootstrap B]
 
-Prints one line per case and the slowest against the target; the machine's load average is printed
-too (the project's machine is shared: quote figures with it).
+Prints one line per case (wall and CPU seconds) and the slowest against the target; the machine's
+load average is printed too. The project's machine is shared: under load the wall time measures the
+other jobs, and the process's CPU time is what the wall time is on a core of its own.
 """
 
 from __future__ import annotations
@@ -36,10 +37,11 @@ def main(argv: list[str] | None = None) -> int:
           f"{r['bootstrap_B']}, seed {a.seed}; numba warm-up {r['warmup_compile_s']:.1f} s; "
           f"load average {load0:.1f} -> {load1:.1f}")
     for name, c in r["diagnosis_cases"].items():
-        print(f"  {name:<12} {c['wall_s']:6.1f} s  named {c['cause']:<14} fits {c['fits']:>2}  "
-              f"bootstraps {c['bootstraps']}")
-    print(f"slowest {r['diagnosis_wall_s']:.1f} s against the target of {TARGET_S:g} s: "
-          f"{'met' if r['diagnosis_within_target'] else 'NOT met'}")
+        print(f"  {name:<12} wall {c['wall_s']:6.1f} s  CPU {c['cpu_s']:6.1f} s  named {c['cause']:<14} "
+              f"fits {c['fits']:>2}  bootstraps {c['bootstraps']}")
+    print(f"slowest {r['diagnosis_wall_s']:.1f} s wall against the target of {TARGET_S:g} s: "
+          f"{'met' if r['diagnosis_within_target'] else 'NOT met'}; slowest CPU time {r['diagnosis_cpu_s']:.1f} s "
+          f"({'within' if r['diagnosis_cpu_s'] <= TARGET_S else 'over'} the target on a core of its own)")
     return 0
 
 
