@@ -60,9 +60,6 @@ MIN_SAMPLES = 200
 MIN_DURATION_S = 2.0 * 3600.0
 MIN_T_RANGE_K = 1.0
 MIN_X_RANGE_MM = 0.05
-#: an event effect (stiction's slips) counts where it moves the opening by more than this many sd of the
-#: difference of two noisy samples (:func:`effect_size`)
-EVENT_SD = 2.0
 
 
 class DiagnosisError(DataError):
@@ -277,9 +274,9 @@ def _p_value(lr: float, effects: tuple[str, ...]) -> float:
 
 def _held_out(model: Model, data: RunData, values: dict[str, float], a: int, b: int) -> tuple[float, float, float]:
     """(one-step RMS mm, log-likelihood, simulation RMS mm) over samples a..b of ``data``."""
-    nu, _, terms = model.one_step(data, values)
-    ll = float(np.sum(terms[a:b]))
-    nu_v = nu[a:b]
+    nu, S = model.prediction_errors(data, values)
+    nu_v, S_v = nu[a:b], S[a:b]
+    ll = float(np.sum(-0.5 * (np.log(2 * np.pi * S_v) + nu_v**2 / S_v)))
     xs, _, _ = model.simulate(data, values)
     sim = float(np.sqrt(np.mean((data.x[a:b] - xs[a:b]) ** 2)))
     return float(np.sqrt(np.mean(nu_v**2))), ll, sim
@@ -409,19 +406,15 @@ def effect_size(model: Model, data: RunData, values: dict[str, float], effect: s
     simulation with the fitted effect and with the effect switched off (everything else equal).
 
     For stiction (``variance_gain``), an effect that acts in events, the RMS is taken over the samples
-    where it moves the opening by more than the noise can move a step between two samples, two sd of
-    the difference of two samples (``2 sqrt(2) s_w``): under the (S, J) stick-slip the stem rests
-    only after the reversals of the demand, and a band of 7 noise sd came to 0.48 noise sd RMS over an
-    11 h record (6 slips), below any relevance threshold, where every rest was 3-7 sd. A band that
-    never reaches that size makes slips that the noise of two samples hides: it cannot be told from
-    model error at the demand's reversals (a smooth run of tuning seed 1 had a "band" of 1.7 noise sd,
-    LR 52, docs/diagnosis.md, "The stick-slip filter")."""
+    where it moves the opening by more than the noise sd ``s_w``: under the (S, J) stick-slip the stem
+    rests only after the reversals of the demand, and a band of 7 noise sd came to 0.48 noise sd RMS
+    over an 11 h record (6 slips), below any relevance threshold, where every rest was 3-7 sd."""
     xs, _, _ = model.simulate(data, values)
     nulls = {p.name: p.null for p in EFFECTS[effect].parameters}
     x0, _, _ = model.simulate(data, {**values, **nulls})
     diff = xs - x0
     if EFFECTS[effect].variance_gain:
-        diff = diff[np.abs(diff) > EVENT_SD * math.sqrt(2.0) * float(values["s_w"])]
+        diff = diff[np.abs(diff) > float(values["s_w"])]
         if diff.size == 0:
             return 0.0
     return float(np.sqrt(np.mean(diff**2)))

@@ -47,15 +47,15 @@ _dahl_update = njit(cache=True)(phys.dahl_update)
 LOG2PI = math.log(2.0 * math.pi)
 SQRT2 = math.sqrt(2.0)
 #: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
-BAND_SPREAD = 0.2
+BAND_SPREAD = 0.5
 #: sd of the landing position after a slip relative to the band: the (S, J = S) stem lands on the demand, so
 #: this only absorbs the simulated demand's error (0.5, as the earlier re-sticking filter used, peaked at 1.3
 #: times the band on exact stick-slip data; 0.2 at the band)
 LANDING_SD = 0.2
-#: the prior probability, per sample, that a moving stem has stuck again without a reversal or pause of the
-#: demand (never under the (S, J) model; a stem that re-sticks after every slip, a staircase, does): the
-#: stick-slip filter weighs "moved on" and "stayed where it was at the last sample" by it
-RESTICK_P = 0.002
+#: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
+DECIDE_MOVING = 0.5
+#: log-likelihood ratio at which a measurement overturns the stick-slip filter's decision that the stem moves
+STUCK_LLR = 2.0
 
 
 # --------------------------------------------------------------------------- 2. the valve simulation
@@ -388,62 +388,42 @@ def _band_cdf(x: float, band: float, sd: float) -> float:
 
 
 @njit(cache=True)
-def _logn(nu: float, S: float) -> float:
-    """log N(nu; 0, S)."""
-    return -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
-
-
-@njit(cache=True)
-def _logaddexp(a0: float, a1: float) -> float:
-    """log(exp(a0) + exp(a1)) without overflow: the log-likelihood of a two-component mixture."""
-    top = max(a0, a1)
-    return top + math.log(math.exp(a0 - top) + math.exp(a1 - top))
-
-
-@njit(cache=True)
 def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.ndarray, band: float,
                  stroke: float, s_w: float, s_e: float, tau_e: float,
                  mask: np.ndarray, spread: float = BAND_SPREAD,
-                 landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-    """Log-likelihood of the measured opening under stick-slip (a two-hypothesis Kalman filter).
+                 landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray]:
+    """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
     The stem follows the (S, J = S) model of :mod:`valve_env.physics.stickslip` (:func:`stick_simulate`):
     a resting stem sticks until the demanded opening has moved ``band`` away, slips onto it and follows
     it until the demand stops or reverses, where it sticks again.
 
     States: the stem position ``s`` and the model error ``e`` (Ornstein-Uhlenbeck, as in
-    :func:`ou_loglik`); observation ``y = s + e + w``. Over each sampling interval a resting stem
-    either stays stuck (hypothesis 0: ``s`` unchanged) or slips (hypothesis 1: it lands on the demand
-    with an sd of ``landing * band`` and follows it). The probability of a slip in the interval is the
-    first-passage hazard of a breakaway band that varies from one breakaway to the next (sd
-    ``spread * band``): a stem that has stayed stuck while the demand was ``dmax`` away has a band
-    larger than ``dmax``, so it slips in a sub-step with probability ``(F(|d|) - F(dmax)) / (1 -
-    F(dmax))`` (F the band's distribution, widened by the stem position's uncertainty), and not at all
-    while ``|d|`` stays below ``dmax``. At the sample the likelihood is the two-component mixture
-    ``(1 - P1) N(y; stuck) + P1 N(y; slipped)`` and the filter takes the hypothesis with the larger
-    posterior probability (a decision-directed first-order generalised pseudo-Bayes filter). A slip
-    is thus placed at the sample that shows it, whatever the hazard said beforehand; an earlier
-    filter moment-matched the two hypotheses into one Gaussian before the measurement and decided at a
-    prior slip probability of 0.5: a slip that came while the hazard was below one half was caught
-    four samples late, and on exact (S, J) data its likelihood peaked at 1.15 times the band,
-    183 log-units above the band (docs/diagnosis.md, "The stick-slip filter").
-
-    A moving stem follows the demand's increments until the demand stops or reverses, judged on the
-    demand freed of its noise's reversals (:func:`stick_demand`), as in :func:`stick_simulate`;
-    there it sticks where it is and the hazard restarts (``dmax = 0``). A stuck stem's hazard does not
-    restart at a reversal of the demand (its breakaway band is the same one). A moving stem may also
-    have stuck again since the last sample without a reversal (prior probability ``RESTICK_P`` per
-    sample; the likelihood is again the two-component mixture, and the more probable one is taken):
+    :func:`ou_loglik`); observation ``y = s + e + w``. Between samples, on the sub-step grid: a resting
+    stem slips with the probability of breakaway *in this sub-step*, landing on the demand with an
+    uncertainty of ``landing * band`` (sd). The breakaway band itself varies (sd ``spread * band``) and
+    the stem position is uncertain, so the filter moment-matches the two outcomes (a first-order
+    generalised pseudo-Bayes filter; this also makes the likelihood continuous in ``band``); once the
+    probability that the stem has slipped since it last stuck passes ``DECIDE_MOVING``, the filter decides that
+    it moves and lets it follow the demand's increments until the demand stops or reverses
+    (decision-directed). Where the stem sticks, ``s`` is unchanged and the measurements pin it down.
+    "Stops or reverses" is judged on the demand freed of its noise's reversals (:func:`stick_demand`),
+    as in :func:`stick_simulate`. A measurement that says much more clearly (log-likelihood ratio above
+    ``STUCK_LLR``) that the stem stayed where it stuck overturns the decision that it moves; one that
+    says as clearly that a stem which moved at the last sample stayed there since re-sticks it there:
     a valve that re-sticks after every slip (a staircase) or at a pause of the demand is followed as
     well as an (S, J) one (docs/diagnosis.md, "The (S, J) stick-slip").
+
+    The breakaway probability is a first-passage hazard: a stem that has stuck while the demand
+    was ``dmax`` away has a band larger than ``dmax``, so it slips in this sub-step with
+    probability ``(F(|d|) - F(dmax)) / (1 - F(dmax))`` (F the distribution of the band), and not at
+    all while ``|d|`` stays below ``dmax``. ``dmax`` restarts where the stem sticks again and after a
+    measurement that moves the stem estimate towards the demand.
 
     Because the resting position is estimated from the data rather than simulated open loop, a
     small error in the demand does not put the simulated and the measured stems out of step.
     With ``band = 0`` the stem always slips onto the demand with no uncertainty and the likelihood
-    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested.
-
-    Returns (log-likelihood, one-step prediction errors of the hypothesis taken, their variances,
-    each sample's log-likelihood contribution: the mixture's, 0 where not in ``mask``)."""
+    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested."""
     n = t.shape[0]
     ve = s_e * s_e
     vw = s_w * s_w
@@ -456,6 +436,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     Pss = 0.0
     dmax = 0.0
     moving = False
+    p_slip = 0.0
+    s_alt = ms
     s_hold = ms
     was_moving = False
     x_prev = ms
@@ -465,11 +447,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     ll = 0.0
     innov = np.empty(n)
     Sout = np.empty(n)
-    llk = np.zeros(n)
     for k in range(n):
-        q0 = 1.0  # probability that a stem stuck at the last sample has not slipped since
-        h1 = ms  # where a stem that slipped in this interval is now
-        h1_moving = False
         if k > 0:
             phi = math.exp(-(t[k] - t[k - 1]) / tau_e)
             me = phi * me
@@ -486,9 +464,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     Pes = 0.0
                     dmax = 0.0
                     moving = False
-                    q0 = 1.0
-                    h1 = ms
-                    h1_moving = False
+                    p_slip = 0.0
                     x_prev = ms
                     c_prev = c[j]
                     continue
@@ -498,18 +474,15 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 c_prev = c[j]
                 if dc * dc_prev <= 0.0:
                     # the demand (freed of its noise's reversals, stick_demand) stops or reverses: a moving
-                    # stem sticks where it is, and a new breakaway begins
-                    if moving:
-                        moving = False
-                        dmax = 0.0
-                    h1_moving = False
+                    # stem sticks where it is
+                    moving = False
+                    p_slip = 0.0
+                    dmax = 0.0
                 if dc != 0.0:
                     dc_prev = dc
                 if moving:
                     ms = ms + du  # it follows the demand
                     continue
-                if h1_moving:
-                    h1 = h1 + du
                 d = xd - ms
                 ad = abs(d)
                 if ad <= dmax:
@@ -519,73 +492,41 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 F1 = _band_cdf(ad, band, sd)
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
                 dmax = ad
-                if pi >= 1.0 - 1e-12:
-                    # a certain slip (band 0, or the demand far beyond the band): the stem lands on the demand
-                    # and moves with it, whichever hypothesis held until now
-                    moving = True
-                    ms = xd
-                    Pss = vl
-                    Pes = 0.0
-                    q0 = 1.0
-                    h1 = ms
-                    h1_moving = False
-                    continue
                 if pi > 1e-12:
-                    # a slip in this sub-step lands on the demand; it then follows the demand
-                    h1 = xd
-                    h1_moving = True
-                    q0 = q0 * (1.0 - pi)
+                    # moment-matched mixture of "still stuck" and "slipped onto the demand"
+                    ms = ms + pi * d
+                    Pss = (1.0 - pi) * Pss + pi * vl + pi * (1.0 - pi) * d * d
+                    Pes = (1.0 - pi) * Pes
+                    p_slip = 1.0 - (1.0 - p_slip) * (1.0 - pi)
+                    if p_slip >= DECIDE_MOVING:
+                        moving = True  # decided: it has broken away and now moves with the demand
+                        s_alt = ms - pi * d  # where it would be had it not slipped
         S = Pee + 2.0 * Pes + Pss + vw
         nu = y[k] - ms - me
-        l_k = 0.0
-        took_slip = False
-        if mask[k]:
-            P1 = 1.0 - q0
-            if P1 > 1e-12:
-                S1 = Pee + vl + vw
-                nu1 = y[k] - h1 - me
-                a0 = math.log(max(q0, 1e-300)) + _logn(nu, S)
-                a1 = math.log(P1) + _logn(nu1, S1)
-                l_k = _logaddexp(a0, a1)
-                if a1 > a0:
-                    # it slipped: the stem is on the demand (and moves with it unless the demand reversed since)
-                    took_slip = True
-                    ms = h1
-                    Pss = vl
-                    Pes = 0.0
-                    moving = h1_moving
-                    if not moving:
-                        dmax = 0.0
-                    nu = nu1
-                    S = S1
-            else:
-                l_k = _logn(nu, S)
-            if band > 0.0 and k > 0 and moving and was_moving and not took_slip:
-                # a stem that moved at the last sample may have stuck since without a reversal of the
-                # demand (a stem that re-sticks after every slip, or at a pause of the demand): the mixture
-                # of "moved on" and "stayed at the last sample's position", with the prior RESTICK_P
+        if mask[k] and band > 0.0 and k > 0:
+            if moving:
+                # the decision revisited: a measurement that says much more clearly (log-likelihood ratio
+                # above STUCK_LLR) that the stem stayed where it stuck overturns it
+                nu_s = y[k] - s_alt - me
                 nu_h = y[k] - s_hold - me
-                a0 = math.log(1.0 - RESTICK_P) + _logn(nu, S)
-                a1 = math.log(RESTICK_P) + _logn(nu_h, S)
-                l_k = _logaddexp(a0, a1)
-                if a1 > a0:
+                if (nu * nu - nu_s * nu_s) / (2.0 * S) > STUCK_LLR:
                     moving = False
+                    p_slip = 0.0
+                    ms = s_alt
+                    nu = nu_s
+                    dmax = abs(x_sub[sub_idx[k]] - ms)
+                elif was_moving and (nu * nu - nu_h * nu_h) / (2.0 * S) > STUCK_LLR:
+                    # a stem that moved at the last sample may have stuck since without a reversal of the
+                    # demand (a stem that re-sticks after every slip, or at a pause of the demand)
+                    moving = False
+                    p_slip = 0.0
                     ms = s_hold
                     nu = nu_h
                     dmax = abs(x_sub[sub_idx[k]] - ms)
-        elif q0 < 0.5:
-            # no measurement: the prior decides
-            ms = h1
-            Pss = vl
-            Pes = 0.0
-            moving = h1_moving
-            S = Pee + Pss + vw
-            nu = y[k] - ms - me
         innov[k] = nu
         Sout[k] = S
         if mask[k]:
-            ll += l_k
-            llk[k] = l_k
+            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
             ke = (Pee + Pes) / S
             ks = (Pes + Pss) / S
             me = me + ke * nu
@@ -594,8 +535,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             nPes = Pes - ke * (Pes + Pss)
             nPss = Pss - ks * (Pes + Pss)
             Pee, Pes, Pss = nPee, nPes, nPss
-            if not moving:
-                dk = abs(x_sub[sub_idx[k]] - ms)
-                if dk < dmax:
-                    dmax = dk
-    return ll, innov, Sout, llk
+            dk = abs(x_sub[sub_idx[k]] - ms)
+            if dk < dmax:
+                dmax = dk
+    return ll, innov, Sout

@@ -171,8 +171,7 @@ class Model:
         return x, Tg, F
 
     def _filter(self, data: RunData, values: dict[str, float],
-                mask: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """(log-likelihood, one-step prediction errors, their variances, each sample's log-likelihood)."""
+                mask: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
         x, _, _, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s,
@@ -180,11 +179,10 @@ class Model:
         if mask is None:
             mask = np.ones(len(data), dtype=np.bool_)
         if stuck:
-            return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),  # type: ignore[no-any-return]
+            return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),
                                 values["s_w"], values["s_e"], values["tau_e"], mask, self.band_spread,
                                 self.landing_sd)
-        ll, nu, S = ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
-        return ll, nu, S, np.where(mask, -0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S), 0.0)
+        return ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
 
     def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None) -> float:
         """Exact Gaussian log-likelihood of the measured opening (over the samples in ``mask``)."""
@@ -192,18 +190,8 @@ class Model:
 
     def prediction_errors(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """One-step prediction errors (mm) and their variances."""
-        _, innov, S, _ = self._filter(data, values)
+        _, innov, S = self._filter(data, values)
         return innov, S
-
-    def one_step(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """One-step prediction errors (mm), their variances, and each sample's log-likelihood."""
-        _, innov, S, terms = self._filter(data, values)
-        return innov, S, terms
-
-    def loglik_terms(self, data: RunData, values: dict[str, float]) -> np.ndarray:
-        """Each sample's contribution to the log-likelihood (under stiction the stick-slip filter's
-        two-hypothesis mixture, which a Gaussian of the prediction error alone would miss)."""
-        return self._filter(data, values)[3]
 
     # --- fitting -------------------------------------------------------------------------
     def default_start(self, data: RunData) -> dict[str, float]:
@@ -423,7 +411,8 @@ class Model:
             def contrib(zf: np.ndarray) -> np.ndarray:
                 zz = z_all.copy()
                 zz[free] = zf
-                return self.loglik_terms(data, self.from_work(zz))
+                nu, S = self.prediction_errors(data, self.from_work(zz))
+                return -0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S)
 
             std.update(self._std(nll, contrib, res.x, names, vals, free))
         return self._result(data, vals, std, -float(res.fun), len(free), bool(res.success), str(res.message))
