@@ -66,13 +66,14 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
         band_sampling(df["true_x_mm"].to_numpy(), 2.5e-3, stroke, draws=1)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 20 (the stiction diagnosis under the (S, J) stem), known and "
-                   "reported: the stick-slip filter now re-sticks only "
-                   "at "
-                   "real reversals of the demand and lets a measurement re-stick a moving stem (which names stiction "
-                   "on all three stick-slip variants of the independent simulator and in the small randomised "
-                   "study); on this exact (S, J) run its likelihood peaks at 1.15 band but is 183 log-units lower "
-                   "at the band (a slip caught four samples late). The band is measured from the slips.")
+@pytest.mark.xfail(strict=True, reason="issue 20, known and reported: the filter moment-matches 'stuck' and "
+                   "'slipped' before the measurement and decides at a prior slip probability of 0.5, so a slip "
+                   "that comes while that probability is below one half is caught four samples late (samples "
+                   "566-569, |z| 8-13); at 1.15 band the decision comes after the slip and the likelihood is 183 "
+                   "units higher. A two-hypothesis mixture filter that decides after the measurement peaks at the "
+                   "band here but missed sj and force runs of the independent simulator, so it is not used "
+                   "(docs/diagnosis.md, 'The stick-slip filter: a revision tried and reverted'). The band is "
+                   "measured from the slips.")
 def test_stick_filter_nested_and_peaks_at_the_band() -> None:
     """Exact stick-slip data: the filter's likelihood is maximal near the true band (the first-passage
     hazard; a filter that re-applied the slip probability every sub-step peaked at 2.5 times the band),
