@@ -15,10 +15,12 @@ def test_tanh_values_and_gradient_match_torch() -> None:
     assert (Tanh()(x).double() - exact).abs().max().item() < 3e-7
     xa = x.clone().requires_grad_(True)
     xb = x.clone().requires_grad_(True)
-    g = torch.randn_like(x)
+    g = torch.randn(x.shape, generator=torch.Generator().manual_seed(0))
     Tanh()(xa).backward(g)
     torch.tanh(xb).backward(g)
-    assert torch.allclose(xa.grad, xb.grad, atol=1e-6)  # type: ignore[arg-type]
+    # both backward passes are g (1 - y^2); the two y differ by < 3e-7 + 6e-8, so (1 - y^2) by < 1e-6
+    diff = (xa.grad - xb.grad).abs()  # type: ignore[operator]
+    assert bool((diff <= 1e-6 * g.abs() + 1e-7).all()), diff.max()
     assert isinstance(Tanh(), nn.Tanh)
 
 
