@@ -55,6 +55,18 @@ def test_compiled_equals_python_and_end_stops_hold() -> None:
     assert py.min() >= 0.0 and py.max() <= 2.0
 
 
+def test_rest_after_a_downward_motion_is_the_mirror_image() -> None:
+    # d0 = -1 (at rest after a motion downwards) on -u is the d0 = +1 path of u, mirrored
+    rng = np.random.default_rng(1)
+    u = np.ascontiguousarray(np.cumsum(rng.normal(0, 0.3, 2000)))
+    path = njit(ss.stick_slip_path)
+    up = path(u, 0.5, 0.2, -np.inf, np.inf, np.empty_like(u), 1.0)
+    down = path(-u, 0.5, 0.2, -np.inf, np.inf, np.empty_like(u), -1.0)
+    assert np.array_equal(down, -up)
+    assert np.array_equal(up, path(u, 0.5, 0.2, -np.inf, np.inf, np.empty_like(u)))  # +1 is the default
+    assert ss.initial_state(1.0, 0.5, 0.2, -np.inf, np.inf, -1.0)[0] == pytest.approx(1.15)
+
+
 def test_rejects_bad_parameters() -> None:
     with pytest.raises(ValueError, match="S must be"):
         ss.simulate(np.zeros(3), float("nan"))

@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import minimize_scalar
 
-from valve_env.physics.stickslip import initial_state, stick_slip_step
+from valve_env.physics.stickslip import stick_slip_path
 
 #: valve candidates, nested: linear (S = 0) in backlash (J = 0) in stiction (S, J free)
 VALVES: tuple[str, ...] = ("linear", "backlash", "stiction")
@@ -50,16 +50,7 @@ DIRECTIONS: tuple[float, ...] = (1.0, -1.0)
 @njit(cache=True)
 def _valve_path(op: np.ndarray, S: float, J: float, d0: float, out: np.ndarray) -> np.ndarray:
     # pragma: no cover - compiled
-    y, u_prev, du_prev, u_s, stuck, d = initial_state(op[0], S, J, -np.inf, np.inf)
-    if d0 < 0.0:  # at rest after a motion downwards: the mirror image of initial_state
-        d = -1.0
-        y = u_prev + (S - J) * 0.5
-    out[0] = y
-    for k in range(1, op.shape[0]):
-        y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(op[k], y, u_prev, du_prev, u_s, stuck, d, S, J,
-                                                            -np.inf, np.inf)
-        out[k] = y
-    return out
+    return stick_slip_path(op, S, J, -np.inf, np.inf, out, d0)
 
 
 def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0) -> np.ndarray:

@@ -41,7 +41,7 @@ The output is clipped to ``[lo, hi]`` (end stops).
 
 State (a tuple, in this order): ``y, u_prev, du_prev, u_s, stuck, d`` (stuck 1.0
 or 0.0; d +1.0 or -1.0). :func:`initial_state` gives the state of a valve that came
-to rest at its input after a motion upwards.
+to rest at its input after a motion upwards (or, with ``d0 = -1``, downwards).
 """
 
 from __future__ import annotations
@@ -55,12 +55,13 @@ STATE_NAMES: tuple[str, ...] = ("y", "u_prev", "du_prev", "u_s", "stuck", "d")
 
 
 @register_jitable
-def initial_state(u0, S, J, lo, hi):  # type: ignore[no-untyped-def]
-    """A valve at rest where its input ``u0`` left it after a motion upwards (stuck, ``d = +1``,
-    ``y = u0 - (S - J) / 2``: on ``u0`` itself when ``J = S``)."""
+def initial_state(u0, S, J, lo, hi, d0=1.0):  # type: ignore[no-untyped-def]
+    """A valve at rest where its input ``u0`` left it after a motion upwards (``d0 = +1``, the default:
+    stuck, ``d = +1``, ``y = u0 - (S - J) / 2``: on ``u0`` itself when ``J = S``) or downwards
+    (``d0 = -1``: the mirror image, ``y = u0 + (S - J) / 2``)."""
     u = min(max(u0, lo), hi)
-    y = min(max(u - (S - J) * 0.5, lo), hi)
-    return y, u, 0.0, u, 1.0, 1.0
+    y = min(max(u - d0 * (S - J) * 0.5, lo), hi)
+    return y, u, 0.0, u, 1.0, d0
 
 
 @register_jitable
@@ -87,9 +88,10 @@ def stick_slip_step(u, y, u_prev, du_prev, u_s, stuck, d, S, J, lo, hi):  # type
 
 
 @register_jitable
-def stick_slip_path(u, S, J, lo, hi, out):  # type: ignore[no-untyped-def]
-    """Run the model over a whole input sequence ``u`` (valve at rest at ``u[0]``); writes ``out``."""
-    y, u_prev, du_prev, u_s, stuck, d = initial_state(u[0], S, J, lo, hi)
+def stick_slip_path(u, S, J, lo, hi, out, d0=1.0):  # type: ignore[no-untyped-def]
+    """Run the model over a whole input sequence ``u`` (valve at rest at ``u[0]`` after a motion in the
+    direction ``d0``, :func:`initial_state`); writes ``out``."""
+    y, u_prev, du_prev, u_s, stuck, d = initial_state(u[0], S, J, lo, hi, d0)
     out[0] = y
     for k in range(1, u.shape[0]):
         y, u_prev, du_prev, u_s, stuck, d = stick_slip_step(u[k], y, u_prev, du_prev, u_s, stuck, d, S, J, lo, hi)
