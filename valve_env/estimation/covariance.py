@@ -108,9 +108,14 @@ def identified_inverse(H: np.ndarray, widths: Sequence[float] | np.ndarray | Non
     return ident.inverse
 
 
+def newey_west_lags(n: int) -> int:
+    """The Newey-West (1994) rule floor(4 (n / 100)^(2/9)) (statsmodels' default)."""
+    return int(np.floor(4.0 * (n / 100.0) ** (2.0 / 9.0)))
+
+
 def hac_meat(G: np.ndarray, nlags: int | None = None) -> np.ndarray:
     """Newey-West (Bartlett kernel) long-run covariance of the rows of ``G`` (per-sample scores,
-    demeaned here); ``nlags`` defaults to floor(4 (n/100)^(2/9))."""
+    demeaned here); ``nlags`` defaults to :func:`newey_west_lags`."""
     G = np.asarray(G, dtype=float)
     return np.asarray(S_hac_simple(G - G.mean(axis=0), nlags=nlags))
 
@@ -156,7 +161,7 @@ def hessian_sandwich_parts(nll: Callable[[np.ndarray], float], contrib: Callable
     if Hi is None:
         return sd_model, sd_robust, 0
     G = score_matrix(contrib, z, h)
-    lags = int(np.floor(4.0 * (G.shape[0] / 100.0) ** (2.0 / 9.0)))
+    lags = newey_west_lags(G.shape[0])
     M = hac_meat(G, lags)
     phys = ~np.asarray(working, dtype=bool)
     cov_robust = Hi @ M @ Hi
@@ -180,5 +185,5 @@ def hessian_sandwich_sd(nll: Callable[[np.ndarray], float], contrib: Callable[[n
     return np.fmax(sd_model, sd_robust)
 
 
-__all__ = ["Identified", "fd_hessian", "identified_directions", "identified_inverse", "hac_meat", "score_matrix",
-           "hessian_sandwich_parts", "hessian_sandwich_sd"]
+__all__ = ["Identified", "newey_west_lags", "fd_hessian", "identified_directions", "identified_inverse", "hac_meat",
+           "score_matrix", "hessian_sandwich_parts", "hessian_sandwich_sd"]

@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 from statsmodels.stats.sandwich_covariance import S_hac_simple
 
+from valve_env.estimation.covariance import newey_west_lags
 from valve_env.estimation.diagnostics import residual_report
 from valve_env.estimation.filters import FilterResult, run_filter
 from valve_env.estimation.fit import MLEstimator, NotFittedError
@@ -117,11 +118,6 @@ class RobustResult:
                 "method": "sandwich H^-1 M H^-1, M the Newey-West (Bartlett) HAC of the EKF score contributions"
                           if self.lags > 0 else "sandwich H^-1 M H^-1 (Huber-White), M the outer product of "
                                                 "the EKF score contributions"}
-
-
-def newey_west_lags(n: int) -> int:
-    """The Newey-West (1994) rule floor(4 (n / 100)^(2/9)) (statsmodels' default)."""
-    return int(np.floor(4.0 * (n / 100.0) ** (2.0 / 9.0)))
 
 
 def robust_std(est: MLEstimator, *, lags: int | None = None, scores: pd.DataFrame | None = None) -> RobustResult:
