@@ -258,14 +258,18 @@ class DistrictHeatingPowerLayer(DistrictHeatingLayer):
         return np.concatenate([lo, [0.0, 0.0]]).astype(np.float32), np.concatenate([hi, [100.0, 100.0]]).astype(
             np.float32)
 
+    def _hour_so_far_J(self, k: np.ndarray, acc: np.ndarray) -> np.ndarray:
+        """The heat metered in the current clock hour before step index ``k`` (J): the hour's
+        accumulator, or zero where ``k`` starts a new hour."""
+        return np.where(np.asarray(k, dtype=np.int64) % self._per_hour == 0, 0.0, acc[:, 4])
+
     def step(
         self, k: np.ndarray, out: np.ndarray, dt_s: float, acc: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         if acc is None:
             raise ValueError("DistrictHeatingPowerLayer.step needs the accumulators (acc)")
         r, inc = super().step(k, out, dt_s)  # (n, n_acc): the bill's four columns, the rest zero
-        new_hour = np.asarray(k, dtype=np.int64) % self._per_hour == 0
-        hour = np.where(new_hour, 0.0, acc[:, 4]) + inc[:, 2]
+        hour = self._hour_so_far_J(k, acc) + inc[:, 2]
         peak = np.maximum(acc[:, 5], hour)
         inc[:, 4] = hour - acc[:, 4]
         inc[:, 5] = peak - acc[:, 5]
@@ -281,8 +285,7 @@ class DistrictHeatingPowerLayer(DistrictHeatingLayer):
         base = super().observation(k)
         n = base.shape[0]
         meter = np.zeros((n, 2), np.float32) if acc is None else np.stack(
-            [np.where(np.asarray(k, dtype=np.int64) % self._per_hour == 0, 0.0, acc[:, 4]) / 3.6e6,
-             acc[:, 5] / 3.6e6], axis=1).astype(np.float32)
+            [self._hour_so_far_J(k, acc) / 3.6e6, acc[:, 5] / 3.6e6], axis=1).astype(np.float32)
         return np.concatenate([base, meter], axis=1)
 
 
