@@ -216,13 +216,12 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     # reported beside the decision, not part of it: Horch's CCF test on the same loop (PV increments for an
     # integrating process)
     shape = horch(loop, integrating=lin.process.integrating)
-    justified = by_likelihood
     osc = oscillation(loop.pv - loop.sp, loop.dt)
     sim_lin = simulate(loop.op, lin.process)
     r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
     result: dict[str, Any] = {"cause": "none"}
     fit = fits[nonlin["candidate"]]
-    if justified:
+    if by_likelihood:  # the decision is the likelihood comparison alone (docs/loops.md)
         result["cause"] = "stiction"
         offset = sampling_offset(loop.op)
         band, sd, lo, hi = band_uncertainty(fit, f, offset)
@@ -245,7 +244,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "best_nonlinear": nonlin["candidate"],
         "neff_factor": f,
         "heldout_loglik_gain": gain,
-        "justified": bool(justified),
+        "justified": bool(by_likelihood),
         "by_likelihood": bool(by_likelihood),
         "shape": {k: shape[k] for k in ("statistic", "phase_signed_deg", "ratio", "tau_r", "tau_l", "integrating",
                                         "verdict")},
