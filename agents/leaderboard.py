@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 import valve_env
+from agents.cem import RANK_SEED
 from agents.scenarios import (
     DESCRIPTIONS,
     LEADERBOARD_SCENARIOS,
@@ -246,7 +247,7 @@ def build_leaderboard(
     env_ids: Sequence[str],
     scenarios: Sequence[str] = LEADERBOARD_SCENARIOS,
     episodes: int = 10,
-    seed: int = 1000,
+    seed: int = RANK_SEED,
     names: Sequence[str] | None = None,
     ablation: bool = True,
     zoo: str | Path | None = None,
@@ -331,7 +332,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenarios", default=",".join(LEADERBOARD_SCENARIOS),
                    help=f"comma-separated, from {', '.join(SCENARIOS)}")
     p.add_argument("--episodes", type=int, default=10, help="seeded episodes per scenario (default 10)")
-    p.add_argument("--seed", type=int, default=1000, help="first evaluation seed (default 1000)")
+    p.add_argument("--seed", type=int, default=RANK_SEED, help=f"first evaluation seed (default {RANK_SEED})")
     p.add_argument("--out", default="out/leaderboard", help="output directory")
     p.add_argument("--docs", action="store_true", help="write the tracked docs/leaderboard.* (with --force to replace)")
     p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")

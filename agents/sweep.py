@@ -51,6 +51,8 @@ from typing import Any
 
 import pandas as pd
 
+from agents.cem import RANK_SEED
+
 
 @dataclass(frozen=True)
 class Cell:
@@ -62,7 +64,7 @@ class Cell:
     env_id: str = "ThermoValve-v0"
     timesteps: int = 100_000
     eval_episodes: int = 5
-    eval_seed: int = 1000
+    eval_seed: int = RANK_SEED
     overrides: tuple[str, ...] = ()
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
     #: the grid point's index in its env's grid (-1: not a grid cell) and its ``key=value`` overrides
@@ -156,7 +158,7 @@ def make_grid(
     env_id: str = "ThermoValve-v0",
     timesteps: int = 100_000,
     eval_episodes: int = 5,
-    eval_seed: int = 1000,
+    eval_seed: int = RANK_SEED,
     overrides: Sequence[str] = (),
     env_kwargs: Mapping[str, Any] | None = None,
     points: Sequence[tuple[str, ...]] | None = None,
@@ -408,7 +410,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timesteps", type=int, default=None,
                    help="training steps per cell (default: the grid file's timesteps:, else 100000)")
     p.add_argument("--eval-episodes", type=int, default=5, help="held-out evaluation episodes per cell")
-    p.add_argument("--eval-seed", type=int, default=1000, help="first evaluation seed")
+    p.add_argument("--eval-seed", type=int, default=RANK_SEED, help=f"first evaluation seed (default {RANK_SEED})")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="config override (as in thermovalve train); ALGO:KEY=VALUE applies to one algo only")
     p.add_argument("--out", default="out/sweep", help="sweep directory (results/, failed/, cells/, summary.*); "
