@@ -14,6 +14,7 @@ OUT ?= out
 .PHONY: venv install-core install demo test test-slow test-latest lint typecheck bench evaluate constraints clean
 
 $(PY):
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "make: thermovalve needs Python >= 3.11 (constraints.txt pins versions that do); set PYTHON=/path/to/python3.11")'
 	$(PYTHON) -m venv $(VENV)
 
 venv: $(PY)

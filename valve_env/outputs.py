@@ -90,11 +90,20 @@ def check_output_dir(path: PathLike, inputs: Iterable[PathLike | None] = (), for
     return p
 
 
+def _umask() -> int:
+    """The process's umask (read by setting and restoring it: POSIX has no read-only call)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def _temp_beside(p: Path) -> Iterator[Path]:
     """A new temporary file beside ``p`` (same directory, so a rename onto ``p`` is atomic), fsynced
     when the block succeeds and removed when it raises."""
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
+    # mkstemp makes the file 0600; an output gets the mode a plain open() would give it (0666 less the umask)
+    os.fchmod(fd, 0o666 & ~_umask())
     os.close(fd)
     tmp_path = Path(tmp)
     try:

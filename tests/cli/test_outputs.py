@@ -179,3 +179,17 @@ def test_json_writer_writes_non_finite_as_null() -> None:
     text = json_text({"loglik": float("-inf"), "sd": np.float64("nan"), "x": np.array([1.0, np.inf]), "n": 3})
     assert json.loads(text) == {"loglik": None, "sd": None, "x": [1.0, None], "n": 3}
     assert "Infinity" not in text and "NaN" not in text
+
+
+def test_outputs_get_the_mode_a_plain_open_would_give(tmp_path: Path) -> None:
+    """An atomically written output is not left at mkstemp's private 0600: it gets 0666 less the umask,
+    as any file the user writes."""
+    old = os.umask(0o022)
+    try:
+        with OutputSet() as outs:
+            outs.write_text(tmp_path / "a.json", "{}\n")
+            outs.stage(tmp_path / "b.csv", lambda tmp: Path(tmp).write_text("x\n"))
+    finally:
+        os.umask(old)
+    for name in ("a.json", "b.csv"):
+        assert (tmp_path / name).stat().st_mode & 0o777 == 0o644, name

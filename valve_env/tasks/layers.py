@@ -12,16 +12,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
 from valve_env import simulator as sim
 from valve_env.params import ConfigError, _from_mapping, check_fields, param
 from valve_env.scenario import ScenarioParams, network_load, supply_plan
-
-if TYPE_CHECKING:  # typing.Self is Python 3.11+; the package supports 3.10 (annotations are not evaluated)
-    from typing import Self
 
 
 class TaskLayer:
