@@ -289,7 +289,8 @@ def collect(out_dir: str | Path) -> pd.DataFrame:
         c = r["cell"]
         row = {"env_id": c["env_id"], "algo": c["algo"], "scenario": c["scenario"], "seed": c["seed"],
                "grid_point": c.get("grid_point", -1), "params": " ".join(c.get("params") or ()),
-               "timesteps": c["timesteps"], "return": r["return"]["mean"], "return_std": r["return"]["std"]}
+               "timesteps": c["timesteps"], "eval_seed": c.get("eval_seed"),
+               "return": r["return"]["mean"], "return_std": r["return"]["std"]}
         row.update({k: v["mean"] for k, v in r["kpis"].items()})
         row["train_wall_s"] = r.get("train_wall_s")
         rows.append(row)
@@ -319,8 +320,7 @@ def write_summary(out_dir: str | Path) -> pd.DataFrame:
     if len(grid):
         lines += ["", "## Grid points, ranked by mean evaluation return (best first)", ""]
         for (env, algo, scen), sub in grid.groupby(["env_id", "algo", "scenario"]):
-            eval_seed = next((json.loads(p.read_text())["cell"]["eval_seed"]
-                              for p in sorted((out / "results").glob(f"{env}__{algo}__{scen}__g*.json"))), None)
+            eval_seed = sub["eval_seed"].iloc[0]
             rank = sub.groupby(["grid_point", "params"]).agg(
                 seeds=("seed", "count"), return_mean=("return", "mean"), return_std_seeds=("return", "std"),
                 rmse_K=("rmse_K", "mean"), tdis_Kh=("tdis_Kh", "mean"), train_wall_s=("train_wall_s", "mean"),
