@@ -21,12 +21,13 @@ from valve_env.evaluation.evaluator import run_episodes
 
 TASK = "ThermoValveStickyValve-v0"
 GRID: dict[str, list[dict[str, Any]]] = {
+    "pi": [{"Kp": k, "Ti_s": t} for k in (5.0, 10.0, 20.0, 40.0) for t in (268.0, 1500.0)],
     "constant_reinforcement": [{"amplitude_band": a} for a in (0.05, 0.1, 0.2, 0.5, 0.8)],
     "knocker": [{"amplitude_band": a, "period_steps": p} for a in (0.5, 1.0) for p in (4, 10)],
     "two_move": [{}],
     "pi_wear": [{}],
-    "two_move_position": [{"replace_band": r, "tau_c_factor": f} for f in (1.0, 2.0, 4.0)
-                          for r in (0.2, 0.3, 0.4, 0.6)],
+    "two_move_position": [{"replace_band": r, "tau_c_factor": f} for f in (1.0, 4.0) for r in (0.2, 0.4, 0.6)]
+    + [{"error_band_K": 0.02, "replace_band": 0.4}],
 }
 
 
@@ -41,6 +42,7 @@ def frontier(seed: int, episodes: int) -> pd.DataFrame:
     out = pd.DataFrame(rows)
     out["iae_vs_pi_%"] = 100 * (out["iae_Kh"] / base["iae_Kh"].mean() - 1)
     out["reversals_vs_pi_%"] = 100 * (out["reversals"] / base["reversals"].mean() - 1)
+    out["iae_x_reversals"] = out["iae_Kh"] * out["reversals"]
     out["goal"] = (out["iae_vs_pi_%"] <= -30) & (out["reversals_vs_pi_%"] < 0) & (
         out["tdis_Kh"] <= base["tdis_Kh"].mean() + 1e-9)
     return out
@@ -54,7 +56,7 @@ def main() -> None:
     a = ap.parse_args()
     out = frontier(a.seed, a.episodes)
     cols = ["controller", "settings", "iae_Kh", "reversals", "travel_mm", "tdis_Kh", "iae_vs_pi_%",
-            "reversals_vs_pi_%", "goal"]
+            "reversals_vs_pi_%", "iae_x_reversals", "goal"]
     print(f"{TASK}, seeds {a.seed}-{a.seed + a.episodes - 1}, 24 h (means)\n")
     print("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for _, r in out[cols].iterrows():

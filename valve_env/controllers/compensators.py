@@ -300,8 +300,9 @@ class TwoMovePosition(TwoMove):
     the force balance's demand (``TwoMove.setting_for``, the bulb and friction estimates of
     :class:`~valve_env.controllers.baselines.DahlCompensator`): the valve's own proportional action is
     cancelled and the stem sees the controller's position, as in the papers. The stem's position
-    ``x_hat`` is read from the measured flow. When ``|x_c - x_hat| > replace_band x band_mm`` the stem is
-    placed on ``x_c``: in one move if the move is longer than the band and a margin, else in two moves
+    ``x_hat`` is read from the measured flow. When ``|x_c - x_hat| > replace_band x band_mm`` (and the
+    outlet is more than ``error_band_K`` from its target; default 0: always) the stem is placed on
+    ``x_c``: in one move if the move is longer than the band and a margin, else in two moves
     that approach from above (first to ``max(x_hat, x_c) + S + margin``, then down onto ``x_c``): from
     below, a stem within a band of its seat would have to leave the seat, which takes a breakaway of S
     and lands it at least a band open. A position at or below the seat shuts the valve. Between moves
@@ -325,6 +326,7 @@ class TwoMovePosition(TwoMove):
                  tank: TankParams | None = None, **kw: Any) -> None:
         from valve_env.controllers.tuning import ModelFit, load_gains, simc_pi
 
+        kw.setdefault("error_band_K", 0.0)  # no error gate: the position PI decides (two_move's is 0.05 K)
         super().__init__(env_id, band_mm, **kw)
         if not (np.isfinite(replace_band) and replace_band > 0 and np.isfinite(tau_c_factor) and tau_c_factor > 0):
             raise ValueError("two_move_position: replace_band > 0 and tau_c_factor > 0 required")
@@ -366,7 +368,8 @@ class TwoMovePosition(TwoMove):
         gap = target - x_hat
         shut = target <= 0.0
         seated = x_hat <= self.seated_mm
-        move = (pending == 0.0) & (np.abs(gap) > self.replace_band * S) & ~(shut & seated)
+        move = ((pending == 0.0) & (np.abs(gap) > self.replace_band * S) & (np.abs(err) > self.error_band_K)
+                & ~(shut & seated))
         one = move & ((np.abs(gap) > S + m) | shut)
         two = move & ~one
         land = np.where(gap >= 0.0, 1.0, -1.0) * (S - self.jump_mm) * 0.5
