@@ -368,7 +368,7 @@ class TwoMovePosition(TwoMove):
         gap = target - x_hat
         shut = target <= 0.0
         seated = x_hat <= self.seated_mm
-        move = ((pending == 0.0) & (np.abs(gap) > self.replace_band * S) & (np.abs(err) > self.error_band_K)
+        move = ((pending == 0.0) & (np.abs(gap) > self.replace_band * S) & (np.abs(err) >= self.error_band_K)
                 & ~(shut & seated))
         one = move & ((np.abs(gap) > S + m) | shut)
         two = move & ~one
