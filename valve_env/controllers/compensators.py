@@ -255,15 +255,20 @@ class TwoMove(_PICompensatorBase):
         extra = np.stack([np.zeros(n), held, held, np.ones(n)], axis=1)
         return np.concatenate([super().initial_state(obs), bulb, extra], 1)
 
+    def _advance_estimates(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance the bulb and friction estimates in ``state`` (in place): F_h_hat, T_g_hat, dp."""
+        j, nb = self._n_pi, DahlCompensator.state_size
+        mem = state[:, j : j + nb]
+        fh = self.bulb.update(obs, mem)
+        state[:, j : j + nb] = mem
+        return fh, mem[:, 1], obs[:, I_DP]
+
     def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         uc = self.pi_output(obs, state)
         err = obs[:, I_T_TARGET] - obs[:, I_T_OUT]
         j = self._n_pi
         nb = DahlCompensator.state_size
-        mem = state[:, j : j + nb]
-        fh = self.bulb.update(obs, mem)
-        state[:, j : j + nb] = mem
-        tg, dp = mem[:, 1], obs[:, I_DP]
+        fh, tg, dp = self._advance_estimates(obs, state)
         pending, held, second, d_last = (state[:, j + nb + q] for q in range(4))
         S, J = self.band_mm, self.jump_mm
         m = self.margin_band * S
@@ -355,10 +360,7 @@ class TwoMovePosition(TwoMove):
         err = obs[:, I_T_TARGET] - obs[:, I_T_OUT]
         j = self._n_pi
         nb = DahlCompensator.state_size
-        mem = state[:, j : j + nb]
-        fh = self.bulb.update(obs, mem)
-        state[:, j : j + nb] = mem
-        tg, dp = mem[:, 1], obs[:, I_DP]
+        fh, tg, dp = self._advance_estimates(obs, state)
         pending, held, second = state[:, j + nb], state[:, j + nb + 1], state[:, j + nb + 2]
         S, m = self.band_mm, self.margin_band * self.band_mm
         integ = state[:, -1]
