@@ -8,7 +8,7 @@ Built-in baselines (see docs/baselines.md):
   bumpless start, SIMC-tuned on a simulator step test
   (:mod:`valve_env.controllers.tuning`, gains in ``configs/controllers.yaml``);
 * ``pi_compensated``: the PI plus an inverse-model Dahl hysteresis compensator;
-* ``knocker``, ``constant_reinforcement``, ``two_move``: stiction compensators
+* ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``: stiction compensators
   from the literature on the PI's setting, and ``pi_wear``: an event-based PI
   that spares the stem (:mod:`valve_env.controllers.compensators`,
   docs/controllers.md);
@@ -26,7 +26,7 @@ from typing import Any
 
 from valve_env.controllers.base import ALL_ENV_MODES, Controller, PredictPolicy, original_id
 from valve_env.controllers.baselines import DahlCompensator, PICompensated, PIController, SelfActing
-from valve_env.controllers.compensators import ConstantReinforcement, Knocker, PIWear, TwoMove
+from valve_env.controllers.compensators import ConstantReinforcement, Knocker, PIWear, TwoMove, TwoMovePosition
 from valve_env.controllers.oracle import Oracle, OracleSettings
 
 BASELINES: dict[str, type[Controller]] = {
@@ -37,6 +37,7 @@ BASELINES: dict[str, type[Controller]] = {
     Knocker.name: Knocker,
     ConstantReinforcement.name: ConstantReinforcement,
     TwoMove.name: TwoMove,
+    TwoMovePosition.name: TwoMovePosition,
 }
 """Controllers that read only the observation (the default set of ``thermovalve evaluate``)."""
 ORACLES: dict[str, type[Controller]] = {Oracle.name: Oracle}
@@ -52,7 +53,7 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     """A controller by name for ``env_id``.
 
     Built-ins (:data:`CONTROLLERS`): ``self_acting``, ``pi``, ``pi_compensated``, ``pi_wear``,
-    ``knocker``, ``constant_reinforcement``, ``two_move``, ``oracle`` (keyword arguments go to
+    ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``, ``oracle`` (keyword arguments go to
     their constructors). Any other name is a trained agent, loaded by
     ``agents.loader.load_agent(name, env_id, **kwargs)``; a missing ``agents``
     package or loader raises :class:`UnknownControllerError` naming the agent.
@@ -87,6 +88,7 @@ __all__ = [
     "OracleSettings",
     "PIWear",
     "TwoMove",
+    "TwoMovePosition",
     "PICompensated",
     "PIController",
     "PredictPolicy",

@@ -34,6 +34,13 @@ term added to its output):
   computed from the valve model driven by the observed pocket temperature (the bulb lag and Dahl
   friction estimates of :class:`~valve_env.controllers.baselines.DahlCompensator`).
 
+* :class:`TwoMovePosition`: the same two moves in the papers' own loop, where the controller's
+  output is the valve position (S&R 2005, 2008): a PI on the outlet whose output is the stem
+  position in mm, SIMC-tuned (Skogestad 2003) on the integrating model of the tank's response to the
+  stem, ``k' = (dq/dx) (T_supply - T_target) / m_tank`` (K/s per mm); the stem is re-placed when that
+  position and the stem (read from the flow) are more than ``replace_band x band_mm`` apart,
+  approaching every target from above (a stem near its seat cannot be placed from below).
+
 Wear-aware PI:
 
 * :class:`PIWear`: an event-based PI (Årzén, K.-E. (1999). A simple event-based PID controller.
@@ -52,9 +59,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from valve_env.config import ControlParams
-from valve_env.controllers.base import I_DP, I_SETTING, I_T_OUT, I_T_TARGET, OBS_NAMES, Controller
+from valve_env.controllers.base import I_DP, I_SETTING, I_T_OUT, I_T_TARGET, OBS_NAMES, Controller, original_id
 from valve_env.controllers.baselines import DahlCompensator, PIController
-from valve_env.params import I_A_B, I_A_K, I_A_S, I_DP_K_SP, I_DP_S_SP, ValveParams
+from valve_env.params import I_A_B, I_A_K, I_A_S, I_DP_K_SP, I_DP_S_SP, I_KVS, I_LEAK, I_STROKE, TankParams, ValveParams
 from valve_env.physics.valve import (
     BAR_TO_MPA,
     MBAR_TO_MPA,
@@ -248,15 +255,20 @@ class TwoMove(_PICompensatorBase):
         extra = np.stack([np.zeros(n), held, held, np.ones(n)], axis=1)
         return np.concatenate([super().initial_state(obs), bulb, extra], 1)
 
+    def _advance_estimates(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance the bulb and friction estimates in ``state`` (in place): F_h_hat, T_g_hat, dp."""
+        j, nb = self._n_pi, DahlCompensator.state_size
+        mem = state[:, j : j + nb]
+        fh = self.bulb.update(obs, mem)
+        state[:, j : j + nb] = mem
+        return fh, mem[:, 1], obs[:, I_DP]
+
     def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         uc = self.pi_output(obs, state)
         err = obs[:, I_T_TARGET] - obs[:, I_T_OUT]
         j = self._n_pi
         nb = DahlCompensator.state_size
-        mem = state[:, j : j + nb]
-        fh = self.bulb.update(obs, mem)
-        state[:, j : j + nb] = mem
-        tg, dp = mem[:, 1], obs[:, I_DP]
+        fh, tg, dp = self._advance_estimates(obs, state)
         pending, held, second, d_last = (state[:, j + nb + q] for q in range(4))
         S, J = self.band_mm, self.jump_mm
         m = self.margin_band * S
@@ -281,6 +293,96 @@ class TwoMove(_PICompensatorBase):
         state[:, j + nb + 1] = np.where(one, cmd, state[:, j + nb + 1])
         state[:, j + nb + 2] = new_second
         state[:, j + nb + 3] = np.where(move, a, d_last)
+        return self._out(self.setting_for(cmd, tg, fh, dp)), state
+
+
+class TwoMovePosition(TwoMove):
+    """Srinivasan & Rengaswamy's two moves in the papers' loop: the controller's output is the stem position.
+
+    In S&R (2005, 2008) the controller's output is the valve position demand and the compensator
+    places the sticky valve there. Here a PI on the outlet error ``e`` gives that position in mm,
+    ``x_c = Kc e + I`` (``I <- I + Kc dt / Ti e``, limited to the stroke), and the setting turns it into
+    the force balance's demand (``TwoMove.setting_for``, the bulb and friction estimates of
+    :class:`~valve_env.controllers.baselines.DahlCompensator`): the valve's own proportional action is
+    cancelled and the stem sees the controller's position, as in the papers. The stem's position
+    ``x_hat`` is read from the measured flow. When ``|x_c - x_hat| > replace_band x band_mm`` (and the
+    outlet is more than ``error_band_K`` from its target; default 0: always) the stem is placed on
+    ``x_c``: in one move if the move is longer than the band and a margin, else in two moves
+    that approach from above (first to ``max(x_hat, x_c) + S + margin``, then down onto ``x_c``): from
+    below, a stem within a band of its seat would have to leave the seat, which takes a breakaway of S
+    and lands it at least a band open. A position at or below the seat shuts the valve. Between moves
+    the demand is held where the last move put it.
+
+    Gains: SIMC (Skogestad 2003) for an integrating process, ``Kc = 1 / (k' (tau_c + theta))``,
+    ``Ti = 4 (tau_c + theta)``, with ``k' = (dq/dx) (T_supply - T_target) / m_tank`` (the valve's linear
+    characteristic at ``dp``: one band open heats the tank at ``k' band`` K/s while the coil returns at
+    tank temperature), ``theta`` the stored FOPDT model's dead time plus ``dt / 2`` (as the ``pi``) and
+    ``tau_c = tau_c_factor x theta`` (1: SIMC's tight setting).
+
+    Memory: the two-move's (the PI's 2 unused, bulb 3, pending, held, second, direction) and ``I`` (mm).
+    """
+
+    name: ClassVar[str] = "two_move_position"
+    _extra: ClassVar[int] = TwoMove._extra + 1
+
+    def __init__(self, env_id: str = "ThermoValve-v0", band_mm: float | None = None,
+                 replace_band: float = 0.4, tau_c_factor: float = 1.0, Kc: float | None = None,
+                 Ti_s: float | None = None, supply_C: float = _SCEN.supply_C, dp_mbar: float = _SCEN.dp_mbar,
+                 tank: TankParams | None = None, **kw: Any) -> None:
+        from valve_env.controllers.tuning import ModelFit, load_gains, simc_pi
+
+        kw.setdefault("error_band_K", 0.0)  # no error gate: the position PI decides (two_move's is 0.05 K)
+        super().__init__(env_id, band_mm, **kw)
+        if not (np.isfinite(replace_band) and replace_band > 0 and np.isfinite(tau_c_factor) and tau_c_factor > 0):
+            raise ValueError("two_move_position: replace_band > 0 and tau_c_factor > 0 required")
+        self.replace_band = float(replace_band)
+        tk = tank or TankParams()
+        vp = self.vp
+        dq_dx = 31.62 * vp[I_KVS] * (1.0 - vp[I_LEAK]) / vp[I_STROKE] * np.sqrt(dp_mbar) / 3600.0  # kg/s per mm
+        self.k_int = float(dq_dx * (supply_C - _CTRL.T_target_C) / (tk.volume_l * tk.rho))  # K/s per mm
+        if not self.k_int > 0:
+            raise ValueError(f"two_move_position: the supply ({supply_C} degC) must be above the target")
+        if Kc is None or Ti_s is None:
+            theta = float(load_gains(original_id(env_id))["model"]["theta_s"])
+            g = simc_pi(ModelFit("ipdt", self.k_int, float("nan"), theta, 0.0),
+                        tau_c_factor * (theta + 0.5 * self.dt_s), self.dt_s)
+            Kc = g.Kp if Kc is None else Kc
+            Ti_s = g.Ti_s if Ti_s is None else Ti_s
+        if not (np.isfinite(Kc) and Kc > 0 and np.isfinite(Ti_s) and Ti_s > 0):
+            raise ValueError(f"two_move_position: Kc and Ti_s must be finite and > 0, got {Kc!r}, {Ti_s!r}")
+        self.Kc, self.Ti_x_s = float(Kc), float(Ti_s)
+
+    def initial_state(self, obs: np.ndarray) -> np.ndarray:
+        x0 = opening_from_flow(obs[:, I_Q], obs[:, I_DP], self.vp)  # bumpless: the integral starts at the stem
+        return np.concatenate([super().initial_state(obs), x0[:, None]], 1)
+
+    def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        err = obs[:, I_T_TARGET] - obs[:, I_T_OUT]
+        j = self._n_pi
+        nb = DahlCompensator.state_size
+        fh, tg, dp = self._advance_estimates(obs, state)
+        pending, held, second = state[:, j + nb], state[:, j + nb + 1], state[:, j + nb + 2]
+        S, m = self.band_mm, self.margin_band * self.band_mm
+        integ = state[:, -1]
+        target = self.Kc * err + integ
+        state[:, -1] = np.clip(integ + self.Kc * self.dt_s / self.Ti_x_s * err, -m, self.vp[I_STROKE])
+        x_hat = opening_from_flow(obs[:, I_Q], dp, self.vp)
+        gap = target - x_hat
+        shut = target <= 0.0
+        seated = x_hat <= self.seated_mm
+        move = ((pending == 0.0) & (np.abs(gap) > self.replace_band * S) & (np.abs(err) >= self.error_band_K)
+                & ~(shut & seated))
+        one = move & ((np.abs(gap) > S + m) | shut)
+        two = move & ~one
+        land = np.where(gap >= 0.0, 1.0, -1.0) * (S - self.jump_mm) * 0.5
+        goal = np.where(shut, -m, target)
+        cmd = np.where(pending != 0.0, second, held)
+        cmd = np.where(one, np.where(shut, -m, goal + land), cmd)
+        cmd = np.where(two, np.maximum(x_hat, goal) + S + m, cmd)
+        state[:, j + nb] = np.where(two, 1.0, 0.0)
+        state[:, j + nb + 1] = cmd
+        state[:, j + nb + 2] = np.where(two, goal - (S - self.jump_mm) * 0.5, second)
+        state[:, j + nb + 3] = np.where(move, np.sign(gap), state[:, j + nb + 3])
         return self._out(self.setting_for(cmd, tg, fh, dp)), state
 
 
