@@ -111,7 +111,8 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
     temperature), bought at the step's price, settled at the end as the task settles it; tracking costs at
     least w_track (T_mean - T_target)^2 (the top is the hottest layer), the floor at least w_floor times the
     top's shortfall when all the heat sat in the top layer; the return tariff is counted as zero. A linear
-    programme (HiGHS; the quadratic by tangents from below), solved exactly: no controller can do better."""
+    programme (HiGHS; the quadratic by tangents from below). It bounds the plant only as far as the store
+    model does (one explicit step per control step; the flow limit taken from one day at the top setting)."""
     import gymnasium as gym
     import numpy as np
     from scipy import sparse
