@@ -5,6 +5,7 @@ and the oracle's cost and time per 24 h episode, on held-out seeds (the settings
     python benchmarks/controllers_bench.py compensators [--seed 100 --episodes 10 --band 0.1]
     python benchmarks/controllers_bench.py task-compensators [--task ThermoValveStickyValve-v0 --band MM]
     python benchmarks/controllers_bench.py oracle [--seed 100 --episodes 3 --tasks ID ...]
+    python benchmarks/controllers_bench.py bound --seed 0 --episodes 5 --tasks ThermoValveDistrictHeating-v0
 
 Prints markdown tables (means over the episodes; paired differences against ``pi``).
 """
@@ -103,9 +104,126 @@ def oracle(seed: int, episodes: int, tasks: list[str]) -> None:
         print(f"| {task} | {mean:.1f} | {mx:.1f} |")
 
 
+def storage_bound(task: str, seed: int) -> dict[str, float]:
+    """A lower bound on the cost (-return) of any controller on one district-heating day (docs/controllers.md,
+    "A bound on the district-heating tasks"): the tank as one energy store (heat in at most the fully open
+    valve's flow times supply minus cold water, out the day's draws and the standing loss, linear in the mean
+    temperature), bought at the step's price, settled at the end as the task settles it; tracking costs at
+    least w_track (T_mean - T_target)^2 (the top is the hottest layer), the floor at least w_floor times the
+    top's shortfall when all the heat sat in the top layer; the return tariff is counted as zero. A linear
+    programme (HiGHS; the quadratic by tangents from below). It bounds the plant only as far as the store
+    model does (one explicit step per control step; the flow limit taken from one day at the top setting)."""
+    import gymnasium as gym
+    import numpy as np
+    from scipy import sparse
+    from scipy.optimize import linprog
+
+    from valve_env import simulator as sim
+
+    env = gym.make(task)
+    env.reset(seed=seed)
+    core = env.unwrapped
+    cfg, layer = core.cfg, core.layer
+    st0 = core.get_state()
+    scen = np.asarray(st0.scenario, np.float64)
+    tk, ctl = cfg.tank, cfg.control
+    N, dt = int(ctl.n_steps), float(ctl.dt_s)
+    # the fully open valve's flow at each step (the setting at its maximum all day)
+    flow = np.empty(N)
+    for k in range(N):
+        env.step(np.array([ctl.setting_max_C], np.float32))
+        flow[k] = core.get_state().out[sim.O_Q_KGH] / 3600.0
+    env.close()
+    C = tk.volume_l * tk.rho * tk.cp  # J/K
+    m_l = tk.layer_mass_kg * tk.cp  # J/K of one layer
+    q_max = flow * tk.cp * np.maximum(scen[:, 3] - tk.T_cold, 0.0)  # W
+    draw = scen[:, 0]  # W, delivered while the top is above the floor
+    E0 = float(st0.E0_J)
+    t = layer.tariff
+    price = layer.price_at(np.arange(N))
+    w = t.w_eur
+    # variables: q (N), E_1..E_N (N), track (N), short (N), [peak kW]
+    power = hasattr(t, "power_eur_kW_day")
+    nv = 4 * N + (1 if power else 0)
+    iq, iE, it, isf = 0, N, 2 * N, 3 * N
+    c = np.zeros(nv)
+    c[iq:iq + N] = w * price * dt / 3.6e9
+    c[iE + N - 1] = -w * t.price_eur_MWh / 3.6e9  # settlement: w p_mean (E0 - E_N)
+    c[it:it + N] = 1.0
+    c[isf:isf + N] = ctl.w_floor
+    if power:
+        c[-1] = w * t.power_eur_kW_day
+    a = 1.0 - dt * tk.UA_loss / C
+    rows, cols, vals = [], [], []
+    b_eq = np.empty(N)
+    for k in range(N):  # E_{k+1} - a E_k - dt q_k = dt (UA T_amb - draw_k)
+        rows += [k, k]
+        cols += [iE + k, iq + k]
+        vals += [1.0, -dt]
+        if k > 0:
+            rows.append(k)
+            cols.append(iE + k - 1)
+            vals.append(-a)
+        b_eq[k] = dt * (tk.UA_loss * tk.T_ambient - draw[k]) + (a * E0 if k == 0 else 0.0)
+    A_eq = sparse.csr_matrix((vals, (rows, cols)), shape=(N, nv))
+    ub_r, ub_c, ub_v, b_ub = [], [], [], []
+    r = 0
+    for d in (*np.arange(0.25, 3.0, 0.25), *np.arange(3.0, 12.1, 1.0)):  # track_k >= w (2 d x - d^2), x = E/C - T_t
+        for k in range(N):
+            ub_r += [r, r]
+            ub_c += [iE + k, it + k]
+            ub_v += [ctl.w_track * 2 * d / C, -1.0]
+            b_ub.append(ctl.w_track * (2 * d * ctl.T_target_C + d * d))
+            r += 1
+    for k in range(N):  # short_k >= T_floor - T_top_max, T_top_max = (E - (M - m_l) T_cold) / m_l
+        ub_r += [r, r]
+        ub_c += [iE + k, isf + k]
+        ub_v += [-1.0 / m_l, -1.0]
+        b_ub.append(-ctl.T_floor_C - (C - m_l) * tk.T_cold / m_l)
+        r += 1
+    if power:  # peak >= each clock hour's heat, kW
+        per_h = int(round(3600.0 / dt))
+        for h in range(N // per_h):
+            for k in range(h * per_h, (h + 1) * per_h):
+                ub_r.append(r)
+                ub_c.append(iq + k)
+                ub_v.append(dt / 3.6e6)
+            ub_r.append(r)
+            ub_c.append(nv - 1)
+            ub_v.append(-1.0)
+            b_ub.append(0.0)
+            r += 1
+    A_ub = sparse.csr_matrix((ub_v, (ub_r, ub_c)), shape=(r, nv))
+    bounds = ([(0.0, float(q)) for q in q_max] + [(C * tk.T_cold, None)] * N + [(0.0, None)] * (2 * N)
+              + ([(0.0, None)] if power else []))
+    res = linprog(c, A_ub=A_ub, b_ub=np.array(b_ub), A_eq=A_eq, b_eq=b_eq, bounds=bounds, method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"the bound's linear programme failed: {res.message}")
+    x = res.x
+    const = w * t.price_eur_MWh * E0 / 3.6e9
+    q = x[iq:iq + N]
+    return {"cost": float(res.fun + const), "heat_kWh": float(q.sum() * dt / 3.6e6),
+            "track": float(x[it:it + N].sum()), "mean_price": float((price * q).sum() / max(q.sum(), 1e-9))}
+
+
+def bound(seed: int, episodes: int, tasks: list[str]) -> None:
+    """:func:`storage_bound` per day, beside self_acting's and pi's cost on the same days."""
+    print("| task | seed | self_acting | pi | bound (any controller) | bound below the better of the two | heat kWh | "
+          "mean price EUR/MWh | tracking |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for task in tasks:
+        sa = run_episodes(make_controller("self_acting", task), task, episodes, seed)
+        pi = run_episodes(make_controller("pi", task), task, episodes, seed)
+        for i in range(episodes):
+            b = storage_bound(task, seed + i)
+            best = min(-sa["return"].iloc[i], -pi["return"].iloc[i])
+            print(f"| {task} | {seed + i} | {-sa['return'].iloc[i]:.2f} | {-pi['return'].iloc[i]:.2f} | "
+                  f"{b['cost']:.2f} | {100 * (1 - b['cost'] / best):.1f} % | {b['heat_kWh']:.2f} | "
+                  f"{b['mean_price']:.1f} | {b['track']:.2f} |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", choices=("compensators", "task-compensators", "oracle"))
+    ap.add_argument("what", choices=("compensators", "task-compensators", "oracle", "bound"))
     ap.add_argument("--seed", type=int, default=100)
     ap.add_argument("--episodes", type=int, default=None)
     ap.add_argument("--band", type=float, default=None,
@@ -118,6 +236,8 @@ def main() -> None:
         compensators(a.seed, a.episodes or 10, 0.1 if a.band is None else a.band)
     elif a.what == "task-compensators":
         task_compensators(a.task, a.seed, a.episodes or 10, a.band)
+    elif a.what == "bound":
+        bound(a.seed, a.episodes or 3, a.tasks)
     else:
         oracle(a.seed, a.episodes or 3, a.tasks)
 

@@ -169,20 +169,35 @@ def test_oracle_beats_pi_on_a_short_episode() -> None:
 
 @pytest.mark.parametrize("task_id", ["ThermoValveDistrictHeating-v0", "ThermoValveDistrictHeatingPower-v0"])
 def test_the_district_heating_oracle_beats_pi_on_a_short_episode(task_id: str) -> None:
-    """2 h at night with the task's own oracle settings (the plan moves the PI's target; on the
-    power task it runs to the episode's end): a lower cost than the PI's, and the settings are the
+    """2 h at night with the task's own oracle settings (the plan is the valve's setting, to the
+    episode's end): a lower cost than the PI's, and never a higher one than the self-acting valve's,
+    which is its first plan's warm start (the zero plan) on the exact model; the settings are the
     task's (oracle.TASK_SETTINGS)."""
     kw = {"control": {"horizon_h": 2.0}}
     oracle = make_controller("oracle", task_id)
-    assert oracle.settings.perturb == "target" and oracle.settings.terminal_value
+    assert oracle.settings.perturb == "setting" and oracle.settings.terminal_value
     pi = run_episodes(make_controller("pi", task_id), task_id, 1, 0, env_kwargs=kw)
+    sa = run_episodes(make_controller("self_acting", task_id), task_id, 1, 0, env_kwargs=kw)
     res = run_episodes(oracle, task_id, 1, 0, env_kwargs=kw)
     assert res["return"].iloc[0] > pi["return"].iloc[0] + 0.1
+    assert res["return"].iloc[0] >= sa["return"].iloc[0] - 1e-9
 
 
-def test_oracle_settings_reject_an_unknown_perturbation() -> None:
-    with pytest.raises(ValueError, match="perturb"):
-        make_controller("oracle", "ThermoValve-v0", perturb="setting")
+def test_the_oracles_zero_setting_plan_is_the_self_acting_valve() -> None:
+    """perturb="setting": the plan is the valve's setting as an offset from the target, so the zero
+    plan sends what self_acting sends, and an offset moves the setting by itself, inside the range."""
+    task_id = "ThermoValveDistrictHeating-v0"
+    env = gym.make(task_id)
+    obs, _ = env.reset(seed=0)
+    oracle = make_controller("oracle", task_id, perturb="setting")
+    sa = make_controller("self_acting", task_id)
+    mem = oracle.base.initial_state(obs[None].astype(np.float64))
+    zero = oracle._base_action(obs[None].astype(np.float64), mem, np.zeros((1, 1)))
+    np.testing.assert_array_equal(zero, sa.predict(obs)[0][None])
+    moved = oracle._base_action(obs[None].astype(np.float64), mem, np.array([[-3.0]]))
+    assert moved[0, 0] == 57.0
+    top = oracle._base_action(obs[None].astype(np.float64), mem, np.array([[100.0]]))
+    assert top[0, 0] == env.unwrapped.cfg.control.setting_max_C
 
 
 def test_write_gains_keeps_the_other_controllers_settings(tmp_path: Path) -> None:

@@ -84,7 +84,10 @@ class OracleSettings:
     """Seed of the sampler (the oracle is deterministic for a given seed)."""
     perturb: str = "output"
     """What the plan moves: ``"output"`` adds it to the PI's output (the setting), ``"target"`` to
-    the PI's target (the outlet temperature the PI holds: a charge of the tank is one constant knot)."""
+    the PI's target (the outlet temperature the PI holds: a charge of the tank is one constant knot),
+    ``"setting"`` is the valve's setting itself, as an offset from the outlet target (no PI: the
+    self-acting valve's own proportional action sets the flow, so a plan can charge the tank slowly
+    with a cold return; the zero plan is ``self_acting``)."""
     terminal_value: bool = False
     """Value the heat stored in the tank at the horizon's end as the task layer settles it at the
     episode's end (:meth:`TaskLayer.settle`; nothing on the original ids): a plan shorter than the
@@ -102,8 +105,8 @@ class OracleSettings:
             raise ValueError(f"oracle samples must be >= 2, got {self.samples!r}")
         if not 0.0 < self.elite_frac <= 1.0:
             raise ValueError(f"oracle elite_frac must be in (0, 1], got {self.elite_frac!r}")
-        if self.perturb not in ("output", "target"):
-            raise ValueError(f"oracle perturb must be 'output' or 'target', got {self.perturb!r}")
+        if self.perturb not in ("output", "target", "setting"):
+            raise ValueError(f"oracle perturb must be 'output', 'target' or 'setting', got {self.perturb!r}")
         for name in ("init_std_frac", "min_std_frac"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
@@ -112,17 +115,17 @@ class OracleSettings:
 
 #: per task, the settings that replace the stored ones (docs/controllers.md, "oracle"; chosen on tuning
 #: seeds 0-4, never on the held-out 5000+): on the district-heating tasks the bill rewards buying heat
-#: hours before it is drawn, beyond a 1 h horizon, so the plan moves the PI's target (a charge of the tank
-#: is one constant knot) and values the heat left in the tank at the horizon as the task settles it; with
-#: a power charge on the day's highest hour the plan runs to the end of the day (a shorter plan pays no
-#: peak by deferring every charge and then meets the evening draws with an empty tank); on the sticky task
-#: the cost is the stem's 12-min limit cycle, which a short horizon with fine blocks and more iterations
-#: follows better
+#: hours before it is drawn, so the plan runs to the end of the day (a shorter plan pays no power peak by
+#: deferring every charge, and must guess the stored heat's worth), in half-hour knots of the valve's own
+#: setting (the PI, given a raised target, opens the valve fully and pays the return tariff on a hot
+#: return; the valve alone throttles), with the heat left in the tank valued as the task settles it;
+#: on the sticky task the cost is the stem's 12-min limit cycle, which a short horizon with fine blocks
+#: and more iterations follows better
 TASK_SETTINGS: dict[str, dict[str, Any]] = {
-    "ThermoValveDistrictHeating-v0": {"horizon_steps": 480, "block_steps": 40, "replan_steps": 20, "iterations": 6,
-                                      "perturb": "target", "terminal_value": True},
-    "ThermoValveDistrictHeatingPower-v0": {"horizon_steps": 2880, "block_steps": 60, "replan_steps": 60,
-                                           "iterations": 6, "perturb": "target", "terminal_value": True},
+    "ThermoValveDistrictHeating-v0": {"horizon_steps": 2880, "block_steps": 60, "replan_steps": 120,
+                                      "iterations": 12, "perturb": "setting", "terminal_value": True},
+    "ThermoValveDistrictHeatingPower-v0": {"horizon_steps": 2880, "block_steps": 60, "replan_steps": 120,
+                                           "iterations": 12, "perturb": "setting", "terminal_value": True},
     "ThermoValveStickyValve-v0": {"horizon_steps": 40, "block_steps": 4, "replan_steps": 4, "iterations": 8},
 }
 
@@ -235,7 +238,9 @@ class Oracle(Controller):
     def _base_action(self, obs: np.ndarray, pi_mem: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """The PI's action perturbed by ``delta`` (n, act_dim): on the PI's manipulated variable
         inside its limits (anti-windup sees it), on a held channel (Dual's dp) added and clipped."""
-        if self.settings.perturb == "target":
+        if self.settings.perturb == "setting":  # the valve's own setting, the plan added to the target
+            u = np.clip(obs[:, I_T_TARGET] + delta[:, 0], self.base.u_min, self.base.u_max)
+        elif self.settings.perturb == "target":
             shifted = obs.copy()
             shifted[:, I_T_TARGET] += delta[:, 0]
             u = self.base.pi_output(shifted, pi_mem)
