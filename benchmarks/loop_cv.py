@@ -49,7 +49,8 @@ def evidence(loop: Any) -> dict[str, Any]:
     nl = next(f for f in d.result["findings"] if f["candidate"] == best)
     band, sd, _, _ = band_uncertainty(d.fits[best], d.neff_factor, sampling_offset(loop.op))
     sh = dec["shape"]
-    return {"p": nl["p_value"], "delta_bic": nl["delta_bic"], "lr_adj": nl["lr_stat_adjusted"],
+    return {"p": nl["p_value"], "p_boot": dec["bootstrap"]["p_value"], "delta_bic": nl["delta_bic"],
+            "lr_adj": nl["lr_stat_adjusted"],
             "gain": dec["heldout_loglik_gain"], "phase_signed": sh["phase_signed_deg"],
             "half_period": sh["tau_r"] + sh["tau_l"], "band": band, "sd": sd,
             "oscillating": d.result["oscillation"]["oscillating"], "cause": d.cause}
@@ -101,33 +102,38 @@ def collect(data: Path | None, out: Path, workers: int, force: bool, env_seeds: 
 
 
 # --- the rule family (fixed before any evaluation) -----------------------------------------------------
-ROUTES = ("likelihood", "likelihood_or_shape")
-ALPHAS = (0.01,)
+#: "bootstrap": the parametric-bootstrap LR test at alpha = 0.05 (the fourth session's decision); "likelihood":
+#: the third session's chi-square test of the n_eff-adjusted LR at 0.01 with a BIC threshold; the shape route of
+#: the second session is no longer in the family (the third session's evaluation rejected it)
+ROUTES = ("bootstrap", "likelihood")
 DELTA_BICS = (-10.0, -20.0, -40.0)
 #: held-out check: None = not required; else the share of the adjusted LR the halves may lose
 HELDOUT_SHARES: tuple[float | None, ...] = (None, 0.1, 0.0)
 
 
 def rules() -> list[dict[str, Any]]:
-    return [{"route": r, "alpha": a, "delta_bic": b, "heldout_share": h}
-            for r, a, b, h in itertools.product(ROUTES, ALPHAS, DELTA_BICS, HELDOUT_SHARES)]
+    out: list[dict[str, Any]] = [{"route": "bootstrap", "alpha": 0.05, "delta_bic": None, "heldout_share": h}
+                                 for h in HELDOUT_SHARES]
+    return out + [{"route": "likelihood", "alpha": 0.01, "delta_bic": b, "heldout_share": h}
+                  for b, h in itertools.product(DELTA_BICS, HELDOUT_SHARES)]
 
 
 def decide(ev: dict[str, Any], rule: dict[str, Any]) -> bool:
     if "unreadable" in ev:
         return False
-    lik = ev["p"] < rule["alpha"] and ev["delta_bic"] < rule["delta_bic"]
+    if rule["route"] == "bootstrap":
+        ok = ev["p_boot"] <= rule["alpha"]
+    else:
+        ok = ev["p"] < rule["alpha"] and ev["delta_bic"] < rule["delta_bic"]
     if rule["heldout_share"] is not None:
-        lik = lik and ev["gain"] > -rule["heldout_share"] * ev["lr_adj"]
-    if rule["route"] == "likelihood":
-        return bool(lik)
-    shape = ev["phase_signed"] > 120.0 and ev["half_period"] >= 5.0
-    return bool(lik or shape)
+        ok = ok and ev["gain"] > -rule["heldout_share"] * ev["lr_adj"]
+    return bool(ok)
 
 
 def name(rule: dict[str, Any]) -> str:
     h = "none" if rule["heldout_share"] is None else f"{rule['heldout_share']:g}"
-    return f"{rule['route']:19s} dBIC<{rule['delta_bic']:g} heldout={h}"
+    b = "" if rule["delta_bic"] is None else f" dBIC<{rule['delta_bic']:g}"
+    return f"{rule['route']:10s}{b:10s} heldout={h}"
 
 
 def score(items: list[dict[str, Any]], rule: dict[str, Any]) -> float:
@@ -163,7 +169,7 @@ def evaluate(paths: list[Path]) -> None:
               f"  {100 * group_score(items, r):5.1f}")
     # leave one group out: choose the rule on every other group, score it on the left-out one; two selection
     # criteria: pooled balanced accuracy over records, and the group score (each group the same weight). Ties
-    # go to the earlier rule in the list (likelihood before shape, weaker thresholds first).
+    # go to the earlier rule in the list (bootstrap before likelihood, weaker thresholds first).
     env = [e for e in items if e["kind"] == "env"]
     for crit_name, crit in (("pooled balanced accuracy", score), ("group score", group_score)):
         print(f"\nleave-one-group-out selection by {crit_name} (chosen on the other groups, scored on the left-out):")

@@ -294,14 +294,16 @@ def op_scale(op: np.ndarray) -> float:
 
 
 def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int | None = None,
-              k0: int | None = None) -> ValveFit:
-    """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J)."""
+              k0: int | None = None, extra_S: tuple[float, ...] = ()) -> ValveFit:
+    """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J); ``extra_S`` are
+    bands added to the grid (the LR scan's best band)."""
     if valve == "linear":
         pf = fit_process(pv, op, s, k1, k0)
         return ValveFit("linear", 0.0, 0.0, pf, pf.n_params)
     fracs = (0.0,) if valve == "backlash" else J_FRACTIONS
     r = op_scale(op)
-    grid = r * np.geomspace(S_FRACTIONS[0], S_FRACTIONS[1], s.n_grid)
+    grid = np.unique(np.concatenate([r * np.geomspace(S_FRACTIONS[0], S_FRACTIONS[1], s.n_grid),
+                                     [v for v in extra_S if v > 0.0]]))
 
     def best_over_j(S: float) -> tuple[float, float, float, ProcessFit]:
         cand = [(fit_process(pv, valve_path(op, S, f * S, d0), s, k1, k0), f * S, d0)
@@ -318,7 +320,7 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
             best = (ll, float(S), J, d0, pf)
     assert best is not None
     i = int(np.argmax([p[1] for p in profile]))
-    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, s.n_grid - 1)]
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
     if hi > lo:
         res = minimize_scalar(lambda v: -best_over_j(float(v))[0], bounds=(lo, hi), method="bounded",
                               options={"xatol": 2e-3 * r, "maxiter": 12})
@@ -331,5 +333,163 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
     return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile, d0)
 
 
+#: the LR scan's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md, "Decision")
+SCAN_J_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)
+SCAN_S_FRACTIONS: tuple[float, float, int] = (0.01, 3.0, 24)
+
+
+@njit(cache=True)
+def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray, q: int, alist: np.ndarray,
+              dmin: int, dmax: int, k0: int, allow_integ: bool) -> np.ndarray:  # pragma: no cover - compiled
+    """For each valve path (row of ``xs``), the least white-noise RSS of ``pv ~ K w + basis weights`` over the
+    process structures (lag, delay) on samples ``k0..``. The basis (hat functions) is given sparsely: row ``k``
+    has the values ``bval[k]`` in the columns ``bidx[k]``. A delay shifts the lag's output (the filter starts
+    at rest at ``x[0]``; for the integrator the shift adds a constant, which the basis holds)."""
+    n = pv.size
+    m = 1 + q
+    G = np.zeros((q, q))
+    Bp = np.zeros(q)
+    pp = 0.0
+    for k in range(k0, n):
+        pp += pv[k] * pv[k]
+        for u in range(bidx.shape[1]):
+            Bp[bidx[k, u]] += bval[k, u] * pv[k]
+            for v in range(bidx.shape[1]):
+                G[bidx[k, u], bidx[k, v]] += bval[k, u] * bval[k, v]
+    na = alist.size + (1 if allow_integ else 0)
+    out = np.empty(xs.shape[0])
+    w = np.empty(n)
+    A = np.empty((m, m))
+    b = np.empty(m)
+    wb = np.empty(q)
+    for ix in range(xs.shape[0]):
+        best = 1e300
+        x = xs[ix]
+        xm = x.mean()
+        for ia in range(na):
+            integ = ia == alist.size
+            a = alist[ia] if not integ else 1.0
+            w[0] = 0.0 if integ else x[0]
+            for k in range(1, n):
+                w[k] = w[k - 1] + (x[k] - xm) if integ else a * w[k - 1] + (1.0 - a) * x[k]
+            for d in range(dmin, dmax + 1):
+                ww = 0.0
+                wp = 0.0
+                wb[:] = 0.0
+                for k in range(k0, n):
+                    wk = w[k - d]
+                    ww += wk * wk
+                    wp += wk * pv[k]
+                    for u in range(bidx.shape[1]):
+                        wb[bidx[k, u]] += wk * bval[k, u]
+                A[1:, 1:] = G
+                A[0, 0] = ww
+                A[0, 1:] = wb
+                A[1:, 0] = wb
+                b[0] = wp
+                b[1:] = Bp
+                for i in range(m):
+                    A[i, i] += 1e-9 * A[i, i] + 1e-12
+                theta = np.linalg.solve(A, b)
+                rss = max(pp - np.dot(theta, b), 1e-300)
+                if rss < best:
+                    best = rss
+        out[ix] = best
+    return out
+
+
+def _sparse_basis(basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row-wise nonzero columns and values of a basis with few nonzeros per row (padded with zero values)."""
+    width = max(int((basis != 0).sum(axis=1).max()), 1)
+    idx = np.zeros((basis.shape[0], width), dtype=np.int64)
+    val = np.zeros((basis.shape[0], width))
+    for k in range(basis.shape[0]):
+        nz = np.flatnonzero(basis[k])
+        idx[k, :nz.size] = nz
+        val[k, :nz.size] = basis[k, nz]
+    return idx, val
+
+
+@dataclass
+class Scan:
+    """The LR scan: the white-noise least-squares LR statistic of the stick-slip valve (backlash included,
+    J = 0) against the linear valve, each with its best process structure (lag, delay), and the grid point
+    that attains it. The statistic ignores the noise's colour; the parametric bootstrap calibrates it."""
+
+    lr: float
+    S: float
+    J: float
+    direction: float
+
+
+def resolution(op: np.ndarray) -> float:
+    """The record's resolution of a band, % of OP: the median OP move per sample. The valve slips between two
+    samples; a band narrower than one sample's move holds the valve for less than a sample, which the record
+    cannot show (docs/loops.md, "Decision"; the same move is the band's sampling offset, "Band uncertainty")."""
+    return float(np.median(np.abs(np.diff(op))))
+
+
+def scan_paths(op: np.ndarray) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
+    """The valve paths of the scan: the linear valve first, then every (S, J, direction) of the grid."""
+    op = np.ascontiguousarray(op, dtype=float)
+    r = op_scale(op)
+    lo = max(SCAN_S_FRACTIONS[0] * r, resolution(op))
+    params: list[tuple[float, float, float]] = [(0.0, 0.0, 1.0)]
+    for S in np.geomspace(lo, max(SCAN_S_FRACTIONS[1] * r, 2.0 * lo), SCAN_S_FRACTIONS[2]):
+        for f in SCAN_J_FRACTIONS:
+            for d0 in DIRECTIONS:
+                params.append((float(S), float(f * S), d0))
+    xs = np.empty((len(params), op.size))
+    xs[0] = op
+    for i, (S, J, d0) in enumerate(params[1:], start=1):
+        _valve_path(op, S, J, d0, xs[i])
+    return xs, params
+
+
+def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float, float]]], s: Settings) -> Scan:
+    """The LR scan (:class:`Scan`) of ``pv`` over the valve ``paths`` of :func:`scan_paths`."""
+    xs, params = paths
+    pv = np.ascontiguousarray(pv, dtype=float)
+    basis = disturbance_basis(pv.size, s.dt, s.disturbance_knot_s)
+    idx, val = _sparse_basis(basis)
+    rss = _scan_rss(pv, xs, idx, val, basis.shape[1], s.alist(), s.min_delay, s.max_delay, s.k0,
+                    s.allow_integrating)
+    i = int(np.argmin(rss[1:])) + 1
+    n = pv.size - s.k0
+    lr = n * math.log(rss[0] / min(rss[i], rss[0]))
+    S, J, d0 = params[i]
+    return Scan(float(lr), S, J, d0)
+
+
+def simulate_noise(pf: ProcessFit, n: int, rng: np.random.Generator, burn: int = 200) -> np.ndarray:
+    """A draw of the fitted AR noise (innovation variance ``rss / n``), ``n`` samples."""
+    sd = math.sqrt(pf.rss / pf.n)
+    e = rng.normal(0.0, sd, n + burn)
+    v = np.zeros(n + burn)
+    for k in range(2, n + burn):
+        v[k] = pf.rho[0] * v[k - 1] + pf.rho[1] * v[k - 2] + e[k]
+    return v[burn:]
+
+
+def bootstrap_lr(op: np.ndarray, lin: ProcessFit, s: Settings, n_boot: int, seed: int = 0,
+                 paths: tuple[np.ndarray, list[tuple[float, float, float]]] | None = None,
+                 stop_at: float = math.inf) -> np.ndarray:
+    """Parametric bootstrap of the scan's LR statistic under the linear valve (docs/loops.md, "Decision"):
+    up to ``n_boot`` records of the fitted linear loop (the recorded OP, the fitted process and slow
+    disturbance, fresh AR noise of the fitted order and variance), each scanned like the record. Stops after
+    the first replicate at or above ``stop_at`` (the observed statistic: the test's decision is then settled,
+    Besag & Clifford 1991)."""
+    rng = np.random.default_rng(seed)
+    mean = simulate(op, lin)
+    paths = scan_paths(op) if paths is None else paths
+    out: list[float] = []
+    for _ in range(n_boot):
+        out.append(scan_valve(mean + simulate_noise(lin, op.size, rng), paths, s).lr)
+        if out[-1] >= stop_at:
+            break
+    return np.asarray(out)
+
+
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
-           "refit_gain", "simulate", "residuals", "op_scale", "concentrated_loglik"]
+           "refit_gain", "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
+           "scan_paths", "resolution", "bootstrap_lr", "simulate_noise"]
