@@ -50,6 +50,14 @@ value); runaways that scatter widely inflate the robust sd itself and pass it. T
 correction therefore also asks the re-estimates to look normal (Shapiro-Wilk p >= ``NORMAL_P``,
 0.001): a heavy-tailed or split set is not bias-corrected (its mean is not a centre to trust), and
 its sd is the root-mean-square error about the estimate; ``normality_p`` reports the p-values.
+
+The bootstrap's world takes the smoothed temperatures as the truth, so it cannot see the bias the
+smoothing itself puts into an effect (the IRW-RTS smoother made sensor lags about 1 % short on the
+independent simulator, where the true temperatures gave them back). A named smooth effect therefore
+also gets the pre-processing bracket (:func:`apply_bootstrap`): it is refitted on TV-denoised
+temperatures, that refit is the estimate, and half the two pre-processings' difference is added to
+its sd (docs/uncertainty.md, "Issue 20, fourth round"). The bootstrap is the estimation's facility:
+:meth:`valve_env.estimation.estimator.ValveEstimator.bootstrap` runs it and :func:`apply_bootstrap`.
 """
 
 from __future__ import annotations
