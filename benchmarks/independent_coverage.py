@@ -25,7 +25,9 @@ study; 20261123 before it), effects 20261124; the project generator's runs use
 20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301. Issue 20's third
 round (docs/uncertainty.md, "Named effects"): held out 20261201 (effects, independent),
 20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
-development.
+development. Fourth round (the named effects' pre-processing bracket): development 7700, 7702
+(independent), 7701 (project); held out 20261125 (effects, independent) and 20261126 (effects,
+project), run once with the final code.
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
