@@ -25,7 +25,9 @@ study; 20261123 before it), effects 20261124; the project generator's runs use
 20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301. Issue 20's third
 round (docs/uncertainty.md, "Named effects"): held out 20261201 (effects, independent),
 20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
-development.
+development. Fourth round (the named effects' pre-processing bracket): development 7700, 7702
+(independent), 7701 (project); held out 20261125 (effects, independent) and 20261126 (effects,
+project), run once with the final code.
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
@@ -178,6 +180,9 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "std_robust": (js.get("std_robust") or {}).get(name, float("nan")),
                     "std_bootstrap": (unc.get("bootstrap_std") or {}).get(name, float("nan")),
                     "std_from": (unc.get("std_from") or {}).get(name, ""),
+                    # the two pre-processings' estimates (the errors-in-variables bracket), where taken
+                    "irw_value": ((unc.get("preprocessing") or {}).get("irw") or {}).get(name, float("nan")),
+                    "tv_value": ((unc.get("preprocessing") or {}).get("tv") or {}).get(name, float("nan")),
                     "misspecified": mis.get("misspecified"),
                     "ljung_box_p": ((mis.get("outputs") or {}).get("x_mm") or {}).get("ljung_box_p")})
     elif d.cause != "none":
@@ -287,20 +292,32 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
 
 #: the sds of a named effect that the effects study compares (issue 20: "chosen by measured coverage")
 EFFECT_SDS: dict[str, str] = {
-    "reported": "the JSON's std (the bootstrap, at least the inverse-Hessian/HAC sd)",
+    "reported": "the JSON's std (smooth effects: the TV refit, max(bootstrap, Hessian/HAC) (+) half the IRW-TV "
+                "difference; stiction's band: the bootstrap)",
     "hessian": "inverse Hessian (std_hessian)",
     "robust": "HAC sandwich of the per-sample scores (std_robust)",
-    "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std)",
+    "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std), about the IRW ML estimate "
+                 "(stiction's band: about its bias-corrected estimate)",
+    "tv_bootstrap": "the TV refit with the bootstrap's sd alone (no IRW-TV term; smooth effects)",
 }
 
 
 def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
     """Coverage of each candidate sd over named runs."""
-    key = {"reported": "std_value", "hessian": "std_hessian", "robust": "std_robust", "bootstrap": "std_bootstrap"}
-    # the likelihood's sds about the ML estimate, the bootstrap's about its (bias-corrected) estimate
-    centre = {"reported": "estimate_value", "hessian": "ml_value", "robust": "ml_value", "bootstrap": "estimate_value"}
-    return {name: _coverage([_z(r.get(centre[name], r["estimate_value"]), r["true_value"],
-                                r.get(key[name], float("nan"))) for r in rs]) for name in EFFECT_SDS}
+    key = {"reported": "std_value", "hessian": "std_hessian", "robust": "std_robust", "bootstrap": "std_bootstrap",
+           "tv_bootstrap": "std_bootstrap"}
+    # the likelihood's sds about the ML estimate; stiction's band has no ML estimate (measured from the slips):
+    # its bootstrap is about the bias-corrected estimate (the reported one)
+    centre = {"reported": "estimate_value", "hessian": "ml_value", "robust": "ml_value", "bootstrap": "ml_value",
+              "tv_bootstrap": "tv_value"}
+
+    def centre_of(r: dict[str, Any], name: str) -> float:
+        if r["effect"] == "stiction" and name == "bootstrap":
+            return float(r["estimate_value"])
+        return float(r.get(centre[name], r["estimate_value"]))
+
+    return {name: _coverage([_z(centre_of(r, name), r["true_value"], r.get(key[name], float("nan"))) for r in rs])
+            for name in EFFECT_SDS}
 
 
 def pooled_effects(results: list[dict[str, Any]]) -> dict[str, Any]:

@@ -48,9 +48,15 @@ def test_diagnose_writes_spec_json_and_report(good: Path, tmp_path: Path, capsys
     u = f0["uncertainty"]
     assert 0 <= u["dropped_replicates"] <= 8 and "band_replicates" not in u
     assert u["split_replicates"] is False
-    # the reported sd: the bootstrap's, with the inverse-Hessian/HAC sd as a floor
+    # the reported sd: the bootstrap's, with the inverse-Hessian/HAC sd as a floor, and the pre-processing
+    # bracket (the estimate refitted on TV-denoised temperatures, half the IRW-TV difference added)
     src = u["std_from"]["beta"]
-    assert f0["std"]["beta"] == u[f"{src}_std"]["beta"] == max(u["bootstrap_std"]["beta"], u["hessian_std"]["beta"])
+    assert src in ("bootstrap+bracket", "hessian+bracket")
+    sd0 = u[f"{src.split('+')[0]}_std"]["beta"]
+    assert sd0 == max(u["bootstrap_std"]["beta"], u["hessian_std"]["beta"])
+    pre = u["preprocessing"]
+    assert f0["params"]["beta"] == pre["tv"]["beta"] and pre["irw"]["beta"] == u["uncorrected_estimate"]["beta"]
+    assert f0["std"]["beta"] == pytest.approx(float(np.hypot(sd0, 0.5 * (pre["tv"]["beta"] - pre["irw"]["beta"]))))
     assert 0 < f0["std"]["beta"] < 0.25 * f0["params"]["beta"]
     assert j["findings"][1]["uncertainty"] is None
     report = tmp_path / "out.md"

@@ -198,3 +198,78 @@ def test_valve_estimator_wraps_each_likelihood_without_changing_its_numbers() ->
     assert oe.n_free_ == res.n_free == 6 and oe.aic_ == pytest.approx(-2.0 * res.loglik + 12.0)
     assert abs(oe.params_["sigma"] / ekf.params_["sigma"] - 1.0) < 0.1  # the two likelihoods agree on sigma
     assert list(oe.summary().index) == list(oe.params_)
+
+
+def test_one_hac_meat_serves_both_sandwiches() -> None:
+    """The HAC meat has one home (covariance.hac_meat): the EKF's sandwich (robust.robust_std) and the
+    output error's (covariance.hessian_sandwich_parts) both take it; no other module calls statsmodels'
+    S_hac_simple."""
+    users = sorted(rel for rel in _modules() if "S_hac" in (PKG / rel).read_text(encoding="utf-8"))
+    assert users == ["estimation/covariance.py"]
+    assert _imports(_tree("estimation/robust.py")).get("hac_meat") == "valve_env.estimation.covariance"
+    rng = np.random.default_rng(1)
+    G = rng.standard_normal((300, 3)) + 0.3
+    assert np.array_equal(covariance.hac_meat(G, 0, demean=False), G.T @ G)  # Huber-White's outer product
+    Gc = G - G.mean(axis=0)
+    assert np.allclose(covariance.hac_meat(G, 0), Gc.T @ Gc)
+    assert not np.allclose(covariance.hac_meat(G, 3), covariance.hac_meat(G, 3, demean=False))
+
+
+def test_the_diagnosis_fits_and_bootstraps_through_the_estimator() -> None:
+    """diagnose.py makes every fit with ValveEstimator(...).fit(...) and reaches the bootstrap through
+    the estimator's bootstrap method (the estimation's facility), not by calling the diagnosis's
+    fitting.Model or the bootstrap function itself."""
+    tree = _tree("diagnosis/diagnose.py")
+    imports = _imports(tree)
+    assert imports.get("ValveEstimator") == "valve_env.estimation.estimator"
+    assert "bootstrap" not in imports
+    fits = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute)
+            and n.func.attr == "fit"]
+    assert fits
+    for n in fits:
+        inner = n.func.value  # type: ignore[attr-defined]
+        assert isinstance(inner, ast.Call) and getattr(inner.func, "id", None) == "ValveEstimator", ast.unparse(n)
+    calls = _calls(tree)
+    assert "bootstrap" in calls and "apply_bootstrap" not in calls
+
+
+def test_valve_estimator_takes_the_framework_container() -> None:
+    """A prepared RunData (e.g. a training slice) is an input of the output-error estimator, with the
+    same numbers as the DataFrame it came from; the EKF refuses it."""
+    from valve_env.estimation.data import RunData
+
+    df = simulate_experiment(seed=12, duration_h=3.0, dt_s=20.0, T_noise_C=0.005, x_noise_mm=2.0e-3)
+    a = ValveEstimator(likelihood="output_error", with_std=False).fit(df)
+    run = RunData.from_frame(df)
+    b = ValveEstimator(likelihood="output_error", with_std=False).fit(run)
+    assert a.params_ == b.params_ and a.loglik_ == b.loglik_ and b.data_ is run
+    with pytest.raises(ValueError, match="output_error"):
+        ValveEstimator().fit(run)
+    with pytest.raises(ValueError, match="output_error"):
+        ValveEstimator(n_starts=1, hessian=False).fit(df).bootstrap(2)
+
+
+@pytest.mark.slow
+def test_valve_estimator_bootstrap_is_the_diagnosis_bootstrap() -> None:
+    """fit(...).bootstrap(B) returns self and sets what the diagnosis reports for a named effect: the
+    TV refit's estimate (the pre-processing bracket), the sd at least the inverse Hessian's and at
+    least half the IRW-TV difference; without effects it bootstraps the base parameters, unbracketed."""
+    from valve_env.diagnosis import uncertainty
+    from valve_env.estimation.data import RunData
+
+    df = simulate_experiment(seed=5, duration_h=4.0, dt_s=20.0, effects={"sensor_lag": {"tau_s": 60.0}},
+                             T_noise_C=0.005, x_noise_mm=2.0e-3)
+    run = RunData.from_frame(df)
+    est = ValveEstimator(("sensor_lag",), likelihood="output_error").fit(run)
+    irw, sd_h = est.params_["tau_s"], est.std_["tau_s"]
+    assert est.bootstrap(3) is est
+    assert est.bootstrap_.B == 3 and est.bootstrap_.names == ["tau_s"]
+    assert est.std_from_["tau_s"].endswith("+bracket")
+    tv = est.result_.extra["tv_tau_s"]
+    assert est.params_["tau_s"] == tv and est.result_.extra["irw_tau_s"] == irw
+    assert est.std_["tau_s"] >= max(sd_h, 0.5 * abs(tv - irw))
+    refit = uncertainty.preprocessing_refit(est.backend_, run, est.result_, ["tau_s"])
+    assert math.isfinite(refit["tau_s"]) and abs(refit["tau_s"] / 60.0 - 1.0) < 0.1
+    base = ValveEstimator(likelihood="output_error").fit(run.slice(0, 400)).bootstrap(2)
+    assert base.bootstrap_.names == ["sigma", "F_hmax", "p_bset"]
+    assert all(not s.endswith("+bracket") for s in base.std_from_.values())

@@ -54,6 +54,7 @@ from scipy import stats
 from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
 from valve_env.diagnosis.effects import EFFECTS, check_effects
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
+from valve_env.estimation.estimator import ValveEstimator
 from valve_env.params import ValveParams
 
 MIN_SAMPLES = 200
@@ -124,6 +125,9 @@ class Finding:
 
     effect: str
     fit: FitResult
+    #: the estimation's estimator that made ``fit`` (its ``result_``); its ``bootstrap`` gives the named
+    #: effect's std
+    estimator: ValveEstimator | None
     reference: tuple[str, ...]
     lr_stat: float
     p_value: float
@@ -286,33 +290,39 @@ def _held_out(model: Model, data: RunData, values: dict[str, float], a: int, b: 
     return float(np.sqrt(np.mean(nu_v**2))), ll, sim
 
 
+def _fit(effects: tuple[str, ...], valve: ValveParams, train: RunData,
+         start: dict[str, float] | None = None) -> ValveEstimator:
+    """The output-error fit of the valve with ``effects`` (the estimation's estimator)."""
+    return ValveEstimator(effects, likelihood="output_error", valve=valve, start=start).fit(train)
+
+
 def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: RunData, valid: RunData,
          vr: tuple[int, int], valve: ValveParams, alpha: float, ref_val: tuple[float, float, float],
          warm: dict[str, float] | None, min_gain: float, min_size: float,
-         previous: FitResult | None = None) -> Finding:
+         previous: Finding | None = None) -> Finding:
     effects = tuple(e for e in EFFECTS if e in (*ref_effects, effect))  # canonical order
-    model = Model(effects, valve)
-    if previous is not None:
+    if previous is not None and previous.estimator is not None:
         # a second round after the base fit improved: continue from the previous fit of this candidate
-        fit = model.fit(train, start=previous.params)
-        if previous.loglik > fit.loglik:
-            fit = previous
+        est = _fit(effects, valve, train, previous.fit.params)
+        if previous.fit.loglik > est.result_.loglik:
+            est = previous.estimator
     elif not ref_effects:
         # from the paper's values (a strong effect can pull the base fit far from the truth), and from
         # the base fit where that is better (the extension contains the base model: never worse)
-        fit = model.fit(train)
-        if fit.loglik < ref_fit.loglik + 1.0:
-            alt = model.fit(train, start={**ref_fit.params, **(warm or {})})
-            fit = alt if alt.loglik > fit.loglik else fit
+        est = _fit(effects, valve, train)
+        if est.result_.loglik < ref_fit.loglik + 1.0:
+            alt = _fit(effects, valve, train, {**ref_fit.params, **(warm or {})})
+            est = alt if alt.result_.loglik > est.result_.loglik else est
     else:
-        fit = model.fit(train, start={**ref_fit.params, **(warm or {})})
+        est = _fit(effects, valve, train, {**ref_fit.params, **(warm or {})})
+    model, fit = est.backend_, est.result_
     lr = max(2.0 * (fit.loglik - ref_fit.loglik), 0.0)
     k = len(EFFECTS[effect].parameters)
     p = _p_value(lr, (effect,))
     n = train.t.shape[0]
     v_rms, v_ll, v_sim = _held_out(model, valid, fit.params, *vr)
     f = Finding(
-        effect=effect, fit=fit, reference=ref_effects, lr_stat=lr, p_value=p, delta_aic=2 * k - lr,
+        effect=effect, fit=fit, estimator=est, reference=ref_effects, lr_stat=lr, p_value=p, delta_aic=2 * k - lr,
         delta_bic=k * math.log(n) - lr, rms_before_mm=ref_fit.rms_mm, rms_after_mm=fit.rms_mm,
         validation_rms_before_mm=ref_val[0], validation_rms_after_mm=v_rms,
         validation_loglik_gain=v_ll - ref_val[1], validation_sim_rms_before_mm=ref_val[2],
@@ -363,35 +373,34 @@ def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[
             best, best_ll = vals, ll
     if best is None:
         return None
-    refit = base_model.fit(train, start=best)
+    refit = _fit((), base_model.valve, train, best).result_
     return refit if refit.loglik > base.loglik else None
 
 
-def _bootstrap_finding(f: Finding, train: RunData, valve: ValveParams, B: int) -> None:
-    """Replace the effect parameters' std of an accepted finding by the model-based bootstrap's."""
-    from valve_env.diagnosis.uncertainty import METHOD, NORMAL_P, bootstrap
+def _bootstrap_finding(f: Finding, B: int) -> None:
+    """Replace the effect parameters' std of an accepted finding by the model-based bootstrap's
+    (:meth:`valve_env.estimation.estimator.ValveEstimator.bootstrap`, the estimation's facility)."""
+    from valve_env.diagnosis.uncertainty import METHOD, NORMAL_P
 
-    model = Model(f.fit.effects, valve)
-    b = bootstrap(model, train, f.fit, B=B)
-    f.fit.extra.update({f"hessian_std_{k}": float(f.fit.std.get(k, float("nan"))) for k in b.names})
-    # the inverse-Hessian/HAC sd is a floor: where the likelihood is flat along a ridge (a slow drift of
-    # the set point against a slow model error), refits started at the bootstrap world's truth stop near
-    # it and the replicates understate the spread the ridge allows
-    source = {}
-    for k, v in b.std.items():
-        h = f.fit.extra[f"hessian_std_{k}"]
-        floor = math.isfinite(h) and h > v
-        f.fit.std[k] = h if floor else v
-        source[k] = "hessian" if floor else "bootstrap"
-        f.fit.params[k] = b.corrected[k]
+    assert f.estimator is not None
+    f.estimator.bootstrap(B)
+    b, source = f.estimator.bootstrap_, f.estimator.std_from_
     aside = f", {b.dropped} failed refit(s) set aside" if b.dropped else ""
     aside += "; the re-estimates split into groups, not bias-corrected" if b.split else ""
     skewed = [k for k, v in b.normality_p.items() if v < NORMAL_P and not b.split]
     aside += f"; re-estimates of {', '.join(skewed)} far from normal, not bias-corrected" if skewed else ""
-    f.std_method = (f"{METHOD} (B={B}{aside}; bias-corrected where the bias is clear, else RMS error of the "
-                    "re-estimates; at least the inverse-Hessian/HAC sd)")
+    bracket = [k for k in b.names if f"tv_{k}" in f.fit.extra]
+    how = ("bias-corrected where the bias is clear, else RMS error of the re-estimates; at least the "
+           "inverse-Hessian/HAC sd")
+    if bracket:
+        how = (f"{', '.join(bracket)}: refitted on TV-denoised temperatures, sd the larger of the bootstrap's and "
+               "the inverse-Hessian/HAC sd with half the IRW-TV difference added in quadrature; others " + how)
+    f.std_method = f"{METHOD} (B={B}{aside}; {how})"
     f.uncertainty = {**b.to_json(), "bootstrap_std": {k: float(v) for k, v in b.std.items()},
                      "hessian_std": {k: f.fit.extra[f"hessian_std_{k}"] for k in b.names}, "std_from": source}
+    if bracket:
+        f.uncertainty["preprocessing"] = {"irw": {k: f.fit.extra[f"irw_{k}"] for k in bracket},
+                                          "tv": {k: f.fit.extra[f"tv_{k}"] for k in bracket}}
 
 
 def rank_key(f: Finding) -> tuple[bool, float]:
@@ -465,8 +474,8 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         vr = (n_train, len(full))
         mode = f"hold-out: last {holdout:.0%} of the run"
 
-    base_model = Model((), valve)
-    base = base_model.fit(train)
+    base_est = _fit((), valve, train)
+    base_model, base = base_est.backend_, base_est.result_
     base_val = _held_out(base_model, valid, base.params, *vr)
     tick("base model")
 
@@ -496,7 +505,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 base_val = _held_out(base_model, valid, base.params, *vr)
                 ref_fit, ref_val = base, base_val
                 step = [_try(f.effect, (), base, train, valid, vr, valve, alpha, base_val,
-                             f.fit.effect_params, min_validation_gain, min_effect_size, f.fit) for f in step]
+                             f.fit.effect_params, min_validation_gain, min_effect_size, f) for f in step]
         step.sort(key=rank_key)
         steps.append(step)
         if not selected:
@@ -518,9 +527,10 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
             # issue 20: sandwich beside the Hessian, and the misspecification check (at the ML estimate)
             from valve_env.diagnosis.uncertainty import robust_finding
 
-            best.robust = robust_finding(Model(best.fit.effects, valve), train, best.fit)
+            assert best.estimator is not None
+            best.robust = robust_finding(best.estimator.backend_, train, best.fit)
             if bootstrap_B > 0:
-                _bootstrap_finding(best, train, valve, bootstrap_B)
+                _bootstrap_finding(best, bootstrap_B)
                 tick(f"bootstrap {best.effect}")
     final = ref_fit
     final_val = ref_val[0]

@@ -175,6 +175,11 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
                   f"blocks as the opening's noise, white resting noise with stiction; temperature smoothing "
                   f"included), or the inverse-Hessian/HAC sd where that is larger; bias of the re-estimates "
                   f"{bias}; basic bootstrap 95 % interval {ci}; inverse-Hessian/HAC sd {hess}.", ""]
+            pre = u.get("preprocessing") or {}
+            if pre:
+                both = ", ".join(f"{k} {_fmt(pre['irw'][k])} (IRW-RTS) / {_fmt(v)} (TV)" for k, v in pre["tv"].items())
+                L += [f"*Pre-processing:* refitted on TV-denoised temperatures (the estimate above), half the "
+                      f"difference added to the sd (errors in variables, docs/uncertainty.md): {both}.", ""]
         else:
             L += [f"*Uncertainty:* {f.std_method}.", ""]
         L += [f"*Physics:* {eff.physics}", "",

@@ -113,11 +113,19 @@ def newey_west_lags(n: int) -> int:
     return int(np.floor(4.0 * (n / 100.0) ** (2.0 / 9.0)))
 
 
-def hac_meat(G: np.ndarray, nlags: int | None = None) -> np.ndarray:
-    """Newey-West (Bartlett kernel) long-run covariance of the rows of ``G`` (per-sample scores,
-    demeaned here); ``nlags`` defaults to :func:`newey_west_lags`."""
+def hac_meat(G: np.ndarray, nlags: int | None = None, *, demean: bool = True) -> np.ndarray:
+    """Newey-West (Bartlett kernel) long-run covariance of the rows of ``G`` (per-sample scores);
+    ``nlags`` defaults to :func:`newey_west_lags`, 0 gives Huber-White's outer product ``G' G``.
+
+    The one HAC meat of the project (statsmodels' ``S_hac_simple``): the output-error sandwich
+    (:func:`hessian_sandwich_parts`) takes it about the scores' mean (``demean``, the default), the
+    EKF's (:func:`valve_env.estimation.robust.robust_std`) about zero, the scores' expectation at the
+    maximum (``demean=False``). At an interior maximum the mean score is zero to the optimiser's
+    tolerance, so the two agree there."""
     G = np.asarray(G, dtype=float)
-    return np.asarray(S_hac_simple(G - G.mean(axis=0), nlags=nlags))
+    if demean:
+        G = G - G.mean(axis=0)
+    return np.asarray(S_hac_simple(G, nlags=nlags))
 
 
 def score_matrix(contrib: Callable[[np.ndarray], np.ndarray], z: np.ndarray, h: float) -> np.ndarray:

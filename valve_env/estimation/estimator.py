@@ -62,13 +62,46 @@ class ValveEstimator(Estimator):
         if self.start and likelihood != "output_error":
             raise ValueError("start values are an option of the output_error likelihood only")
 
-    def fit(self, data: pd.DataFrame | str | os.PathLike[str]) -> ValveEstimator:
+    def fit(self, data: pd.DataFrame | RunData | str | os.PathLike[str]) -> ValveEstimator:
+        """Fit to a run: a path (read by the loader), a DataFrame (validated) or, for the output error,
+        the framework's prepared :class:`~valve_env.estimation.data.RunData` (used as it is, e.g. a
+        training slice). Returns ``self``."""
+        if isinstance(data, RunData):
+            if self.likelihood != "output_error":
+                raise ValueError("a prepared RunData is an input of the output_error likelihood only")
+            self._fit_output_error(data)
+            return self
         df = load_run(data, self.valve) if isinstance(data, (str, os.PathLike)) else validate_run(data,
                                                                                                   valve=self.valve)
         if self.likelihood == "ekf":
             self._fit_ekf(df)
         else:
-            self._fit_output_error(df)
+            self._fit_output_error(RunData.from_frame(df, str(df.attrs.get("source", "run"))))
+        return self
+
+    def bootstrap(self, B: int = 16, seed: int = 0, params: tuple[str, ...] | list[str] | None = None
+                  ) -> ValveEstimator:
+        """The calibrated uncertainty of a fitted output-error estimator: the model-based bootstrap of the
+        whole chain (:func:`valve_env.diagnosis.uncertainty.bootstrap`, ``B`` replicates, temperature
+        smoothing included) with the pre-processing bracket, applied as the diagnosis applies it to a
+        named effect (:func:`valve_env.diagnosis.uncertainty.apply_bootstrap`: ``std_`` of ``params``
+        the bootstrap's sd, at least the inverse-Hessian/HAC sd, and ``params_`` bias-corrected where
+        the bias is clear). ``params``: default the effects' parameters, or the base model's
+        ``sigma``, ``F_hmax``, ``p_bset`` without effects. Returns ``self``; ``bootstrap_`` holds the
+        replicates and their summary, ``std_from_`` where each sd came from."""
+        from valve_env.diagnosis.uncertainty import apply_bootstrap, bootstrap
+
+        self._check()
+        if self.likelihood != "output_error":
+            raise ValueError("the bootstrap is an option of the output_error likelihood")
+        names = list(params) if params is not None else None
+        if names is None and not self.effects:
+            names = ["sigma", "F_hmax", "p_bset"]
+        b = bootstrap(self.backend_, self.data_, self.result_, B=B, seed=seed, names=names)
+        self.std_from_ = apply_bootstrap(self.backend_, self.data_, self.result_, b)
+        self.bootstrap_ = b
+        self.params_ = dict(self.result_.params)
+        self.std_ = {k: v for k, v in self.result_.std.items() if k not in self.fixed}
         return self
 
     def _fit_ekf(self, df: pd.DataFrame) -> None:
@@ -89,11 +122,10 @@ class ValveEstimator(Estimator):
         self.converged_ = bool(est.converged_)
         self.rms_ = dict(est.rms_)
 
-    def _fit_output_error(self, df: pd.DataFrame) -> None:
+    def _fit_output_error(self, run: RunData) -> None:
         from valve_env.diagnosis.fitting import Model
 
-        run = RunData.from_frame(df, str(df.attrs.get("source", "run")))
-        model = Model(self.effects, self.valve)
+        model = Model(tuple(self.effects), self.valve)
         res = model.fit(run, start=self.start or None, fixed=self.fixed or None, **self.options)
         self.backend_ = model
         self.result_ = res

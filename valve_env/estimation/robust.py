@@ -12,7 +12,7 @@ different friction law, ...) they are not, and
     cov = H^-1 M H^-1,    M = sum_k g_k g_k' + sum_{l=1..L} w_l sum_k (g_k g_{k-l}' + g_{k-l} g_k')
 
 (Huber 1967, White 1982; with L > 0 the Newey-West HAC form, Bartlett weights
-w_l = 1 - l / (L + 1), statsmodels' ``S_hac_simple``) is consistent for the
+w_l = 1 - l / (L + 1), :func:`valve_env.estimation.covariance.hac_meat`) is consistent for the
 estimator's covariance (the quasi-ML, "sandwich" covariance). ``H^-1`` is the fit's
 inverse Hessian (``MLEstimator.cov_work_``). ``lags=0`` gives Huber-White.
 
@@ -32,9 +32,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from statsmodels.stats.sandwich_covariance import S_hac_simple
 
-from valve_env.estimation.covariance import newey_west_lags
+from valve_env.estimation.covariance import hac_meat, newey_west_lags
 from valve_env.estimation.diagnostics import residual_report
 from valve_env.estimation.filters import FilterResult, run_filter
 from valve_env.estimation.fit import MLEstimator, NotFittedError
@@ -128,7 +127,7 @@ def robust_std(est: MLEstimator, *, lags: int | None = None, scores: pd.DataFram
     names = list(G.columns)
     n = len(G)
     L = newey_west_lags(n) if lags is None else int(lags)
-    M = S_hac_simple(G.to_numpy(), nlags=L) if L > 0 else G.to_numpy().T @ G.to_numpy()
+    M = hac_meat(G.to_numpy(), L, demean=False)
     C = est.cov_work_.loc[names, names].to_numpy()
     V = C @ M @ C
     sd_w = np.sqrt(np.clip(np.diag(V), 0.0, None))
