@@ -47,13 +47,16 @@ _dahl_update = njit(cache=True)(phys.dahl_update)
 LOG2PI = math.log(2.0 * math.pi)
 SQRT2 = math.sqrt(2.0)
 #: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
-BAND_SPREAD = 0.5
+BAND_SPREAD = 0.3
 #: sd of the landing position after a slip relative to the band: the (S, J = S) stem lands on the demand, so
 #: this only absorbs the simulated demand's error (0.5, as the earlier re-sticking filter used, peaked at 1.3
 #: times the band on exact stick-slip data; 0.2 at the band)
 LANDING_SD = 0.2
 #: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
 DECIDE_MOVING = 0.5
+#: the prior slip probability (from the demand's distance alone) at which the filter decides, between two
+#: measurements, that the stem has slipped: the demand is 3.1 sd of the breakaway band beyond it
+DECIDE_PRIOR = 0.999
 #: log-likelihood ratio at which a measurement overturns the stick-slip filter's decision that the stem moves
 STUCK_LLR = 2.0
 
@@ -439,6 +442,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     p_slip = 0.0
     s_alt = ms
     s_hold = ms
+    s_rest = ms
     was_moving = False
     x_prev = ms
     c = stick_demand(x_sub, sub_idx, stroke) if band > 0.0 else x_sub
@@ -493,29 +497,46 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
                 dmax = ad
                 if pi > 1e-12:
+                    if p_slip == 0.0:
+                        s_rest = ms  # where it rests, the "still stuck" outcome
                     # moment-matched mixture of "still stuck" and "slipped onto the demand"
                     ms = ms + pi * d
                     Pss = (1.0 - pi) * Pss + pi * vl + pi * (1.0 - pi) * d * d
                     Pes = (1.0 - pi) * Pes
                     p_slip = 1.0 - (1.0 - p_slip) * (1.0 - pi)
-                    if p_slip >= DECIDE_MOVING:
-                        moving = True  # decided: it has broken away and now moves with the demand
-                        s_alt = ms - pi * d  # where it would be had it not slipped
+                    if p_slip >= DECIDE_PRIOR:
+                        # the demand has moved so far beyond the band that the slip is certain without a
+                        # measurement: it lands on the demand and follows it
+                        moving = True
+                        p_slip = 1.0
+                        s_alt = s_rest
+                        ms = xd
+                        Pss = vl
+                        Pes = 0.0
         S = Pee + 2.0 * Pes + Pss + vw
         nu = y[k] - ms - me
+        # the measurement is scored against the prediction made before it was seen (the prediction-error
+        # decomposition); a decision it overturns acts from its own update on
+        nu_score = nu
+        S_score = S
         if mask[k] and band > 0.0 and k > 0:
             if moving:
                 # the decision revisited: a measurement that says much more clearly (log-likelihood ratio
                 # above STUCK_LLR) that the stem stayed where it stuck overturns it
                 nu_s = y[k] - s_alt - me
                 nu_h = y[k] - s_hold - me
-                if (nu * nu - nu_s * nu_s) / (2.0 * S) > STUCK_LLR:
+                # a stem can rest only within its breakaway band of the demand (3 sd of the band's spread
+                # above it): beyond, the model has no "stuck" outcome, and with band -> 0 none (nested)
+                reach = band * (1.0 + 3.0 * spread)
+                x_k = x_sub[sub_idx[k]]
+                if abs(x_k - s_alt) <= reach and (nu * nu - nu_s * nu_s) / (2.0 * S) > STUCK_LLR:
                     moving = False
                     p_slip = 0.0
                     ms = s_alt
                     nu = nu_s
                     dmax = abs(x_sub[sub_idx[k]] - ms)
-                elif was_moving and (nu * nu - nu_h * nu_h) / (2.0 * S) > STUCK_LLR:
+                elif (was_moving and abs(x_k - s_hold) <= reach
+                      and (nu * nu - nu_h * nu_h) / (2.0 * S) > STUCK_LLR):
                     # a stem that moved at the last sample may have stuck since without a reversal of the
                     # demand (a stem that re-sticks after every slip, or at a pause of the demand)
                     moving = False
@@ -523,10 +544,49 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     ms = s_hold
                     nu = nu_h
                     dmax = abs(x_sub[sub_idx[k]] - ms)
-        innov[k] = nu
-        Sout[k] = S
+            elif p_slip > 0.0:
+                # has it slipped? The slip probability since it rested, updated by the measurement (Bayes:
+                # "on the demand" against "where it rested"); decided at DECIDE_MOVING, when the stem lands on
+                # the demand and follows it, else the moment-matched mixture with the updated probability.
+                # A slip probability that grew from the prior alone while the measurements said "still
+                # resting" once decided a slip six samples early, and the stem held at the mixture's mean
+                # then missed the real slip (caught four samples late, docs/diagnosis.md)
+                x_k = min(max(x_sub[sub_idx[k]], 0.0), stroke)
+                S_m = Pee + vl + vw
+                S_r = Pee + vw
+                nu_m = y[k] - x_k - me
+                nu_r = y[k] - s_rest - me
+                llr = 0.5 * (math.log(S_r / S_m) + nu_r * nu_r / S_r - nu_m * nu_m / S_m)
+                llr = min(max(llr, -700.0), 700.0)
+                odds = p_slip / max(1.0 - p_slip, 1e-300) * math.exp(llr)
+                p_post = odds / (1.0 + odds) if odds < 1e300 else 1.0
+                if p_post >= DECIDE_MOVING:
+                    moving = True
+                    p_slip = 1.0
+                    s_alt = s_rest
+                    ms = x_k
+                    Pss = vl
+                    Pes = 0.0
+                else:
+                    p_slip = p_post
+                    dd = x_k - s_rest
+                    ms = s_rest + p_post * dd
+                    Pss = p_post * vl + p_post * (1.0 - p_post) * dd * dd
+                    Pes = (1.0 - p_post) * Pes
+                nu = y[k] - ms - me
+                S = Pee + 2.0 * Pes + Pss + vw
+        elif band > 0.0 and k > 0 and not moving and p_slip >= DECIDE_MOVING:
+            # no measurement: decided by the prior slip probability
+            moving = True
+            p_slip = 1.0
+            s_alt = s_rest
+            ms = min(max(x_sub[sub_idx[k]], 0.0), stroke)
+            Pss = vl
+            Pes = 0.0
+        innov[k] = nu_score
+        Sout[k] = S_score
         if mask[k]:
-            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+            ll += -0.5 * (LOG2PI + math.log(S_score) + nu_score * nu_score / S_score)
             ke = (Pee + Pes) / S
             ks = (Pes + Pss) / S
             me = me + ke * nu
