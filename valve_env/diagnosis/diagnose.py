@@ -520,7 +520,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
             # issue 20: sandwich beside the Hessian, and the misspecification check (at the ML estimate)
             from valve_env.diagnosis.uncertainty import robust_finding
 
-            best.robust = robust_finding(Model(best.fit.effects, valve), train, best.fit)
+            best.robust = robust_finding(Model(best.fit.effects, valve), train, best.fit, bootstrap_sd=bootstrap_B > 0)
             if bootstrap_B > 0:
                 _bootstrap_finding(best, train, valve, bootstrap_B)
                 tick(f"bootstrap {best.effect}")
