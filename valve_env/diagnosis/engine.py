@@ -46,13 +46,16 @@ _demanded_opening = njit(cache=True)(phys.demanded_opening)
 _dahl_update = njit(cache=True)(phys.dahl_update)
 LOG2PI = math.log(2.0 * math.pi)
 SQRT2 = math.sqrt(2.0)
-#: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
+#: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next; with
+#: the measurement-updated slip probability 0.5 left the likelihood nearly flat below the band, peak at 0.7 band
+#: on the exact (S, J) run of tests/diagnosis/test_uncertainty.py; 0.3 and 0.2 peak at 0.85 band)
 BAND_SPREAD = 0.3
 #: sd of the landing position after a slip relative to the band: the (S, J = S) stem lands on the demand, so
 #: this only absorbs the simulated demand's error (0.5, as the earlier re-sticking filter used, peaked at 1.3
 #: times the band on exact stick-slip data; 0.2 at the band)
 LANDING_SD = 0.2
-#: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
+#: the probability of a slip since the stem last stuck, updated by the measurement, at which the stick-slip
+#: filter decides that it has slipped and moves
 DECIDE_MOVING = 0.5
 #: the prior slip probability (from the demand's distance alone) at which the filter decides, between two
 #: measurements, that the stem has slipped: the demand is 3.1 sd of the breakaway band beyond it
@@ -406,16 +409,24 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     stem slips with the probability of breakaway *in this sub-step*, landing on the demand with an
     uncertainty of ``landing * band`` (sd). The breakaway band itself varies (sd ``spread * band``) and
     the stem position is uncertain, so the filter moment-matches the two outcomes (a first-order
-    generalised pseudo-Bayes filter; this also makes the likelihood continuous in ``band``); once the
-    probability that the stem has slipped since it last stuck passes ``DECIDE_MOVING``, the filter decides that
-    it moves and lets it follow the demand's increments until the demand stops or reverses
-    (decision-directed). Where the stem sticks, ``s`` is unchanged and the measurements pin it down.
-    "Stops or reverses" is judged on the demand freed of its noise's reversals (:func:`stick_demand`),
-    as in :func:`stick_simulate`. A measurement that says much more clearly (log-likelihood ratio above
-    ``STUCK_LLR``) that the stem stayed where it stuck overturns the decision that it moves; one that
-    says as clearly that a stem which moved at the last sample stayed there since re-sticks it there:
-    a valve that re-sticks after every slip (a staircase) or at a pause of the demand is followed as
-    well as an (S, J) one (docs/diagnosis.md, "The (S, J) stick-slip").
+    generalised pseudo-Bayes filter; this also makes the likelihood continuous in ``band``). At each
+    measurement the probability that the stem has slipped since it last rested is updated by Bayes'
+    rule ("on the demand", sd ``landing * band``, against "where it rested"); once it reaches
+    ``DECIDE_MOVING`` the filter decides that the stem slipped, puts it on the demand and lets it follow
+    the demand's increments until the demand stops or reverses (decision-directed); below, the stem
+    is the moment-matched mixture with the updated probability. Between measurements the slip is
+    decided only where the prior alone makes it near certain (``DECIDE_PRIOR``). Where the stem
+    sticks, ``s`` is unchanged and the measurements pin it down. "Stops or reverses" is judged on the
+    demand freed of its noise's reversals (:func:`stick_demand`), as in :func:`stick_simulate`. A
+    measurement that says much more clearly (log-likelihood ratio above ``STUCK_LLR``) that the stem
+    stayed where it stuck overturns the decision that it moves; one that says as clearly that a stem
+    which moved at the last sample stayed there since re-sticks it there, in both cases only where that
+    resting place lies within ``band (1 + 3 spread)`` of the demand (a stem rests only within its
+    breakaway band): a valve that re-sticks after every slip (a staircase) or at a pause of the demand is
+    followed as well as an (S, J) one (docs/diagnosis.md, "The (S, J) stick-slip"). Every measurement
+    is scored against the prediction made before it was seen; a decision it prompts acts from its own
+    update on, so no decision rescores the measurement that prompted it (docs/diagnosis.md, "The
+    stick-slip filter, round 4").
 
     The breakaway probability is a first-passage hazard: a stem that has stuck while the demand
     was ``dmax`` away has a band larger than ``dmax``, so it slips in this sub-step with
@@ -426,7 +437,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     Because the resting position is estimated from the data rather than simulated open loop, a
     small error in the demand does not put the simulated and the measured stems out of step.
     With ``band = 0`` the stem always slips onto the demand with no uncertainty and the likelihood
-    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested."""
+    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model), and it tends to it as ``band``
+    goes to 0: the models are nested."""
     n = t.shape[0]
     ve = s_e * s_e
     vw = s_w * s_w
