@@ -584,7 +584,10 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     dd = x_k - s_rest
                     ms = s_rest + p_post * dd
                     Pss = p_post * vl + p_post * (1.0 - p_post) * dd * dd
-                    Pes = (1.0 - p_post) * Pes
+                    # the cross covariance of the stuck outcome, kept within what the new variances allow
+                    # (positive semi-definite: |Pes| <= sqrt(Pee Pss))
+                    lim = math.sqrt(Pee * Pss)
+                    Pes = min(max((1.0 - p_post) * Pes, -lim), lim)
                 nu = y[k] - ms - me
                 S = Pee + 2.0 * Pes + Pss + vw
         elif band > 0.0 and k > 0 and not moving and p_slip >= DECIDE_MOVING:
