@@ -61,7 +61,11 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     # the first step's candidates as tested (for studies of the ranking among accepted candidates)
     out["first_step"] = [{"effect": f.effect, "accepted": bool(f.accepted), "lr_stat": float(f.lr_stat),
                           "delta_bic": float(f.delta_bic), "validation_loglik_gain": float(f.validation_loglik_gain),
-                          "validation_sim_rms_after_mm": float(f.validation_sim_rms_after_mm)}
+                          "validation_sim_rms_after_mm": float(f.validation_sim_rms_after_mm),
+                          "significant": bool(f.significant), "relevant": bool(f.relevant),
+                          "validated": bool(f.validated), "effect_size_mm": float(f.effect_size_mm),
+                          "s_w": float(f.fit.params["s_w"]),
+                          "params": {k: float(v) for k, v in f.fit.effect_params.items()}}
                          for f in d.findings]
     out["best_candidate"] = best.effect
     out["best_p"] = best.p_value
@@ -170,8 +174,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bootstrap", type=int, default=16,
                     help="bootstrap replicates for the named effects' sd (0: Hessian/HAC sd; the names do not "
                     "depend on it)")
+    ap.add_argument("--classes", default="",
+                    help="comma-separated truths to draw (default: all, in turn); e.g. 'none' for the null "
+                    "distribution of the statistics")
     a = ap.parse_args(argv)
-    cases = random_cases(a.runs, a.seed)
+    classes = tuple(c for c in a.classes.split(",") if c) or CLASSES
+    unknown = [c for c in classes if c not in CLASSES]
+    if unknown:
+        ap.error(f"unknown class(es) {', '.join(unknown)} (choose from {', '.join(CLASSES)})")
+    cases = random_cases(a.runs, a.seed, classes=classes)
     for c in cases:
         c["bootstrap_B"] = a.bootstrap
     t0 = time.perf_counter()
@@ -180,6 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     cmd = f"python benchmarks/diagnosis_confusion.py --runs {a.runs} --seed {a.seed} --workers {a.workers}"
     if a.bootstrap != 16:
         cmd += f" --bootstrap {a.bootstrap}"
+    if a.classes:
+        cmd += f" --classes {a.classes}"
     md = markdown(c, cmd, results)
     print(md)
     print(f"total {time.perf_counter() - t0:.0f} s")

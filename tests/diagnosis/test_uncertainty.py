@@ -72,8 +72,10 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
                    "566-569, |z| 8-13); at 1.15 band the decision comes after the slip and the likelihood is 183 "
                    "units higher. A two-hypothesis mixture filter that decides after the measurement peaks at the "
                    "band here but missed sj and force runs of the independent simulator, so it is not used "
-                   "(docs/diagnosis.md, 'The stick-slip filter: a revision tried and reverted'). The band is "
-                   "measured from the slips.")
+                   "(docs/diagnosis.md, 'The stick-slip filter: a revision tried and reverted'); round 4's filter "
+                   "(measurement-updated slip decision) passes this test but named more none runs stiction "
+                   "(held out: docs/diagnosis.md, 'The stick-slip filter, round 4'), so it is not used either. "
+                   "The band is measured from the slips.")
 def test_stick_filter_nested_and_peaks_at_the_band() -> None:
     """Exact stick-slip data: the filter's likelihood is maximal near the true band (the first-passage
     hazard; a filter that re-applied the slip probability every sub-step peaked at 2.5 times the band),

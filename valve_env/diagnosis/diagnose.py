@@ -528,7 +528,8 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
             from valve_env.diagnosis.uncertainty import robust_finding
 
             assert best.estimator is not None
-            best.robust = robust_finding(best.estimator.backend_, train, best.fit)
+            best.robust = robust_finding(best.estimator.backend_, train, best.fit,
+                                         bootstrap_sd=bootstrap_B > 0)
             if bootstrap_B > 0:
                 _bootstrap_finding(best, bootstrap_B)
                 tick(f"bootstrap {best.effect}")

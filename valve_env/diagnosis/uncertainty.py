@@ -539,24 +539,32 @@ def sandwich_std(model: Model, data: RunData, fit: FitResult, fixed: tuple[str, 
             "lags": int(lags)}
 
 
+#: what a rejected check means for a bootstrap sd: its replicates are drawn from the fitted model itself
+BOOTSTRAP_ADVICE = ("the reported sd is a bootstrap in this model's own world, which assumes the model: read it "
+                    "as a lower bound")
+
+
 def effect_misspecification(model: Model, data: RunData, fit: FitResult, *, alpha: float = 0.01, nlags: int = 40,
-                            warn: bool = True) -> dict[str, object]:
+                            warn: bool = True, bootstrap_sd: bool = False) -> dict[str, object]:
     """The misspecification check of a finding: the whiteness of its standardised one-step prediction
     errors (Ljung-Box at ``nlags`` and the cumulated periodogram, level ``alpha``;
     :func:`valve_env.estimation.robust.whiteness_check`, the base fit's check), with a
     :class:`~valve_env.estimation.robust.MisspecificationWarning` when it rejects: the effect's model
     (with its Ornstein-Uhlenbeck model error) does not explain the opening's dynamics, and its sd (the
     bootstrap's world is that model) is not to be trusted. Its rates on the studies' runs are in
-    docs/uncertainty.md."""
+    docs/uncertainty.md. ``bootstrap_sd``: the finding's reported sd is the bootstrap's (the warning then
+    says so, instead of pointing to the sandwich)."""
     from valve_env.estimation.robust import whiteness_check
 
     nu, S = model.prediction_errors(data, fit.params)
     e = np.where(S > 0, nu / np.sqrt(np.where(S > 0, S, 1.0)), np.nan)
     label = "+".join(model.effects) or "base"
-    return whiteness_check({"x_mm": e}, alpha=alpha, nlags=nlags, warn=warn, label=f"{label} valve model")
+    extra = {"advice": BOOTSTRAP_ADVICE} if bootstrap_sd else {}
+    return whiteness_check({"x_mm": e}, alpha=alpha, nlags=nlags, warn=warn, label=f"{label} valve model", **extra)
 
 
-def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = True) -> dict[str, object]:
+def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = True,
+                   bootstrap_sd: bool = False) -> dict[str, object]:
     """What a named effect's JSON carries beside its ``std`` (docs/uncertainty.md, "Named effects"):
     ``std_hessian`` and ``std_robust`` of its effect parameters (:func:`sandwich_std`), ``robust_lags``
     and ``misspecification`` (:func:`effect_misspecification`, which warns)."""
@@ -567,4 +575,4 @@ def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = 
     return {"std_hessian": {k: float(h.get(k, float("nan"))) for k in names},
             "std_robust": {k: float(r.get(k, float("nan"))) for k in names},
             "robust_lags": sw["lags"],
-            "misspecification": effect_misspecification(model, data, fit, warn=warn)}
+            "misspecification": effect_misspecification(model, data, fit, warn=warn, bootstrap_sd=bootstrap_sd)}

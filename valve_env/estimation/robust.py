@@ -152,9 +152,11 @@ def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float =
 
 
 def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nlags: int = 40, warn: bool = True,
-                    label: str = "model") -> dict[str, Any]:
+                    label: str = "model",
+                    advice: str = "trust the robust standard errors, not the inverse Hessian's") -> dict[str, Any]:
     """The misspecification check of :func:`misspecification_check` on given standardised one-step
-    residuals (one array per output, NaN where unobserved); ``label`` names the model in the warning.
+    residuals (one array per output, NaN where unobserved); ``label`` names the model in the warning,
+    ``advice`` ends it (what to make of the reported sd, which depends on where it comes from).
     Used by the base fit and by the diagnosis's named effects
     (:func:`valve_env.diagnosis.uncertainty.effect_misspecification`)."""
     from scipy.stats import kstwobign
@@ -176,8 +178,7 @@ def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nl
                        f"cumulated periodogram {entry['cpgram_max_dev']:.3f} against its band {band:.3f})")
     out["misspecified"] = bool(bad)
     out["message"] = ("the one-step residuals of " + "; ".join(bad) + " are not white at the "
-                      f"{alpha:g} level: the model does not explain the data's dynamics; trust the robust "
-                      "standard errors, not the inverse Hessian's") if bad else ""
+                      f"{alpha:g} level: the model does not explain the data's dynamics; {advice}") if bad else ""
     if bad and warn:
         warnings.warn(f"{label}: {out['message']}", MisspecificationWarning, stacklevel=3)
     return out
