@@ -61,11 +61,12 @@ import numpy as np
 from valve_env.config import ControlParams
 from valve_env.controllers.base import I_DP, I_SETTING, I_T_OUT, I_T_TARGET, OBS_NAMES, Controller, original_id
 from valve_env.controllers.baselines import DahlCompensator, PIController
-from valve_env.params import I_A_B, I_A_K, I_A_S, I_DP_K_SP, I_DP_S_SP, I_KVS, I_LEAK, I_STROKE, TankParams, ValveParams
+from valve_env.params import I_A_B, I_A_K, I_A_S, I_DP_K_SP, I_DP_S_SP, I_STROKE, TankParams, ValveParams
 from valve_env.physics.valve import (
     BAR_TO_MPA,
     MBAR_TO_MPA,
     demanded_opening,
+    flow_kgh,
     gain_mm_per_K,
     opening_from_flow,
     saturation_temperature,
@@ -338,7 +339,8 @@ class TwoMovePosition(TwoMove):
         self.replace_band = float(replace_band)
         tk = tank or TankParams()
         vp = self.vp
-        dq_dx = 31.62 * vp[I_KVS] * (1.0 - vp[I_LEAK]) / vp[I_STROKE] * np.sqrt(dp_mbar) / 3600.0  # kg/s per mm
+        # the valve's linear characteristic at dp: its slope, kg/s per mm
+        dq_dx = (flow_kgh(vp[I_STROKE], dp_mbar, vp) - flow_kgh(0.0, dp_mbar, vp)) / vp[I_STROKE] / 3600.0
         self.k_int = float(dq_dx * (supply_C - _CTRL.T_target_C) / (tk.volume_l * tk.rho))  # K/s per mm
         if not self.k_int > 0:
             raise ValueError(f"two_move_position: the supply ({supply_C} degC) must be above the target")
