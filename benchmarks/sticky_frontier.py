@@ -1,6 +1,6 @@
 """The iae-reversals trade-off of the stiction compensators on ThermoValveStickyValve-v0 (docs/controllers.md).
 
-    python benchmarks/sticky_frontier.py [--seed 0 --episodes 10] [--plot out/sticky_frontier.png]
+    python benchmarks/sticky_frontier.py [--seed 0 --episodes 10] [--plot out/sticky_frontier.png] [--force]
 
 Runs ``pi`` and each compensator over a grid of its own settings (keyword arguments of
 ``make_controller``) on the sticky task, 24 h episodes, seeds ``--seed`` .. (the tuning seeds 0-9 by
@@ -12,12 +12,14 @@ with fewer reversals than ``pi``, tdis_Kh no worse). ``--plot`` also draws the t
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 import pandas as pd
 
 from valve_env.controllers import make_controller
 from valve_env.evaluation.evaluator import run_episodes
+from valve_env.outputs import OutputError, OutputSet
 
 TASK = "ThermoValveStickyValve-v0"
 GRID: dict[str, list[dict[str, Any]]] = {
@@ -48,12 +50,19 @@ def frontier(seed: int, episodes: int) -> pd.DataFrame:
     return out
 
 
-def main() -> None:
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--episodes", type=int, default=10)
     ap.add_argument("--plot", default=None, help="write the trade-off figure here (PNG)")
+    ap.add_argument("--force", action="store_true", help="replace an existing --plot file")
     a = ap.parse_args()
+    outs = OutputSet(force=a.force)
+    try:  # the project's output policy, checked before the long run
+        plot = outs.add(a.plot) if a.plot else None
+    except OutputError as exc:
+        print(f"thermovalve: error: {exc}", file=sys.stderr)
+        return 2
     out = frontier(a.seed, a.episodes)
     cols = ["controller", "settings", "iae_Kh", "reversals", "travel_mm", "tdis_Kh", "iae_vs_pi_%",
             "reversals_vs_pi_%", "iae_x_reversals", "goal"]
@@ -61,7 +70,7 @@ def main() -> None:
     print("| " + " | ".join(cols) + " |\n|" + "---|" * len(cols))
     for _, r in out[cols].iterrows():
         print("| " + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v) for v in r) + " |")
-    if a.plot:
+    if plot is not None:
         import matplotlib
 
         matplotlib.use("Agg")
@@ -77,8 +86,11 @@ def main() -> None:
         ax.set_title("goal: lower left of the dashed lines")
         ax.legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(a.plot, dpi=120)
+        outs.stage(plot, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
+        outs.commit()
+        print(f"wrote {plot}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
