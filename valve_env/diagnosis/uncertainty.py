@@ -554,13 +554,13 @@ def effect_misspecification(model: Model, data: RunData, fit: FitResult, *, alph
     bootstrap's world is that model) is not to be trusted. Its rates on the studies' runs are in
     docs/uncertainty.md. ``bootstrap_sd``: the finding's reported sd is the bootstrap's (the warning then
     says so, instead of pointing to the sandwich)."""
-    from valve_env.estimation.robust import whiteness_check
+    from valve_env.estimation.robust import ROBUST_ADVICE, whiteness_check
 
     nu, S = model.prediction_errors(data, fit.params)
     e = np.where(S > 0, nu / np.sqrt(np.where(S > 0, S, 1.0)), np.nan)
     label = "+".join(model.effects) or "base"
-    extra = {"advice": BOOTSTRAP_ADVICE} if bootstrap_sd else {}
-    return whiteness_check({"x_mm": e}, alpha=alpha, nlags=nlags, warn=warn, label=f"{label} valve model", **extra)
+    return whiteness_check({"x_mm": e}, alpha=alpha, nlags=nlags, warn=warn, label=f"{label} valve model",
+                           advice=BOOTSTRAP_ADVICE if bootstrap_sd else ROBUST_ADVICE)
 
 
 def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = True,

@@ -151,9 +151,12 @@ def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float =
                            alpha=alpha, nlags=nlags, warn=warn, label=est.model.name)
 
 
+#: what a rejected check means where the reported sd is the sandwich's (the base fit's)
+ROBUST_ADVICE = "trust the robust standard errors, not the inverse Hessian's"
+
+
 def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nlags: int = 40, warn: bool = True,
-                    label: str = "model",
-                    advice: str = "trust the robust standard errors, not the inverse Hessian's") -> dict[str, Any]:
+                    label: str = "model", advice: str = ROBUST_ADVICE) -> dict[str, Any]:
     """The misspecification check of :func:`misspecification_check` on given standardised one-step
     residuals (one array per output, NaN where unobserved); ``label`` names the model in the warning,
     ``advice`` ends it (what to make of the reported sd, which depends on where it comes from).
