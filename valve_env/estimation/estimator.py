@@ -100,9 +100,13 @@ class ValveEstimator(Estimator):
         b = bootstrap(self.backend_, self.data_, self.result_, B=B, seed=seed, names=names)
         self.std_from_ = apply_bootstrap(self.backend_, self.data_, self.result_, b)
         self.bootstrap_ = b
+        self._estimates_from_result()
+        return self
+
+    def _estimates_from_result(self) -> None:
+        """``params_`` and ``std_`` (the free parameters') as the output-error fit ``result_`` holds them."""
         self.params_ = dict(self.result_.params)
         self.std_ = {k: v for k, v in self.result_.std.items() if k not in self.fixed}
-        return self
 
     def _fit_ekf(self, df: pd.DataFrame) -> None:
         from valve_env.diagnosis.sde_effects import effect_model
@@ -130,8 +134,7 @@ class ValveEstimator(Estimator):
         self.backend_ = model
         self.result_ = res
         self.data_ = run
-        self.params_ = dict(res.params)
-        self.std_ = {k: v for k, v in res.std.items() if k not in self.fixed}
+        self._estimates_from_result()
         self.loglik_ = float(res.loglik)
         self.n_obs_ = int(res.n)
         self.n_free_ = int(res.n_free)
