@@ -22,12 +22,14 @@ their likelihoods compare.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 from scipy.optimize import minimize_scalar
+from scipy.signal import lfilter
 
 from valve_env.physics.stickslip import stick_slip_path
 
@@ -446,14 +448,21 @@ def scan_paths(op: np.ndarray) -> tuple[np.ndarray, list[tuple[float, float, flo
     return xs, params
 
 
+@functools.lru_cache(maxsize=8)
+def _scan_basis(n: int, dt: float, knot_s: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """The disturbance basis of a record of ``n`` samples in the scan's sparse form (columns, values, width):
+    the same for the record and each of its bootstrap replicates, so built once (callers only read it)."""
+    basis = disturbance_basis(n, dt, knot_s)
+    idx, val = _sparse_basis(basis)
+    return idx, val, basis.shape[1]
+
+
 def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float, float]]], s: Settings) -> Scan:
     """The LR scan (:class:`Scan`) of ``pv`` over the valve ``paths`` of :func:`scan_paths`."""
     xs, params = paths
     pv = np.ascontiguousarray(pv, dtype=float)
-    basis = disturbance_basis(pv.size, s.dt, s.disturbance_knot_s)
-    idx, val = _sparse_basis(basis)
-    rss = _scan_rss(pv, xs, idx, val, basis.shape[1], s.alist(), s.min_delay, s.max_delay, s.k0,
-                    s.allow_integrating)
+    idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s))
+    rss = _scan_rss(pv, xs, idx, val, q, s.alist(), s.min_delay, s.max_delay, s.k0, s.allow_integrating)
     i = int(np.argmin(rss[1:])) + 1
     n = pv.size - s.k0
     lr = n * math.log(rss[0] / min(rss[i], rss[0]))
@@ -465,10 +474,9 @@ def simulate_noise(pf: ProcessFit, n: int, rng: np.random.Generator, burn: int =
     """A draw of the fitted AR noise (innovation variance ``rss / n``), ``n`` samples."""
     sd = math.sqrt(pf.rss / pf.n)
     e = rng.normal(0.0, sd, n + burn)
-    v = np.zeros(n + burn)
-    for k in range(2, n + burn):
-        v[k] = pf.rho[0] * v[k - 1] + pf.rho[1] * v[k - 2] + e[k]
-    return v[burn:]
+    # v[k] = rho0 v[k-1] + rho1 v[k-2] + e[k] from v[0] = v[1] = 0 (the first two draws unused)
+    v = lfilter([1.0], [1.0, -pf.rho[0], -pf.rho[1]], e[2:])
+    return v[burn - 2:]
 
 
 def bootstrap_lr(op: np.ndarray, lin: ProcessFit, s: Settings, n_boot: int, seed: int = 0,
