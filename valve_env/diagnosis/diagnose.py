@@ -124,10 +124,9 @@ class Finding:
     """A candidate effect tried on top of a reference model."""
 
     effect: str
-    fit: FitResult
-    #: the estimation's estimator that made ``fit`` (its ``result_``); its ``bootstrap`` gives the named
-    #: effect's std
-    estimator: ValveEstimator | None
+    #: the estimation's estimator of the candidate (its ``result_`` is :attr:`fit`); its ``bootstrap``
+    #: gives the named effect's std
+    estimator: ValveEstimator
     reference: tuple[str, ...]
     lr_stat: float
     p_value: float
@@ -150,6 +149,11 @@ class Finding:
     #: issue 20: the inverse-Hessian and HAC-sandwich sds side by side and the misspecification check
     #: (valve_env.diagnosis.uncertainty.robust_finding), for a named effect
     robust: dict[str, Any] | None = None
+
+    @property
+    def fit(self) -> FitResult:
+        """The candidate's output-error fit (the estimator's ``result_``)."""
+        return self.estimator.result_
 
     @property
     def accepted(self) -> bool:
@@ -301,7 +305,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
          warm: dict[str, float] | None, min_gain: float, min_size: float,
          previous: Finding | None = None) -> Finding:
     effects = tuple(e for e in EFFECTS if e in (*ref_effects, effect))  # canonical order
-    if previous is not None and previous.estimator is not None:
+    if previous is not None:
         # a second round after the base fit improved: continue from the previous fit of this candidate
         est = _fit(effects, valve, train, previous.fit.params)
         if previous.fit.loglik > est.result_.loglik:
@@ -322,7 +326,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
     n = train.t.shape[0]
     v_rms, v_ll, v_sim = _held_out(model, valid, fit.params, *vr)
     f = Finding(
-        effect=effect, fit=fit, estimator=est, reference=ref_effects, lr_stat=lr, p_value=p, delta_aic=2 * k - lr,
+        effect=effect, estimator=est, reference=ref_effects, lr_stat=lr, p_value=p, delta_aic=2 * k - lr,
         delta_bic=k * math.log(n) - lr, rms_before_mm=ref_fit.rms_mm, rms_after_mm=fit.rms_mm,
         validation_rms_before_mm=ref_val[0], validation_rms_after_mm=v_rms,
         validation_loglik_gain=v_ll - ref_val[1], validation_sim_rms_before_mm=ref_val[2],
@@ -382,7 +386,6 @@ def _bootstrap_finding(f: Finding, B: int) -> None:
     (:meth:`valve_env.estimation.estimator.ValveEstimator.bootstrap`, the estimation's facility)."""
     from valve_env.diagnosis.uncertainty import METHOD, NORMAL_P
 
-    assert f.estimator is not None
     f.estimator.bootstrap(B)
     b, source = f.estimator.bootstrap_, f.estimator.std_from_
     aside = f", {b.dropped} failed refit(s) set aside" if b.dropped else ""
@@ -527,7 +530,6 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
             # issue 20: sandwich beside the Hessian, and the misspecification check (at the ML estimate)
             from valve_env.diagnosis.uncertainty import robust_finding
 
-            assert best.estimator is not None
             best.robust = robust_finding(best.estimator.backend_, train, best.fit,
                                          bootstrap_sd=bootstrap_B > 0)
             if bootstrap_B > 0:
