@@ -185,21 +185,25 @@ class EnvConfig:
     def draw_max_kgs(self) -> float:
         """The tank's largest hot-water outflow, kg/s: DRAW_MAX_L_MIN, and no more than the
         layer mass the explicit update can still move in a sub-step besides the coil and the
-        losses, (1 - layer_exchange) m_layer / dt_sub (physics.tank.draw_flow's limit)."""
+        losses, (1 - layer_exchange) m_layer / dt_sub, less the circulation loop's flow
+        (physics.tank.draw_flow's limit)."""
         numerical = max(0.0, 1.0 - self.layer_exchange()) * self.tank.layer_mass_kg / self.sub_step_s
+        if self.tank.circ_kgh > 0.0:
+            numerical = max(0.0, numerical - self.tank.circ_kgh / 3600.0)
         return min(DRAW_MAX_L_MIN / 60.0, numerical)
 
     def min_n_sub(self) -> int:
         """The fewest sub-steps per control step that keep the explicit layer update a
         mixture of the temperatures around each layer: layer_exchange <= MAX_LAYER_EXCHANGE,
-        with room left for the tapping cycle's largest tap flow (docs/configuration.md).
+        with room left for the tapping cycle's largest tap flow and the circulation loop's flow
+        (docs/configuration.md).
 
         With e the exchange at one sub-step and f the largest tap (kg/s), n sub-steps
         exchange e / n and pass (n - e) m_layer / dt_s: n >= max(e / MAX_LAYER_EXCHANGE,
         e + f dt_s / m_layer)."""
         t = self.tank
         e1 = self.layer_exchange() * self.control.n_sub
-        tap = largest_tap_l_min(self.scenario.tapping_profile) / 60.0
+        tap = largest_tap_l_min(self.scenario.tapping_profile) / 60.0 + t.circ_kgh / 3600.0
         need = max(e1 / MAX_LAYER_EXCHANGE, e1 + tap * self.control.dt_s / t.layer_mass_kg)
         return max(1, math.ceil(need * (1.0 - 1e-12)))
 

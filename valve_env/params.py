@@ -305,6 +305,9 @@ class TankParams:
     | pump_eff | - | 0.3, wire-to-water efficiency of a small circulator (EU 622/2012 EEI range) | [0.01, 1] (an efficiency) |
     | dp_circuit_mbar | mbar | 150, pressure drop of coil and pipes at q_ref, pump head on top of the valve's dp | [0, 2000] (0 .. 2 bar) |
     | q_ref_kgh | kg/h | 600, reference flow for dp_circuit_mbar | [10, 100000] (a small coil .. DN100) |
+    | circ_kgh | kg/h | 0: no hot-water circulation loop (ThermoValveStickyValve-v1: 110, docs/tasks.md) | [0, 5000] (none .. a large building's circulation pump) |
+    | circ_UA | W/K | 0: the circulation pipes' heat-loss coefficient, length x loss per metre and kelvin (v1: 24, about 120 m at 0.2 W/(m K), Hamburg et al. 2021) | [0, 1000] (none .. kilometres of insulated pipe) |
+    | circ_height | - | 0.5: height of the circulation return's connection, a fraction of the tank's height (an assumption: mid-height, above the coil) | [0, 1] (inside the tank) |
 
     Across sections (:class:`valve_env.config.EnvConfig`): the explicit update of a
     layer over one physics sub-step (control.dt_s / control.n_sub) may move at most
@@ -327,6 +330,9 @@ class TankParams:
     pump_eff: float = param(0.3, 0.01, 1.0, "-", "an efficiency")
     dp_circuit_mbar: float = param(150.0, 0.0, 2000.0, "mbar", "0 .. 2 bar")
     q_ref_kgh: float = param(600.0, 10.0, 100000.0, "kg/h", "a small coil .. DN100")
+    circ_kgh: float = param(0.0, 0.0, 5000.0, "kg/h", "none .. a large building's circulation pump")
+    circ_UA: float = param(0.0, 0.0, 1000.0, "W/K", "none .. kilometres of insulated pipe")
+    circ_height: float = param(0.5, 0.0, 1.0, "-", "inside the tank")
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -338,6 +344,11 @@ class TankParams:
     @property
     def layer_mass_kg(self) -> float:
         return self.volume_l * self.rho / self.n_layers
+
+    @property
+    def circ_layer(self) -> int:
+        """The layer the circulation return enters (0 = bottom), from ``circ_height``."""
+        return min(self.n_layers - 1, int(self.circ_height * self.n_layers))
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None) -> TankParams:

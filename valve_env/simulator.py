@@ -39,6 +39,7 @@ from valve_env.physics import valve as _valve
 from valve_env.physics.tank import (  # noqa: E402
     advection_heat,
     buoyancy_mix,
+    circulation_heat,
     coil_heat,
     columns,
     draw_flow,
@@ -61,8 +62,11 @@ from valve_env.physics.valve import dahl_update, flow_kgh, opening, setpoint_pre
  # the valve's named effects (valve_env.effects; docs/reference.md): any on (1.0/0.0), medium_temperature's
  # beta, stiction's band and jump (mm; stiction is on when either is > 0), setpoint_drift's rate (MPa/h).
  # sensor_lag sets the bulb's time constant (P_BULB_A)
- P_EFFECTS, P_BETA, P_STICK_S, P_STICK_J, P_DRIFT) = range(28)
-N_PLANT = 28  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
+ P_EFFECTS, P_BETA, P_STICK_S, P_STICK_J, P_DRIFT,
+ # the hot-water circulation loop (physics.tank.circulation_heat): flow kg/s (0: none), pipes' UA W/K,
+ # the return's layer
+ P_CIRC_M, P_CIRC_UA, P_CIRC_LAYER) = range(31)
+N_PLANT = 31  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
 # state offsets after the layers: gas temperature, friction force, stem position, direction of the last
 # motion; the stem's stick-slip state (valve_env.physics.stickslip); time since reset (s); demanded opening
 S_TG, S_FH, S_X, S_DIR, S_UPREV, S_DUPREV, S_US, S_STUCK, S_D, S_AGE, S_XD = range(11)
@@ -115,6 +119,9 @@ def pack_plant(cfg: EnvConfig) -> np.ndarray:
     pp[P_W_ENERGY] = c.w_energy
     pp[P_PS] = sc.ps_bar
     pp[P_DRAW_MAX] = cfg.draw_max_kgs()
+    pp[P_CIRC_M] = t.circ_kgh / 3600.0
+    pp[P_CIRC_UA] = t.circ_UA
+    pp[P_CIRC_LAYER] = t.circ_layer
     # the time-of-day features of the observation, tabulated when a day is a whole
     # number of steps (two libm calls per env-step otherwise)
     per_day = 86400.0 / c.dt_s
@@ -261,6 +268,8 @@ def plant_step(Z, lo, hi, vp, pp):
     for i in range(c0, c1):
         p_bset[i] = setpoint_pressure(T_set[i], vp)
     effects = pp[P_EFFECTS] != 0.0
+    circ = pp[P_CIRC_M] > 0.0
+    circ_layer = int(pp[P_CIRC_LAYER])
     for _ in range(nsub):
         if effects:
             _valve_effects_substep(Z, nl, c0, c1, Tb, T_sup, dp, ps, p_bset, x_new, m, a_b, dt, vp, pp)
@@ -292,6 +301,8 @@ def plant_step(Z, lo, hi, vp, pp):
             unmet[i] += (draw_W[i] - q_deliv[i]) * dt if draw_W[i] > 0.0 else 0.0
         advection_heat(T, m_draw, T_cold, cp, Q, lo, hi)
         loss_heat(T, pp[P_UA_LOSS], pp[P_T_AMB], Q, q_loss, lo, hi)
+        if circ:
+            circulation_heat(T, pp[P_CIRC_M], pp[P_CIRC_UA], pp[P_T_AMB], circ_layer, cp, Q, q_loss, lo, hi)
         for j in range(nl):
             for i in range(c0, c1):
                 T[j, i] += Q[j, i] * dt_Mcp

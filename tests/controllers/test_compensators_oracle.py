@@ -39,7 +39,7 @@ def _obs_seq(n: int, steps: int, rng: np.random.Generator) -> list[np.ndarray]:
     return out
 
 
-@pytest.mark.parametrize("name", NEW)
+@pytest.mark.parametrize("name", (*NEW, "pi_integral_band"))
 def test_single_and_batched_agree_and_episode_start_resets(name: str) -> None:
     rng = np.random.default_rng(3)
     n = 4
@@ -256,3 +256,25 @@ def test_two_move_position_gains_are_simc_on_the_tank_s_integrating_model() -> N
     np.testing.assert_allclose(c.Ti_x_s, 12.0 * theta)
     with pytest.raises(ValueError, match="replace_band"):
         make_controller("two_move_position", STICKY_TASK, replace_band=0.0)
+
+
+def test_pi_integral_band_freezes_the_integral_inside_one_band_of_demand() -> None:
+    """Farenzena & Trierweiler's modified PI (docs/controllers.md): inside the error band (the error at
+    which the proportional action alone moves the stem's demand by one stiction band) the integral
+    holds; outside it the PI integrates as ``pi`` does."""
+    c = make_controller("pi_integral_band", STICKY_TASK)
+    p = make_controller("pi", STICKY_TASK)
+    env = gym.make(STICKY_TASK)
+    obs, _ = env.reset(seed=0)
+    o = np.repeat(obs[None, :].astype(np.float64), 2, axis=0)
+    delta = c.error_band_K(o[:, I_SETTING], o)
+    assert np.all((delta > 0.01) & (delta < 0.2))  # 0.1 mm at ~0.18 mm/K over Kp 14: ~0.04 K
+    o[0, I_T_OUT] = o[0, I_T_TARGET] - 0.5 * delta[0]
+    o[1, I_T_OUT] = o[1, I_T_TARGET] - 3.0 * delta[1]
+    s0 = c.initial_state(o)
+    s1 = s0.copy()
+    c.step(o, s1)
+    sp = p.initial_state(o)
+    p.step(o, sp)
+    assert s1[0, 0] == s0[0, 0] and s1[1, 0] != s0[1, 0]
+    assert s1[1, 0] == pytest.approx(sp[1, 0])

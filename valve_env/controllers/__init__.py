@@ -8,9 +8,9 @@ Built-in baselines (see docs/baselines.md):
   bumpless start, SIMC-tuned on a simulator step test
   (:mod:`valve_env.controllers.tuning`, gains in ``configs/controllers.yaml``);
 * ``pi_compensated``: the PI plus an inverse-model Dahl hysteresis compensator;
-* ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``: stiction compensators
-  from the literature on the PI's setting, and ``pi_wear``: an event-based PI
-  that spares the stem (:mod:`valve_env.controllers.compensators`,
+* ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``,
+  ``pi_integral_band``: stiction compensators from the literature on the PI's setting, and
+  ``pi_wear``: an event-based PI that spares the stem (:mod:`valve_env.controllers.compensators`,
   docs/controllers.md);
 * ``oracle``: MPC with the true plant and perfect preview, the bound on what
   is achievable (:mod:`valve_env.controllers.oracle`; it must be bound to the
@@ -26,7 +26,14 @@ from typing import Any
 
 from valve_env.controllers.base import ALL_ENV_MODES, Controller, PredictPolicy, original_id
 from valve_env.controllers.baselines import DahlCompensator, PICompensated, PIController, SelfActing
-from valve_env.controllers.compensators import ConstantReinforcement, Knocker, PIWear, TwoMove, TwoMovePosition
+from valve_env.controllers.compensators import (
+    ConstantReinforcement,
+    Knocker,
+    PIIntegralBand,
+    PIWear,
+    TwoMove,
+    TwoMovePosition,
+)
 from valve_env.controllers.oracle import Oracle, OracleSettings
 
 BASELINES: dict[str, type[Controller]] = {
@@ -38,6 +45,7 @@ BASELINES: dict[str, type[Controller]] = {
     ConstantReinforcement.name: ConstantReinforcement,
     TwoMove.name: TwoMove,
     TwoMovePosition.name: TwoMovePosition,
+    PIIntegralBand.name: PIIntegralBand,
 }
 """Controllers that read only the observation (the default set of ``thermovalve evaluate``)."""
 ORACLES: dict[str, type[Controller]] = {Oracle.name: Oracle}
@@ -86,6 +94,7 @@ __all__ = [
     "Knocker",
     "Oracle",
     "OracleSettings",
+    "PIIntegralBand",
     "PIWear",
     "TwoMove",
     "TwoMovePosition",

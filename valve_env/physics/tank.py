@@ -12,7 +12,7 @@ loop over environments, which the compiler vectorises (4 envs per instruction
 with AVX2). Every heat flow is computed once and applied once, so the first
 law closes to rounding:
 
-    heat from the coil = stored + standing losses + draws (+ 0 from mixing)
+    heat from the coil = stored + standing losses + circulation + draws (+ 0 from mixing)
 
 Units: degC, W, J, kg, kg/s, s.
 """
@@ -126,6 +126,42 @@ def loss_heat(T, UA_loss, T_amb, Q_out, total_out, lo=0, hi=-1):
             q = UA_l * (T[j, i] - T_amb)
             Q_out[j, i] -= q
             total_out[i] += q
+
+
+@register_jitable
+def circulation_return_factor(m_circ, UA_pipe, cp):
+    """The fraction of its excess over the pipes' ambient that the hot-water circulation keeps round its
+    loop, exp(-UA_pipe / (m cp)): a pipe at a uniform ambient cools the water exponentially along its
+    length (docs/tasks.md, "ThermoValveStickyValve-v1"). 1 with no pipe loss; 0 with no flow."""
+    return np.exp(-UA_pipe / (m_circ * cp)) if m_circ > 0.0 else 0.0
+
+
+@register_jitable
+def circulation_heat(T, m_circ, UA_pipe, T_amb, layer, cp, Q_out, total_out, lo=0, hi=-1):
+    """The heat a hot-water circulation loop takes from the tank (W: the layers' gains added into
+    ``Q_out``, each tank's loop loss added into ``total_out``).
+
+    A circulation pump draws ``m_circ`` (kg/s, the same in every env) from the top layer (the outlet)
+    round the building's pipes, heat-loss coefficient ``UA_pipe`` (W/K: the loop's length times the
+    pipes' loss per metre and kelvin) to ``T_amb``; the water returns at
+
+        T_ret = T_amb + (T_top - T_amb) exp(-UA_pipe / (m cp))
+
+    into layer ``layer`` and displaces the layers above it upwards (the plug flow of
+    :func:`advection_heat`, entering at ``layer`` instead of the bottom). A return warmer than its
+    layer is left to :func:`buoyancy_mix`. Sum over layers = -m cp (T_top - T_ret), the loop's loss.
+    """
+    n = T.shape[0]
+    c0, c1 = columns(lo, hi, T.shape[1])
+    C = m_circ * cp
+    a = circulation_return_factor(m_circ, UA_pipe, cp)
+    for i in range(c0, c1):
+        T_ret = T_amb + (T[n - 1, i] - T_amb) * a
+        Q_out[layer, i] += C * (T_ret - T[layer, i])
+        total_out[i] += C * (T[n - 1, i] - T_ret)
+    for j in range(layer + 1, n):
+        for i in range(c0, c1):
+            Q_out[j, i] += C * (T[j - 1, i] - T[j, i])
 
 
 @register_jitable

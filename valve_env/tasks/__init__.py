@@ -92,6 +92,12 @@ _STICKY: dict[str, Mapping[str, Any]] = {
     "control": {"w_energy": 0.0},
 }
 
+#: a hot-water circulation loop on the sticky task's tank (docs/tasks.md, "ThermoValveStickyValve-v1"): 80 m of
+#: insulated loop at 0.2 W/(m K) (UA 16 W/K), its pump sized for a drop under 5 K (110 kg/h), the return at
+#: mid-height, above the coil
+_CIRCULATION = {"circ_kgh": 110.0, "circ_UA": 16.0, "circ_height": 0.5}
+_STICKY_V1: dict[str, Mapping[str, Any]] = {**_STICKY, "tank": _CIRCULATION}
+
 TASKS: dict[str, Task] = {
     "ThermoValve-v0": Task(
         "ThermoValve-v0", "setting",
@@ -121,6 +127,31 @@ TASKS: dict[str, Task] = {
             "everything else": "ThermoValve-v0's defaults (docs/reference.md, section 5, paper Tables 2-4)",
         },
         env_class="ThermoValveStickyValveEnv",
+    ),
+    "ThermoValveStickyValve-v1": Task(
+        "ThermoValveStickyValve-v1", "setting",
+        "StickyValve-v0 plus a hot-water circulation loop (about 0.6 kW of pipe loss): the sticky stem "
+        "works mid-stroke, as in the stiction literature's loops",
+        sections=_STICKY_V1,
+        sources={
+            "everything of ThermoValveStickyValve-v0": "its sources (above; docs/tasks.md)",
+            "a circulation loop at all":
+                "DVGW W 551 (2004) and CEN/TR 16355 (2012): circulation keeps the hot-water pipes at 55 degC or "
+                "more, the cylinder's outlet at 60 degC, the drop round the loop at most 5 K (required in "
+                "'large' installations, > 400 l or > 3 l in a pipe run)",
+            "tank.circ_UA = 16 W/K (80 m at 0.2 W/(m K))":
+                "Hamburg, Mikola, Parts and Kalamees (2021), Energies 14(20) 6446: measured circulation losses of "
+                "5.1 W/m (shafts) to 10.8 W/m (basements) with 40 mm pipe insulation, 0.14-0.29 W/(m K) at "
+                "the loop's 57 degC against 20 degC; 80 m is the basement run and risers of a small "
+                "apartment building (docs/tasks.md)",
+            "tank.circ_kgh = 110":
+                "the pump sized for W 551's drop of at most 5 K at the loop's loss (0.6 kW / (cp 5 K) = "
+                "105 kg/h); the return comes back at 55.3 degC from the 60 degC outlet",
+            "tank.circ_height = 0.5":
+                "an assumption: the circulation return's connection at mid-height, above the coil (the "
+                "connection's height differs between makes)",
+        },
+        env_class="ThermoValveStickyValveV1Env",
     ),
     "ThermoValveSmallCylinder-v0": Task(
         "ThermoValveSmallCylinder-v0", "setting",

@@ -180,6 +180,10 @@ def findings(table: pd.DataFrame) -> dict[str, dict[str, Any]]:
     return out
 
 
+#: the setting's action range, K (40-80 degC): the controller output's 0-100 % (valve_env.loops.envloop)
+SETTING_RANGE_K = 40.0
+
+
 def limit_cycle(
     traj: pd.DataFrame, t0_h: float = 2.0, t1_h: float = 5.0, min_jump_mm: float = 0.005
 ) -> dict[str, float]:
@@ -188,7 +192,13 @@ def limit_cycle(
     (openings by more than ``min_jump_mm`` in a step), their median period (min), and the peak-to-peak
     swings of the setting (the controller output) and of the outlet; and what sets the period: the
     fraction of the time the stem rests on its seat (x < 1 um), the primary flow while it is open
-    and the mean flow the heat balance needs (kg/h)."""
+    and the mean flow the heat balance needs (kg/h).
+
+    A stem working mid-stroke often slips in bursts (several openings in consecutive steps), which
+    ``period_min`` counts as short periods; ``op_period_min`` is the period of the controller
+    output's own cycle (the median spacing of its upward crossings of its window mean, as the
+    period of an oscillating loop is read from OP or PV), and ``setting_p2p_pct`` its swing as %
+    of the action range (OP %, as the real loops' records report it)."""
     w = traj[(traj["t_h"] > t0_h) & (traj["t_h"] < t1_h)]
     x = w["x_mm"].to_numpy()
     dx = np.diff(x)
@@ -196,10 +206,14 @@ def limit_cycle(
     dt_min = float(np.median(np.diff(w["t_h"].to_numpy()))) * 60.0 if len(w) > 1 else math.nan
     q = w["q_primary_kgh"].to_numpy() if "q_primary_kgh" in w else np.full(len(w), math.nan)
     is_open = x >= 1e-3
+    u = w["setting_C"].to_numpy() if len(w) else np.zeros(0)
+    up = np.flatnonzero((u[:-1] < u.mean()) & (u[1:] >= u.mean())) if u.size > 1 else np.zeros(0, int)
     return {
         "break_aways": float(opens.size),
         "period_min": float(np.median(np.diff(opens)) * dt_min) if opens.size > 1 else math.nan,
         "setting_p2p_K": float(np.ptp(w["setting_C"])) if len(w) else math.nan,
+        "op_period_min": float(np.median(np.diff(up)) * dt_min) if up.size > 1 else math.nan,
+        "setting_p2p_pct": 100.0 * float(np.ptp(u)) / SETTING_RANGE_K if u.size else math.nan,
         "outlet_p2p_K": float(np.ptp(w["T_out_C"])) if len(w) else math.nan,
         "seated_frac": float(np.mean(~is_open)) if len(w) else math.nan,
         "q_open_kgh": float(np.median(q[is_open])) if is_open.any() else math.nan,
@@ -255,8 +269,10 @@ def markdown_report(table: pd.DataFrame, found: Mapping[str, Mapping[str, Any]])
         if "limit_cycle" in f:
             lc = f["limit_cycle"]
             lines.append(f"* pi's limit cycle, 02:00-05:00 (median over the seeds): {lc['break_aways']:.0f} "
-                         f"break-aways of the stem, period {_f(lc['period_min'])} min, setting swing "
-                         f"{_f(lc['setting_p2p_K'])} K ({100 * lc['setting_p2p_K'] / 40:.1f} % of its 40 K range), "
+                         f"break-aways of the stem, period {_f(lc['period_min'])} min between them, "
+                         f"{_f(lc.get('op_period_min', math.nan))} min in the setting's cycle, setting swing "
+                         f"{_f(lc['setting_p2p_K'])} K ({100 * lc['setting_p2p_K'] / SETTING_RANGE_K:.1f} % of its "
+                         f"{SETTING_RANGE_K:g} K range), "
                          f"outlet swing {_f(lc['outlet_p2p_K'])} K; the stem rests on its seat "
                          f"{100 * lc.get('seated_frac', math.nan):.0f} % of the time, passes "
                          f"{_f(lc.get('q_open_kgh', math.nan))} kg/h when open against a mean "

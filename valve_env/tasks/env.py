@@ -287,6 +287,57 @@ class ThermoValveStickyValveEnv(ThermoValveTaskEnv):
     task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
 
 
+class ThermoValveStickyValveV1Env(ThermoValveTaskEnv):
+    """## Description
+
+    ThermoValveStickyValve-v1: ThermoValveStickyValve-v0 (the 200 l tank,
+    cycle M, the stem sticking over 0.1 mm) plus a hot-water circulation
+    loop: a pump takes 110 kg/h from the tank's top round 80 m of insulated
+    pipe (16 W/K: 0.2 W/(m K), within the 5.1-10.8 W/m measured by
+    Hamburg et al. 2021) and returns it about 4.7 K cooler (at most 5 K,
+    DVGW W 551) into the tank's middle, above the coil. The loop takes about
+    0.6 kW around the clock, so the valve passes about 1.7 stiction bands'
+    flow at night: the sticky stem works mid-stroke, as in the loops the
+    stiction compensators were designed for, instead of at its seat (v0,
+    whose night load is an eighth of a band's flow). docs/tasks.md,
+    "ThermoValveStickyValve-v1", on the sizing and on which building it fits.
+
+    ## Action space
+
+    Box(1,) float32: the valve temperature setting, degC, [40, 80].
+
+    ## Observation space
+
+    Box(12,) float32, as ThermoValve-v0 (the circulation is not observed).
+
+    ## Reward
+
+    As ThermoValveStickyValve-v0: ``-(0.04 mean (T_out - 60)^2 + 1.0 mean
+    max(0, 55 - T_out))`` per 30 s step.
+
+    ## KPIs
+
+    The docs/reference.md, section 5 KPIs; travel_mm and reversals measure
+    the stem's wear. The circulation's heat counts with the standing losses
+    (``energy_account()["losses_J"]``).
+
+    ## Physical parameters (sources: docs/tasks.md)
+
+    | parameter | value | source |
+    |---|---|---|
+    | everything of StickyValve-v0 | | its sources |
+    | tank.circ_UA | 16 W/K (80 m x 0.2 W/(m K)) | 5.1-10.8 W/m measured, 40 mm insulation: Hamburg et al. 2021, Energies 14:6446 |
+    | tank.circ_kgh | 110 kg/h | a drop of at most 5 K round the loop, return >= 55 degC: DVGW W 551; CEN/TR 16355 |
+    | tank.circ_height | 0.5 | assumption: the return's connection at mid-height, above the coil |
+
+    ## Version history
+
+    * v1 (issue 18, 24 Nov 2026): v0 plus the circulation loop; v0 unchanged.
+    """  # noqa: E501
+
+    task_id: ClassVar[str] = "ThermoValveStickyValve-v1"
+
+
 class ThermoValveSmallCylinderEnv(ThermoValveTaskEnv):
     """## Description
 
@@ -476,6 +527,11 @@ class ThermoValveStickyValveVectorEnv(ThermoValveTaskVectorEnv):
     task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
 
 
+class ThermoValveStickyValveV1VectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveStickyValveV1Env.__doc__
+    task_id: ClassVar[str] = "ThermoValveStickyValve-v1"
+
+
 class ThermoValveSmallCylinderVectorEnv(ThermoValveTaskVectorEnv):
     __doc__ = ThermoValveSmallCylinderEnv.__doc__
     task_id: ClassVar[str] = "ThermoValveSmallCylinder-v0"
@@ -515,6 +571,8 @@ __all__ = [
     "ThermoValveSmallCylinderEnv",
     "ThermoValveSmallCylinderVectorEnv",
     "ThermoValveStickyValveEnv",
+    "ThermoValveStickyValveV1Env",
+    "ThermoValveStickyValveV1VectorEnv",
     "ThermoValveStickyValveVectorEnv",
     "ThermoValveTaskEnv",
     "ThermoValveTaskVectorEnv",
