@@ -1,5 +1,6 @@
 """Loop records from the project's own environment: a PI on the sticky-valve task
-(ThermoValveStickyValve-v0) trimming the valve's temperature setting, written as a loop CSV
+(ThermoValveStickyValve-v0 by default; ``env_id="ThermoValveStickyValve-v1"`` for the stem mid-stroke, with
+a circulation loop, docs/tasks.md) trimming the valve's temperature setting, written as a loop CSV
 (docs/loops.md, "Loops from the environment").
 
 OP is the setting as % of the action range (40-80 degC -> 0-100 %), PV the outlet temperature,
