@@ -414,6 +414,8 @@ class PIIntegralBand(_PICompensatorBase):
         f = self._stored.get("band_factor", 1.0) if band_factor is None else band_factor
         if not (np.isfinite(f) and f >= 0):
             raise ValueError(f"pi_integral_band: band_factor must be finite and >= 0, got {band_factor!r}")
+        if self.Kp == 0.0:
+            raise ValueError("pi_integral_band: Kp must not be 0 (the band is an error of the proportional action)")
         self.band_factor = float(f)
 
     def error_band_K(self, u: np.ndarray, obs: np.ndarray) -> np.ndarray:
