@@ -5,8 +5,9 @@
 
 Runs ``pi`` and each compensator over a grid of its own settings (keyword arguments of
 ``make_controller``) on the sticky task (``--task``: ThermoValveStickyValve-v0, the stem at its seat, or
--v1, mid-stroke with a circulation loop), 24 h episodes, seeds ``--seed`` .. (the tuning seeds 0-9 by
-default: the held-out 5000-5009 are for ``thermovalve benchmark`` only), and prints a markdown table:
+ThermoValveStickyCirculation-v0, mid-stroke with a circulation loop), 24 h episodes, seeds
+``--seed`` .. (the tuning seeds 0-9 by default: the held-out 5000-5009 are for ``thermovalve benchmark`` only),
+and prints a markdown table:
 iae_Kh and reversals as means and as changes against ``pi`` (the issue's goal: iae -30 % or better
 with fewer reversals than ``pi``, tdis_Kh no worse). ``--plot`` also draws the trade-off.
 """
@@ -24,7 +25,7 @@ from valve_env.evaluation.evaluator import run_episodes
 from valve_env.outputs import OutputError, OutputSet
 
 TASK = "ThermoValveStickyValve-v0"
-TASKS = ("ThermoValveStickyValve-v0", "ThermoValveStickyValve-v1")
+TASKS = ("ThermoValveStickyValve-v0", "ThermoValveStickyCirculation-v0")
 GRID: dict[str, list[dict[str, Any]]] = {
     "pi": [{"Kp": k, "Ti_s": t} for k in (5.0, 10.0, 20.0, 40.0) for t in (268.0, 1500.0)],
     "constant_reinforcement": [{"amplitude_band": a} for a in (0.05, 0.1, 0.2, 0.5, 0.8)],

@@ -305,8 +305,8 @@ class TankParams:
     | pump_eff | - | 0.3, wire-to-water efficiency of a small circulator (EU 622/2012 EEI range) | [0.01, 1] (an efficiency) |
     | dp_circuit_mbar | mbar | 150, pressure drop of coil and pipes at q_ref, pump head on top of the valve's dp | [0, 2000] (0 .. 2 bar) |
     | q_ref_kgh | kg/h | 600, reference flow for dp_circuit_mbar | [10, 100000] (a small coil .. DN100) |
-    | circ_kgh | kg/h | 0: no hot-water circulation loop (ThermoValveStickyValve-v1: 110, docs/tasks.md) | [0, 5000] (none .. a large building's circulation pump) |
-    | circ_UA | W/K | 0: the circulation pipes' heat-loss coefficient, length x loss per metre and kelvin (v1: 16, 80 m at 0.2 W/(m K), Hamburg et al. 2021) | [0, 1000] (none .. kilometres of insulated pipe) |
+    | circ_kgh | kg/h | 0: no hot-water circulation loop (ThermoValveStickyCirculation-v0: 110, docs/tasks.md) | [0, 5000] (none .. a large building's circulation pump) |
+    | circ_UA | W/K | 0: the circulation pipes' heat-loss coefficient, length x loss per metre and kelvin (ThermoValveStickyCirculation-v0: 16, 80 m at 0.2 W/(m K), Hamburg et al. 2021) | [0, 1000] (none .. kilometres of insulated pipe) |
     | circ_height | - | 0.5: height of the circulation return's connection, a fraction of the tank's height (an assumption: mid-height, above the coil) | [0, 1] (inside the tank) |
 
     Across sections (:class:`valve_env.config.EnvConfig`): the explicit update of a

@@ -1,5 +1,5 @@
-"""The hot-water circulation loop (physics.tank.circulation_heat) and ThermoValveStickyValve-v1, the sticky
-task whose stem works mid-stroke (docs/tasks.md, "ThermoValveStickyValve-v1")."""
+"""The hot-water circulation loop (physics.tank.circulation_heat) and ThermoValveStickyCirculation-v0, the sticky
+task whose stem works mid-stroke (docs/tasks.md, "ThermoValveStickyCirculation-v0")."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from valve_env.physics.tank import circulation_heat, circulation_return_factor
 from valve_env.physics.valve import flow_kgh
 from valve_env.tasks import get_task
 
-V0, V1 = "ThermoValveStickyValve-v0", "ThermoValveStickyValve-v1"
+V0, V1 = "ThermoValveStickyValve-v0", "ThermoValveStickyCirculation-v0"
 
 
 def test_circulation_heat_is_flow_times_cp_times_the_loop_s_drop() -> None:
@@ -50,7 +50,7 @@ def test_the_loop_is_off_by_default_and_v1_without_it_is_v0_bit_for_bit() -> Non
 
 
 def test_v1_energy_account_closes_with_the_loop_s_loss() -> None:
-    """3 h of v1 under pi: heat in = stored + losses + draws, and the losses are the standing loss
+    """3 h of the circulation task under pi: heat in = stored + losses + draws, and the losses are the standing loss
     plus the loop's m cp (T_top - T_ret), about 0.6 kW at the outlet's 60 degC."""
     env = gym.make(V1, horizon_h=3.0, max_episode_steps=360)
     ctrl = make_controller("pi", V1)
@@ -83,7 +83,7 @@ def test_v1_stem_works_mid_stroke_at_night() -> None:
 
 
 def test_the_wear_aware_pi_cuts_pi_s_error_and_reversals_on_v1() -> None:
-    """8 h of v1, tuning seeds 0-2: the event-based, SIMC-retuned pi_wear cuts both pi's iae and its
+    """8 h of the circulation task, tuning seeds 0-2: the event-based, SIMC-retuned pi_wear cuts both pi's iae and its
     stem reversals (on v0, at the seat, no controller does both: docs/controllers.md)."""
     kw = {"horizon_h": 8.0}
     res = {n: run_episodes(make_controller(n, V1), V1, 3, 0, env_kwargs=kw).sum(numeric_only=True)

@@ -127,7 +127,7 @@ TASK_SETTINGS: dict[str, dict[str, Any]] = {
     "ThermoValveDistrictHeatingPower-v0": {"horizon_steps": 2880, "block_steps": 60, "replan_steps": 120,
                                            "iterations": 12, "perturb": "setting", "terminal_value": True},
     "ThermoValveStickyValve-v0": {"horizon_steps": 40, "block_steps": 4, "replan_steps": 4, "iterations": 8},
-    "ThermoValveStickyValve-v1": {"horizon_steps": 40, "block_steps": 4, "replan_steps": 4, "iterations": 8},
+    "ThermoValveStickyCirculation-v0": {"horizon_steps": 40, "block_steps": 4, "replan_steps": 4, "iterations": 8},
 }
 
 

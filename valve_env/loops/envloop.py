@@ -1,5 +1,5 @@
 """Loop records from the project's own environment: a PI on the sticky-valve task
-(ThermoValveStickyValve-v0 by default; ``env_id="ThermoValveStickyValve-v1"`` for the stem mid-stroke, with
+(ThermoValveStickyValve-v0 by default; ``env_id="ThermoValveStickyCirculation-v0"`` for the stem mid-stroke, with
 a circulation loop, docs/tasks.md) trimming the valve's temperature setting, written as a loop CSV
 (docs/loops.md, "Loops from the environment").
 

@@ -132,7 +132,7 @@ def loss_heat(T, UA_loss, T_amb, Q_out, total_out, lo=0, hi=-1):
 def circulation_return_factor(m_circ, UA_pipe, cp):
     """The fraction of its excess over the pipes' ambient that the hot-water circulation keeps round its
     loop, exp(-UA_pipe / (m cp)): a pipe at a uniform ambient cools the water exponentially along its
-    length (docs/tasks.md, "ThermoValveStickyValve-v1"). 1 with no pipe loss; 0 with no flow."""
+    length (docs/tasks.md, "ThermoValveStickyCirculation-v0"). 1 with no pipe loss; 0 with no flow."""
     return np.exp(-UA_pipe / (m_circ * cp)) if m_circ > 0.0 else 0.0
 
 

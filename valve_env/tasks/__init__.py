@@ -92,7 +92,7 @@ _STICKY: dict[str, Mapping[str, Any]] = {
     "control": {"w_energy": 0.0},
 }
 
-#: a hot-water circulation loop on the sticky task's tank (docs/tasks.md, "ThermoValveStickyValve-v1"): 80 m of
+#: a hot-water circulation loop on the sticky task's tank (docs/tasks.md, "ThermoValveStickyCirculation-v0"): 80 m of
 #: insulated loop at 0.2 W/(m K) (UA 16 W/K), its pump sized for a drop under 5 K (110 kg/h), the return at
 #: mid-height, above the coil
 _CIRCULATION = {"circ_kgh": 110.0, "circ_UA": 16.0, "circ_height": 0.5}
@@ -128,8 +128,8 @@ TASKS: dict[str, Task] = {
         },
         env_class="ThermoValveStickyValveEnv",
     ),
-    "ThermoValveStickyValve-v1": Task(
-        "ThermoValveStickyValve-v1", "setting",
+    "ThermoValveStickyCirculation-v0": Task(
+        "ThermoValveStickyCirculation-v0", "setting",
         "StickyValve-v0 plus a hot-water circulation loop (about 0.6 kW of pipe loss): the sticky stem "
         "works mid-stroke, as in the stiction literature's loops",
         sections=_STICKY_V1,
@@ -151,7 +151,7 @@ TASKS: dict[str, Task] = {
                 "an assumption: the circulation return's connection at mid-height, above the coil (the "
                 "connection's height differs between makes)",
         },
-        env_class="ThermoValveStickyValveV1Env",
+        env_class="ThermoValveStickyCirculationEnv",
     ),
     "ThermoValveSmallCylinder-v0": Task(
         "ThermoValveSmallCylinder-v0", "setting",

@@ -287,10 +287,10 @@ class ThermoValveStickyValveEnv(ThermoValveTaskEnv):
     task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
 
 
-class ThermoValveStickyValveV1Env(ThermoValveTaskEnv):
+class ThermoValveStickyCirculationEnv(ThermoValveTaskEnv):
     """## Description
 
-    ThermoValveStickyValve-v1: ThermoValveStickyValve-v0 (the 200 l tank,
+    ThermoValveStickyCirculation-v0: ThermoValveStickyValve-v0 (the 200 l tank,
     cycle M, the stem sticking over 0.1 mm) plus a hot-water circulation
     loop: a pump takes 110 kg/h from the tank's top round 80 m of insulated
     pipe (16 W/K: 0.2 W/(m K), within the 5.1-10.8 W/m measured by
@@ -300,7 +300,7 @@ class ThermoValveStickyValveV1Env(ThermoValveTaskEnv):
     flow at night: the sticky stem works mid-stroke, as in the loops the
     stiction compensators were designed for, instead of at its seat (v0,
     whose night load is an eighth of a band's flow). docs/tasks.md,
-    "ThermoValveStickyValve-v1", on the sizing and on which building it fits.
+    "ThermoValveStickyCirculation-v0", on the sizing and on which building it fits.
 
     ## Action space
 
@@ -332,10 +332,10 @@ class ThermoValveStickyValveV1Env(ThermoValveTaskEnv):
 
     ## Version history
 
-    * v1 (issue 18, 24 Nov 2026): v0 plus the circulation loop; v0 unchanged.
+    * v0 (issue 18, 24 Nov 2026): ThermoValveStickyValve-v0 plus the circulation loop; that task is unchanged.
     """  # noqa: E501
 
-    task_id: ClassVar[str] = "ThermoValveStickyValve-v1"
+    task_id: ClassVar[str] = "ThermoValveStickyCirculation-v0"
 
 
 class ThermoValveSmallCylinderEnv(ThermoValveTaskEnv):
@@ -527,9 +527,9 @@ class ThermoValveStickyValveVectorEnv(ThermoValveTaskVectorEnv):
     task_id: ClassVar[str] = "ThermoValveStickyValve-v0"
 
 
-class ThermoValveStickyValveV1VectorEnv(ThermoValveTaskVectorEnv):
-    __doc__ = ThermoValveStickyValveV1Env.__doc__
-    task_id: ClassVar[str] = "ThermoValveStickyValve-v1"
+class ThermoValveStickyCirculationVectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveStickyCirculationEnv.__doc__
+    task_id: ClassVar[str] = "ThermoValveStickyCirculation-v0"
 
 
 class ThermoValveSmallCylinderVectorEnv(ThermoValveTaskVectorEnv):
@@ -571,8 +571,8 @@ __all__ = [
     "ThermoValveSmallCylinderEnv",
     "ThermoValveSmallCylinderVectorEnv",
     "ThermoValveStickyValveEnv",
-    "ThermoValveStickyValveV1Env",
-    "ThermoValveStickyValveV1VectorEnv",
+    "ThermoValveStickyCirculationEnv",
+    "ThermoValveStickyCirculationVectorEnv",
     "ThermoValveStickyValveVectorEnv",
     "ThermoValveTaskEnv",
     "ThermoValveTaskVectorEnv",
