@@ -43,7 +43,7 @@ ENV_STICKY_MM = 0.1
 
 
 def evidence(loop: Any) -> dict[str, Any]:
-    d = diagnose(loop)
+    d = diagnose(loop, bootstrap=True)  # the bootstrap route is one of the CV candidates
     dec = d.result["decision"]
     best = dec["best_nonlinear"]
     nl = next(f for f in d.result["findings"] if f["candidate"] == best)
