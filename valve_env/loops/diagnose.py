@@ -69,6 +69,9 @@ BAND_REL_SD = 0.10
 #: not in the record), so the correction is as uncertain as itself (calibrated with BAND_REL_SD: 0.41, two uniform
 #: shortfalls, covered 94 % at 2 sd with BAND_REL_SD 0.10 but only 57 % at 1 sd; docs/loops.md, "Band uncertainty")
 SAMPLING_SD_SHARE = 1.0
+#: the candidate whose fit gives the band: the most general valve (J profiled; J = 0 is the backlash), whichever
+#: nonlinearity the decision's BIC preferred (docs/loops.md, "Band uncertainty")
+BAND_CANDIDATE = "stiction"
 #: evidence needed on the BIC scale: delta BIC below -20 (beyond Kass & Raftery's "very strong", 10; set on the
 #: development loops, docs/loops.md; chosen again by the fourth session's grouped cross-validation)
 DELTA_BIC_MAX = -20.0
@@ -263,9 +266,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     result: dict[str, Any] = {"cause": "none"}
     if by_likelihood:  # the decision is the likelihood comparison alone (docs/loops.md)
         result["cause"] = "stiction"
-        # the band is the most general valve's (stick-slip, J profiled; J = 0 is the backlash), whichever
-        # nonlinearity the decision's BIC preferred (docs/loops.md, "Band uncertainty")
-        fit = fits["stiction"]
+        fit = fits[BAND_CANDIDATE]
         offset = sampling_offset(loop.op)
         band, sd, lo, hi = band_uncertainty(fit, f, offset)
         result["stiction"] = {
@@ -303,4 +304,4 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
 
 
 __all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty",
-           "sampling_offset"]
+           "sampling_offset", "BAND_CANDIDATE"]
