@@ -18,7 +18,8 @@ nonlinearity is named ``stiction`` only when all three hold:
    there is no evidence against the valve).
 
 A **parametric-bootstrap LR test** (the scan's statistic against 19 records simulated from the fitted
-linear loop, :func:`bootstrap_test`) is computed and reported (``decision.bootstrap``) but does not vote:
+linear loop, :func:`bootstrap_test`; its replicates only with ``bootstrap=True``) is reported
+(``decision.bootstrap``) but does not vote:
 the fourth session's grouped cross-validation rejected it (its Gaussian AR null is too narrow for the
 simulated smooth loops' load drift; docs/loops.md, "Decision").
 
