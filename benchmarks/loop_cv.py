@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from loop_benchmark import SPLIT, balanced_accuracy, sim_cases  # noqa: E402
 
-from valve_env.loops.diagnose import band_uncertainty, diagnose, sampling_offset  # noqa: E402
+from valve_env.loops.diagnose import BAND_CANDIDATE, band_uncertainty, diagnose, sampling_offset  # noqa: E402
 from valve_env.loops.io import LoopDataError, read_loop  # noqa: E402
 from valve_env.loops.sim import simulate_loop  # noqa: E402
 from valve_env.outputs import OutputSet, json_text  # noqa: E402
@@ -43,11 +43,11 @@ ENV_STICKY_MM = 0.1
 
 
 def evidence(loop: Any) -> dict[str, Any]:
-    d = diagnose(loop)
+    d = diagnose(loop, bootstrap=True)  # the bootstrap route is one of the CV candidates
     dec = d.result["decision"]
     best = dec["best_nonlinear"]
     nl = next(f for f in d.result["findings"] if f["candidate"] == best)
-    band, sd, _, _ = band_uncertainty(d.fits[best], d.neff_factor, sampling_offset(loop.op))
+    band, sd, _, _ = band_uncertainty(d.fits[BAND_CANDIDATE], d.neff_factor, sampling_offset(loop.op))
     sh = dec["shape"]
     return {"p": nl["p_value"], "p_boot": dec["bootstrap"]["p_value"], "delta_bic": nl["delta_bic"],
             "lr_adj": nl["lr_stat_adjusted"],

@@ -66,3 +66,28 @@ def test_bad_csv_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "column op has 1 NaN" in err[0]
     assert not out.exists()
+
+
+def test_bootstrap_test_flag(tmp_path: Path) -> None:
+    """--bootstrap-test adds the replicates (p-value, null) to decision.bootstrap and changes nothing else; without
+    it the scan's fields are still there and the SPEC s. 10 fields are complete."""
+    from valve_env.loops.sim import simulate_loop
+
+    loop, _ = simulate_loop("pressure", S=0.0, seed=3, hours=0.7)
+    src = tmp_path / "loop.csv"
+    src.write_text(loop.to_csv_text())
+    res = {}
+    for flag in ([], ["--bootstrap-test"]):
+        out = tmp_path / f"out{len(flag)}.json"
+        assert main(["loop-diagnose", str(src), "--json", str(out), *flag]) == 0
+        res[len(flag)] = json.loads(out.read_text())
+    off, on = res[0], res[1]
+    assert off["decision"]["bootstrap"]["n_run"] == 0 and off["decision"]["bootstrap"]["p_value"] is None
+    assert on["decision"]["bootstrap"]["n_run"] >= 1 and 0.0 < on["decision"]["bootstrap"]["p_value"] <= 1.0
+    for r in (off, on):
+        assert {"cause", "findings"} <= set(r)
+        for f in r["findings"]:
+            assert {"loglik", "lr_stat", "p_value", "delta_bic"} <= set(f)
+    assert off["decision"]["bootstrap"]["lr_scan"] == on["decision"]["bootstrap"]["lr_scan"]
+    on["decision"].pop("bootstrap"), off["decision"].pop("bootstrap")
+    assert on == off

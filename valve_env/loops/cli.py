@@ -1,4 +1,5 @@
-"""``thermovalve loop-diagnose LOOP.csv --json OUT.json [--report DIR] [--force]`` (docs/loops.md)."""
+"""``thermovalve loop-diagnose LOOP.csv --json OUT.json [--report DIR] [--bootstrap-test] [--force]``
+(docs/loops.md)."""
 
 from __future__ import annotations
 
@@ -20,6 +21,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
     p.add_argument("--report", metavar="DIR", default=None, help="write report.md and figures into DIR")
     p.add_argument("--alpha", type=float, default=0.01, help="significance level of the likelihood-ratio test")
+    p.add_argument("--bootstrap-test", action="store_true",
+                   help="also run the parametric-bootstrap LR test's replicates (reported in decision.bootstrap, "
+                   "not part of the decision; up to a third of the run time); without it only its LR scan is reported")
     add_force(p)
     p.set_defaults(func=_cmd)
 
@@ -42,7 +46,7 @@ def _cmd(args: argparse.Namespace) -> int:
         for name in (*FIGURES, "report.md"):
             outs.add(report_dir / name, "report file")
     loop = read_loop(args.loop)
-    diag = diagnose(loop, alpha=args.alpha)
+    diag = diagnose(loop, alpha=args.alpha, bootstrap=args.bootstrap_test)
     with outs:
         outs.write_text(json_path, json_text(diag.result))
         if report_dir is not None:
