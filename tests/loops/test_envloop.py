@@ -65,3 +65,11 @@ def test_env_loop_smooth_over_seeds(tmp_path: Path) -> None:
 def test_env_loop_sticky_over_seeds(tmp_path: Path) -> None:
     """Seeds 0-5: every sticky record named stiction (the issue's acceptance; not met, see STICKY_NOT_SEEN)."""
     assert [_diagnose_via_csv(STICKY_MM, s, tmp_path) for s in range(6)] == ["stiction"] * 6
+
+
+def test_env_loop_pi_gains_override() -> None:
+    """``Kp``/``Ti_s`` reach the PI: a slower PI moves the setting less on the same record."""
+    stored = record_env_loop(0.0, seed=0, hours=0.5, warmup_h=0.5, env_id="ThermoValveStickyCirculation-v0")
+    slow = record_env_loop(0.0, seed=0, hours=0.5, warmup_h=0.5, env_id="ThermoValveStickyCirculation-v0",
+                           Kp=1.0, Ti_s=3000.0)
+    assert np.abs(np.diff(slow.op)).sum() < 0.5 * np.abs(np.diff(stored.op)).sum()

@@ -22,12 +22,14 @@ ENV_ID = "ThermoValveStickyValve-v0"
 
 
 def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, warmup_h: float = 3.0,
-                    noise_K: float = 0.01, env_id: str = ENV_ID, filter_s: float = 0.0) -> LoopData:
+                    noise_K: float = 0.01, env_id: str = ENV_ID, filter_s: float = 0.0,
+                    Kp: float | None = None, Ti_s: float | None = None) -> LoopData:
     """Run the PI for ``warmup_h + hours`` on ``env_id`` (30 s steps) with the stem's stick band
     ``band_mm`` (0 or None: a smooth stem) and return the record of the last ``hours`` (the warm-up
     holds the tank's start-up heating, when the loop is saturated). The temperature sensors carry
     white noise of ``noise_K`` per sample (docs/loops.md, "Loops from the environment", on the choice);
-    ``filter_s`` is the PI's first-order measurement filter (the historian records the unfiltered PV)."""
+    ``filter_s`` is the PI's first-order measurement filter (the historian records the unfiltered PV);
+    ``Kp`` (K of setting per K) and ``Ti_s`` override the PI's stored gains for ``env_id``."""
     total = hours + warmup_h
     kw: dict = {"horizon_h": total, "max_episode_steps": int(round(total * 120)), "sensors": {"noise_K": noise_K},
                 "valve": {"effects": {"stiction": {"band_mm": float(band_mm or 0.0)}}}}
@@ -35,7 +37,7 @@ def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, wa
     space = env.action_space
     assert isinstance(space, gym.spaces.Box)
     lo, hi = float(space.low[0]), float(space.high[0])
-    ctrl = PIController(env_id, filter_s=filter_s)
+    ctrl = PIController(env_id, Kp=Kp, Ti_s=Ti_s, filter_s=filter_s)
     obs, _ = env.reset(seed=seed)
     state = None
     t, sp, pv, op = [], [], [], []

@@ -1,0 +1,55 @@
+"""Env-loop records diagnosed, sticky against smooth (issue 21's acceptance; docs/loops.md, "Loops from the
+environment").
+
+    python benchmarks/env_loop_study.py --env-id ThermoValveStickyCirculation-v0 --seeds 100-111 --kp 5 --ti 1500
+
+For each seed: a record with a 0.1 mm stem band and one with a smooth stem (``record_env_loop``), each diagnosed
+(``valve_env.loops.diagnose``); prints one line per record and the counts. ``--kp``/``--ti`` override the PI's
+stored gains (both or neither)."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from valve_env.loops.diagnose import diagnose
+from valve_env.loops.envloop import ENV_ID, record_env_loop
+
+STICKY_MM = 0.1
+
+
+def _seeds(text: str) -> list[int]:
+    if "-" in text:
+        a, b = text.split("-", 1)
+        return list(range(int(a), int(b) + 1))
+    return [int(s) for s in text.split(",")]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--env-id", default=ENV_ID)
+    ap.add_argument("--seeds", default="0-5", help="a range A-B or a comma list")
+    ap.add_argument("--kp", type=float, default=None, help="PI gain, K of setting per K")
+    ap.add_argument("--ti", type=float, default=None, help="PI integral time, s")
+    a = ap.parse_args(argv)
+    if (a.kp is None) != (a.ti is None):
+        ap.error("give both --kp and --ti, or neither")
+    try:
+        seeds = _seeds(a.seeds)
+    except ValueError:
+        ap.error(f"--seeds must be A-B or a comma list of integers, got {a.seeds!r}")
+    named = {STICKY_MM: 0, 0.0: 0}
+    for seed in seeds:
+        for band in (STICKY_MM, 0.0):
+            t0 = time.perf_counter()
+            cause = diagnose(record_env_loop(band, seed=seed, env_id=a.env_id, Kp=a.kp, Ti_s=a.ti)).cause
+            named[band] += cause == "stiction"
+            print(f"seed {seed} band {band:g} mm: {cause} ({time.perf_counter() - t0:.1f} s)", flush=True)
+    n = len(seeds)
+    print(f"{a.env_id}, PI {'stored' if a.kp is None else f'Kp {a.kp:g}, Ti {a.ti:g} s'}: sticky named stiction "
+          f"{named[STICKY_MM]}/{n}, smooth named stiction {named[0.0]}/{n}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
