@@ -110,7 +110,9 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
     valve's flow times supply minus cold water, out the day's draws and the standing loss, linear in the mean
     temperature), bought at the step's price, settled at the end as the task settles it; tracking costs at
     least w_track (T_mean - T_target)^2 (the top is the hottest layer), the floor at least w_floor times the
-    top's shortfall when all the heat sat in the top layer; the return tariff is counted as zero. A linear
+    top's shortfall when all the heat sat in the top layer; the return tariff is counted as zero. The coil
+    gives at most UA_coil (T_sup - its layers' mean), and no layer is hotter than the hottest supply or
+    start, so a full store bounds the heat it can still take (and the store's own size). A linear
     programme (HiGHS; the quadratic by tangents from below). It bounds the plant only as far as the store
     model does (one explicit step per control step; the flow limit taken from one day at the top setting)."""
     import gymnasium as gym
@@ -181,6 +183,26 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
         ub_v += [-1.0 / m_l, -1.0]
         b_ub.append(-ctl.T_floor_C - (C - m_l) * tk.T_cold / m_l)
         r += 1
+    # the coil (the lowest coil_layers layers) gives at most UA_coil (T_sup - mean coil-layer temperature)
+    # (each segment's inlet is at most T_sup); no layer is hotter than the hottest supply or start
+    # (heat comes only through the coil), so the coil layers' mean is at least
+    # (C T_mean - (C - C_coil) T_hot) / C_coil: a store fuller than the upper layers can hold forces
+    # a warm coil and a smaller heat input
+    T_hot = float(max(scen[:, 3].max(), np.max(np.asarray(st0.state)[: tk.n_layers])))
+    f_coil = tk.coil_layers / tk.n_layers
+    for k in range(N):  # q_k + UA E_{k-1} / (f C) <= UA (T_sup_k + (1 - f) T_hot / f)
+        ub_r.append(r)
+        ub_c.append(iq + k)
+        ub_v.append(1.0)
+        rhs = tk.UA_coil * (scen[k, 3] + (1.0 - f_coil) * T_hot / f_coil)
+        if k > 0:
+            ub_r.append(r)
+            ub_c.append(iE + k - 1)
+            ub_v.append(tk.UA_coil / (f_coil * C))
+        else:
+            rhs -= tk.UA_coil * E0 / (f_coil * C)
+        b_ub.append(rhs)
+        r += 1
     if power:  # peak >= each clock hour's heat, kW
         per_h = int(round(3600.0 / dt))
         for h in range(N // per_h):
@@ -194,7 +216,9 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
             b_ub.append(0.0)
             r += 1
     A_ub = sparse.csr_matrix((ub_v, (ub_r, ub_c)), shape=(r, nv))
-    bounds = ([(0.0, float(q)) for q in q_max] + [(C * tk.T_cold, None)] * N + [(0.0, None)] * (2 * N)
+    q_top = np.minimum(q_max, tk.UA_coil * np.maximum(scen[:, 3] - tk.T_cold, 0.0))  # W
+    bounds = ([(0.0, float(q)) for q in q_top]
+              + [(C * tk.T_cold, C * T_hot)] * N + [(0.0, None)] * (2 * N)
               + ([(0.0, None)] if power else []))
     res = linprog(c, A_ub=A_ub, b_ub=np.array(b_ub), A_eq=A_eq, b_eq=b_eq, bounds=bounds, method="highs")
     if res.status != 0:
