@@ -4,7 +4,7 @@ and the oracle's cost and time per 24 h episode, on held-out seeds (the settings
 
     python benchmarks/controllers_bench.py compensators [--seed 100 --episodes 10 --band 0.1]
     python benchmarks/controllers_bench.py task-compensators [--task ThermoValveStickyValve-v0 --band MM]
-    python benchmarks/controllers_bench.py oracle [--seed 100 --episodes 3 --tasks ID ...]
+    python benchmarks/controllers_bench.py oracle [--seed 100 --episodes 3 --tasks ID ...] [--oracle-settings JSON]
     python benchmarks/controllers_bench.py bound --seed 0 --episodes 5 --tasks ThermoValveDistrictHeating-v0
 
 Prints markdown tables (means over the episodes; paired differences against ``pi``).
@@ -13,7 +13,10 @@ Prints markdown tables (means over the episodes; paired differences against ``pi
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 import time
+from typing import Any
 
 import pandas as pd
 
@@ -76,8 +79,9 @@ def task_compensators(task: str, seed: int, episodes: int, band: float | None) -
               f"(pi {base['tdis_Kh']:.3f}): goal {'met' if met else 'not met'}")
 
 
-def oracle(seed: int, episodes: int, tasks: list[str]) -> None:
-    """The oracle's cost against pi's and its wall time per 24 h episode, on each task."""
+def oracle(seed: int, episodes: int, tasks: list[str], settings: dict[str, Any] | None = None) -> None:
+    """The oracle's cost against pi's and its wall time per 24 h episode, on each task (``settings``
+    over the task's own, for tuning on seeds 0-4)."""
     summary = []
     for task in tasks:
         rows = {}
@@ -85,7 +89,7 @@ def oracle(seed: int, episodes: int, tasks: list[str]) -> None:
         times = []
         recs = []
         for i in range(episodes):
-            o = make_controller("oracle", task)
+            o = make_controller("oracle", task, **(settings or {}))
             t0 = time.perf_counter()
             recs.append(run_episodes(o, task, 1, seed + i))
             times.append(time.perf_counter() - t0)
@@ -255,7 +259,18 @@ def main() -> None:
     ap.add_argument("--task", default="ThermoValveStickyValve-v0", help="env id for task-compensators")
     ap.add_argument("--tasks", nargs="+", default=["ThermoValve-v0", *valve_env.TASK_IDS],
                     help="env ids for `oracle` (default: ThermoValve-v0 and every benchmark task)")
+    ap.add_argument("--oracle-settings", default="{}",
+                    help='JSON object of oracle settings over the task\'s own, e.g. \'{"replan_steps": 240}\'')
     a = ap.parse_args()
+    try:
+        settings = json.loads(a.oracle_settings)
+        if not isinstance(settings, dict):
+            raise ValueError("not a JSON object")
+        if a.what == "oracle":
+            make_controller("oracle", a.tasks[0], **settings)  # an unknown or bad setting fails here
+    except (ValueError, TypeError) as exc:
+        print(f"thermovalve: error: --oracle-settings {a.oracle_settings!r}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     if a.what == "compensators":
         compensators(a.seed, a.episodes or 10, 0.1 if a.band is None else a.band)
     elif a.what == "task-compensators":
@@ -263,7 +278,7 @@ def main() -> None:
     elif a.what == "bound":
         bound(a.seed, a.episodes or 3, a.tasks)
     else:
-        oracle(a.seed, a.episodes or 3, a.tasks)
+        oracle(a.seed, a.episodes or 3, a.tasks, settings)
 
 
 if __name__ == "__main__":

@@ -118,8 +118,7 @@ class OracleSettings:
 #: hours before it is drawn, so the plan runs to the end of the day (a shorter plan pays no power peak by
 #: deferring every charge, and must guess the stored heat's worth), replanned every 2 h with 20 iterations
 #: (the preview is perfect: fewer, deeper plans beat more, shallower ones at less cost), in half-hour knots
-#: of the valve's own
-#: setting (the PI, given a raised target, opens the valve fully and pays the return tariff on a hot
+#: of the valve's own setting (the PI, given a raised target, opens the valve fully and pays the return tariff on a hot
 #: return; the valve alone throttles), with the heat left in the tank valued as the task settles it;
 #: on the sticky task the cost is the stem's 12-min limit cycle, which a short horizon with fine blocks
 #: and more iterations follows better
