@@ -256,3 +256,19 @@ def test_two_move_position_gains_are_simc_on_the_tank_s_integrating_model() -> N
     np.testing.assert_allclose(c.Ti_x_s, 12.0 * theta)
     with pytest.raises(ValueError, match="replace_band"):
         make_controller("two_move_position", STICKY_TASK, replace_band=0.0)
+
+
+@pytest.mark.parametrize("bad", ['{"bogus": 1}', "[1", '{"replan_steps": 0}'])
+def test_controllers_bench_rejects_bad_oracle_settings_in_one_line(bad: str) -> None:
+    """benchmarks/controllers_bench.py oracle --oracle-settings: malformed JSON, an unknown setting or
+    an out-of-range value stop before any episode with one error line and exit status 2."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "controllers_bench.py"
+    res = subprocess.run([sys.executable, str(script), "oracle", "--tasks", "ThermoValveDistrictHeating-v0",
+                          "--oracle-settings", bad], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("thermovalve: error:")]
+    assert len(errors) == 1 and "--oracle-settings" in errors[0]
+    assert res.stdout == ""
