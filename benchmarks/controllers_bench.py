@@ -4,7 +4,7 @@ and the oracle's cost and time per 24 h episode, on held-out seeds (the settings
 
     python benchmarks/controllers_bench.py compensators [--seed 100 --episodes 10 --band 0.1]
     python benchmarks/controllers_bench.py task-compensators [--task ThermoValveStickyValve-v0 --band MM]
-    python benchmarks/controllers_bench.py oracle [--seed 100 --episodes 3 --tasks ID ...]
+    python benchmarks/controllers_bench.py oracle [--seed 100 --episodes 3 --tasks ID ...] [--oracle-settings JSON]
     python benchmarks/controllers_bench.py bound --seed 0 --episodes 5 --tasks ThermoValveDistrictHeating-v0
 
 Prints markdown tables (means over the episodes; paired differences against ``pi``).
@@ -13,7 +13,10 @@ Prints markdown tables (means over the episodes; paired differences against ``pi
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 import time
+from typing import Any
 
 import pandas as pd
 
@@ -76,8 +79,9 @@ def task_compensators(task: str, seed: int, episodes: int, band: float | None) -
               f"(pi {base['tdis_Kh']:.3f}): goal {'met' if met else 'not met'}")
 
 
-def oracle(seed: int, episodes: int, tasks: list[str]) -> None:
-    """The oracle's cost against pi's and its wall time per 24 h episode, on each task."""
+def oracle(seed: int, episodes: int, tasks: list[str], settings: dict[str, Any] | None = None) -> None:
+    """The oracle's cost against pi's and its wall time per 24 h episode, on each task (``settings``
+    over the task's own, for tuning on seeds 0-4)."""
     summary = []
     for task in tasks:
         rows = {}
@@ -85,7 +89,7 @@ def oracle(seed: int, episodes: int, tasks: list[str]) -> None:
         times = []
         recs = []
         for i in range(episodes):
-            o = make_controller("oracle", task)
+            o = make_controller("oracle", task, **(settings or {}))
             t0 = time.perf_counter()
             recs.append(run_episodes(o, task, 1, seed + i))
             times.append(time.perf_counter() - t0)
@@ -110,7 +114,9 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
     valve's flow times supply minus cold water, out the day's draws and the standing loss, linear in the mean
     temperature), bought at the step's price, settled at the end as the task settles it; tracking costs at
     least w_track (T_mean - T_target)^2 (the top is the hottest layer), the floor at least w_floor times the
-    top's shortfall when all the heat sat in the top layer; the return tariff is counted as zero. A linear
+    top's shortfall when all the heat sat in the top layer; the return tariff is counted as zero. The coil
+    gives at most UA_coil (T_sup - its layers' mean), and no layer is hotter than the hottest supply or
+    start, so a full store bounds the heat it can still take (and the store's own size). A linear
     programme (HiGHS; the quadratic by tangents from below). It bounds the plant only as far as the store
     model does (one explicit step per control step; the flow limit taken from one day at the top setting)."""
     import gymnasium as gym
@@ -181,6 +187,26 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
         ub_v += [-1.0 / m_l, -1.0]
         b_ub.append(-ctl.T_floor_C - (C - m_l) * tk.T_cold / m_l)
         r += 1
+    # the coil (the lowest coil_layers layers) gives at most UA_coil (T_sup - mean coil-layer temperature)
+    # (each segment's inlet is at most T_sup); no layer is hotter than the hottest supply or start
+    # (heat comes only through the coil), so the coil layers' mean is at least
+    # (C T_mean - (C - C_coil) T_hot) / C_coil: a store fuller than the upper layers can hold forces
+    # a warm coil and a smaller heat input
+    T_hot = float(max(scen[:, 3].max(), np.max(np.asarray(st0.state)[: tk.n_layers])))
+    f_coil = tk.coil_layers / tk.n_layers
+    for k in range(N):  # q_k + UA E_{k-1} / (f C) <= UA (T_sup_k + (1 - f) T_hot / f)
+        ub_r.append(r)
+        ub_c.append(iq + k)
+        ub_v.append(1.0)
+        rhs = tk.UA_coil * (scen[k, 3] + (1.0 - f_coil) * T_hot / f_coil)
+        if k > 0:
+            ub_r.append(r)
+            ub_c.append(iE + k - 1)
+            ub_v.append(tk.UA_coil / (f_coil * C))
+        else:
+            rhs -= tk.UA_coil * E0 / (f_coil * C)
+        b_ub.append(rhs)
+        r += 1
     if power:  # peak >= each clock hour's heat, kW
         per_h = int(round(3600.0 / dt))
         for h in range(N // per_h):
@@ -194,7 +220,9 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
             b_ub.append(0.0)
             r += 1
     A_ub = sparse.csr_matrix((ub_v, (ub_r, ub_c)), shape=(r, nv))
-    bounds = ([(0.0, float(q)) for q in q_max] + [(C * tk.T_cold, None)] * N + [(0.0, None)] * (2 * N)
+    q_top = np.minimum(q_max, tk.UA_coil * np.maximum(scen[:, 3] - tk.T_cold, 0.0))  # W
+    bounds = ([(0.0, float(q)) for q in q_top]
+              + [(C * tk.T_cold, C * T_hot)] * N + [(0.0, None)] * (2 * N)
               + ([(0.0, None)] if power else []))
     res = linprog(c, A_ub=A_ub, b_ub=np.array(b_ub), A_eq=A_eq, b_eq=b_eq, bounds=bounds, method="highs")
     if res.status != 0:
@@ -231,7 +259,18 @@ def main() -> None:
     ap.add_argument("--task", default="ThermoValveStickyValve-v0", help="env id for task-compensators")
     ap.add_argument("--tasks", nargs="+", default=["ThermoValve-v0", *valve_env.TASK_IDS],
                     help="env ids for `oracle` (default: ThermoValve-v0 and every benchmark task)")
+    ap.add_argument("--oracle-settings", default="{}",
+                    help='JSON object of oracle settings over the task\'s own, e.g. \'{"replan_steps": 240}\'')
     a = ap.parse_args()
+    try:
+        settings = json.loads(a.oracle_settings)
+        if not isinstance(settings, dict):
+            raise ValueError("not a JSON object")
+        if a.what == "oracle":
+            make_controller("oracle", a.tasks[0], **settings)  # an unknown or bad setting fails here
+    except (ValueError, TypeError) as exc:
+        print(f"thermovalve: error: --oracle-settings {a.oracle_settings!r}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     if a.what == "compensators":
         compensators(a.seed, a.episodes or 10, 0.1 if a.band is None else a.band)
     elif a.what == "task-compensators":
@@ -239,7 +278,7 @@ def main() -> None:
     elif a.what == "bound":
         bound(a.seed, a.episodes or 3, a.tasks)
     else:
-        oracle(a.seed, a.episodes or 3, a.tasks)
+        oracle(a.seed, a.episodes or 3, a.tasks, settings)
 
 
 if __name__ == "__main__":

@@ -278,3 +278,19 @@ def test_pi_integral_band_freezes_the_integral_inside_one_band_of_demand() -> No
     p.step(o, sp)
     assert s1[0, 0] == s0[0, 0] and s1[1, 0] != s0[1, 0]
     assert s1[1, 0] == pytest.approx(sp[1, 0])
+
+
+@pytest.mark.parametrize("bad", ['{"bogus": 1}', "[1", '{"replan_steps": 0}'])
+def test_controllers_bench_rejects_bad_oracle_settings_in_one_line(bad: str) -> None:
+    """benchmarks/controllers_bench.py oracle --oracle-settings: malformed JSON, an unknown setting or
+    an out-of-range value stop before any episode with one error line and exit status 2."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "controllers_bench.py"
+    res = subprocess.run([sys.executable, str(script), "oracle", "--tasks", "ThermoValveDistrictHeating-v0",
+                          "--oracle-settings", bad], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("thermovalve: error:")]
+    assert len(errors) == 1 and "--oracle-settings" in errors[0]
+    assert res.stdout == ""

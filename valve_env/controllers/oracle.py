@@ -116,16 +116,17 @@ class OracleSettings:
 #: per task, the settings that replace the stored ones (docs/controllers.md, "oracle"; chosen on tuning
 #: seeds 0-4, never on the held-out 5000+): on the district-heating tasks the bill rewards buying heat
 #: hours before it is drawn, so the plan runs to the end of the day (a shorter plan pays no power peak by
-#: deferring every charge, and must guess the stored heat's worth), in half-hour knots of the valve's own
-#: setting (the PI, given a raised target, opens the valve fully and pays the return tariff on a hot
+#: deferring every charge, and must guess the stored heat's worth), replanned every 2 h with 20 iterations
+#: (the preview is perfect: fewer, deeper plans beat more, shallower ones at less cost), in half-hour knots
+#: of the valve's own setting (the PI, given a raised target, opens the valve fully and pays the return tariff on a hot
 #: return; the valve alone throttles), with the heat left in the tank valued as the task settles it;
 #: on the sticky task the cost is the stem's 12-min limit cycle, which a short horizon with fine blocks
 #: and more iterations follows better
 TASK_SETTINGS: dict[str, dict[str, Any]] = {
-    "ThermoValveDistrictHeating-v0": {"horizon_steps": 2880, "block_steps": 60, "replan_steps": 120,
-                                      "iterations": 12, "perturb": "setting", "terminal_value": True},
-    "ThermoValveDistrictHeatingPower-v0": {"horizon_steps": 2880, "block_steps": 60, "replan_steps": 120,
-                                           "iterations": 12, "perturb": "setting", "terminal_value": True},
+    "ThermoValveDistrictHeating-v0": {"horizon_steps": 2880, "block_steps": 60, "replan_steps": 240,
+                                      "iterations": 20, "perturb": "setting", "terminal_value": True},
+    "ThermoValveDistrictHeatingPower-v0": {"horizon_steps": 2880, "block_steps": 60, "replan_steps": 240,
+                                           "iterations": 20, "perturb": "setting", "terminal_value": True},
     "ThermoValveStickyValve-v0": {"horizon_steps": 40, "block_steps": 4, "replan_steps": 4, "iterations": 8},
     "ThermoValveStickyCirculation-v0": {"horizon_steps": 40, "block_steps": 4, "replan_steps": 4, "iterations": 8},
 }
