@@ -495,7 +495,11 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 ad = abs(d)
                 if ad <= dmax:
                     continue  # stuck before at this distance: the band is larger
-                sd = math.sqrt(vb + Pss)
+                # the band's spread and the stem's position uncertainty, the latter at most the band's
+                # spread: an unbounded one kept the hazard smooth as the band vanished (a stem a micrometre
+                # from the demand 'slipped' with probability 0.5 at band 1e-5 mm), so the statistic did not
+                # tend to the base model's (2 x 27 log-units at one sample of development seed 31's run 0)
+                sd = math.sqrt(vb + min(Pss, vb))
                 F0 = _band_cdf(dmax, band, sd)
                 F1 = _band_cdf(ad, band, sd)
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
@@ -521,7 +525,10 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             # probability that the band holds it at the demand's distance). As the band vanishes both
             # alternatives lose their prior (p_slip -> 1, the band holds nothing): the base model's score
             xk = x_sub[sub_idx[k]]
-            w_a = 1.0 - p_slip
+            # a stem that never slipped is held by its band at the demand's present distance: p_slip was
+            # decided at a smaller distance and no longer grows once the stem moves (without this bound a
+            # position left 1400 bands behind kept prior 1e-4 and won a measurement by model error)
+            w_a = min(1.0 - p_slip, 1.0 - _band_cdf(abs(xk - s_alt), band, spread * band))
             w_h = 0.0
             if was_moving:
                 w_h = RESTICK_P * (1.0 - _band_cdf(abs(xk - s_hold), band, spread * band))
