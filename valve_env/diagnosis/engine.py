@@ -46,27 +46,19 @@ _demanded_opening = njit(cache=True)(phys.demanded_opening)
 _dahl_update = njit(cache=True)(phys.dahl_update)
 LOG2PI = math.log(2.0 * math.pi)
 SQRT2 = math.sqrt(2.0)
-#: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next);
-#: 0.3 (0.5 until round 5: with the measurement-updated slip its likelihood on the exact (S, J) run of
-#: tests/diagnosis/test_uncertainty.py peaked at 0.5 band, at 0.3 it peaks at 0.85 band with the band 0.9
-#: below; docs/diagnosis.md, "The stick-slip filter, round 5")
-BAND_SPREAD = 0.3
+#: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
+BAND_SPREAD = 0.5
 #: sd of the landing position after a slip relative to the band: the (S, J = S) stem lands on the demand, so
 #: this only absorbs the simulated demand's error (0.5, as the earlier re-sticking filter used, peaked at 1.3
 #: times the band on exact stick-slip data; 0.2 at the band)
 LANDING_SD = 0.2
-#: the posterior probability of a slip since the stem last stuck (after a measurement) at which the
-#: stick-slip filter decides that it moves
+#: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
 DECIDE_MOVING = 0.5
-#: the prior probability of a slip (between measurements) at which the filter decides that it moves
-DECIDE_PRIOR = 0.999
 #: prior probability that a stem which moved at the last sample has stuck since without a reversal of the
 #: demand (a valve that re-sticks after every slip, or at a pause of the demand), before the band's own
-#: probability that it stays stuck there. 0.01: against exp(-2) (the log-likelihood ratio of 2 at which the
-#: earlier filter re-stuck it) it raised the statistic at the true band on 23 of 24 generated (S, J) runs
-#: (development seed 5151) and on the independent simulator's `sj` run, and lowered it on its `reset` run
-#: (409 -> 300, still far above any threshold); docs/diagnosis.md, "The stick-slip filter, round 5"
-RESTICK_P = 0.01
+#: probability that it stays stuck there; exp(-2), the log-likelihood ratio of 2 at which the earlier filter
+#: re-stuck it (docs/diagnosis.md, "The stick-slip filter, round 5")
+RESTICK_P = math.exp(-2.0)
 
 
 # --------------------------------------------------------------------------- 2. the valve simulation
@@ -401,8 +393,8 @@ def _band_cdf(x: float, band: float, sd: float) -> float:
 @njit(cache=True)
 def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.ndarray, band: float,
                  stroke: float, s_w: float, s_e: float, tau_e: float,
-                 mask: np.ndarray, spread: float = BAND_SPREAD, landing: float = LANDING_SD,
-                 restick: float = RESTICK_P) -> tuple[float, np.ndarray, np.ndarray]:
+                 mask: np.ndarray, spread: float = BAND_SPREAD,
+                 landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
     The stem follows the (S, J = S) model of :mod:`valve_env.physics.stickslip` (:func:`stick_simulate`):
@@ -410,30 +402,25 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     it until the demand stops or reverses, where it sticks again.
 
     States: the stem position ``s`` and the model error ``e`` (Ornstein-Uhlenbeck, as in
-    :func:`ou_loglik`); observation ``y = s + e + w``. **Every measurement is scored once, under the
-    predictive mixture of the filter's hypotheses with their prior probabilities** (a first-order
-    generalised pseudo-Bayes filter), and the filter then goes on with the most probable hypothesis
-    (decision-directed); docs/diagnosis.md, "The stick-slip filter, round 5":
-
-    * a **resting** stem slips, in each sub-step, with the probability of breakaway in that sub-step
-      (below); ``p_slip`` is the probability that it has slipped since it last stuck. At a measurement
-      the hypotheses are "stuck where it rests" (prior ``1 - p_slip``) and "slipped onto the demand"
-      (``p_slip``, landing sd ``landing * band``); Bayes' rule updates ``p_slip``, and where the slip is
-      the more probable (``DECIDE_MOVING``) the stem is put on the demand and moves. Between
-      measurements it is decided only where the prior alone makes it near certain (``DECIDE_PRIOR``);
-    * a **moving** stem follows the demand's increments until the demand stops or reverses ("stops or
-      reverses" judged on the demand freed of its noise's reversals, :func:`stick_demand`, as in
-      :func:`stick_simulate`), where it sticks. At a measurement the hypotheses are "moves", "never
-      slipped since it stuck" (prior ``1 - p_slip``, at most the probability that the band holds the
-      stem at the demand's present distance) and, for a stem that moved at the last sample, "stuck
-      there since" (prior ``restick``, default ``RESTICK_P``, times that probability): a valve that
-      re-sticks after every slip (a staircase) or at a pause of the demand is followed too, and pays
-      for each such re-stick the log of its prior.
-
-    As the band vanishes, every alternative loses its prior and the stem follows the demand: the
-    likelihood tends to the base model's, so the likelihood-ratio statistic tends to 0 (the filter of
-    rounds 3-4 scored a measurement against the hypothesis that the measurement itself had chosen and
-    kept a gain at band 1e-8 mm).
+    :func:`ou_loglik`); observation ``y = s + e + w``. Between samples, on the sub-step grid: a resting
+    stem slips with the probability of breakaway *in this sub-step*, landing on the demand with an
+    uncertainty of ``landing * band`` (sd). The breakaway band itself varies (sd ``spread * band``) and
+    the stem position is uncertain, so the filter moment-matches the two outcomes (a first-order
+    generalised pseudo-Bayes filter; this also makes the likelihood continuous in ``band``); once the
+    probability that the stem has slipped since it last stuck passes ``DECIDE_MOVING``, the filter decides that
+    it moves and lets it follow the demand's increments until the demand stops or reverses
+    (decision-directed). Where the stem sticks, ``s`` is unchanged and the measurements pin it down.
+    "Stops or reverses" is judged on the demand freed of its noise's reversals (:func:`stick_demand`),
+    as in :func:`stick_simulate`. While the filter holds that the stem moves, each measurement is scored
+    once, under the predictive mixture of three hypotheses with their prior probabilities: it moves, it
+    never slipped since it last stuck (prior ``1 - p_slip``), and it stuck where it was at the last
+    sample (prior ``RESTICK_P`` times the probability that the band holds it at the demand's present
+    distance); the filter then goes on with the most probable one, and while it goes on moving the
+    measurement's posterior updates ``p_slip``. A valve that re-sticks after every slip (a staircase)
+    or at a pause of the demand is followed as well as an (S, J) one (docs/diagnosis.md, "The (S, J)
+    stick-slip"); as the band vanishes both alternatives lose their prior, so the statistic tends to 0
+    (docs/diagnosis.md, "The stick-slip filter, round 5": the earlier filter scored the measurement
+    against the hypothesis that the measurement had chosen).
 
     The breakaway probability is a first-passage hazard: a stem that has stuck while the demand
     was ``dmax`` away has a band larger than ``dmax``, so it slips in this sub-step with
@@ -495,12 +482,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 c_prev = c[j]
                 if dc * dc_prev <= 0.0:
                     # the demand (freed of its noise's reversals, stick_demand) stops or reverses: a moving
-                    # stem sticks where it is; a resting one that has more likely than not slipped since it
-                    # stuck has followed the demand here and sticks here
-                    if not moving and p_slip >= DECIDE_MOVING:
-                        ms = min(max(xd, 0.0), stroke)
-                        Pss = vl
-                        Pes = 0.0
+                    # stem sticks where it is
                     moving = False
                     p_slip = 0.0
                     dmax = 0.0
@@ -523,16 +505,14 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
                 dmax = ad
                 if pi > 1e-12:
-                    # two hypotheses, "still stuck at ms" and "slipped onto the demand" (then on the demand,
-                    # sd landing * band); the next measurement weighs them (below). Between measurements
-                    # the filter decides that the stem moves only where the prior alone makes it near certain
+                    # moment-matched mixture of "still stuck" and "slipped onto the demand"
+                    ms = ms + pi * d
+                    Pss = (1.0 - pi) * Pss + pi * vl + pi * (1.0 - pi) * d * d
+                    Pes = (1.0 - pi) * Pes
                     p_slip = 1.0 - (1.0 - p_slip) * (1.0 - pi)
-                    if p_slip >= DECIDE_PRIOR:
-                        moving = True
-                        s_alt = ms  # where it would be had it not slipped
-                        ms = xd
-                        Pss = vl
-                        Pes = 0.0
+                    if p_slip >= DECIDE_MOVING:
+                        moving = True  # decided: it has broken away and now moves with the demand
+                        s_alt = ms - pi * d  # where it would be had it not slipped
         S = Pee + 2.0 * Pes + Pss + vw
         nu = y[k] - ms - me
         lk = -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
@@ -551,7 +531,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             w_a = min(1.0 - p_slip, 1.0 - _band_cdf(abs(xk - s_alt), band, spread * band))
             w_h = 0.0
             if was_moving:
-                w_h = restick * (1.0 - _band_cdf(abs(xk - s_hold), band, spread * band))
+                w_h = RESTICK_P * (1.0 - _band_cdf(abs(xk - s_hold), band, spread * band))
             w_m = 1.0 - w_a - w_h
             nu_s = y[k] - s_alt - me
             nu_h = y[k] - s_hold - me
@@ -576,27 +556,6 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             else:
                 # it moves: the measurement's evidence against "never slipped" carries to the next sample
                 p_slip = 1.0 - math.exp(l_a - top) / tot
-        elif mask[k] and band > 0.0 and k > 0 and p_slip > 0.0:
-            # a resting stem that may have slipped since the last sample: the measurement is scored under
-            # the mixture of "stuck at ms" (prior 1 - p_slip) and "on the demand" (p_slip), and updates the
-            # slip probability by Bayes' rule; where the slip is now the more probable, the stem moves
-            xk = x_sub[sub_idx[k]]
-            S1 = Pee + vl + vw
-            nu1 = y[k] - xk - me
-            l_s = math.log(1.0 - p_slip) - 0.5 * (math.log(S) + nu * nu / S)
-            l_1 = math.log(p_slip) - 0.5 * (math.log(S1) + nu1 * nu1 / S1)
-            top = max(l_s, l_1)
-            tot = math.exp(l_s - top) + math.exp(l_1 - top)
-            lk = -0.5 * LOG2PI + top + math.log(tot)
-            p_slip = math.exp(l_1 - top) / tot
-            if p_slip >= DECIDE_MOVING:
-                moving = True
-                s_alt = ms
-                ms = xk
-                Pss = vl
-                Pes = 0.0
-                nu = nu1
-                S = S1
         innov[k] = nu
         Sout[k] = S
         if mask[k]:
