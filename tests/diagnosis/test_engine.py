@@ -104,3 +104,31 @@ def test_stick_filter_statistic_vanishes_with_the_band(run) -> None:  # type: ig
     base = m.loglik(d, vals)
     lr = [2.0 * (m.loglik(d, {**vals, "band_mm": b}) - base) for b in (1e-8, 1e-6, 1e-5)]
     assert abs(lr[0]) < 1e-3 and abs(lr[1]) < 0.05 and abs(lr[2]) < 0.5, lr
+
+
+def test_loglik_terms_sum_to_the_loglik(run) -> None:  # type: ignore[no-untyped-def]
+    """Each sample's term (the stick-slip filter's mixture term where it weighed hypotheses) sums to the
+    log-likelihood, for the base model and for stiction; the held-out gain is their sum over the held-out part."""
+    d = _data(run)
+    for effects, extra in (((), {}), (("stiction",), {"band_mm": 0.01})):
+        m = Model(effects)
+        vals = {**m.default_start(d), "s_e": 2e-3, "tau_e": 300.0, "s_w": 2.4e-3, **extra}
+        terms = m.loglik_terms(d, vals)
+        assert terms.shape == (len(d),)
+        assert float(np.sum(terms)) == pytest.approx(m.loglik(d, vals), rel=1e-9)
+
+
+def test_trimmed_lr_drops_the_largest_single_sample_gains() -> None:
+    from valve_env.diagnosis.diagnose import TRIM_SAMPLES, trimmed_lr
+
+    rng = np.random.default_rng(0)
+    noise = 0.01 * rng.standard_normal(2000)
+    spike = noise.copy()
+    spike[[100, 900]] = [30.0, 25.0]  # a gain at two samples: a misfit spike of the base model
+    assert trimmed_lr(spike) < 1.0 < 2.0 * float(np.sum(spike))
+    spread = noise.copy()
+    spread[::100] += 3.0  # 20 events of 3 units each: a real event effect
+    g = 2.0 * spread
+    assert trimmed_lr(spread) == pytest.approx(g.sum() - np.sort(g)[-TRIM_SAMPLES:].sum())
+    assert trimmed_lr(spread) > 0.8 * g.sum()
+    assert trimmed_lr(-np.abs(spread)) == 0.0

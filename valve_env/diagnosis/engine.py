@@ -394,7 +394,7 @@ def _band_cdf(x: float, band: float, sd: float) -> float:
 def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.ndarray, band: float,
                  stroke: float, s_w: float, s_e: float, tau_e: float,
                  mask: np.ndarray, spread: float = BAND_SPREAD,
-                 landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray]:
+                 landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
     The stem follows the (S, J = S) model of :mod:`valve_env.physics.stickslip` (:func:`stick_simulate`):
@@ -431,7 +431,10 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     Because the resting position is estimated from the data rather than simulated open loop, a
     small error in the demand does not put the simulated and the measured stems out of step.
     With ``band = 0`` the stem always slips onto the demand with no uncertainty and the likelihood
-    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested."""
+    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested.
+
+    Returns (loglik, one-step prediction errors of the hypothesis followed, their variances, each
+    sample's log-likelihood term: the mixture's where the filter weighed hypotheses, 0 off ``mask``)."""
     n = t.shape[0]
     ve = s_e * s_e
     vw = s_w * s_w
@@ -455,6 +458,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     ll = 0.0
     innov = np.empty(n)
     Sout = np.empty(n)
+    terms = np.zeros(n)
     for k in range(n):
         if k > 0:
             phi = math.exp(-(t[k] - t[k - 1]) / tau_e)
@@ -560,6 +564,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
         Sout[k] = S
         if mask[k]:
             ll += lk
+            terms[k] = lk
             ke = (Pee + Pes) / S
             ks = (Pes + Pss) / S
             me = me + ke * nu
@@ -571,4 +576,4 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             dk = abs(x_sub[sub_idx[k]] - ms)
             if dk < dmax:
                 dmax = dk
-    return ll, innov, Sout
+    return ll, innov, Sout, terms
