@@ -27,9 +27,10 @@ automatic:
    reversal of the demand): it is exempt from the RMS condition, it is validated
    where the held-out log-likelihood gains more than ``min_validation_gain``, *or*
    the held-out open-loop simulation error falls, *or* the held-out opening
-   itself slips by the fitted band (:func:`held_out_slips`), and its relevance is measured
+   itself slips by the fitted band (:func:`held_out_slips`), its relevance is measured
    over the samples where it moves the opening
-   (:func:`effect_size`). Where
+   (:func:`effect_size`), and its significance also needs the statistic without its largest
+   single-sample gains (:func:`trimmed_lr`). Where
    several candidates pass, the best is the one with the largest held-out
    log-likelihood gain (:func:`rank_key`); the others are ranked by delta BIC.
 6. Forward selection: with the named effect in the model, try the remaining

@@ -545,17 +545,12 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             top = max(l_m, max(l_a, l_h))
             tot = math.exp(l_m - top) + math.exp(l_a - top) + math.exp(l_h - top)
             lk = -0.5 * (LOG2PI + math.log(S)) + top + math.log(tot)
-            if l_a == top:
+            if l_a == top or l_h == top:
+                # it rests: where it never slipped, or where it was at the last sample
                 moving = False
                 p_slip = 0.0
-                ms = s_alt
-                nu = nu_s
-                dmax = abs(xk - ms)
-            elif l_h == top:
-                moving = False
-                p_slip = 0.0
-                ms = s_hold
-                nu = nu_h
+                ms = s_alt if l_a == top else s_hold
+                nu = nu_s if l_a == top else nu_h
                 dmax = abs(xk - ms)
             else:
                 # it moves: the measurement's evidence against "never slipped" carries to the next sample
