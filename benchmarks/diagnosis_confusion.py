@@ -3,9 +3,11 @@
 Hide an effect (or none) in generated runs, randomised over effects, effect sizes,
 sampling intervals, record lengths, noise levels, sampling jitter and seeds; run the
 full diagnosis and tabulate the named cause against the truth. Prints the matrix
-and writes it to docs/diagnosis_confusion.md (and a JSON file with every run).
+and writes it to --out (out/diagnosis_confusion.md; --docs for the project's record,
+docs/diagnosis_confusion.md) and, with --json, every run as JSON. An existing output is
+replaced only with --force (checked before the runs start).
 
-    python benchmarks/diagnosis_confusion.py --runs 60 --seed 1 --workers 1
+    python benchmarks/diagnosis_confusion.py --runs 60 --seed 1 --workers 1 [--docs --force]
 
 Targets: at least 95 % correct names, no more than 5 % false findings on `none` runs.
 """
@@ -18,13 +20,13 @@ import math
 import platform
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from valve_env.effects import REGISTRY
 from valve_env.experiment import STUDY_CLASSES, random_cases, run_cases, simulate_case
+from valve_env.outputs import OutputError, OutputSet
 
 CLASSES = STUDY_CLASSES
 
@@ -159,19 +161,15 @@ def markdown(c: dict[str, Any], cmd: str, results: list[dict[str, Any]]) -> str:
     return "\n".join(L) + "\n"
 
 
-def rewrite(json_path: str, out: str, cmd: str) -> None:
-    """Re-render the markdown from a JSON written by --json (no re-run)."""
-    results = json.loads(Path(json_path).read_text())["runs"]
-    Path(out).write_text(markdown(confusion(results), cmd, results))
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=60)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--out", default="docs/diagnosis_confusion.md")
+    ap.add_argument("--out", default="out/diagnosis_confusion.md", help="the markdown table ('' for none)")
+    ap.add_argument("--docs", action="store_true", help="write the table to docs/diagnosis_confusion.md")
     ap.add_argument("--json", default="", help="also write every run as JSON here")
+    ap.add_argument("--force", action="store_true", help="replace existing outputs")
     ap.add_argument("--bootstrap", type=int, default=16,
                     help="bootstrap replicates for the named effects' sd (0: Hessian/HAC sd; the names do not "
                     "depend on it)")
@@ -183,6 +181,13 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [c for c in classes if c not in CLASSES]
     if unknown:
         ap.error(f"unknown class(es) {', '.join(unknown)} (choose from {', '.join(CLASSES)})")
+    outs = OutputSet(force=a.force)
+    try:  # the project's output policy, checked before the long run
+        md_path = outs.add("docs/diagnosis_confusion.md" if a.docs else a.out) if (a.docs or a.out) else None
+        json_path = outs.add(a.json) if a.json else None
+    except OutputError as exc:
+        print(f"thermovalve: error: {exc}", file=sys.stderr)
+        return 2
     cases = random_cases(a.runs, a.seed, classes=classes)
     for c in cases:
         c["bootstrap_B"] = a.bootstrap
@@ -197,10 +202,11 @@ def main(argv: list[str] | None = None) -> int:
     md = markdown(c, cmd, results)
     print(md)
     print(f"total {time.perf_counter() - t0:.0f} s")
-    if a.out:
-        Path(a.out).write_text(md)
-    if a.json:
-        Path(a.json).write_text(json.dumps({"summary": c, "runs": results}, indent=1, default=float))
+    if md_path is not None:
+        outs.write_text(md_path, md)
+    if json_path is not None:
+        outs.write_text(json_path, json.dumps({"summary": c, "runs": results}, indent=1, default=float))
+    outs.commit()
     return 0
 
 
