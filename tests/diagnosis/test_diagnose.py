@@ -132,10 +132,10 @@ def test_validation_run(tmp_path: Path) -> None:
     assert d.settings["n_validation"] == len(b)
 
 
-def test_small_randomised_study() -> None:
-    """One run of each class, with random sizes, sampling, noise and length; all named correctly."""
+def _small_study() -> list[tuple[str, pd.DataFrame]]:
+    """One run of each class, with random sizes, sampling, noise and length."""
     rng = np.random.default_rng(2026)
-    wrong = []
+    out = []
     for truth in CASES:
         eff = {
             "none": None,
@@ -149,10 +149,31 @@ def test_small_randomised_study() -> None:
                                  dt_s=float(rng.choice([10.0, 20.0])), T_noise_C=float(rng.uniform(0, 0.01)),
                                  x_noise_mm=float(rng.uniform(1.5e-3, 3e-3)), effects=eff,
                                  jitter=float(rng.choice([0.0, 0.2])))
+        out.append((truth, df))
+    return out
+
+
+def test_small_randomised_study() -> None:
+    """One run of each class but stiction (below), with random sizes, sampling, noise and length; all
+    named correctly."""
+    wrong = []
+    for truth, df in _small_study():
+        if truth == "stiction":
+            continue
         d = diagnose(df, bootstrap_B=0)  # the names do not depend on the bootstrap
         if d.cause != truth:
             wrong.append((truth, d.summary()))
     assert not wrong, wrong
+
+
+@pytest.mark.xfail(strict=True, reason="issue 20, known and reported: the small study's stiction run (about 10 h, "
+                   "few slips) was named by rounds 3-4 of the stick-slip filter through the rescoring of a "
+                   "measurement against the hypothesis it had chosen; round 5 scores each measurement once and "
+                   "its statistic there is p = 0.005 (docs/diagnosis.md, 'The stick-slip filter, round 5')")
+def test_small_randomised_study_stiction() -> None:
+    df = dict(_small_study())["stiction"]
+    d = diagnose(df, bootstrap_B=0)
+    assert d.cause == "stiction", d.summary()
 
 
 def test_bad_arguments() -> None:

@@ -89,3 +89,46 @@ def test_stick_filter_nests_the_base_model(run) -> None:  # type: ignore[no-unty
     # and a positive band on data without stiction costs likelihood
     c = stick_loglik(d.t, d.x, x_sub, idx, 0.02, 2.0, 2.4e-3, 2e-3, 300.0, mask)[0]
     assert c < a
+
+
+def test_stick_filter_statistic_vanishes_with_the_band(run) -> None:  # type: ignore[no-untyped-def]
+    """Each measurement is scored once, under the predictive mixture of the filter's hypotheses: as the
+    band vanishes the stiction model's likelihood tends to the base model's (the nested models' LR
+    statistic tends to 0). The earlier filter rescored a measurement against the hypothesis that the
+    measurement itself had chosen and kept a gain at band 1e-8 mm (18.8 and 76.8 in 2 x log-likelihood
+    on two seed-5151 runs of the confusion study)."""
+    d = _data(run)
+    m = Model(("stiction",))
+    vals = {**m.default_start(d), "band_mm": 0.0, "s_e": 2e-3, "tau_e": 300.0, "s_w": 2.4e-3,
+            "sigma": 6.41, "F_hmax": 1.31, "p_bset": 0.0776}
+    base = m.loglik(d, vals)
+    lr = [2.0 * (m.loglik(d, {**vals, "band_mm": b}) - base) for b in (1e-8, 1e-6, 1e-5)]
+    assert abs(lr[0]) < 1e-3 and abs(lr[1]) < 0.05 and abs(lr[2]) < 0.5, lr
+
+
+def test_loglik_terms_sum_to_the_loglik(run) -> None:  # type: ignore[no-untyped-def]
+    """Each sample's term (the stick-slip filter's mixture term where it weighed hypotheses) sums to the
+    log-likelihood, for the base model and for stiction; the held-out gain is their sum over the held-out part."""
+    d = _data(run)
+    for effects, extra in (((), {}), (("stiction",), {"band_mm": 0.01})):
+        m = Model(effects)
+        vals = {**m.default_start(d), "s_e": 2e-3, "tau_e": 300.0, "s_w": 2.4e-3, **extra}
+        terms = m.loglik_terms(d, vals)
+        assert terms.shape == (len(d),)
+        assert float(np.sum(terms)) == pytest.approx(m.loglik(d, vals), rel=1e-9)
+
+
+def test_trimmed_lr_drops_the_largest_single_sample_gains() -> None:
+    from valve_env.diagnosis.diagnose import TRIM_SAMPLES, trimmed_lr
+
+    rng = np.random.default_rng(0)
+    noise = 0.01 * rng.standard_normal(2000)
+    spike = noise.copy()
+    spike[[100, 900]] = [30.0, 25.0]  # a gain at two samples: a misfit spike of the base model
+    assert trimmed_lr(spike) < 1.0 < 2.0 * float(np.sum(spike))
+    spread = noise.copy()
+    spread[::100] += 3.0  # 20 events of 3 units each: a real event effect
+    g = 2.0 * spread
+    assert trimmed_lr(spread) == pytest.approx(g.sum() - np.sort(g)[-TRIM_SAMPLES:].sum())
+    assert trimmed_lr(spread) > 0.8 * g.sum()
+    assert trimmed_lr(-np.abs(spread)) == 0.0

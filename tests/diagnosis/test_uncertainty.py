@@ -68,13 +68,11 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
 
 @pytest.mark.xfail(strict=True, reason="issue 20, known and reported: the filter moment-matches 'stuck' and "
                    "'slipped' before the measurement and decides at a prior slip probability of 0.5, so a slip "
-                   "that comes while that probability is below one half is caught four samples late (samples "
-                   "566-569, |z| 8-13); at 1.15 band the decision comes after the slip and the likelihood is 183 "
-                   "units higher. A two-hypothesis mixture filter that decides after the measurement peaks at the "
-                   "band here but missed sj and force runs of the independent simulator, so it is not used "
-                   "(docs/diagnosis.md, 'The stick-slip filter: a revision tried and reverted'); round 4's filter "
-                   "(measurement-updated slip decision) passes this test but named more none runs stiction "
-                   "(held out: docs/diagnosis.md, 'The stick-slip filter, round 4'), so it is not used either. "
+                   "that comes while that probability is below one half is caught late; with round 5's scoring "
+                   "(each measurement once, under the mixture of the moving stem's hypotheses) the likelihood "
+                   "here peaks at 0.85 band and the band is 86 log-units below. Round 4 (measurement-updated slip "
+                   "decision) and round 5's resting-stem mixture pass or nearly pass this test but named more "
+                   "none runs stiction (docs/diagnosis.md, 'The stick-slip filter, round 4' and 'round 5'). "
                    "The band is measured from the slips.")
 def test_stick_filter_nested_and_peaks_at_the_band() -> None:
     """Exact stick-slip data: the filter's likelihood is maximal near the true band (the first-passage

@@ -54,8 +54,11 @@ BAND_SPREAD = 0.5
 LANDING_SD = 0.2
 #: the probability of a slip since the stem last stuck at which the stick-slip filter decides that it moves
 DECIDE_MOVING = 0.5
-#: log-likelihood ratio at which a measurement overturns the stick-slip filter's decision that the stem moves
-STUCK_LLR = 2.0
+#: prior probability that a stem which moved at the last sample has stuck since without a reversal of the
+#: demand (a valve that re-sticks after every slip, or at a pause of the demand), before the band's own
+#: probability that it stays stuck there; exp(-2), the log-likelihood ratio of 2 at which the earlier filter
+#: re-stuck it (docs/diagnosis.md, "The stick-slip filter, round 5")
+RESTICK_P = math.exp(-2.0)
 
 
 # --------------------------------------------------------------------------- 2. the valve simulation
@@ -391,7 +394,7 @@ def _band_cdf(x: float, band: float, sd: float) -> float:
 def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.ndarray, band: float,
                  stroke: float, s_w: float, s_e: float, tau_e: float,
                  mask: np.ndarray, spread: float = BAND_SPREAD,
-                 landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray]:
+                 landing: float = LANDING_SD) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
     The stem follows the (S, J = S) model of :mod:`valve_env.physics.stickslip` (:func:`stick_simulate`):
@@ -408,11 +411,16 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     it moves and lets it follow the demand's increments until the demand stops or reverses
     (decision-directed). Where the stem sticks, ``s`` is unchanged and the measurements pin it down.
     "Stops or reverses" is judged on the demand freed of its noise's reversals (:func:`stick_demand`),
-    as in :func:`stick_simulate`. A measurement that says much more clearly (log-likelihood ratio above
-    ``STUCK_LLR``) that the stem stayed where it stuck overturns the decision that it moves; one that
-    says as clearly that a stem which moved at the last sample stayed there since re-sticks it there:
-    a valve that re-sticks after every slip (a staircase) or at a pause of the demand is followed as
-    well as an (S, J) one (docs/diagnosis.md, "The (S, J) stick-slip").
+    as in :func:`stick_simulate`. While the filter holds that the stem moves, each measurement is scored
+    once, under the predictive mixture of three hypotheses with their prior probabilities: it moves, it
+    never slipped since it last stuck (prior ``1 - p_slip``), and it stuck where it was at the last
+    sample (prior ``RESTICK_P`` times the probability that the band holds it at the demand's present
+    distance); the filter then goes on with the most probable one, and while it goes on moving the
+    measurement's posterior updates ``p_slip``. A valve that re-sticks after every slip (a staircase)
+    or at a pause of the demand is followed as well as an (S, J) one (docs/diagnosis.md, "The (S, J)
+    stick-slip"); as the band vanishes both alternatives lose their prior, so the statistic tends to 0
+    (docs/diagnosis.md, "The stick-slip filter, round 5": the earlier filter scored the measurement
+    against the hypothesis that the measurement had chosen).
 
     The breakaway probability is a first-passage hazard: a stem that has stuck while the demand
     was ``dmax`` away has a band larger than ``dmax``, so it slips in this sub-step with
@@ -423,7 +431,10 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     Because the resting position is estimated from the data rather than simulated open loop, a
     small error in the demand does not put the simulated and the measured stems out of step.
     With ``band = 0`` the stem always slips onto the demand with no uncertainty and the likelihood
-    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested."""
+    is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested.
+
+    Returns (loglik, one-step prediction errors of the hypothesis followed, their variances, each
+    sample's log-likelihood term: the mixture's where the filter weighed hypotheses, 0 off ``mask``)."""
     n = t.shape[0]
     ve = s_e * s_e
     vw = s_w * s_w
@@ -447,6 +458,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     ll = 0.0
     innov = np.empty(n)
     Sout = np.empty(n)
+    terms = np.zeros(n)
     for k in range(n):
         if k > 0:
             phi = math.exp(-(t[k] - t[k - 1]) / tau_e)
@@ -487,7 +499,11 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 ad = abs(d)
                 if ad <= dmax:
                     continue  # stuck before at this distance: the band is larger
-                sd = math.sqrt(vb + Pss)
+                # the band's spread and the stem's position uncertainty, the latter at most the band's
+                # spread: an unbounded one kept the hazard smooth as the band vanished (a stem a micrometre
+                # from the demand 'slipped' with probability 0.5 at band 1e-5 mm), so the statistic did not
+                # tend to the base model's (2 x 27 log-units at one sample of development seed 31's run 0)
+                sd = math.sqrt(vb + min(Pss, vb))
                 F0 = _band_cdf(dmax, band, sd)
                 F1 = _band_cdf(ad, band, sd)
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
@@ -503,30 +519,47 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                         s_alt = ms - pi * d  # where it would be had it not slipped
         S = Pee + 2.0 * Pes + Pss + vw
         nu = y[k] - ms - me
-        if mask[k] and band > 0.0 and k > 0:
-            if moving:
-                # the decision revisited: a measurement that says much more clearly (log-likelihood ratio
-                # above STUCK_LLR) that the stem stayed where it stuck overturns it
-                nu_s = y[k] - s_alt - me
-                nu_h = y[k] - s_hold - me
-                if (nu * nu - nu_s * nu_s) / (2.0 * S) > STUCK_LLR:
-                    moving = False
-                    p_slip = 0.0
-                    ms = s_alt
-                    nu = nu_s
-                    dmax = abs(x_sub[sub_idx[k]] - ms)
-                elif was_moving and (nu * nu - nu_h * nu_h) / (2.0 * S) > STUCK_LLR:
-                    # a stem that moved at the last sample may have stuck since without a reversal of the
-                    # demand (a stem that re-sticks after every slip, or at a pause of the demand)
-                    moving = False
-                    p_slip = 0.0
-                    ms = s_hold
-                    nu = nu_h
-                    dmax = abs(x_sub[sub_idx[k]] - ms)
+        lk = -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+        if mask[k] and band > 0.0 and k > 0 and moving:
+            # the decision that the stem moves, revisited honestly: the measurement is scored once, under
+            # the predictive mixture of three hypotheses with their prior probabilities (first-order
+            # generalised pseudo-Bayes), and the filter then goes on with the most probable one:
+            # "moves" (ms), "never slipped since it stuck" (s_alt, prior 1 - p_slip) and, for a stem that
+            # moved at the last sample, "stuck there since" (s_hold, prior RESTICK_P times the
+            # probability that the band holds it at the demand's distance). As the band vanishes both
+            # alternatives lose their prior (p_slip -> 1, the band holds nothing): the base model's score
+            xk = x_sub[sub_idx[k]]
+            # a stem that never slipped is held by its band at the demand's present distance: p_slip was
+            # decided at a smaller distance and no longer grows once the stem moves (without this bound a
+            # position left 1400 bands behind kept prior 1e-4 and won a measurement by model error)
+            w_a = min(1.0 - p_slip, 1.0 - _band_cdf(abs(xk - s_alt), band, spread * band))
+            w_h = 0.0
+            if was_moving:
+                w_h = RESTICK_P * (1.0 - _band_cdf(abs(xk - s_hold), band, spread * band))
+            w_m = 1.0 - w_a - w_h
+            nu_s = y[k] - s_alt - me
+            nu_h = y[k] - s_hold - me
+            l_m = math.log(w_m) - 0.5 * nu * nu / S if w_m > 0.0 else -math.inf
+            l_a = math.log(w_a) - 0.5 * nu_s * nu_s / S if w_a > 0.0 else -math.inf
+            l_h = math.log(w_h) - 0.5 * nu_h * nu_h / S if w_h > 0.0 else -math.inf
+            top = max(l_m, max(l_a, l_h))
+            tot = math.exp(l_m - top) + math.exp(l_a - top) + math.exp(l_h - top)
+            lk = -0.5 * (LOG2PI + math.log(S)) + top + math.log(tot)
+            if l_a == top or l_h == top:
+                # it rests: where it never slipped, or where it was at the last sample
+                moving = False
+                p_slip = 0.0
+                ms = s_alt if l_a == top else s_hold
+                nu = nu_s if l_a == top else nu_h
+                dmax = abs(xk - ms)
+            else:
+                # it moves: the measurement's evidence against "never slipped" carries to the next sample
+                p_slip = 1.0 - math.exp(l_a - top) / tot
         innov[k] = nu
         Sout[k] = S
         if mask[k]:
-            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+            ll += lk
+            terms[k] = lk
             ke = (Pee + Pes) / S
             ks = (Pes + Pss) / S
             me = me + ke * nu
@@ -538,4 +571,4 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             dk = abs(x_sub[sub_idx[k]] - ms)
             if dk < dmax:
                 dmax = dk
-    return ll, innov, Sout
+    return ll, innov, Sout, terms

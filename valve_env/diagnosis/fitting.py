@@ -36,6 +36,7 @@ from valve_env.diagnosis.effects import EFFECTS, ENGINE_INDEX, N_EFFECT_PARAMS, 
 from valve_env.diagnosis.engine import (
     BAND_SPREAD,
     LANDING_SD,
+    LOG2PI,
     ou_loglik,
     simulate_valve,
     stick_loglik,
@@ -171,7 +172,8 @@ class Model:
         return x, Tg, F
 
     def _filter(self, data: RunData, values: dict[str, float],
-                mask: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
+                mask: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """(log-likelihood, one-step prediction errors, their variances, each sample's log-likelihood term)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
         x, _, _, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s,
@@ -182,15 +184,21 @@ class Model:
             return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),
                                 values["s_w"], values["s_e"], values["tau_e"], mask, self.band_spread,
                                 self.landing_sd)
-        return ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
+        ll, innov, S = ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
+        return ll, innov, S, np.where(mask, -0.5 * (LOG2PI + np.log(S) + innov**2 / S), 0.0)
 
     def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None) -> float:
         """Exact Gaussian log-likelihood of the measured opening (over the samples in ``mask``)."""
         return float(self._filter(data, values, mask)[0])
 
+    def loglik_terms(self, data: RunData, values: dict[str, float]) -> np.ndarray:
+        """Each sample's term of the log-likelihood (they sum to :meth:`loglik`): the Gaussian of the
+        one-step prediction error, or the stick-slip filter's mixture term where it weighed hypotheses."""
+        return self._filter(data, values)[3]
+
     def prediction_errors(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """One-step prediction errors (mm) and their variances."""
-        _, innov, S = self._filter(data, values)
+        _, innov, S, _ = self._filter(data, values)
         return innov, S
 
     # --- fitting -------------------------------------------------------------------------
