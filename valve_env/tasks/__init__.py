@@ -96,7 +96,7 @@ _STICKY: dict[str, Mapping[str, Any]] = {
 #: insulated loop at 0.2 W/(m K) (UA 16 W/K), its pump sized for a drop under 5 K (110 kg/h), the return at
 #: mid-height, above the coil
 _CIRCULATION = {"circ_kgh": 110.0, "circ_UA": 16.0, "circ_height": 0.5}
-_STICKY_V1: dict[str, Mapping[str, Any]] = {**_STICKY, "tank": _CIRCULATION}
+_STICKY_CIRCULATION: dict[str, Mapping[str, Any]] = {**_STICKY, "tank": _CIRCULATION}
 
 TASKS: dict[str, Task] = {
     "ThermoValve-v0": Task(
@@ -132,7 +132,7 @@ TASKS: dict[str, Task] = {
         "ThermoValveStickyCirculation-v0", "setting",
         "StickyValve-v0 plus a hot-water circulation loop (about 0.6 kW of pipe loss): the sticky stem "
         "works mid-stroke, as in the stiction literature's loops",
-        sections=_STICKY_V1,
+        sections=_STICKY_CIRCULATION,
         sources={
             "everything of ThermoValveStickyValve-v0": "its sources (above; docs/tasks.md)",
             "a circulation loop at all":
