@@ -28,7 +28,9 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -98,20 +100,44 @@ def _umask() -> int:
 
 
 @contextlib.contextmanager
-def _temp_beside(p: Path) -> Iterator[Path]:
-    """A new temporary file beside ``p`` (same directory, so a rename onto ``p`` is atomic), fsynced
-    when the block succeeds and removed when it raises."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
-    # mkstemp makes the file 0600; an output gets the mode a plain open() would give it (0666 less the umask)
-    os.fchmod(fd, 0o666 & ~_umask())
-    os.close(fd)
-    tmp_path = Path(tmp)
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM held back for a step that must not be cut in half (a temporary made and
+    recorded where the clean-up will find it); a signal that came meanwhile is delivered at the end.
+    The commands turn both signals into exceptions (valve_env/cli.py), which Python raises between
+    any two statements: without this, one arriving just after a temporary was made and before it was
+    recorded left it behind."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
     try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+@contextlib.contextmanager
+def _temp_beside(p: Path, on_create: Callable[[Path], object] | None = None) -> Iterator[Path]:
+    """A new temporary file beside ``p`` (same directory, so a rename onto ``p`` is atomic), fsynced
+    when the block succeeds and removed when it raises. ``on_create`` records it (for an
+    :class:`OutputSet`'s clean-up) in the same uninterruptible step that makes it."""
+    tmp_path: Path | None = None
+    try:
+        with _signals_held():
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent if str(p.parent) else ".")
+            tmp_path = Path(tmp)
+            if on_create is not None:
+                on_create(tmp_path)
+            # mkstemp makes the file 0600; an output gets the mode a plain open() would give it (0666 less
+            # the umask)
+            os.fchmod(fd, 0o666 & ~_umask())
+            os.close(fd)
         yield tmp_path
         _fsync(tmp_path)
     except BaseException:
-        with contextlib.suppress(OSError):
-            tmp_path.unlink()
+        if tmp_path is not None:
+            with contextlib.suppress(OSError):
+                tmp_path.unlink()
         raise
 
 
@@ -193,6 +219,8 @@ class OutputSet:
         self._declared: list[Path] = []
         self._staged: dict[Path, Path] = {}
         self._staged_dirs: dict[Path, Path] = {}
+        #: every temporary file made and not yet renamed into place or removed (what discard removes)
+        self._temps: set[Path] = set()
         self.written: list[Path] = []
 
     def add(self, path: PathLike, what: str = "output") -> Path:
@@ -241,8 +269,9 @@ class OutputSet:
         if d in self._staged_dirs:
             return self._staged_dirs[d]
         base = d if d.is_dir() else _existing_ancestor(d)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{d.name or 'out'}.", suffix=".tmp", dir=base))
-        self._staged_dirs[d] = tmp
+        with _signals_held():
+            tmp = Path(tempfile.mkdtemp(prefix=f".{d.name or 'out'}.", suffix=".tmp", dir=base))
+            self._staged_dirs[d] = tmp
         return tmp
 
     def stage(self, path: PathLike, writer: Callable[[Path], object]) -> Path:
@@ -250,12 +279,13 @@ class OutputSet:
         p = Path(path)
         if not any(_same_file(p, q) or p == q for q in self._declared):
             self.add(p)
-        with _temp_beside(p) as tmp_path:
+        with _temp_beside(p, on_create=self._temps.add) as tmp_path:
             writer(tmp_path)
         old = self._staged.pop(p, None)
         if old is not None:
             with contextlib.suppress(OSError):
                 old.unlink()
+            self._temps.discard(old)
         self._staged[p] = tmp_path
         return p
 
@@ -283,6 +313,7 @@ class OutputSet:
             self._place(tmp, final)
             self.written.append(final)
             del self._staged[final]
+            self._temps.discard(tmp)
         for f, target in moves:
             target.parent.mkdir(parents=True, exist_ok=True)
             self._place(f, target)
@@ -311,10 +342,11 @@ class OutputSet:
             tmp.unlink()
 
     def discard(self) -> None:
-        for tmp in self._staged.values():
+        for tmp in (*self._staged.values(), *self._temps):
             with contextlib.suppress(OSError):
                 tmp.unlink()
         self._staged.clear()
+        self._temps.clear()
         for tmp_dir in self._staged_dirs.values():
             shutil.rmtree(tmp_dir, ignore_errors=True)
         self._staged_dirs.clear()

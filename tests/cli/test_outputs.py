@@ -193,3 +193,18 @@ def test_outputs_get_the_mode_a_plain_open_would_give(tmp_path: Path) -> None:
         os.umask(old)
     for name in ("a.json", "b.csv"):
         assert (tmp_path / name).stat().st_mode & 0o777 == 0o644, name
+
+
+def test_an_interrupt_while_a_temporary_is_made_leaves_none(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A signal turned into an exception (Ctrl-C, or SIGTERM through valve_env.cli) between the making of a
+    temporary and its clean-up bookkeeping leaves no temporary behind (it once did, under load)."""
+
+    def interrupted(fd: int, mode: int) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "fchmod", interrupted)
+    outs = OutputSet()
+    with pytest.raises(KeyboardInterrupt):
+        outs.write_text(outs.add(tmp_path / "a.json"), "new\n")
+    outs.discard()
+    assert list(tmp_path.iterdir()) == []
