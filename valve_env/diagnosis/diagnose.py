@@ -294,8 +294,8 @@ def _held_out(model: Model, data: RunData, values: dict[str, float], a: int, b: 
     """(one-step RMS mm, log-likelihood, simulation RMS mm) over samples a..b of ``data``. The
     log-likelihood is the sum of the samples' terms (:meth:`Model.loglik_terms`: for the stick-slip filter
     the mixture's, each measurement scored once)."""
-    nu, _ = model.prediction_errors(data, values)
-    ll = float(np.sum(model.loglik_terms(data, values)[a:b]))
+    nu, _, terms = model.one_step(data, values)  # one filter pass for both
+    ll = float(np.sum(terms[a:b]))
     nu_v = nu[a:b]
     xs, _, _ = model.simulate(data, values)
     sim = float(np.sqrt(np.mean((data.x[a:b] - xs[a:b]) ** 2)))

@@ -191,14 +191,20 @@ class Model:
         """Exact Gaussian log-likelihood of the measured opening (over the samples in ``mask``)."""
         return float(self._filter(data, values, mask)[0])
 
+    def one_step(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One filter pass: the one-step prediction errors (mm), their variances and each sample's term of
+        the log-likelihood (they sum to :meth:`loglik`: the Gaussian of the prediction error, or the
+        stick-slip filter's mixture term where it weighed hypotheses)."""
+        _, innov, S, terms = self._filter(data, values)
+        return innov, S, terms
+
     def loglik_terms(self, data: RunData, values: dict[str, float]) -> np.ndarray:
-        """Each sample's term of the log-likelihood (they sum to :meth:`loglik`): the Gaussian of the
-        one-step prediction error, or the stick-slip filter's mixture term where it weighed hypotheses."""
-        return self._filter(data, values)[3]
+        """Each sample's term of the log-likelihood (:meth:`one_step`)."""
+        return self.one_step(data, values)[2]
 
     def prediction_errors(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
-        """One-step prediction errors (mm) and their variances."""
-        _, innov, S, _ = self._filter(data, values)
+        """One-step prediction errors (mm) and their variances (:meth:`one_step`)."""
+        innov, S, _ = self.one_step(data, values)
         return innov, S
 
     # --- fitting -------------------------------------------------------------------------
