@@ -150,8 +150,9 @@ def sampling_offset(op: np.ndarray) -> float:
     The valve reverses (slips) between two samples, when the controller's continuous output crosses
     the band; the record shows OP at most one sample's move short of that point at each of the band's
     two ends (half a move on average), so the band fitted to the record is short by one sample's move in
-    all; its sd is ``SAMPLING_SD_SHARE`` (one) times the offset (docs/loops.md, "Band uncertainty")."""
-    return float(np.median(np.abs(np.diff(op))))
+    all; its sd is ``SAMPLING_SD_SHARE`` (one) times the offset (docs/loops.md, "Band uncertainty"). It is
+    the record's resolution (:func:`valve_env.loops.model.resolution`)."""
+    return resolution(op)
 
 
 def band_uncertainty(fit: ValveFit, factor: float, offset: float = 0.0,
