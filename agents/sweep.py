@@ -52,6 +52,7 @@ from typing import Any
 import pandas as pd
 
 from agents.cem import RANK_SEED
+from valve_env.cli import int_list
 
 
 @dataclass(frozen=True)
@@ -387,17 +388,6 @@ def run_sweep(
 
 
 # --------------------------------------------------------------------------- CLI
-def _ints(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        if "-" in part.strip()[1:]:
-            a, b = part.split("-", 1)
-            out += list(range(int(a), int(b) + 1))
-        elif part.strip():
-            out.append(int(part))
-    return out
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--algos", default="ppo", help="comma-separated algorithms, from ppo, sac, td3")
     p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds or ranges, e.g. 0-4 (default 0,1,2)")
@@ -448,7 +438,7 @@ def run(args: argparse.Namespace) -> int:
         steps = args.timesteps or (block or {}).get("timesteps") or 100_000
         fixed = [f"{k}={_yaml_value(v)}" for k, v in (block or {}).get("set", {}).items()]
         cells += make_grid(
-            [a for a in args.algos.split(",") if a], _ints(args.seeds), [s for s in args.scenarios.split(",") if s],
+            [a for a in args.algos.split(",") if a], int_list(args.seeds), [s for s in args.scenarios.split(",") if s],
             env, steps, args.eval_episodes, args.eval_seed, [*args.overrides, *fixed],
             points=grid_points(block) if block else None,
         )

@@ -12,17 +12,11 @@ import argparse
 import sys
 import time
 
+from valve_env.cli import int_list
 from valve_env.loops.diagnose import diagnose
 from valve_env.loops.envloop import ENV_ID, record_env_loop
 
 STICKY_MM = 0.1
-
-
-def _seeds(text: str) -> list[int]:
-    if "-" in text:
-        a, b = text.split("-", 1)
-        return list(range(int(a), int(b) + 1))
-    return [int(s) for s in text.split(",")]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -35,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     if (a.kp is None) != (a.ti is None):
         ap.error("give both --kp and --ti, or neither")
     try:
-        seeds = _seeds(a.seeds)
+        seeds = int_list(a.seeds)
     except ValueError:
         ap.error(f"--seeds must be A-B or a comma list of integers, got {a.seeds!r}")
     named = {STICKY_MM: 0, 0.0: 0}

@@ -155,6 +155,19 @@ def check_range(name: str, value: float, lo: float | None = None, hi: float | No
     return value
 
 
+def int_list(text: str) -> list[int]:
+    """Integers from a comma list with ranges, ``"0-4,10,12-13"`` -> [0, 1, 2, 3, 4, 10, 12, 13] (seeds on
+    the command line); a malformed part raises ValueError."""
+    out: list[int] = []
+    for part in text.split(","):
+        if "-" in part.strip()[1:]:
+            a, b = part.split("-", 1)
+            out += list(range(int(a), int(b) + 1))
+        elif part.strip():
+            out.append(int(part))
+    return out
+
+
 def add_force(p: argparse.ArgumentParser) -> None:
     """The ``--force`` option every writing command has."""
     p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
