@@ -32,6 +32,7 @@ GRID: dict[str, list[dict[str, Any]]] = {
     "knocker": [{"amplitude_band": a, "period_steps": p} for a in (0.5, 1.0) for p in (4, 10)],
     "two_move": [{}],
     "pi_wear": [{}],
+    "pi_stiction_tuned": [{}],
     "pi_integral_band": [{"band_factor": f} for f in (0.5, 1.0, 2.0, 4.0)],
     "two_move_position": [{"replace_band": r, "tau_c_factor": f} for f in (1.0, 4.0) for r in (0.2, 0.4, 0.6)]
     + [{"error_band_K": 0.02, "replace_band": 0.4}],

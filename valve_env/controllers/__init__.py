@@ -11,7 +11,8 @@ Built-in baselines (see docs/baselines.md):
 * ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``,
   ``pi_integral_band``: stiction compensators from the literature on the PI's setting, and
   ``pi_wear``: an event-based PI that spares the stem (:mod:`valve_env.controllers.compensators`,
-  docs/controllers.md);
+  docs/controllers.md); ``pi_stiction_tuned``: a PI whose gains compensate stiction by tuning, from a
+  describing-function analysis (Mohammad & Huang 2012; :mod:`valve_env.controllers.stiction_tuning`);
 * ``oracle``: MPC with the true plant and perfect preview, the bound on what
   is achievable (:mod:`valve_env.controllers.oracle`; it must be bound to the
   envs it controls, which the evaluator does).
@@ -35,6 +36,7 @@ from valve_env.controllers.compensators import (
     TwoMovePosition,
 )
 from valve_env.controllers.oracle import Oracle, OracleSettings
+from valve_env.controllers.stiction_tuning import PIStictionTuned
 
 BASELINES: dict[str, type[Controller]] = {
     SelfActing.name: SelfActing,
@@ -46,6 +48,7 @@ BASELINES: dict[str, type[Controller]] = {
     TwoMove.name: TwoMove,
     TwoMovePosition.name: TwoMovePosition,
     PIIntegralBand.name: PIIntegralBand,
+    PIStictionTuned.name: PIStictionTuned,
 }
 """Controllers that read only the observation (the default set of ``thermovalve evaluate``)."""
 ORACLES: dict[str, type[Controller]] = {Oracle.name: Oracle}
@@ -61,7 +64,7 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     """A controller by name for ``env_id``.
 
     Built-ins (:data:`CONTROLLERS`): ``self_acting``, ``pi``, ``pi_compensated``, ``pi_wear``,
-    ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``, ``pi_integral_band``, ``oracle``
+    ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``, ``pi_integral_band``, ``pi_stiction_tuned``, ``oracle``
     (keyword arguments go to their constructors). Any other name is a trained agent, loaded by
     ``agents.loader.load_agent(name, env_id, **kwargs)``; a missing ``agents``
     package or loader raises :class:`UnknownControllerError` naming the agent.
@@ -95,6 +98,7 @@ __all__ = [
     "Oracle",
     "OracleSettings",
     "PIIntegralBand",
+    "PIStictionTuned",
     "PIWear",
     "TwoMove",
     "TwoMovePosition",
