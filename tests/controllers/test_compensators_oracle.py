@@ -39,7 +39,7 @@ def _obs_seq(n: int, steps: int, rng: np.random.Generator) -> list[np.ndarray]:
     return out
 
 
-@pytest.mark.parametrize("name", (*NEW, "pi_integral_band"))
+@pytest.mark.parametrize("name", (*NEW, "pi_integral_band", "pi_stiction_tuned"))
 def test_single_and_batched_agree_and_episode_start_resets(name: str) -> None:
     rng = np.random.default_rng(3)
     n = 4

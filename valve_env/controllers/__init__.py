@@ -64,7 +64,8 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     """A controller by name for ``env_id``.
 
     Built-ins (:data:`CONTROLLERS`): ``self_acting``, ``pi``, ``pi_compensated``, ``pi_wear``,
-    ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``, ``pi_integral_band``, ``pi_stiction_tuned``, ``oracle``
+    ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``, ``pi_integral_band``,
+    ``pi_stiction_tuned``, ``oracle``
     (keyword arguments go to their constructors). Any other name is a trained agent, loaded by
     ``agents.loader.load_agent(name, env_id, **kwargs)``; a missing ``agents``
     package or loader raises :class:`UnknownControllerError` naming the agent.

@@ -156,8 +156,8 @@ def predict_limit_cycles(model: StemLoopModel, Kp: float, Ti_s: float, dt_s: flo
     if not (np.isfinite(Kp) and Kp >= 0 and np.isfinite(Ti_s) and Ti_s > 0):
         raise ValueError(f"PI gains must be finite with Kp >= 0 and Ti_s > 0, got {Kp!r}, {Ti_s!r}")
     S, J = model.S_K, model.J_K
-    lX = np.linspace(math.log(0.5 * S * (1 + 1e-9)), math.log(1e3 * S), 800)
-    lw = np.linspace(math.log(1e-7), math.log(math.pi / dt_s), 4000)
+    lX = np.linspace(math.log(0.5 * S * (1 + 1e-9)), math.log(1e3 * S), 400)
+    lw = np.linspace(math.log(1e-7), math.log(math.pi / dt_s), 1500)
     n_curve = sj_describing_function(np.exp(lX), S, J)
     m_curve = -1.0 / model.loop(np.exp(lw), Kp, Ti_s)
 
