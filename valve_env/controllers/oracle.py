@@ -191,9 +191,9 @@ class Oracle(Controller):
         vec: Any = self._sims.get(key)
         if vec is None:
             tariff = _tariff_of(core)
+            kwargs: dict[str, Any] = {"config": core.cfg} if tariff is None else {"config": core.cfg, "tariff": tariff}
             vec = self._sims[key] = gym.make_vec(
-                self.env_id, num_envs=int(self.settings.samples), vectorization_mode="vector_entry_point",
-                config=core.cfg, **({} if tariff is None else {"tariff": tariff}),
+                self.env_id, num_envs=int(self.settings.samples), vectorization_mode="vector_entry_point", **kwargs
             )
             vec.reset(seed=int(self.settings.seed))
             space = vec.single_action_space
