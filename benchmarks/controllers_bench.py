@@ -6,6 +6,7 @@ and the oracle's cost and time per 24 h episode, on held-out seeds (the settings
     python benchmarks/controllers_bench.py task-compensators [--task ThermoValveStickyValve-v0 --band MM]
     python benchmarks/controllers_bench.py oracle [--seed 100 --episodes 3 --tasks ID ...] [--oracle-settings JSON]
     python benchmarks/controllers_bench.py bound --seed 0 --episodes 5 --tasks ThermoValveDistrictHeating-v0
+    ... oracle|bound --env-kwargs '{"tariff": {"price_max_rel": 2.0}}' --baselines pi,self_acting,pi_wear
 
 Prints markdown tables (means over the episodes; paired differences against ``pi``).
 """
@@ -18,6 +19,7 @@ import sys
 import time
 from typing import Any
 
+import gymnasium as gym
 import pandas as pd
 
 import valve_env
@@ -79,36 +81,81 @@ def task_compensators(task: str, seed: int, episodes: int, band: float | None) -
               f"(pi {base['tdis_Kh']:.3f}): goal {'met' if met else 'not met'}")
 
 
-def oracle(seed: int, episodes: int, tasks: list[str], settings: dict[str, Any] | None = None) -> None:
+def oracle(seed: int, episodes: int, tasks: list[str], settings: dict[str, Any] | None = None,
+           env_kwargs: dict[str, Any] | None = None, baselines: tuple[str, ...] = ("pi",)) -> None:
     """The oracle's cost against pi's and its wall time per 24 h episode, on each task (``settings``
-    over the task's own, for tuning on seeds 0-4)."""
+    over the task's own, for tuning on seeds 0-4; ``env_kwargs`` as gym.make's, e.g. a ``tariff``, for
+    screening a task variant); the headroom against the best of ``baselines`` (pi first)."""
     summary = []
     for task in tasks:
         rows = {}
-        pi = run_episodes(make_controller("pi", task), task, episodes, seed)
+        base = {b: run_episodes(make_controller(b, task), task, episodes, seed, env_kwargs) for b in baselines}
+        pi = base[baselines[0]]
         times = []
         recs = []
         for i in range(episodes):
             o = make_controller("oracle", task, **(settings or {}))
             t0 = time.perf_counter()
-            recs.append(run_episodes(o, task, 1, seed + i))
+            recs.append(run_episodes(o, task, 1, seed + i, env_kwargs))
             times.append(time.perf_counter() - t0)
             print(f"{task} seed {seed + i}: oracle 24 h episode in {times[-1]:.1f} s ({o.plans_made} plans, "
                   f"{o.sim_steps} batched steps of {o.settings.samples} envs)", flush=True)
-        rows["pi"] = pi
+        rows.update(base)
         rows["oracle"] = pd.concat(recs, ignore_index=True)
         print(f"\n{task}, seeds {seed}..{seed + episodes - 1}; oracle time per 24 h episode: "
               f"mean {sum(times) / len(times):.1f} s, max {max(times):.1f} s\n")
-        print(_table(rows))
+        print(_table(rows, ref=baselines[0]))
         cost_pi, cost_or = -pi["return"].mean(), -rows["oracle"]["return"].mean()
-        print(f"\ncost (-return): pi {cost_pi:.2f}, oracle {cost_or:.2f} ({100 * (cost_or / cost_pi - 1):+.1f} %)\n")
+        print(f"\ncost (-return): {baselines[0]} {cost_pi:.2f}, oracle {cost_or:.2f} "
+              f"({100 * (cost_or / cost_pi - 1):+.1f} %)")
+        best = min(baselines, key=lambda b: -base[b]["return"].mean())
+        cost_best = -base[best]["return"].mean()
+        print(f"headroom: oracle {cost_or:.2f} against the best of {', '.join(baselines)}, {best} {cost_best:.2f}: "
+              f"{100 * (1 - cost_or / cost_best):.1f} %\n", flush=True)
         summary.append((task, sum(times) / len(times), max(times)))
     print("| task | oracle s per 24 h episode (mean) | max |\n|---|---:|---:|")
     for task, mean, mx in summary:
         print(f"| {task} | {mean:.1f} | {mx:.1f} |")
 
 
-def storage_bound(task: str, seed: int) -> dict[str, float]:
+def store_free_band(band_K: float) -> dict[str, Any]:
+    """Screening only (docs/tasks.md, "Fifth round", lever b): the district-heating tasks' tracking term with
+    a free band above the target, as if a thermostatic mixing valve at the store's outlet delivered the target
+    from a store up to ``band_K`` hotter (EN 15092; ``inf``: one-sided): the kernel's symmetric term is
+    switched off (``control.w_track = 0``, returned as gym.make keyword arguments) and every district-heating
+    layer built in this process charges the task's own ``w_track e^2`` on ``e = T_top - T_target`` below the
+    target and on ``e - band_K`` above the band, from the step's final top temperature. Patches
+    ``valve_env.tasks.env.make_layer`` (the evaluated envs and the oracle's simulator alike); not a task."""
+    import numpy as np
+
+    from valve_env import simulator as sim
+    from valve_env.tasks import env as task_env
+    from valve_env.tasks import task_config
+
+    ctl = task_config("ThermoValveDistrictHeating-v0").control
+    w, target = float(ctl.w_track), float(ctl.T_target_C)
+    make = task_env.make_layer
+
+    def make_one_sided(name: Any, params: Any, scenario: Any, dt_s: float) -> Any:
+        layer = make(name, params, scenario, dt_s)
+        if name not in ("district_heating", "district_heating_power"):
+            return layer
+        step = layer.step
+
+        def one_sided(k: Any, out: Any, dt: float, acc: Any = None) -> Any:
+            r, inc = step(k, out, dt, acc)
+            e = out[:, sim.O_T_TOP] - target
+            off = np.minimum(e, 0.0) + np.maximum(e - band_K, 0.0)
+            return r - w * off * off, inc
+
+        layer.step = one_sided
+        return layer
+
+    task_env.make_layer = make_one_sided
+    return {"control": {"w_track": 0.0}}
+
+
+def storage_bound(task: str, seed: int, env_kwargs: dict[str, Any] | None = None) -> dict[str, float]:
     """A lower bound on the cost (-return) of any controller on one district-heating day (docs/controllers.md,
     "A bound on the district-heating tasks"): the tank as one energy store (heat in at most the fully open
     valve's flow times supply minus cold water, out the day's draws and the standing loss, linear in the mean
@@ -126,7 +173,7 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
 
     from valve_env import simulator as sim
 
-    env = gym.make(task)
+    env = gym.make(task, **(env_kwargs or {}))
     env.reset(seed=seed)
     core = env.unwrapped
     cfg, layer = core.cfg, core.layer
@@ -234,19 +281,25 @@ def storage_bound(task: str, seed: int) -> dict[str, float]:
             "track": float(x[it:it + N].sum()), "mean_price": float((price * q).sum() / max(q.sum(), 1e-9))}
 
 
-def bound(seed: int, episodes: int, tasks: list[str]) -> None:
-    """:func:`storage_bound` per day, beside self_acting's and pi's cost on the same days."""
+def bound(seed: int, episodes: int, tasks: list[str], env_kwargs: dict[str, Any] | None = None) -> None:
+    """:func:`storage_bound` per day, beside self_acting's and pi's cost on the same days (``env_kwargs``
+    as gym.make's, for screening a task variant), and its mean."""
     print("| task | seed | self_acting | pi | bound (any controller) | bound below the better of the two | heat kWh | "
           "mean price EUR/MWh | tracking |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for task in tasks:
-        sa = run_episodes(make_controller("self_acting", task), task, episodes, seed)
-        pi = run_episodes(make_controller("pi", task), task, episodes, seed)
+        sa = run_episodes(make_controller("self_acting", task), task, episodes, seed, env_kwargs)
+        pi = run_episodes(make_controller("pi", task), task, episodes, seed, env_kwargs)
+        costs = []
         for i in range(episodes):
-            b = storage_bound(task, seed + i)
+            b = storage_bound(task, seed + i, env_kwargs)
+            costs.append(b["cost"])
             best = min(-sa["return"].iloc[i], -pi["return"].iloc[i])
             print(f"| {task} | {seed + i} | {-sa['return'].iloc[i]:.2f} | {-pi['return'].iloc[i]:.2f} | "
                   f"{b['cost']:.2f} | {100 * (1 - b['cost'] / best):.1f} % | {b['heat_kWh']:.2f} | "
                   f"{b['mean_price']:.1f} | {b['track']:.2f} |", flush=True)
+        sa_m, pi_m, b_m = -sa["return"].mean(), -pi["return"].mean(), sum(costs) / len(costs)
+        print(f"| {task} | mean | {sa_m:.2f} | {pi_m:.2f} | {b_m:.2f} | {100 * (1 - b_m / min(sa_m, pi_m)):.1f} % "
+              "| | | |", flush=True)
 
 
 def main() -> None:
@@ -261,24 +314,48 @@ def main() -> None:
                     help="env ids for `oracle` (default: ThermoValve-v0 and every benchmark task)")
     ap.add_argument("--oracle-settings", default="{}",
                     help='JSON object of oracle settings over the task\'s own, e.g. \'{"replan_steps": 240}\'')
+    ap.add_argument("--env-kwargs", default="{}",
+                    help="JSON object of gym.make keyword arguments for `oracle` and `bound`, to screen a task "
+                         'variant, e.g. \'{"tariff": {"surcharge_per_K": 0.02}}\' (docs/tasks.md, "Fifth round")')
+    ap.add_argument("--baselines", default="pi",
+                    help="comma-separated controllers the oracle's headroom is taken against (first: the table's "
+                         "reference), e.g. pi,self_acting,pi_wear")
+    ap.add_argument("--store-free-band", type=float, default=None, metavar="K",
+                    help="screening only: no district-heating tracking charge from the target to K above it "
+                         "(a mixing valve at the store's outlet; inf: one-sided; docs/tasks.md, 'Fifth round')")
     a = ap.parse_args()
-    try:
-        settings = json.loads(a.oracle_settings)
-        if not isinstance(settings, dict):
-            raise ValueError("not a JSON object")
-        if a.what == "oracle":
-            make_controller("oracle", a.tasks[0], **settings)  # an unknown or bad setting fails here
-    except (ValueError, TypeError) as exc:
-        print(f"thermovalve: error: --oracle-settings {a.oracle_settings!r}: {exc}", file=sys.stderr)
-        raise SystemExit(2) from None
+    for flag, text in (("--oracle-settings", a.oracle_settings), ("--env-kwargs", a.env_kwargs)):
+        try:
+            value = json.loads(text)
+            if not isinstance(value, dict):
+                raise ValueError("not a JSON object")
+            if flag == "--oracle-settings" and a.what == "oracle":
+                make_controller("oracle", a.tasks[0], **value)  # an unknown or bad setting fails here
+            if flag == "--env-kwargs":
+                for task in a.tasks if a.what in ("oracle", "bound") else ():
+                    gym.make(task, **value).close()  # an unknown or bad parameter fails here
+        except Exception as exc:  # noqa: BLE001 - any bad value is the user's input: one line, exit 2
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            print(f"thermovalve: error: {flag} {text!r}: {msg}", file=sys.stderr)
+            raise SystemExit(2) from None
+        if flag == "--oracle-settings":
+            settings = value
+        else:
+            env_kwargs = value
+    baselines = tuple(b.strip() for b in a.baselines.split(",") if b.strip()) or ("pi",)
+    if a.store_free_band is not None:
+        if not a.store_free_band >= 0:
+            print(f"thermovalve: error: --store-free-band must be >= 0 K, got {a.store_free_band!r}", file=sys.stderr)
+            raise SystemExit(2)
+        env_kwargs = {**env_kwargs, **store_free_band(a.store_free_band)}
     if a.what == "compensators":
         compensators(a.seed, a.episodes or 10, 0.1 if a.band is None else a.band)
     elif a.what == "task-compensators":
         task_compensators(a.task, a.seed, a.episodes or 10, a.band)
     elif a.what == "bound":
-        bound(a.seed, a.episodes or 3, a.tasks)
+        bound(a.seed, a.episodes or 3, a.tasks, env_kwargs)
     else:
-        oracle(a.seed, a.episodes or 3, a.tasks, settings)
+        oracle(a.seed, a.episodes or 3, a.tasks, settings, env_kwargs, baselines)
 
 
 if __name__ == "__main__":

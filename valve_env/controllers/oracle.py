@@ -178,7 +178,7 @@ class Oracle(Controller):
                 raise TypeError(f"the oracle needs envs with get_state() and cfg, got {type(core).__name__}")
             bound.append(core)
         self._envs = bound
-        self._keys = {id(c): (repr(c.cfg), type(c)) for c in bound}
+        self._keys = {id(c): _sim_key(c) for c in bound}
         return self
 
     def _simulator(self, core: Any) -> Any:
@@ -187,12 +187,13 @@ class Oracle(Controller):
         snapshot), so a batch of envs does not rebuild it at every step."""
         key = self._keys.get(id(core))
         if key is None:  # not bound through bind_envs (a direct plan() call)
-            key = self._keys[id(core)] = (repr(core.cfg), type(core))
+            key = self._keys[id(core)] = _sim_key(core)
         vec: Any = self._sims.get(key)
         if vec is None:
+            tariff = _tariff_of(core)
+            kwargs: dict[str, Any] = {"config": core.cfg} if tariff is None else {"config": core.cfg, "tariff": tariff}
             vec = self._sims[key] = gym.make_vec(
-                self.env_id, num_envs=int(self.settings.samples), vectorization_mode="vector_entry_point",
-                config=core.cfg,
+                self.env_id, num_envs=int(self.settings.samples), vectorization_mode="vector_entry_point", **kwargs
             )
             vec.reset(seed=int(self.settings.seed))
             space = vec.single_action_space
@@ -330,6 +331,18 @@ class Oracle(Controller):
         for vec in self._sims.values():
             vec.close()
         self._sims.clear()
+
+
+def _tariff_of(core: Any) -> dict[str, Any] | None:
+    """The bound env's task-layer tariff as keyword arguments (None without one): the oracle's simulator
+    must bill as the env it controls does, a ``tariff=`` override included."""
+    tariff = getattr(getattr(core, "layer", None), "tariff", None)
+    return None if tariff is None else asdict(tariff)
+
+
+def _sim_key(core: Any) -> tuple[str, str, type]:
+    """What makes two bound envs share a simulator: the same configuration, tariff and class."""
+    return repr(core.cfg), repr(_tariff_of(core)), type(core)
 
 
 def _shifted(plan: np.ndarray, by: int) -> np.ndarray:
