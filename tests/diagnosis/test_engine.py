@@ -118,17 +118,28 @@ def test_loglik_terms_sum_to_the_loglik(run) -> None:  # type: ignore[no-untyped
         assert float(np.sum(terms)) == pytest.approx(m.loglik(d, vals), rel=1e-9)
 
 
-def test_trimmed_lr_drops_the_largest_single_sample_gains() -> None:
-    from valve_env.diagnosis.diagnose import TRIM_SAMPLES, trimmed_lr
+def test_in_band_lr_keeps_the_gains_a_stuck_stem_explains() -> None:
+    """Stiction's statistic counts a sample's gain only where the reference model misses by no more than
+    the band reaches (a stuck stem's lag, a slip's jump); a misfit spike of several bands (the base
+    model's lead at a heating step) gains nothing, and losses count wherever they are."""
+    from valve_env.diagnosis.diagnose import BAND_REACH, in_band_lr
 
     rng = np.random.default_rng(0)
-    noise = 0.01 * rng.standard_normal(2000)
-    spike = noise.copy()
-    spike[[100, 900]] = [30.0, 25.0]  # a gain at two samples: a misfit spike of the base model
-    assert trimmed_lr(spike) < 1.0 < 2.0 * float(np.sum(spike))
-    spread = noise.copy()
-    spread[::100] += 3.0  # 20 events of 3 units each: a real event effect
-    g = 2.0 * spread
-    assert trimmed_lr(spread) == pytest.approx(g.sum() - np.sort(g)[-TRIM_SAMPLES:].sum())
-    assert trimmed_lr(spread) > 0.8 * g.sum()
-    assert trimmed_lr(-np.abs(spread)) == 0.0
+    band, n = 0.01, 2000
+    gain = 0.01 * rng.standard_normal(n)
+    nu = 0.002 * rng.standard_normal(n)
+    spike_g, spike_nu = gain.copy(), nu.copy()
+    spike_g[[100, 900]] = [30.0, 25.0]
+    spike_nu[[100, 900]] = [3.0 * band, -2.5 * band]  # misses of 3 and 2.5 bands: no stuck stem lags that far
+    assert in_band_lr(spike_g, spike_nu, band) < 1.0 < 2.0 * float(np.sum(spike_g))
+    slip_g, slip_nu = gain.copy(), nu.copy()
+    slip_g[[100, 900]] = [30.0, 25.0]
+    slip_nu[[100, 900]] = [0.9 * band, -(BAND_REACH - 0.05) * band]  # a stuck stem's lag and a slip: in reach
+    assert in_band_lr(slip_g, slip_nu, band) == pytest.approx(2.0 * float(np.sum(slip_g)))
+    # the losses stay in wherever they are, and the statistic is never negative
+    lossy = spike_g.copy()
+    lossy[500] = -20.0
+    lossy_nu = spike_nu.copy()
+    lossy_nu[500] = 5.0 * band
+    assert in_band_lr(lossy, lossy_nu, band) == 0.0
+    assert in_band_lr(spike_g, spike_nu, band, reach=4.0) == pytest.approx(2.0 * float(np.sum(spike_g)))

@@ -29,8 +29,9 @@ automatic:
    the held-out open-loop simulation error falls, *or* the held-out opening
    itself slips by the fitted band (:func:`held_out_slips`), its relevance is measured
    over the samples where it moves the opening
-   (:func:`effect_size`), and its significance also needs the statistic without its largest
-   single-sample gains (:func:`trimmed_lr`). Where
+   (:func:`effect_size`), and its significance also needs the statistic over the samples that a
+   stuck stem can explain, where the reference model misses by no more than the band reaches
+   (:func:`in_band_lr`). Where
    several candidates pass, the best is the one with the largest held-out
    log-likelihood gain (:func:`rank_key`); the others are ranked by delta BIC.
 6. Forward selection: with the named effect in the model, try the remaining
@@ -54,13 +55,15 @@ from scipy import stats
 
 from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
 from valve_env.diagnosis.effects import EFFECTS, check_effects
+from valve_env.diagnosis.engine import BAND_SPREAD
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
 from valve_env.estimation.estimator import ValveEstimator
 from valve_env.params import ValveParams
 
 MIN_SAMPLES = 200
-#: the largest single-sample gains left out of an event effect's statistic (:func:`trimmed_lr`)
-TRIM_SAMPLES = 3
+#: how far (in fitted bands) a stuck stem can lag the demand: the band plus one sd of its breakaway
+#: spread (engine.BAND_SPREAD); a sample the reference model misses by more is not stiction's (:func:`in_band_lr`)
+BAND_REACH = 1.0 + BAND_SPREAD
 MIN_DURATION_S = 2.0 * 3600.0
 MIN_T_RANGE_K = 1.0
 MIN_X_RANGE_MM = 0.05
@@ -146,8 +149,8 @@ class Finding:
     validated: bool = False
     relevant: bool = False
     effect_size_mm: float = 0.0
-    #: an event effect's (stiction's) LR statistic without its largest single-sample gains (trimmed_lr)
-    lr_trimmed: float = float("nan")
+    #: an event effect's (stiction's) LR statistic over the samples a stuck stem can explain (in_band_lr)
+    lr_in_band: float = float("nan")
     #: how the effect parameters' std were obtained, and the bootstrap's details where it ran
     std_method: str = "inverse Hessian / HAC sandwich (not calibrated)"
     uncertainty: dict[str, Any] | None = None
@@ -186,7 +189,7 @@ class Finding:
             "validated": bool(self.validated),
             "relevant": bool(self.relevant),
             "effect_size_mm": float(self.effect_size_mm),
-            **({"lr_trimmed": float(self.lr_trimmed)} if math.isfinite(self.lr_trimmed) else {}),
+            **({"lr_in_band": float(self.lr_in_band)} if math.isfinite(self.lr_in_band) else {}),
             "on_top_of": list(self.reference),
             "std_method": self.std_method,
             "uncertainty": self.uncertainty,
@@ -343,10 +346,12 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
     f.effect_size_mm = effect_size(model, train, fit.params, effect)
     f.significant = p < alpha and f.delta_bic < 0
     if EFFECTS[effect].variance_gain:
-        # an event effect's gain must not rest on a few samples (see trimmed_lr)
+        # an event effect's gain must come from samples that it can explain (see in_band_lr)
         ref_model = Model(ref_effects, valve, model.max_step_s)
-        f.lr_trimmed = trimmed_lr(model.loglik_terms(train, fit.params) - ref_model.loglik_terms(train, ref_fit.params))
-        f.significant = f.significant and _p_value(f.lr_trimmed, (effect,)) < alpha and k * math.log(n) < f.lr_trimmed
+        ref_nu, _, ref_terms = ref_model.one_step(train, ref_fit.params)
+        f.lr_in_band = in_band_lr(model.loglik_terms(train, fit.params) - ref_terms, ref_nu,
+                                  float(fit.params["band_mm"]))
+        f.significant = f.significant and _p_value(f.lr_in_band, (effect,)) < alpha and k * math.log(n) < f.lr_in_band
     f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
     if EFFECTS[effect].variance_gain:
         # stiction acts in events (the slips, once per reversal of the demand under the (S, J) model: 6 in
@@ -366,20 +371,23 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
     return f
 
 
-def trimmed_lr(gain: np.ndarray, drop: int | None = None) -> float:
-    """The likelihood-ratio statistic without its ``drop`` largest single-sample gains: ``gain`` is
-    each training sample's log-likelihood term of the candidate minus the reference model's.
+def in_band_lr(gain: np.ndarray, ref_errors: np.ndarray, band: float, reach: float | None = None) -> float:
+    """The likelihood-ratio statistic of stiction over the samples that a stuck stem can explain.
 
-    Stiction's statistic is honest (each measurement scored once: docs/diagnosis.md, "The stick-slip
-    filter, round 5"), but under the null the base model is not the truth: where the tank's heating
-    steps make the smoothed temperature lead the water, the base model misses a fast move of the
-    stem by 5-10 noise sd at one or two samples, and the stick-slip filter's wider prediction there
-    gains tens of units (development seed 31's `none` run 21: 70 of its LR of 109 at one sample). A
-    real stick-slip gains at every slip, over several samples each. ``drop``: :data:`TRIM_SAMPLES`."""
+    ``gain``: each training sample's log-likelihood term of the stiction model minus the reference
+    model's; ``ref_errors``: the reference model's one-step prediction errors (mm); ``band``: the
+    fitted band (mm). Under stick-slip the reference model (whose stem follows the demand) misses a
+    sample by the stem's offset from the demand: a stuck stem lags it by less than its breakaway band,
+    and a slip jumps by about the band, so a right model gains where the reference misses by at most
+    ``reach`` bands (:data:`BAND_REACH`: the band plus one sd of its breakaway spread). Under the
+    null the base model is not the truth: where the tank's heating steps make the smoothed temperature
+    lead the water, it misses by 2-3.5 fitted bands at one or two samples, and the stick-slip filter's
+    wider prediction there gains tens of units (docs/diagnosis.md, "The stick-slip filter, round 6").
+    Such samples' positive gains are left out; their losses stay in."""
     g = 2.0 * np.asarray(gain, dtype=float)
-    m = TRIM_SAMPLES if drop is None else int(drop)
-    top = np.sort(g)[::-1][:m]
-    return float(max(g.sum() - top[top > 0].sum(), 0.0))
+    r = BAND_REACH if reach is None else float(reach)
+    beyond = (np.abs(np.asarray(ref_errors, dtype=float)) > r * max(float(band), 0.0)) & (g > 0.0)
+    return float(max(g.sum() - g[beyond].sum(), 0.0))
 
 
 def held_out_slips(x: np.ndarray, stroke: float, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:
