@@ -63,7 +63,8 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     # the first step's candidates as tested (for studies of the ranking among accepted candidates)
     out["first_step"] = [{"effect": f.effect, "accepted": bool(f.accepted), "lr_stat": float(f.lr_stat),
                           "delta_bic": float(f.delta_bic),
-                          "lr_trimmed": float(f.lr_trimmed), "validation_loglik_gain": float(f.validation_loglik_gain),
+                          "validation_loglik_gain": float(f.validation_loglik_gain),
+                          "training_slips": f.training_slips,
                           "validation_sim_rms_after_mm": float(f.validation_sim_rms_after_mm),
                           "significant": bool(f.significant), "relevant": bool(f.relevant),
                           "validated": bool(f.validated), "effect_size_mm": float(f.effect_size_mm),

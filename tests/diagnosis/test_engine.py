@@ -118,17 +118,27 @@ def test_loglik_terms_sum_to_the_loglik(run) -> None:  # type: ignore[no-untyped
         assert float(np.sum(terms)) == pytest.approx(m.loglik(d, vals), rel=1e-9)
 
 
-def test_trimmed_lr_drops_the_largest_single_sample_gains() -> None:
-    from valve_env.diagnosis.diagnose import TRIM_SAMPLES, trimmed_lr
+def test_slips_show_band_needs_slips_of_the_fitted_band() -> None:
+    """Stiction's significance needs the training opening to slip by the fitted band: a stick-slip
+    staircase shows its band (and not a third or three times it); a smooth noisy ramp, like a run
+    without stiction, shows none."""
+    from valve_env.diagnosis.diagnose import slip_sizes, slips_show_band
 
-    rng = np.random.default_rng(0)
-    noise = 0.01 * rng.standard_normal(2000)
-    spike = noise.copy()
-    spike[[100, 900]] = [30.0, 25.0]  # a gain at two samples: a misfit spike of the base model
-    assert trimmed_lr(spike) < 1.0 < 2.0 * float(np.sum(spike))
-    spread = noise.copy()
-    spread[::100] += 3.0  # 20 events of 3 units each: a real event effect
-    g = 2.0 * spread
-    assert trimmed_lr(spread) == pytest.approx(g.sum() - np.sort(g)[-TRIM_SAMPLES:].sum())
-    assert trimmed_lr(spread) > 0.8 * g.sum()
-    assert trimmed_lr(-np.abs(spread)) == 0.0
+    rng = np.random.default_rng(1)
+    stroke, band, s_w, n = 1.0, 0.03, 0.002, 3000
+    demand = 0.4 + 0.2 * np.sin(np.arange(n) / 300.0)
+    stem = np.empty(n)
+    y = demand[0]
+    for k in range(n):  # (S, J = S): rest until the demand is a band away, then land on it
+        if abs(demand[k] - y) >= band:
+            y = demand[k]
+        stem[k] = y
+    x = stem + s_w * rng.standard_normal(n)
+    n_sl, med = slip_sizes(x, stroke)
+    assert n_sl >= 10 and med == pytest.approx(band, rel=0.2)
+    assert slips_show_band(x, stroke, band)
+    assert not slips_show_band(x, stroke, band / 3.0)
+    assert not slips_show_band(x, stroke, 3.0 * band)
+    smooth = demand + s_w * rng.standard_normal(n)
+    assert not slips_show_band(smooth, stroke, band)
+    assert not slips_show_band(x, stroke, 0.0)

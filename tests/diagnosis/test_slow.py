@@ -26,9 +26,6 @@ def test_confusion_matrix_no_false_findings(confusion_seed11: dict) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 20, known and reported: 47/50 named right on this seed with the "
-                   "stick-slip filter's round 5 (stiction 8/10), 45/50 with round 3's (measured in the fifth "
-                   "session; docs/diagnosis.md, 'The stick-slip filter, round 5')")
 def test_confusion_matrix_correct_rate(confusion_seed11: dict) -> None:
     assert confusion_seed11["correct_rate"] >= 0.95, confusion_seed11
 
