@@ -8,14 +8,15 @@ OP: ``J = 0`` is backlash (a deadband of width ``S``), ``0 < J <= S`` stick-slip
 and slip jump ``J`` (Choudhury et al. 2005), ``S = 0`` a linear valve.
 
 The process is an output-error model (docs/loops.md, "Model"): the valve path ``x`` delayed by
-``d >= 1`` samples (the controller reacts to the same sample's PV, so a zero delay would identify
-the controller, not the process) through a unit-gain first-order lag ``w[k] = a w[k-1] + (1-a) x[k-d]``
-(self-regulating, ``a = exp(-dt/tau)``) or an integrator ``w[k] = w[k-1] + x[k-d] - mean(x)``
-(level loops, with a trend term), scaled by the gain ``K``. The noise ``v`` is AR(p). For given
-``(a, d)`` the model is linear in ``(K, c, g)`` once the AR filter is fixed, and the AR filter is
-least squares on the residual, so the Gaussian maximum-likelihood fit alternates the two; the
-likelihood is concentrated over the innovation variance: ``loglik = -n/2 (log(2 pi RSS/n) + 1)``.
-``(a, d)`` are searched over a grid, (S, J) over a grid in S (fractions of the OP range) and J/S,
+``d + f >= 1`` samples, a fractional delay ``u[k] = (1-f) x[k-d] + f x[k-d-1]`` (the controller reacts to the
+same sample's PV, so a delay below one sample would identify the controller, not the process), through a
+unit-gain first-order lag ``w[k] = a w[k-1] + (1-a) u[k]`` (self-regulating, ``a = exp(-dt/tau)``) or an
+integrator ``w[k] = w[k-1] + u[k] - mean(x)`` (level loops, with a trend term), scaled by the gain ``K``.
+The noise ``v`` is AR(p). For given ``(a, d + f)`` the model is linear in ``(K, c, g)`` once the AR filter
+is fixed, and the AR filter is least squares on the residual, so the Gaussian maximum-likelihood fit
+alternates the two; the likelihood is concentrated over the innovation variance:
+``loglik = -n/2 (log(2 pi RSS/n) + 1)``.
+``(a, d + f)`` are searched over a grid, (S, J) over a grid in S (fractions of the OP range) and J/S,
 refined by a bounded scalar search in S. Every candidate uses the same samples (``k0`` on), so
 their likelihoods compare.
 """
@@ -65,14 +66,18 @@ def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0) -> np
 
 
 @njit(cache=True)
-def _filtered(x: np.ndarray, a: float, d: int, integ: bool) -> np.ndarray:  # pragma: no cover - compiled
+def _filtered(x: np.ndarray, a: float, delay: float, integ: bool) -> np.ndarray:  # pragma: no cover - compiled
     n = x.size
     w = np.zeros(n)
     xm = x.mean()
+    d = int(math.floor(delay))
+    f = delay - d
     w[0] = 0.0 if integ else x[0]
     for k in range(1, n):
         j = k - d
         xk = x[j] if j >= 0 else x[0]
+        if f > 0.0:  # a fractional delay: the input between its samples k-d and k-d-1 (docs/loops.md, "Model")
+            xk = (1.0 - f) * xk + f * (x[j - 1] if j >= 1 else x[0])
         if integ:
             w[k] = w[k - 1] + (xk - xm)
         else:
@@ -140,20 +145,30 @@ def _oe_fit(pv: np.ndarray, w: np.ndarray, basis: np.ndarray, k0: int, k1: int, 
 
 
 @njit(cache=True)
-def _best_process(pv: np.ndarray, x: np.ndarray, basis: np.ndarray, alist: np.ndarray, dmin: int, dmax: int,
+def _best_process(pv: np.ndarray, x: np.ndarray, basis: np.ndarray, alist: np.ndarray, delays: np.ndarray,
                   k0: int, k1: int, p: int, n_iter: int, allow_integ: bool) -> tuple:  # pragma: no cover - compiled
+    """The best (lag, delay) for the valve path ``x``. Delays of a whole sample or more first; a delay below one
+    sample only with a gain of their best fit's sign (the controller's own relation between the same samples has
+    the opposite sign, negative feedback: docs/loops.md, "Model")."""
     best_rss = 1e300
-    best = (1e300, 0.0, 0, False, np.zeros(1 + basis.shape[1]), 0.0, 0.0)
+    best = (1e300, 0.0, 0.0, False, np.zeros(1 + basis.shape[1]), 0.0, 0.0)
     na = alist.size + (1 if allow_integ else 0)
-    for ia in range(na):
-        integ = ia == alist.size
-        a = 1.0 if integ else alist[ia]
-        for d in range(dmin, dmax + 1):
-            w = _filtered(x, a, d, integ)
-            rss, theta, r1, r2 = _oe_fit(pv, w, basis, k0, k1, p, n_iter)
-            if rss < best_rss:
-                best_rss = rss
-                best = (rss, a, d, integ, theta, r1, r2)
+    sign = 0.0
+    for sub in (False, True):
+        for ia in range(na):
+            integ = ia == alist.size
+            a = 1.0 if integ else alist[ia]
+            for d in delays:
+                if (d < 1.0) != sub:
+                    continue
+                w = _filtered(x, a, d, integ)
+                rss, theta, r1, r2 = _oe_fit(pv, w, basis, k0, k1, p, n_iter)
+                if sub and theta[0] * sign <= 0.0:
+                    continue
+                if rss < best_rss:
+                    best_rss = rss
+                    best = (rss, a, d, integ, theta, r1, r2)
+        sign = best[4][0]
     return best
 
 
@@ -173,8 +188,12 @@ class Settings:
     """Search settings of the grey-box fit (docs/loops.md, "Model")."""
 
     dt: float = 10.0
-    min_delay: int = 1
+    min_delay: float = 1.0
     max_delay: int = 12
+    #: delays below ``fine_below`` samples are searched in steps of ``fine_step`` (a fractional delay), the rest in
+    #: whole samples; ``fine_step`` 1 is the integer-delay model (docs/loops.md, "Model")
+    fine_step: float = 0.25
+    fine_below: float = 3.0
     noise_order: int = 2
     n_iter: int = 3
     allow_integrating: bool = True
@@ -188,6 +207,13 @@ class Settings:
     def alist(self) -> np.ndarray:
         return np.exp(-self.dt / np.asarray(TAUS_S))
 
+    def delays(self) -> np.ndarray:
+        """The delays searched, samples: ``min_delay`` up in steps of ``fine_step`` below ``fine_below``, then whole
+        samples up to ``max_delay``."""
+        fine = np.arange(self.min_delay, min(self.fine_below, self.max_delay), self.fine_step)
+        whole = np.arange(math.ceil(self.min_delay), self.max_delay + 1, 1.0)
+        return np.unique(np.round(np.concatenate([fine, whole]), 9))
+
 
 @dataclass
 class ProcessFit:
@@ -195,7 +221,7 @@ class ProcessFit:
     disturbance (weights of its basis), AR noise, residual sum of squares over ``n`` samples."""
 
     a: float
-    delay: int
+    delay: float
     integrating: bool
     K: float
     weights: np.ndarray
@@ -231,9 +257,9 @@ def fit_process(pv: np.ndarray, x: np.ndarray, s: Settings, k1: int | None = Non
     basis = disturbance_basis(pv.size, s.dt, s.disturbance_knot_s)
     rss, a, d, integ, theta, r1, r2 = _best_process(
         np.ascontiguousarray(pv, dtype=float), np.ascontiguousarray(x, dtype=float), basis, s.alist(),
-        s.min_delay, s.max_delay, k0, k1, s.noise_order, s.n_iter, s.allow_integrating)
+        s.delays(), k0, k1, s.noise_order, s.n_iter, s.allow_integrating)
     n_params = 3 + basis.shape[1] + s.noise_order + 1  # K, a, d, disturbance weights, rho, sigma
-    return ProcessFit(float(a), int(d), bool(integ), float(theta[0]), np.asarray(theta[1:]), basis,
+    return ProcessFit(float(a), float(d), bool(integ), float(theta[0]), np.asarray(theta[1:]), basis,
                       (float(r1), float(r2)), float(rss), k1 - k0, n_params)
 
 
@@ -342,7 +368,7 @@ SCAN_S_FRACTIONS: tuple[float, float, int] = (0.01, 3.0, 24)
 
 @njit(cache=True)
 def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray, q: int, alist: np.ndarray,
-              dmin: int, dmax: int, k0: int, allow_integ: bool) -> np.ndarray:  # pragma: no cover - compiled
+              delays: np.ndarray, k0: int, allow_integ: bool) -> np.ndarray:  # pragma: no cover - compiled
     """For each valve path (row of ``xs``), the least white-noise RSS of ``pv ~ K w + basis weights`` over the
     process structures (lag, delay) on samples ``k0..``. The basis (hat functions) is given sparsely: row ``k``
     has the values ``bval[k]`` in the columns ``bidx[k]``. A delay shifts the lag's output (the filter starts
@@ -366,36 +392,50 @@ def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray
     wb = np.empty(q)
     for ix in range(xs.shape[0]):
         best = 1e300
+        sign = 0.0
         x = xs[ix]
         xm = x.mean()
-        for ia in range(na):
-            integ = ia == alist.size
-            a = alist[ia] if not integ else 1.0
-            w[0] = 0.0 if integ else x[0]
-            for k in range(1, n):
-                w[k] = w[k - 1] + (x[k] - xm) if integ else a * w[k - 1] + (1.0 - a) * x[k]
-            for d in range(dmin, dmax + 1):
-                ww = 0.0
-                wp = 0.0
-                wb[:] = 0.0
-                for k in range(k0, n):
-                    wk = w[k - d]
-                    ww += wk * wk
-                    wp += wk * pv[k]
-                    for u in range(bidx.shape[1]):
-                        wb[bidx[k, u]] += wk * bval[k, u]
-                A[1:, 1:] = G
-                A[0, 0] = ww
-                A[0, 1:] = wb
-                A[1:, 0] = wb
-                b[0] = wp
-                b[1:] = Bp
-                for i in range(m):
-                    A[i, i] += 1e-9 * A[i, i] + 1e-12
-                theta = np.linalg.solve(A, b)
-                rss = max(pp - np.dot(theta, b), 1e-300)
-                if rss < best:
-                    best = rss
+        for sub in (False, True):  # whole-sample delays first, then sub-sample ones of their gain's sign
+            if sub and delays[0] >= 1.0:
+                break
+            best_k = 0.0
+            for ia in range(na):
+                integ = ia == alist.size
+                a = alist[ia] if not integ else 1.0
+                w[0] = 0.0 if integ else x[0]
+                for k in range(1, n):
+                    w[k] = w[k - 1] + (x[k] - xm) if integ else a * w[k - 1] + (1.0 - a) * x[k]
+                for dly in delays:
+                    if (dly < 1.0) != sub:
+                        continue
+                    d = int(math.floor(dly))
+                    f = dly - d
+                    ww = 0.0
+                    wp = 0.0
+                    wb[:] = 0.0
+                    for k in range(k0, n):
+                        wk = w[k - d] if f == 0.0 else (1.0 - f) * w[k - d] + f * w[k - d - 1]
+                        ww += wk * wk
+                        wp += wk * pv[k]
+                        for u in range(bidx.shape[1]):
+                            wb[bidx[k, u]] += wk * bval[k, u]
+                    A[1:, 1:] = G
+                    A[0, 0] = ww
+                    A[0, 1:] = wb
+                    A[1:, 0] = wb
+                    b[0] = wp
+                    b[1:] = Bp
+                    for i in range(m):
+                        A[i, i] += 1e-9 * A[i, i] + 1e-12
+                    theta = np.linalg.solve(A, b)
+                    if sub and theta[0] * sign <= 0.0:
+                        continue
+                    rss = max(pp - np.dot(theta, b), 1e-300)
+                    if rss < best:
+                        best = rss
+                        best_k = theta[0]
+            if not sub:
+                sign = best_k
         out[ix] = best
     return out
 
@@ -462,7 +502,7 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
     xs, params = paths
     pv = np.ascontiguousarray(pv, dtype=float)
     idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s))
-    rss = _scan_rss(pv, xs, idx, val, q, s.alist(), s.min_delay, s.max_delay, s.k0, s.allow_integrating)
+    rss = _scan_rss(pv, xs, idx, val, q, s.alist(), s.delays(), s.k0, s.allow_integrating)
     i = int(np.argmin(rss[1:])) + 1
     n = pv.size - s.k0
     lr = n * math.log(rss[0] / min(rss[i], rss[0]))
