@@ -347,7 +347,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         # (docs/diagnosis.md, "The stick-slip filter, round 6": under the null the base model's misfit at the
         # tank's heating steps gives stiction tens of units with a band that the opening's slips do not show)
         n_sl, med = slip_sizes(train.x, float(valve.stroke))
-        shown = slips_show_band(train.x, float(valve.stroke), float(fit.params["band_mm"]))
+        shown = band_shown(n_sl, med, float(fit.params["band_mm"]))  # the slips found once, for both
         f.training_slips = {"n": n_sl, "median_mm": med, "show_band": shown}
         f.significant = f.significant and shown
     f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
@@ -390,10 +390,14 @@ def slips_show_band(x: np.ndarray, stroke: float, band: float, min_slips: int = 
     that the opening's slips do not show (their median 1.7-11 bands, or fewer than two slips), while
     on every named stiction run of the development seeds the median slip is 0.77-1.13 band
     (docs/diagnosis.md, "The stick-slip filter, round 6")."""
-    n_sl, med = slip_sizes(x, stroke)
-    if not (math.isfinite(band) and band > 0) or med is None:
+    return band_shown(*slip_sizes(x, stroke), band, min_slips, tol)
+
+
+def band_shown(n_slips: int, median_mm: float | None, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:
+    """:func:`slips_show_band`'s rule on slips already counted (:func:`slip_sizes`)."""
+    if not (math.isfinite(band) and band > 0) or median_mm is None:
         return False
-    return bool(n_sl >= min_slips and abs(med / band - 1.0) <= tol)
+    return bool(n_slips >= min_slips and abs(median_mm / band - 1.0) <= tol)
 
 
 def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[Finding]) -> FitResult | None:
