@@ -1,5 +1,5 @@
 """Issue 20: a named effect's misspecification-robust sd and its misspecification check
-(valve_env.diagnosis.uncertainty.robust_finding; docs/uncertainty.md, "Named effects")."""
+(valve_env.estimation.robust.robust_finding; docs/uncertainty.md, "Named effects")."""
 
 from __future__ import annotations
 
@@ -9,8 +9,7 @@ import pytest
 
 from valve_env.diagnosis.diagnose import check_run, prepare
 from valve_env.diagnosis.fitting import Model
-from valve_env.diagnosis.uncertainty import robust_finding
-from valve_env.estimation.robust import MisspecificationWarning
+from valve_env.estimation.robust import MisspecificationWarning, robust_finding
 from valve_env.experiment import simulate_experiment
 
 

@@ -32,9 +32,14 @@ OWNERS: dict[str, tuple[str, ...]] = {
                                   "denoise_temperature", "noise_sd"),
     "data_io.py": ("load_run", "validate_run"),
     "estimation/data.py": ("RunData",),
+    "estimation/bootstrap.py": ("bootstrap", "apply_bootstrap", "BootstrapResult", "replicate_run", "world_opening",
+                                "curved_world", "residual_block_length", "block_resample", "gross_refits",
+                                "screen_refits", "denoised_run", "bracketed", "preprocessing_refit"),
+    "estimation/robust.py": ("sandwich_std", "effect_misspecification", "robust_finding", "whiteness_check",
+                             "misspecification_check"),
 }
 #: a method of this name may exist elsewhere only as a thin wrapper that calls the owner's function
-WRAPPERS = {"to_work", "from_work", "work_bounds", "noise_sd"}
+WRAPPERS = {"to_work", "from_work", "work_bounds", "noise_sd", "bootstrap"}
 
 
 def _tree(rel: str) -> ast.Module:
@@ -233,6 +238,29 @@ def test_the_diagnosis_fits_and_bootstraps_through_the_estimator() -> None:
     assert "bootstrap" in calls and "apply_bootstrap" not in calls
 
 
+def test_the_bootstrap_has_one_home_in_the_estimation() -> None:
+    """The bootstrap (a standard error) lives in valve_env/estimation/bootstrap.py, the named effects' sandwich
+    and misspecification check in estimation/robust.py: the diagnosis imports them from there, keeps no module
+    of its own for them, and does no resampling, robust scale or normality test itself."""
+    from valve_env import diagnosis
+    from valve_env.estimation import bootstrap as home
+
+    assert not (PKG / "diagnosis" / "uncertainty.py").exists()
+    diagnose = _imports(_tree("diagnosis/diagnose.py"))
+    assert diagnose.get("METHOD") == diagnose.get("NORMAL_P") == "valve_env.estimation.bootstrap"
+    assert diagnose.get("robust_finding") == "valve_env.estimation.robust"
+    estimator = _imports(_tree("estimation/estimator.py"))
+    assert estimator.get("bootstrap") == estimator.get("apply_bootstrap") == "valve_env.estimation.bootstrap"
+    assert diagnosis.bootstrap is home.bootstrap  # the package's public name is the estimation's function
+    for rel in _modules():
+        if rel.startswith("diagnosis/"):
+            imported = _imports(_tree(rel))
+            assert not any(m.endswith("uncertainty") for m in imported.values()), rel
+            src = (PKG / rel).read_text(encoding="utf-8")
+            for banned in ("optimal_block_length(", "qn_scale(", "shapiro(", "block_resample(", "whiteness_check("):
+                assert banned not in src, f"{rel} uses {banned}"
+
+
 def test_valve_estimator_takes_the_framework_container() -> None:
     """A prepared RunData (e.g. a training slice) is an input of the output-error estimator, with the
     same numbers as the DataFrame it came from; the EKF refuses it."""
@@ -254,7 +282,7 @@ def test_valve_estimator_bootstrap_is_the_diagnosis_bootstrap() -> None:
     """fit(...).bootstrap(B) returns self and sets what the diagnosis reports for a named effect: the
     TV refit's estimate (the pre-processing bracket), the sd at least the inverse Hessian's and at
     least half the IRW-TV difference; without effects it bootstraps the base parameters, unbracketed."""
-    from valve_env.diagnosis import uncertainty
+    from valve_env.estimation import bootstrap as uncertainty
     from valve_env.estimation.data import RunData
 
     df = simulate_experiment(seed=5, duration_h=4.0, dt_s=20.0, effects={"sensor_lag": {"tau_s": 60.0}},

@@ -28,7 +28,7 @@ _LAZY = {
     "EFFECTS": "valve_env.diagnosis.effects",
     "effect_model": "valve_env.diagnosis.sde_effects",
     "run_bench": "valve_env.diagnosis.bench",
-    "bootstrap": "valve_env.diagnosis.uncertainty",
+    "bootstrap": "valve_env.estimation.bootstrap",
     "jump_band": "valve_env.diagnosis.stiction",
     "band_sampling": "valve_env.diagnosis.stiction",
 }

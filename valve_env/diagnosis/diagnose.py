@@ -152,7 +152,7 @@ class Finding:
     std_method: str = "inverse Hessian / HAC sandwich (not calibrated)"
     uncertainty: dict[str, Any] | None = None
     #: issue 20: the inverse-Hessian and HAC-sandwich sds side by side and the misspecification check
-    #: (valve_env.diagnosis.uncertainty.robust_finding), for a named effect
+    #: (valve_env.estimation.robust.robust_finding), for a named effect
     robust: dict[str, Any] | None = None
 
     @property
@@ -418,7 +418,7 @@ def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[
 def _bootstrap_finding(f: Finding, B: int) -> None:
     """Replace the effect parameters' std of an accepted finding by the model-based bootstrap's
     (:meth:`valve_env.estimation.estimator.ValveEstimator.bootstrap`, the estimation's facility)."""
-    from valve_env.diagnosis.uncertainty import METHOD, NORMAL_P
+    from valve_env.estimation.bootstrap import METHOD, NORMAL_P
 
     f.estimator.bootstrap(B)
     b, source = f.estimator.bootstrap_, f.estimator.std_from_
@@ -557,12 +557,12 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         ref_val = (best.validation_rms_after_mm, ref_val[1] + best.validation_loglik_gain,
                    best.validation_sim_rms_after_mm)
     # honest uncertainty of the named effects: a model-based bootstrap of the whole chain (smoothing
-    # of the temperatures included), see valve_env.diagnosis.uncertainty
+    # of the temperatures included), see valve_env.estimation.bootstrap
     for step in steps:
         best = step[0]
         if best.accepted:
             # issue 20: sandwich beside the Hessian, and the misspecification check (at the ML estimate)
-            from valve_env.diagnosis.uncertainty import robust_finding
+            from valve_env.estimation.robust import robust_finding
 
             best.robust = robust_finding(best.estimator.backend_, train, best.fit,
                                          bootstrap_sd=bootstrap_B > 0)

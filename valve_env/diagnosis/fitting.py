@@ -12,7 +12,7 @@ fitted. Standard deviations here are the larger of the inverse-Hessian and
 the HAC-sandwich ones (delta method to the natural scale); they ignore the
 smoothing error of the temperatures and are optimistic, so the diagnosis
 replaces them for the named effects by a model-based bootstrap
-(:mod:`valve_env.diagnosis.uncertainty`).
+(:mod:`valve_env.estimation.bootstrap`).
 
 This is the output-error back-end of the identification framework
 (docs/estimation.md, "Architecture"): the data container is

@@ -125,7 +125,7 @@ def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int
                rng: np.random.Generator) -> np.ndarray:
     """``draws`` band estimates (:func:`jump_band`) of ``x_true`` plus white noise of ``noise_sd_mm``
     from ``rng``, nan where too few jumps: :func:`band_sampling` without its checks, and the band's
-    extra replicates of the bootstrap (:func:`valve_env.diagnosis.uncertainty.bootstrap`)."""
+    extra replicates of the bootstrap (:func:`valve_env.estimation.bootstrap.bootstrap`)."""
     return np.array([jump_band(x_true + noise_sd_mm * rng.standard_normal(x_true.shape[0]), stroke)[0]
                      for _ in range(draws)])
 

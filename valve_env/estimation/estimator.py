@@ -82,14 +82,14 @@ class ValveEstimator(Estimator):
     def bootstrap(self, B: int = 16, seed: int = 0, params: tuple[str, ...] | list[str] | None = None
                   ) -> ValveEstimator:
         """The calibrated uncertainty of a fitted output-error estimator: the model-based bootstrap of the
-        whole chain (:func:`valve_env.diagnosis.uncertainty.bootstrap`, ``B`` replicates, temperature
+        whole chain (:func:`valve_env.estimation.bootstrap.bootstrap`, ``B`` replicates, temperature
         smoothing included) with the pre-processing bracket, applied as the diagnosis applies it to a
-        named effect (:func:`valve_env.diagnosis.uncertainty.apply_bootstrap`: ``std_`` of ``params``
+        named effect (:func:`valve_env.estimation.bootstrap.apply_bootstrap`: ``std_`` of ``params``
         the bootstrap's sd, at least the inverse-Hessian/HAC sd, and ``params_`` bias-corrected where
         the bias is clear). ``params``: default the effects' parameters, or the base model's
         ``sigma``, ``F_hmax``, ``p_bset`` without effects. Returns ``self``; ``bootstrap_`` holds the
         replicates and their summary, ``std_from_`` where each sd came from."""
-        from valve_env.diagnosis.uncertainty import apply_bootstrap, bootstrap
+        from valve_env.estimation.bootstrap import apply_bootstrap, bootstrap
 
         self._check()
         if self.likelihood != "output_error":

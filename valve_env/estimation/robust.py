@@ -22,13 +22,20 @@ the cumulated periodogram with its Kolmogorov-Smirnov band) on each output's
 standardised one-step residuals and warns (:class:`MisspecificationWarning`) when
 either rejects at ``alpha``: the model does not explain the data's dynamics, so its
 inverse-Hessian standard errors are not to be trusted (docs/uncertainty.md).
+
+**The output-error likelihood's** (the diagnosis's named effects, :class:`valve_env.diagnosis.fitting.Model`):
+:func:`sandwich_std` (its inverse Hessian and HAC sandwich, from the same
+:mod:`valve_env.estimation.covariance`), :func:`effect_misspecification` (the same whiteness check on its
+standardised one-step errors) and :func:`robust_finding` (what a named effect's JSON carries beside its sd).
+Their reported sd is the bootstrap's (:mod:`valve_env.estimation.bootstrap`).
 """
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -38,6 +45,10 @@ from valve_env.estimation.diagnostics import residual_report
 from valve_env.estimation.filters import FilterResult, run_filter
 from valve_env.estimation.fit import MLEstimator, NotFittedError
 from valve_env.estimation.model import dnat_dwork
+
+if TYPE_CHECKING:
+    from valve_env.diagnosis.fitting import FitResult, Model
+    from valve_env.estimation.data import RunData
 
 LOG2PI = float(np.log(2.0 * np.pi))
 
@@ -161,7 +172,7 @@ def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nl
     residuals (one array per output, NaN where unobserved); ``label`` names the model in the warning,
     ``advice`` ends it (what to make of the reported sd, which depends on where it comes from).
     Used by the base fit and by the diagnosis's named effects
-    (:func:`valve_env.diagnosis.uncertainty.effect_misspecification`)."""
+    (:func:`effect_misspecification`)."""
     from scipy.stats import kstwobign
 
     out: dict[str, Any] = {"alpha": alpha, "outputs": {}}
@@ -187,5 +198,87 @@ def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nl
     return out
 
 
-__all__ = ["MisspecificationWarning", "RobustResult", "misspecification_check", "newey_west_lags", "robust_std",
-           "score_contributions", "step_nll", "whiteness_check"]
+# --------------------------------------------------------------------------- misspecification-robust sd and check
+def sandwich_std(model: Model, data: RunData, fit: FitResult, fixed: tuple[str, ...] = ("band_mm",)
+                 ) -> dict[str, object]:
+    """The two likelihood-based sds of a finding's parameters, side by side, at its maximum-likelihood
+    estimate ``fit`` (a fit of ``model`` to ``data``): ``std_hessian`` (the inverse Hessian over the
+    identified directions) and ``std_robust`` (the Newey-West HAC sandwich of the per-sample scores of
+    the output-error likelihood, the residual model's parameters held as a working covariance), both
+    from :func:`valve_env.estimation.covariance.hessian_sandwich_parts`, the one implementation of the
+    standard errors (docs/estimation.md). ``fixed`` parameters have neither (stiction's band is
+    measured from the slips, not fitted: its sd is the bootstrap's alone). ``lags``: the HAC window."""
+    from valve_env.diagnosis.fitting import NOISE_NAMES
+    from valve_env.estimation.covariance import hessian_sandwich_parts
+
+    free = [i for i, n in enumerate(model.names) if n not in fixed]
+    z_all = model.to_work(fit.params)
+    bounds = model.work_bounds()
+
+    def values(zf: np.ndarray) -> dict[str, float]:
+        z = z_all.copy()
+        z[free] = zf
+        return model.from_work(z)
+
+    def nll(zf: np.ndarray) -> float:
+        ll = model.loglik(data, values(zf))
+        return -ll if math.isfinite(ll) else 1e300
+
+    def contrib(zf: np.ndarray) -> np.ndarray:
+        nu, S = model.prediction_errors(data, values(zf))
+        return np.asarray(-0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S))
+
+    zf = z_all[free]
+    names = [model.names[i] for i in free]
+    widths = np.array([bounds[i][1] - bounds[i][0] for i in free], dtype=float)
+    g = np.array([dnat_dwork(zf[j], model.parameters[i]) for j, i in enumerate(free)])
+    working = np.array([n in NOISE_NAMES for n in names])
+    sd_h, sd_r, lags = hessian_sandwich_parts(nll, contrib, zf, widths, g, working)
+    nan = {n: float("nan") for n in fixed if n in model.names}
+    return {"std_hessian": {n: float(sd_h[j]) for j, n in enumerate(names)} | nan,
+            "std_robust": {n: float(sd_r[j]) for j, n in enumerate(names)} | nan,
+            "lags": int(lags)}
+
+
+#: what a rejected check means for a bootstrap sd: its replicates are drawn from the fitted model itself
+BOOTSTRAP_ADVICE = ("the reported sd is a bootstrap in this model's own world, which assumes the model: read it "
+                    "as a lower bound")
+
+
+def effect_misspecification(model: Model, data: RunData, fit: FitResult, *, alpha: float = 0.01, nlags: int = 40,
+                            warn: bool = True, bootstrap_sd: bool = False) -> dict[str, object]:
+    """The misspecification check of a finding: the whiteness of its standardised one-step prediction
+    errors (Ljung-Box at ``nlags`` and the cumulated periodogram, level ``alpha``;
+    :func:`valve_env.estimation.robust.whiteness_check`, the base fit's check), with a
+    :class:`~valve_env.estimation.robust.MisspecificationWarning` when it rejects: the effect's model
+    (with its Ornstein-Uhlenbeck model error) does not explain the opening's dynamics, and its sd (the
+    bootstrap's world is that model) is not to be trusted. Its rates on the studies' runs are in
+    docs/uncertainty.md. ``bootstrap_sd``: the finding's reported sd is the bootstrap's (the warning then
+    says so, instead of pointing to the sandwich)."""
+    nu, S = model.prediction_errors(data, fit.params)
+    e = np.where(S > 0, nu / np.sqrt(np.where(S > 0, S, 1.0)), np.nan)
+    label = "+".join(model.effects) or "base"
+    return whiteness_check({"x_mm": e}, alpha=alpha, nlags=nlags, warn=warn, label=f"{label} valve model",
+                           advice=BOOTSTRAP_ADVICE if bootstrap_sd else ROBUST_ADVICE)
+
+
+def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = True,
+                   bootstrap_sd: bool = False) -> dict[str, object]:
+    """What a named effect's JSON carries beside its ``std`` (docs/uncertainty.md, "Named effects"):
+    ``std_hessian`` and ``std_robust`` of its effect parameters (:func:`sandwich_std`), ``robust_lags``
+    and ``misspecification`` (:func:`effect_misspecification`, which warns)."""
+    from valve_env.diagnosis.effects import EFFECTS
+
+    names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
+    sw = sandwich_std(model, data, fit)
+    h, r = sw["std_hessian"], sw["std_robust"]
+    assert isinstance(h, dict) and isinstance(r, dict)
+    return {"std_hessian": {k: float(h.get(k, float("nan"))) for k in names},
+            "std_robust": {k: float(r.get(k, float("nan"))) for k in names},
+            "robust_lags": sw["lags"],
+            "misspecification": effect_misspecification(model, data, fit, warn=warn, bootstrap_sd=bootstrap_sd)}
+
+
+__all__ = ["MisspecificationWarning", "RobustResult", "effect_misspecification", "misspecification_check",
+           "newey_west_lags", "robust_finding", "robust_std", "sandwich_std", "score_contributions", "step_nll",
+           "whiteness_check"]
