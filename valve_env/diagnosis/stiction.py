@@ -46,7 +46,7 @@ def resting_noise_sd(x: np.ndarray, stroke: float, band: float | None = None) ->
 
 def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0, plateau: int = 3,
           after: int = 3, edge_mm: float = 0.02, flat: float = 3.5, persist: float = 3.0,
-          ramp: float = 1.0) -> np.ndarray:
+          ramp: float = 1.0, events: list[tuple[int, float, float, float]] | None = None) -> np.ndarray:
     """The sizes (mm) of the slips of a sticking stem in the measured opening ``x`` (module docstring).
 
     A slip is a step larger than ``z`` noise sd of a difference after ``plateau`` samples that span
@@ -59,7 +59,8 @@ def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0
     within the interval, and the straight line through the next samples, which slow down, measured it
     at a third to a half of the band (two of 14 slips of a generated day, seed 631); the bootstrap
     world's smoothed temperatures make fewer such fast slips, so these slips also set its bias apart
-    from the estimator's. ``s_w``: the noise sd (default :func:`noise_sd`)."""
+    from the estimator's. ``s_w``: the noise sd (default :func:`noise_sd`). ``events``: if given, each slip is appended
+    to it as (index of the plateau's last sample, direction +-1, plateau level mm, size mm)."""
     x = np.asarray(x, dtype=float)
     s = max(noise_sd(x) if s_w is None else float(s_w), 1e-6)
     n = x.size
@@ -90,6 +91,8 @@ def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0
             k += 1
             continue
         out.append(size)
+        if events is not None:  # (last sample of the plateau, direction, plateau level, size)
+            events.append((k, sg, lev0, size))
         k += after
     return np.array(out)
 

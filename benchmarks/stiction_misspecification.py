@@ -1,0 +1,101 @@
+"""The misspecification check for stiction (issue 20): its firing rates on stick-slip runs of the project's
+generator (the right model) and of the independent simulator's variants ``reset``, ``sj`` and ``force``
+(docs/uncertainty.md, "Issue 20, seventh round").
+
+Each run is drawn as ``benchmarks/independent_coverage.py --study effects --only stiction`` draws it (run i
+keeps its seed), written to a CSV and read back with the loader, then diagnosed with stiction as the only
+candidate and no bootstrap (``diagnose(data, effects=["stiction"], bootstrap_B=0)``: the check runs at the ML
+estimate on the training part, as in the full diagnosis). Printed per run: whether stiction was named, its
+band against the truth, the whiteness check (the smooth effects' check) and the stick-slip check
+(:func:`valve_env.estimation.robust.stick_slip_check`).
+
+    python benchmarks/stiction_misspecification.py --generator project --runs 6 --seed 20261202 --json out/sm_p.json
+    python benchmarks/stiction_misspecification.py --generator independent --runs 3 --seed 777 --json out/sm_i.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pickle
+import platform
+import sys
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from independent_coverage import _as_measured, _simulate, cases  # noqa: E402
+
+from valve_env.outputs import OutputError, OutputSet  # noqa: E402
+
+
+def run_case(case: dict[str, Any]) -> dict[str, Any]:
+    from valve_env.diagnosis.diagnose import diagnose
+
+    df, _truth, effects = _simulate(case)
+    data = _as_measured(df)
+    t0 = time.process_time()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = diagnose(data, effects=["stiction"], bootstrap_B=0)
+    f = d.findings[0]
+    out = {k: case[k] for k in ("generator", "seed", "i", "variant", "run_seed", "duration_h", "dt_s", "T_noise_C")}
+    out.update({"named": d.cause == "stiction", "true_band": effects["stiction"]["band_mm"],
+                "band": float(f.fit.params["band_mm"]), "lr": float(f.lr_stat), "cpu_s": time.process_time() - t0})
+    if case.get("dump"):
+        with open(os.path.join(case["dump"], f"{case['generator']}_{case['seed']}_{case['i']}.pkl"), "wb") as fh:
+            pickle.dump({"model": f.estimator.backend_, "train": d.train, "fit": f.fit, "info": out}, fh)
+    from valve_env.estimation.robust import effect_misspecification
+
+    mis = effect_misspecification(f.estimator.backend_, d.train, f.fit, warn=False)
+    out["fired"] = bool(mis["misspecified"])
+    out["whiteness_fired"] = bool(mis["whiteness"]["misspecified"])  # type: ignore[index]
+    out["misspecification"] = mis
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--generator", choices=("independent", "project"), default="project")
+    ap.add_argument("--runs", type=int, default=4, help="runs per stick-slip variant")
+    ap.add_argument("--seed", type=int, required=True)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", dest="json_out", required=True)
+    ap.add_argument("--dump", default=None, help="directory to pickle each run's stiction fit into (studies)")
+    ap.add_argument("--force", action="store_true", help="replace an existing --json file")
+    a = ap.parse_args(argv)
+    outs = OutputSet(force=a.force)
+    try:
+        json_path = outs.add(a.json_out)
+    except OutputError as exc:
+        print(f"thermovalve: error: {exc}", file=sys.stderr)
+        return 2
+    cs = [c for c in cases("effects", a.generator, a.runs, 0, a.seed) if c["effect"] == "stiction"]
+    for c in cs:
+        c["dump"] = a.dump
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(a.workers) as ex:
+        res = list(ex.map(run_case, cs))
+    for r in res:
+        m = r["misspecification"]
+        print(f"{r['generator']:11s} {r['i']:3d} {r['variant']!s:6s} dt {r['dt_s']:5.1f} named {r['named']!s:5s} "
+              f"band {r['band']:.4f} / {r['true_band']:.4f}  LR {r['lr']:7.1f}  slips {m['n_slips']:3d} "
+              f"travel/slip {m['travel_over_slip_median']:5.2f}  stick-slip check {r['fired']!s:5s} "
+              f"whiteness {r['whiteness_fired']}")
+    for v in sorted({str(r["variant"]) for r in res}):
+        rs = [r for r in res if str(r["variant"]) == v]
+        print(f"{a.generator} {v}: stick-slip check fired {sum(r['fired'] for r in rs)}/{len(rs)}, "
+              f"whiteness {sum(r['whiteness_fired'] for r in rs)}/{len(rs)}, named {sum(r['named'] for r in rs)}")
+    doc = {"generator": a.generator, "seed": a.seed, "runs": len(cs), "results": res,
+           "seconds": time.perf_counter() - t0, "machine": platform.platform(), "command": " ".join(sys.argv)}
+    outs.write_text(json_path, json.dumps(doc, indent=1, default=float))
+    outs.commit()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
