@@ -53,10 +53,20 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def under_default_out(path: PathLike) -> bool:
+    """Whether ``path`` is :data:`DEFAULT_OUT_DIR` (``out/`` of the working directory) or below it: there a
+    missing directory is created for an output (``--json out/eval.json`` works in a fresh checkout);
+    elsewhere a missing directory is refused (a typo must not scatter results)."""
+    root = Path(os.path.abspath(DEFAULT_OUT_DIR))
+    q = Path(os.path.abspath(path))
+    return q == root or root in q.parents
+
+
 def check_output(path: PathLike, inputs: Iterable[PathLike | None] = (), force: bool = False,
                  what: str = "output") -> Path:
-    """Check that ``path`` may be written: not an input, not a directory, its directory exists,
-    and it does not exist unless ``force``. Returns it as a Path; raises :class:`OutputError`."""
+    """Check that ``path`` may be written: not an input, not a directory, its directory exists (or lies
+    under ``out/``: see :func:`under_default_out`), and it does not exist unless ``force``. Returns it as a
+    Path; raises :class:`OutputError`."""
     p = Path(path)
     for inp in inputs:
         if inp is not None and _same_file(p, Path(inp)):
@@ -65,7 +75,13 @@ def check_output(path: PathLike, inputs: Iterable[PathLike | None] = (), force: 
         raise OutputError(f"{what} {p} is a directory")
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
-        raise OutputError(f"cannot write {what} {p}: directory {parent} does not exist")
+        if not under_default_out(parent):
+            raise OutputError(f"cannot write {what} {p}: directory {parent} does not exist")
+        # under out/ (the default output root) a missing directory is made when the file is staged
+        anc = _existing_ancestor(parent)
+        if not anc.is_dir():
+            raise OutputError(f"cannot write {what} {p}: {anc} is not a directory")
+        parent = anc
     if not os.access(parent, os.W_OK):
         raise OutputError(f"cannot write {what} {p}: directory {parent} is not writable")
     if (p.exists() or p.is_symlink()) and not force:
@@ -279,6 +295,8 @@ class OutputSet:
         p = Path(path)
         if not any(_same_file(p, q) or p == q for q in self._declared):
             self.add(p)
+        if not p.parent.is_dir() and under_default_out(p.parent):
+            p.parent.mkdir(parents=True, exist_ok=True)
         with _temp_beside(p, on_create=self._temps.add) as tmp_path:
             writer(tmp_path)
         old = self._staged.pop(p, None)
@@ -369,4 +387,4 @@ class OutputSet:
 
 
 __all__ = ["OutputError", "OutputSet", "check_output", "check_output_dir", "atomic_path", "atomic_write_text",
-           "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text"]
+           "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text", "under_default_out"]

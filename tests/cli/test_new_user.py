@@ -1,0 +1,41 @@
+"""A new user's commands as the README and docs/cli.md write them: each one found broken in the
+audit of the user-facing surface (docs/cli.md) is held here."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from valve_env.cli import main
+from valve_env.outputs import OutputError, OutputSet
+
+
+def test_outputs_under_out_create_the_missing_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """README: ``thermovalve evaluate ... --json out/eval.json`` in a fresh checkout (no out/ yet)."""
+    monkeypatch.chdir(tmp_path)
+    with OutputSet() as outs:
+        outs.write_text(outs.add("out/sub/a.json"), "{}\n")
+    assert (tmp_path / "out" / "sub" / "a.json").read_text() == "{}\n"
+    # outside out/ a missing directory is still a typo to refuse, and nothing is created
+    with pytest.raises(OutputError, match="does not exist"):
+        OutputSet().add("nodir/a.json")
+    assert not (tmp_path / "nodir").exists()
+    # out/ that is a file is named
+    (tmp_path / "out2").write_text("x")
+    monkeypatch.setattr("valve_env.outputs.DEFAULT_OUT_DIR", Path("out2"))
+    with pytest.raises(OutputError, match="not a directory"):
+        OutputSet().add("out2/a.json")
+
+
+def test_readme_evaluate_json_under_out_in_a_fresh_checkout(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("THERMOVALVE_NO_PROGRESS", "1")
+    code = main(["evaluate", "--env", "ThermoValve-v0", "--controllers", "self_acting", "--episodes", "1",
+                 "--env-kwargs", "horizon_h=0.5", "--json", "out/eval.json", "--out", "out/eval"])
+    assert code == 0, capsys.readouterr().err
+    summary = json.loads((tmp_path / "out" / "eval.json").read_text())
+    assert summary["env"] == "ThermoValve-v0" and list(summary["results"]) == ["self_acting"]
+    assert (tmp_path / "out" / "eval" / "table.md").exists()
