@@ -39,3 +39,27 @@ def test_readme_evaluate_json_under_out_in_a_fresh_checkout(tmp_path: Path, monk
     summary = json.loads((tmp_path / "out" / "eval.json").read_text())
     assert summary["env"] == "ThermoValve-v0" and list(summary["results"]) == ["self_acting"]
     assert (tmp_path / "out" / "eval" / "table.md").exists()
+
+
+@pytest.mark.parametrize(("spec", "expect"), [
+    ("pi:nokey=1", "controller 'pi' has no option(s) ['nokey']; its options: Kp, Ti_s"),
+    ("oracle:foo=1", "controller 'oracle' has no option(s) ['foo']; its options: horizon_steps"),
+    ("pi:Kp=abc", "controller 'pi' option Kp must be a finite number, got 'abc'"),
+    ("pi:Kp=nan", "option Kp must be a finite number"),
+    ("pi_compensated:Ti_s=x", "option Ti_s must be a finite number"),
+    ("pi_wear:h_max=2.5", "option h_max must be an integer"),
+    ("pi:dt_s=-1", "PI dt_s must be a finite sample time > 0 s"),
+    ("self_acting:setting_C=500", "self_acting setting_C must be in [10, 120] degC"),
+])
+def test_a_bad_controller_option_is_one_line_naming_it(spec: str, expect: str, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``--controllers name:key=value`` with an unknown key, a value that is no number, or a setting no
+    action space has: exit 2, one line naming the option (was a Python TypeError's text, a NumPy ufunc
+    message, or, for self_acting:setting_C=500, a silently clipped day)."""
+    code = main(["evaluate", "--controllers", spec, "--episodes", "1", "--env-kwargs", "horizon_h=0.5",
+                 "--json", str(tmp_path / "e.json")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1 and err.startswith("thermovalve: error: ")
+    assert expect in err, err
+    assert not (tmp_path / "e.json").exists()
