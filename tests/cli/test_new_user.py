@@ -63,3 +63,11 @@ def test_a_bad_controller_option_is_one_line_naming_it(spec: str, expect: str, t
     assert err.count("\n") == 1 and err.startswith("thermovalve: error: ")
     assert expect in err, err
     assert not (tmp_path / "e.json").exists()
+
+
+def test_an_unknown_controller_name_lists_the_built_ins(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A typo (``pi_compensted``) named only the shipped agents (ppo, sac); it now lists the built-ins too."""
+    code = main(["evaluate", "--controllers", "pi_compensted", "--episodes", "1", "--json", str(tmp_path / "e.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "'pi_compensted'" in err and "self_acting, pi, pi_compensated" in err, err

@@ -129,7 +129,14 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
         raise UnknownControllerError(
             f"controller {name!r} is not a built-in ({', '.join(CONTROLLERS)}); {hint}"
         ) from exc
-    return load_agent(name, env_id, **kwargs)
+    try:
+        return load_agent(name, env_id, **kwargs)
+    except ValueError as exc:
+        if not str(exc).startswith("no shipped agent"):
+            raise
+        raise UnknownControllerError(
+            f"unknown controller {name!r}: not a built-in ({', '.join(CONTROLLERS)}) and {exc}"
+        ) from exc
 
 
 __all__ = [
