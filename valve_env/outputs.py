@@ -99,7 +99,7 @@ def check_output_dir(path: PathLike, inputs: Iterable[PathLike | None] = (), for
             raise OutputError(f"{what} {p} is the input {inp}; refusing to overwrite an input")
     if p.exists() and not p.is_dir():
         raise OutputError(f"{what} {p} exists and is not a directory")
-    if p.is_dir() and any(p.iterdir()) and not force:
+    if p.is_dir() and not force and any(q.is_file() or q.is_symlink() for q in p.rglob("*")):
         raise OutputError(f"{what} {p} exists and is not empty; use --force to replace its files")
     try:
         p.mkdir(parents=True, exist_ok=True)

@@ -71,3 +71,16 @@ def test_an_unknown_controller_name_lists_the_built_ins(tmp_path: Path, capsys: 
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
     assert "'pi_compensted'" in err and "self_acting, pi, pi_compensated" in err, err
+
+
+def test_an_output_directory_left_with_empty_subdirectories_is_reusable(tmp_path: Path) -> None:
+    """A failed run may leave its output directory with an empty subdirectory (task-leaderboard makes
+    ``figures/`` up front); the next run was refused ('exists and is not empty') though the directory
+    holds no file. Files still need --force."""
+    d = tmp_path / "tl"
+    (d / "figures").mkdir(parents=True)
+    assert OutputSet().add_dir(d) == d
+    (d / "figures" / "a.png").write_bytes(b"png")
+    with pytest.raises(OutputError, match="not empty; use --force"):
+        OutputSet().add_dir(d)
+    assert OutputSet(force=True).add_dir(d) == d
