@@ -94,3 +94,17 @@ def test_a_bad_seed_list_names_the_list() -> None:
     for bad in ("a-b", "5-3", "1,x"):
         with pytest.raises(UsageError, match=f"bad integer list '{bad}'"):
             int_list(bad)
+
+
+def test_a_header_naming_a_column_twice_is_refused(tmp_path: Path, run_csv: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """Two T_tank_C columns: pandas renamed the second (T_tank_C.1) and the fit silently used the first."""
+    lines = run_csv.read_text().splitlines()
+    bad = tmp_path / "dup.csv"  # every column present, T_tank_C a second time at the end
+    bad.write_text("\n".join([lines[0] + ",T_tank_C", *(ln + ",99" for ln in lines[1:])]) + "\n")
+    before = bad.read_bytes()
+    code = main(["fit", str(bad), "--json", str(tmp_path / "f.json"), "--ml"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "duplicate column(s) ['T_tank_C']" in err, err
+    assert bad.read_bytes() == before and not (tmp_path / "f.json").exists()
