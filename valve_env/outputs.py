@@ -266,7 +266,12 @@ class OutputSet:
             anc = _existing_ancestor(d)
             if not os.access(anc, os.W_OK):
                 raise OutputError(f"cannot create {what} directory {d}: {anc} is not writable")
-            return [d / n for n in names]
+            out = [d / n for n in names]
+            for target in out:
+                if any(_same_file(target, q) for q in self._declared):
+                    raise OutputError(f"{what} {target} is named twice")
+            self._declared += out
+            return out
         out = []
         for n in names:
             target = d / n

@@ -108,3 +108,20 @@ def test_a_header_naming_a_column_twice_is_refused(tmp_path: Path, run_csv: Path
     assert code == 2 and err.count("\n") == 1
     assert "duplicate column(s) ['T_tank_C']" in err, err
     assert bad.read_bytes() == before and not (tmp_path / "f.json").exists()
+
+
+def test_an_output_named_twice_into_a_new_directory_is_refused_up_front(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--json out/ev/table.md --out out/ev`` with out/ev not there yet: the clash was found only while
+    committing, after part of the outputs had been renamed into place (a run half written)."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("THERMOVALVE_NO_PROGRESS", "1")
+    code = main(["evaluate", "--controllers", "self_acting", "--episodes", "1", "--env-kwargs", "horizon_h=0.5",
+                 "--json", "out/ev/table.md", "--out", "out/ev"])
+    err = capsys.readouterr().err
+    assert code == 2 and "named twice" in err, err
+    assert not (tmp_path / "out" / "ev").exists() or not any((tmp_path / "out" / "ev").iterdir())
+    with pytest.raises(OutputError, match="named twice"):
+        outs = OutputSet()
+        outs.add_in_dir(tmp_path / "new", ["a.csv"])
+        outs.add_in_dir(tmp_path / "new", ["a.csv"])
