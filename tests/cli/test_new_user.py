@@ -125,3 +125,25 @@ def test_an_output_named_twice_into_a_new_directory_is_refused_up_front(
         outs = OutputSet()
         outs.add_in_dir(tmp_path / "new", ["a.csv"])
         outs.add_in_dir(tmp_path / "new", ["a.csv"])
+
+
+@pytest.mark.parametrize(("text", "env_id", "expect"), [
+    ("valve:\n  sigma: 6.41\n  sigma: 7\n", "ThermoValve-v0", "duplicate key 'sigma'"),
+    ("valve:\n  effects:\n    stiction: {band_mm: 5}\n", "ThermoValveStickyValve-v0",
+     "c.yaml': valve.effects.stiction.band_mm must be in [0, 1] mm"),
+    (None, "ThermoValve-v0", "is a directory, not a YAML file"),
+])
+def test_a_bad_config_file_is_named(text: str | None, env_id: str, expect: str, tmp_path: Path,
+                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """A key given twice (PyYAML kept the last one silently); a bad value in a file given to a task id
+    (the message did not name the file, as it does for the original ids); a directory given as the
+    file (said 'does not exist')."""
+    cfg = tmp_path / "c.yaml"
+    if text is None:
+        cfg.mkdir()
+    else:
+        cfg.write_text(text)
+    code = main(["evaluate", "--env", env_id, "--controllers", "pi", "--episodes", "1", "--config", str(cfg)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert expect in err, err
