@@ -147,3 +147,20 @@ def test_a_bad_config_file_is_named(text: str | None, env_id: str, expect: str, 
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
     assert expect in err, err
+
+
+@pytest.mark.parametrize(("args", "expect"), [
+    (["--env-kwargs", "config=foo.yaml"], "--env-kwargs config=...: give the file with --config"),
+    (["--env-kwargs", "horizon_h=0.5", "horizon_h=1"], "--env-kwargs horizon_h is given twice"),
+    (["--env", "ThermoValveDistrictHeating-v0", "--env-kwargs", "tariff=1"],
+     "tariff= must be a mapping of the ThermoValveDistrictHeating-v0 tariff's fields, got int 1"),
+    (["--env", "ThermoValveStickyValve-v0", "--env-kwargs", "tariff={w_eur: 1}"],
+     "ThermoValveStickyValve-v0 has no tariff"),
+])
+def test_a_bad_env_kwarg_is_named(args: list[str], expect: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """config= said "make_config() got multiple values for argument 'config'"; a key given twice kept the last
+    silently; tariff=1 said "'int' object is not iterable ..."; a tariff on a task without one was ignored."""
+    code = main(["evaluate", "--controllers", "pi", "--episodes", "1", *args])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert expect in err, err

@@ -23,6 +23,14 @@ import yaml
 from valve_env.cli import UsageError, add_force
 from valve_env.outputs import json_text
 
+#: gym.make keywords that the command sets itself
+RESERVED_ENV_KWARGS: dict[str, str] = {
+    "config": "give the file with --config",
+    "task_id": "give the id with --env",
+    "max_episode_steps": "the episode length follows control.horizon_h (e.g. horizon_h=48)",
+    "render_mode": "the evaluator does not render",
+}
+
 
 def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
     """``["tapping_profile=L", "valve={F_hmax: 2.0}"]`` -> dict (values parsed as YAML)."""
@@ -31,6 +39,10 @@ def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise UsageError(f"bad --env-kwargs item {item!r}: expected key=value")
+        if key.strip() in RESERVED_ENV_KWARGS:
+            raise UsageError(f"--env-kwargs {key.strip()}=...: {RESERVED_ENV_KWARGS[key.strip()]}")
+        if key.strip() in out:
+            raise UsageError(f"--env-kwargs {key.strip()} is given twice")
         try:
             out[key.strip()] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
