@@ -164,3 +164,16 @@ def test_a_bad_env_kwarg_is_named(args: list[str], expect: str, capsys: pytest.C
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
     assert expect in err, err
+
+
+@pytest.mark.parametrize("command", ["evaluate", "demo"])
+def test_too_many_episodes_are_refused_up_front(command: str, tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """--episodes 1000000 built a million envs side by side (about 400 GB) before stepping one."""
+    code = main([command, "--episodes", "1000000", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--episodes must be <= 1000" in err, err
+    from valve_env.evaluation.evaluator import run_episodes
+
+    with pytest.raises(ValueError, match="episodes must be <= 1000"):
+        run_episodes(object(), episodes=1001)  # type: ignore[arg-type]

@@ -50,6 +50,17 @@ def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
     return out
 
 
+def check_episodes(episodes: int) -> None:
+    """``--episodes`` within 1 .. MAX_EPISODES (checked before any output is declared)."""
+    from valve_env.evaluation.evaluator import MAX_EPISODES
+
+    if episodes < 1:
+        raise UsageError(f"--episodes must be >= 1, got {episodes}")
+    if episodes > MAX_EPISODES:
+        raise UsageError(f"--episodes must be <= {MAX_EPISODES}, got {episodes} (the episodes run side by side, "
+                         "about 0.4 MB each)")
+
+
 def _default_controllers(env_id: str) -> list[str]:
     from valve_env.controllers import BASELINES, original_id
 
@@ -125,8 +136,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     if args.env not in valve_env.ALL_ENV_IDS:
         raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
-    if args.episodes < 1:
-        raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
+    check_episodes(args.episodes)
     if args.seed < 0:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
     names = [c.strip() for c in args.controllers.split(",") if c.strip()] if args.controllers else None
@@ -156,8 +166,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     env_id = "ThermoValve-v0"
     names = ["self_acting", "pi", "pi_compensated"]
-    if args.episodes < 1:
-        raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
+    check_episodes(args.episodes)
     if args.seed < 0:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
     out_dir = Path(args.out)
