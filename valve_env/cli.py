@@ -284,8 +284,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
-        parser.print_help()
-        return EXIT_BAD_INPUT
+        return fail("a command is required (see thermovalve --help)")
     previous = None
     try:
         previous = signal.signal(signal.SIGTERM, _on_sigterm)

@@ -177,3 +177,11 @@ def test_too_many_episodes_are_refused_up_front(command: str, tmp_path: Path,
 
     with pytest.raises(ValueError, match="episodes must be <= 1000"):
         run_episodes(object(), episodes=1001)  # type: ignore[arg-type]
+
+
+def test_no_command_is_the_one_line_error(capsys: pytest.CaptureFixture[str]) -> None:
+    """``thermovalve`` alone printed the whole help on stdout and exited 2 with no error line."""
+    code = main([])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert err == "thermovalve: error: a command is required (see thermovalve --help)\n"
