@@ -382,7 +382,11 @@ class OutputSet:
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
         if exc_type is None:
-            self.commit()
+            try:
+                self.commit()
+            except BaseException:  # a refusal found while committing, or SIGTERM/Ctrl-C in the middle
+                self.discard()
+                raise
         else:
             self.discard()
 

@@ -185,3 +185,17 @@ def test_no_command_is_the_one_line_error(capsys: pytest.CaptureFixture[str]) ->
     out, err = capsys.readouterr()
     assert code == 2 and out == ""
     assert err == "thermovalve: error: a command is required (see thermovalve --help)\n"
+
+
+def test_a_commit_that_fails_leaves_no_temporary(tmp_path: Path) -> None:
+    """A failure inside commit (a refusal found there, or SIGTERM arriving while committing: the cause of a
+    '.rep.*.tmp' left by tests/cli/test_outputs.py's SIGTERM test under load) left the staged directory."""
+    d = tmp_path / "rep"
+    d.mkdir()
+    (d / "a.png").write_text("previous")
+    outs = OutputSet()
+    with pytest.raises(OutputError, match="exists; use --force"), outs:
+        staged = outs.stage_dir(d)
+        (staged / "a.png").write_text("new")  # not declared: checked (and refused) at commit
+    assert (d / "a.png").read_text() == "previous"
+    assert [p.name for p in tmp_path.rglob("*") if p.name.endswith(".tmp")] == []
