@@ -160,11 +160,18 @@ def int_list(text: str) -> list[int]:
     the command line); a malformed part raises ValueError."""
     out: list[int] = []
     for part in text.split(","):
-        if "-" in part.strip()[1:]:
-            a, b = part.split("-", 1)
-            out += list(range(int(a), int(b) + 1))
-        elif part.strip():
-            out.append(int(part))
+        try:
+            if "-" in part.strip()[1:]:
+                a, b = part.split("-", 1)
+                lo, hi = int(a), int(b)
+                if hi < lo:
+                    raise ValueError
+                out += list(range(lo, hi + 1))
+            elif part.strip():
+                out.append(int(part))
+        except ValueError:
+            raise UsageError(f"bad integer list {text!r}: {part.strip()!r} is not an integer or a range a-b with "
+                             "a <= b (e.g. 0-4,10)") from None
     return out
 
 
@@ -277,8 +284,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
-        parser.print_help()
-        return EXIT_BAD_INPUT
+        return fail("a command is required (see thermovalve --help)")
     previous = None
     try:
         previous = signal.signal(signal.SIGTERM, _on_sigterm)

@@ -73,7 +73,20 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise DataError(f"{p}: not a readable CSV file ({first})") from exc
+    _check_header(p)
     return validate_run(raw, source=str(p), valve=valve)
+
+
+def _check_header(p: Path) -> None:
+    """Refuse a header that names a column twice: pandas renames the second copy (``T_tank_C.1``), so
+    :func:`validate_run` would silently take the first."""
+    import csv
+
+    with open(p, newline="", encoding="utf-8", errors="replace") as fh:
+        header = [c.strip() for c in next(csv.reader(fh), [])]
+    dup = sorted({c for c in header if header.count(c) > 1})
+    if dup:
+        raise DataError(f"{p}: duplicate column(s) {dup} in the header")
 
 
 def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | None = None) -> pd.DataFrame:

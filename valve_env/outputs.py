@@ -53,10 +53,20 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def under_default_out(path: PathLike) -> bool:
+    """Whether ``path`` is :data:`DEFAULT_OUT_DIR` (``out/`` of the working directory) or below it: there a
+    missing directory is created for an output (``--json out/eval.json`` works in a fresh checkout);
+    elsewhere a missing directory is refused (a typo must not scatter results)."""
+    root = Path(os.path.abspath(DEFAULT_OUT_DIR))
+    q = Path(os.path.abspath(path))
+    return q == root or root in q.parents
+
+
 def check_output(path: PathLike, inputs: Iterable[PathLike | None] = (), force: bool = False,
                  what: str = "output") -> Path:
-    """Check that ``path`` may be written: not an input, not a directory, its directory exists,
-    and it does not exist unless ``force``. Returns it as a Path; raises :class:`OutputError`."""
+    """Check that ``path`` may be written: not an input, not a directory, its directory exists (or lies
+    under ``out/``: see :func:`under_default_out`), and it does not exist unless ``force``. Returns it as a
+    Path; raises :class:`OutputError`."""
     p = Path(path)
     for inp in inputs:
         if inp is not None and _same_file(p, Path(inp)):
@@ -65,7 +75,13 @@ def check_output(path: PathLike, inputs: Iterable[PathLike | None] = (), force: 
         raise OutputError(f"{what} {p} is a directory")
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
-        raise OutputError(f"cannot write {what} {p}: directory {parent} does not exist")
+        if not under_default_out(parent):
+            raise OutputError(f"cannot write {what} {p}: directory {parent} does not exist")
+        # under out/ (the default output root) a missing directory is made when the file is staged
+        anc = _existing_ancestor(parent)
+        if not anc.is_dir():
+            raise OutputError(f"cannot write {what} {p}: {anc} is not a directory")
+        parent = anc
     if not os.access(parent, os.W_OK):
         raise OutputError(f"cannot write {what} {p}: directory {parent} is not writable")
     if (p.exists() or p.is_symlink()) and not force:
@@ -83,7 +99,7 @@ def check_output_dir(path: PathLike, inputs: Iterable[PathLike | None] = (), for
             raise OutputError(f"{what} {p} is the input {inp}; refusing to overwrite an input")
     if p.exists() and not p.is_dir():
         raise OutputError(f"{what} {p} exists and is not a directory")
-    if p.is_dir() and any(p.iterdir()) and not force:
+    if p.is_dir() and not force and any(q.is_file() or q.is_symlink() for q in p.rglob("*")):
         raise OutputError(f"{what} {p} exists and is not empty; use --force to replace its files")
     try:
         p.mkdir(parents=True, exist_ok=True)
@@ -250,7 +266,12 @@ class OutputSet:
             anc = _existing_ancestor(d)
             if not os.access(anc, os.W_OK):
                 raise OutputError(f"cannot create {what} directory {d}: {anc} is not writable")
-            return [d / n for n in names]
+            out = [d / n for n in names]
+            for target in out:
+                if any(_same_file(target, q) for q in self._declared):
+                    raise OutputError(f"{what} {target} is named twice")
+            self._declared += out
+            return out
         out = []
         for n in names:
             target = d / n
@@ -279,6 +300,8 @@ class OutputSet:
         p = Path(path)
         if not any(_same_file(p, q) or p == q for q in self._declared):
             self.add(p)
+        if not p.parent.is_dir() and under_default_out(p.parent):
+            p.parent.mkdir(parents=True, exist_ok=True)
         with _temp_beside(p, on_create=self._temps.add) as tmp_path:
             writer(tmp_path)
         old = self._staged.pop(p, None)
@@ -359,7 +382,11 @@ class OutputSet:
 
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
         if exc_type is None:
-            self.commit()
+            try:
+                self.commit()
+            except BaseException:  # a refusal found while committing, or SIGTERM/Ctrl-C in the middle
+                self.discard()
+                raise
         else:
             self.discard()
 
@@ -369,4 +396,4 @@ class OutputSet:
 
 
 __all__ = ["OutputError", "OutputSet", "check_output", "check_output_dir", "atomic_path", "atomic_write_text",
-           "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text"]
+           "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text", "under_default_out"]

@@ -23,6 +23,10 @@ Built-in baselines (see docs/baselines.md):
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
+import math
+import numbers
 from typing import Any
 
 from valve_env.controllers.base import ALL_ENV_MODES, Controller, PredictPolicy, original_id
@@ -60,6 +64,45 @@ class UnknownControllerError(ValueError):
     """A controller name that is neither a baseline nor a loadable agent."""
 
 
+def controller_options(name: str) -> dict[str, str]:
+    """The options of built-in controller ``name`` (its constructor's keywords, through the ``**kwargs``
+    it forwards to its bases; the oracle's :class:`OracleSettings`), each with its type annotation."""
+    opts: dict[str, str] = {}
+    for klass in CONTROLLERS[name].__mro__:
+        init = klass.__dict__.get("__init__")
+        if init is None or klass is object:
+            continue
+        params = inspect.signature(init).parameters.values()
+        for p in params:
+            if p.name not in ("self", "env_id") and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+                opts.setdefault(p.name, str(p.annotation))
+        if klass is Oracle:
+            opts.update({f.name: str(f.type) for f in dataclasses.fields(OracleSettings)})
+            break
+        if not any(p.kind is p.VAR_KEYWORD for p in params):
+            break
+    return opts
+
+
+def check_options(name: str, options: dict[str, Any]) -> None:
+    """Raise ValueError naming the option unless every one of ``options`` is an option of built-in
+    controller ``name`` and each numeric option is a finite number (an integer where it must be), so a
+    command line's ``name:key=value`` fails with one line that names it. Ranges are the constructors'."""
+    known = controller_options(name)
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise UnknownControllerError(f"controller {name!r} has no option(s) {unknown}; its options: "
+                                     f"{', '.join(known)}")
+    for key, value in options.items():
+        kind = known[key].split("|")[0].strip()
+        if kind not in ("float", "int") or (value is None and "None" in known[key]):
+            continue
+        ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+        if not ok or (kind == "int" and value != int(value)):
+            what = "an integer" if kind == "int" else "a finite number"
+            raise ValueError(f"controller {name!r} option {key} must be {what}, got {value!r}")
+
+
 def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) -> PredictPolicy:
     """A controller by name for ``env_id``.
 
@@ -73,6 +116,7 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     if env_id not in ALL_ENV_MODES:
         raise ValueError(f"unknown env id {env_id!r}; known: {list(ALL_ENV_MODES)}")
     if name in CONTROLLERS:
+        check_options(name, kwargs)
         return CONTROLLERS[name](env_id, **kwargs)
     try:
         from agents.loader import load_agent  # type: ignore[import-not-found]
@@ -85,7 +129,14 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
         raise UnknownControllerError(
             f"controller {name!r} is not a built-in ({', '.join(CONTROLLERS)}); {hint}"
         ) from exc
-    return load_agent(name, env_id, **kwargs)
+    try:
+        return load_agent(name, env_id, **kwargs)
+    except ValueError as exc:
+        if not str(exc).startswith("no shipped agent"):
+            raise
+        raise UnknownControllerError(
+            f"unknown controller {name!r}: not a built-in ({', '.join(CONTROLLERS)}) and {exc}"
+        ) from exc
 
 
 __all__ = [
@@ -108,6 +159,8 @@ __all__ = [
     "PredictPolicy",
     "SelfActing",
     "UnknownControllerError",
+    "check_options",
+    "controller_options",
     "make_controller",
     "original_id",
 ]

@@ -15,7 +15,7 @@ import numpy as np
 
 from valve_env.config import ControlParams
 from valve_env.controllers.base import I_DP, I_SETTING, I_T_OUT, I_T_POCKET, I_T_TARGET, Controller
-from valve_env.params import BulbParams, ValveParams
+from valve_env.params import BulbParams, ValveParams, field_spec
 from valve_env.physics.valve import dahl_update, saturation_temperature, vapour_pressure, vapour_pressure_slope
 from valve_env.scenario import ScenarioParams
 
@@ -39,8 +39,10 @@ class SelfActing(Controller):
         self, env_id: str = "ThermoValve-v0", setting_C: float = _CTRL.T_target_C, dp_mbar: float = _SCEN.dp_mbar
     ) -> None:
         super().__init__(env_id)
-        self.setting_C = float(setting_C)
-        self.dp_mbar = float(dp_mbar)
+        # the widest ranges any configuration's action space allows (docs/configuration.md); within them
+        # the env clips to its own box
+        self.setting_C = float(field_spec(ControlParams, "setting_C").check("self_acting setting_C", setting_C))
+        self.dp_mbar = float(field_spec(ScenarioParams, "dp_mbar").check("self_acting dp_mbar", dp_mbar))
         values = {"setting": [self.setting_C], "pressure": [self.dp_mbar], "dual": [self.setting_C, self.dp_mbar]}
         self._action = np.array(values[self.mode], dtype=np.float64)
 
@@ -104,8 +106,10 @@ class PIController(Controller):
             stored = dict(gains) if gains is not None else load_gains(env_id)["pi"]
             Kp = float(stored["Kp"]) if Kp is None else Kp
             Ti_s = float(stored["Ti_s"]) if Ti_s is None else Ti_s
-        if not (np.isfinite(Kp) and np.isfinite(Ti_s) and Ti_s > 0 and dt_s > 0):
+        if not (np.isfinite(Kp) and np.isfinite(Ti_s) and Ti_s > 0):
             raise ValueError(f"PI gains must be finite with Ti_s > 0, got Kp={Kp!r}, Ti_s={Ti_s!r}")
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"PI dt_s must be a finite sample time > 0 s, got {dt_s!r}")
         self.Kp = float(Kp)
         self.Ti_s = float(Ti_s)
         self.dt_s = float(dt_s)

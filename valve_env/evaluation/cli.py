@@ -23,6 +23,14 @@ import yaml
 from valve_env.cli import UsageError, add_force
 from valve_env.outputs import json_text
 
+#: gym.make keywords that the command sets itself
+RESERVED_ENV_KWARGS: dict[str, str] = {
+    "config": "give the file with --config",
+    "task_id": "give the id with --env",
+    "max_episode_steps": "the episode length follows control.horizon_h (e.g. horizon_h=48)",
+    "render_mode": "the evaluator does not render",
+}
+
 
 def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
     """``["tapping_profile=L", "valve={F_hmax: 2.0}"]`` -> dict (values parsed as YAML)."""
@@ -31,11 +39,26 @@ def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise UsageError(f"bad --env-kwargs item {item!r}: expected key=value")
+        if key.strip() in RESERVED_ENV_KWARGS:
+            raise UsageError(f"--env-kwargs {key.strip()}=...: {RESERVED_ENV_KWARGS[key.strip()]}")
+        if key.strip() in out:
+            raise UsageError(f"--env-kwargs {key.strip()} is given twice")
         try:
             out[key.strip()] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
             raise UsageError(f"bad --env-kwargs value in {item!r}: {str(exc).splitlines()[0]}") from exc
     return out
+
+
+def check_episodes(episodes: int) -> None:
+    """``--episodes`` within 1 .. MAX_EPISODES (checked before any output is declared)."""
+    from valve_env.evaluation.evaluator import MAX_EPISODES
+
+    if episodes < 1:
+        raise UsageError(f"--episodes must be >= 1, got {episodes}")
+    if episodes > MAX_EPISODES:
+        raise UsageError(f"--episodes must be <= {MAX_EPISODES}, got {episodes} (the episodes run side by side, "
+                         "about 0.4 MB each)")
 
 
 def _default_controllers(env_id: str) -> list[str]:
@@ -113,8 +136,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     if args.env not in valve_env.ALL_ENV_IDS:
         raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
-    if args.episodes < 1:
-        raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
+    check_episodes(args.episodes)
     if args.seed < 0:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
     names = [c.strip() for c in args.controllers.split(",") if c.strip()] if args.controllers else None
@@ -144,8 +166,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     env_id = "ThermoValve-v0"
     names = ["self_acting", "pi", "pi_compensated"]
-    if args.episodes < 1:
-        raise UsageError(f"--episodes must be >= 1, got {args.episodes}")
+    check_episodes(args.episodes)
     if args.seed < 0:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
     out_dir = Path(args.out)

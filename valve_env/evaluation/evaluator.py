@@ -38,6 +38,8 @@ from valve_env.controllers import PredictPolicy, make_controller
 from valve_env.simulator import KPI_NAMES
 
 DEFAULT_CONTROLLERS: tuple[str, ...] = ("self_acting", "pi", "pi_compensated")
+#: the most episodes one call runs: they are stepped side by side, about 0.4 MB of env each
+MAX_EPISODES = 1000
 
 ControllerSpec = Mapping[str, PredictPolicy] | Sequence[str]
 
@@ -126,6 +128,9 @@ def run_episodes(
     ``episode``, ``seed``, ``return`` and the KPIs (KPI_NAMES)."""
     if int(episodes) != episodes or episodes < 1:
         raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
+    if episodes > MAX_EPISODES:
+        raise ValueError(f"episodes must be <= {MAX_EPISODES}, got {episodes!r}: the evaluator runs them side by side "
+                         "(about 0.4 MB each); split a larger study into seed ranges")
     episodes = int(episodes)
     make_env(env_id, env_kwargs, config).close()  # fail early on a bad configuration
     vec = SyncVectorEnv([lambda: RecordEpisodeStatistics(make_env(env_id, env_kwargs, config))

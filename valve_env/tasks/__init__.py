@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from valve_env.config import EnvConfig, load_yaml, make_config
+from valve_env.params import ConfigError
 
 
 @dataclass(frozen=True)
@@ -58,7 +59,12 @@ class Task:
             base = make_config(None, **{k: dict(v) for k, v in self.sections.items()})
             if config is not None:
                 sections = load_yaml(config) if isinstance(config, (str, Path)) else dict(config)
-                base = make_config(base, **sections)
+                try:
+                    base = make_config(base, **sections)
+                except ConfigError as exc:  # name the file, as make_config does for the original ids
+                    if isinstance(config, (str, Path)) and str(config) not in str(exc):
+                        raise ConfigError(f"config file {str(config)!r}: {exc}") from None
+                    raise
         return make_config(base, **overrides)
 
     def action_space_text(self) -> str:

@@ -10,6 +10,7 @@ subclass whose docstring is its spec sheet.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from typing import Any, ClassVar
 
@@ -50,6 +51,13 @@ def _task_config(env: Any, task_id: str | None, config: Any, overrides: dict[str
 
 def _build_layer(task_id: str, cfg: Any, tariff: Any) -> TaskLayer:
     task = get_task(task_id)
+    if tariff is not None:
+        if task.layer is None:
+            raise ConfigError(f"{task_id} has no tariff (no task layer): tariff= applies to the district-heating "
+                              "tasks")
+        if not isinstance(tariff, Mapping):
+            raise ConfigError(f"tariff= must be a mapping of the {task_id} tariff's fields, got "
+                              f"{type(tariff).__name__} {tariff!r}")
     layer = make_layer(task.layer, {**task.layer_params, **dict(tariff or {})}, cfg.scenario, cfg.control.dt_s)
     if layer.obs_names and cfg.sensors.dead_time_steps > 0:
         raise ConfigError(f"{task_id}: sensors.dead_time_steps with the task's forecast observations is not supported")
