@@ -91,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"unknown task {t!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
         if args.episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+        if args.scheduler is None and args.workers < 1:  # LocalCluster(n_workers=0) waits for ever
+            raise ValueError(f"--workers must be >= 1, got {args.workers}")
         names = [c for c in args.controllers.split(",") if c] if args.controllers else None
         cells = bm.make_cells(tasks, names, args.episodes, args.seed, smooth=not args.no_smooth)
         if args.horizon_h is not None:

@@ -426,9 +426,26 @@ def best_cells(out_dir: str | Path, scenario: str = "default") -> dict[str, dict
     return best
 
 
+def check_cells(cells: Sequence[Cell]) -> None:
+    """Refuse, before any directory is made or cluster started, what every cell would fail on: an env id
+    that is not registered, an algo with no hyperparameters for it, an override that is not ``key=value``."""
+    import valve_env
+    from agents.train import apply_overrides, load_algo_config
+
+    for c in cells:
+        if c.env_id not in valve_env.ALL_ENV_IDS:
+            raise ValueError(f"unknown env id {c.env_id!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
+        try:
+            apply_overrides(load_algo_config(c.algo, c.env_id), c.overrides)
+        except KeyError as exc:  # the algo's file has no block for this env id
+            raise ValueError(str(exc.args[0])) from None
+
+
 def run(args: argparse.Namespace) -> int:
     if args.timesteps is not None and args.timesteps < 1:
         raise ValueError(f"--timesteps must be >= 1, got {args.timesteps}")
+    if args.scheduler is None and args.workers < 1:  # LocalCluster(n_workers=0) waits for ever
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
     env_arg = [e for e in args.env.split(",") if e] if args.env else None
     grids = load_grid(args.grid, env_arg) if args.grid else None
     envs = env_arg or (list(grids) if grids else ["ThermoValve-v0"])
@@ -442,6 +459,7 @@ def run(args: argparse.Namespace) -> int:
             env, steps, args.eval_episodes, args.eval_seed, [*args.overrides, *fixed],
             points=grid_points(block) if block else None,
         )
+    check_cells(cells)
     from valve_env.outputs import OutputError, atomic_write_text
 
     out = Path(args.out)

@@ -78,20 +78,35 @@ def task_controllers(task: str, zoo: str | Path | None = None, deploy_on: str | 
     return out
 
 
+CACHE_COLUMNS = ("task", "controller", "seed", "return")
+
+
+def cache_files(cache: Sequence[str | Path]) -> list[Path]:
+    """The oracle cache's files that exist (glob patterns expanded, sorted), each checked to be an
+    ``episodes.csv`` of ``thermovalve benchmark`` (its header): a file that is not is named (ValueError)."""
+    import glob
+
+    files = [Path(f) for pattern in cache for f in (sorted(glob.glob(str(pattern))) or [str(pattern)])]
+    out = []
+    for p in files:
+        if not p.is_file():
+            continue
+        try:
+            columns = set(pd.read_csv(p, nrows=0).columns)
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+            raise ValueError(f"--oracle-cache {p}: not a CSV file ({str(exc).splitlines()[0]})") from None
+        if not set(CACHE_COLUMNS) <= columns:
+            raise ValueError(f"--oracle-cache {p}: not an episodes.csv of thermovalve benchmark "
+                             f"(needs {', '.join(CACHE_COLUMNS)})")
+        out.append(p)
+    return out
+
+
 def oracle_episodes(cache: Sequence[str | Path], task: str, seeds: Sequence[int]) -> pd.DataFrame | None:
     """The oracle's rows for ``task`` and exactly ``seeds`` from the first cache file (glob patterns
     expanded, sorted) that has them all."""
-    import glob
-
-    files = [f for pattern in cache for f in (sorted(glob.glob(str(pattern))) or [str(pattern)])]
-    for path in files:
-        p = Path(path)
-        if not p.is_file():
-            continue
+    for p in cache_files(cache):
         df = pd.read_csv(p)
-        if not {"task", "controller", "seed", "return"} <= set(df.columns):
-            raise ValueError(f"{p}: not an episodes.csv of thermovalve benchmark "
-                             "(needs task, controller, seed, return)")
         sub = df[(df["task"] == task) & (df["controller"] == ORACLE) & df["seed"].isin(list(seeds))]
         sub = sub.drop_duplicates("seed", keep="last")
         if len(sub) == len(seeds):
@@ -360,6 +375,7 @@ def run(args: argparse.Namespace) -> int:
         if args.episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
         cache = [c for c in args.oracle_cache.split(",") if c]
+        cache_files(cache)  # a file that is not a benchmark's episodes.csv is refused before any episode
         outs = OutputSet(force=args.force)
         # --docs: the tracked files (each replaced only with --force); else a directory of its own
         out = REPO_ROOT / "docs" if args.docs else outs.add_dir(args.out)

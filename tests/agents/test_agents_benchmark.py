@@ -44,3 +44,27 @@ def test_tasks_lists_one_line_per_task(capsys: pytest.CaptureFixture[str]) -> No
     lines = capsys.readouterr().out.strip().splitlines()
     assert [ln.split()[0] for ln in lines] == list(valve_env.TASK_IDS)
     assert all("Box(" in ln for ln in lines)
+
+
+def test_agent_commands_refuse_bad_input_up_front(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Refused before any cluster, directory or episode (a new user's audit: each ran into the work first)."""
+    # benchmark --workers 0: LocalCluster(n_workers=0) waited for ever
+    assert main(["benchmark", "--workers", "0", "--out", str(tmp_path / "b")]) == 2
+    assert "--workers must be >= 1" in capsys.readouterr().err
+    # sweep: an unknown env id and a malformed --set failed inside every cell, after making the sweep directory
+    sw = tmp_path / "sw"
+    assert main(["sweep", "--env", "Nope-v0", "--out", str(sw)]) == 2
+    assert "unknown env id 'Nope-v0'" in capsys.readouterr().err
+    assert main(["sweep", "--set", "foo", "--out", str(sw)]) == 2
+    assert "must look like key=value" in capsys.readouterr().err
+    assert main(["sweep", "--workers", "0", "--out", str(sw)]) == 2
+    assert "--workers must be >= 1" in capsys.readouterr().err
+    assert not sw.exists()
+    # task-leaderboard: a cache that is not a benchmark's episodes.csv was read only after the episodes
+    garbage = tmp_path / "garbage.csv"
+    garbage.write_text("a;b\n1;2\n")
+    assert main(["task-leaderboard", "--oracle-cache", str(garbage), "--out", str(tmp_path / "tl")]) == 2
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if line.startswith("thermovalve: error:")]
+    assert len(errors) == 1 and "--oracle-cache" in errors[0] and "garbage.csv" in errors[0]
+    assert not (tmp_path / "tl").exists() or not any((tmp_path / "tl").rglob("*.md"))
