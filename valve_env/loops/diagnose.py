@@ -204,7 +204,7 @@ def bootstrap_test(loop: LoopData, lin: ValveFit, s: Settings, alpha: float, see
     reaches the observed statistic (then ``p >= 2 alpha``: not significant). Seeded, so a record's verdict
     repeats. With ``run`` false only the scan is done (its best band seeds the valve fits): no replicates,
     ``n_run`` 0 and the null's figures and ``p_value`` None."""
-    paths = scan_paths(loop.op)
+    paths = scan_paths(loop.op, s.substeps)
     sc = scan_valve(loop.pv, paths, s)
     n_boot = max(int(round(1.0 / alpha)) - 1, 1)
     if not run:
