@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from scipy.optimize import minimize_scalar
 from scipy.linalg import solve_banded
+from scipy.optimize import minimize_scalar
 from scipy.signal import lfilter
 
 from valve_env.physics.stickslip import stick_slip_path
