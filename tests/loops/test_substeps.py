@@ -1,6 +1,6 @@
 """The valve between the recorded samples (docs/loops.md, "Model"): a historian records interval means of OP, so the
-model drives the valve with a mean-preserving sub-sample OP and feeds the process the valve's interval mean; one
-substep is the sample-rate valve of the earlier sessions (nested)."""
+band's fit drives the valve with a mean-preserving sub-sample OP and feeds the process the valve's interval mean; one
+substep is the sample-rate valve of the earlier sessions (nested), which the decision keeps."""
 
 from __future__ import annotations
 
@@ -47,7 +47,7 @@ def test_one_substep_is_the_sample_rate_valve() -> None:
     np.testing.assert_array_equal(xs[0], op)
     # the sampling offset and the scan's floor are the record's resolution, not the substeps'
     assert resolution(op) == pytest.approx(float(np.median(np.abs(np.diff(op)))))
-    assert Settings().substeps == 4 and Settings(substeps=1).substeps == 1
+    assert Settings().substeps == 1 and Settings().band_substeps == 4  # the decision's valve, the band's valve
 
 
 def test_substeps_fit_an_interval_mean_record_better_near_its_band() -> None:
@@ -65,12 +65,20 @@ def test_substeps_fit_an_interval_mean_record_better_near_its_band() -> None:
 
 
 def test_sub_sample_valve_recovers_the_flow_band() -> None:
+    """The band's fit with the valve between the samples recovers the flow loop's band (within 20 %, closer than the
+    sample-rate valve's); the decision (the sample-rate fits) is the same either way."""
     loop, _ = simulate_loop(FLOW["process"], S=FLOW["S"], J=FLOW["J"], seed=FLOW["seed"])
     base = select_noise_order(loop)
     err = {}
+    findings = []
     for m in (1, 4):
-        d = diagnose(loop, replace(base, substeps=m))
-        assert d.cause == "stiction"
-        err[m] = abs(d.result["stiction"]["band_pct"] - FLOW["S"]) / FLOW["S"]
-        assert d.fits["stiction"].substeps == m
+        d = diagnose(loop, replace(base, band_substeps=m))
+        assert d.cause == "stiction" and d.band_fit is not None
+        st = d.result["stiction"]
+        err[m] = abs(st["band_pct"] - FLOW["S"]) / FLOW["S"]
+        assert d.band_fit.substeps == st["valve_substeps"] == m and d.fits["stiction"].substeps == 1
+        if m == 1:
+            assert d.band_fit is d.fits["stiction"]
+        findings.append(d.result["findings"])
+    assert findings[0] == findings[1]
     assert err[4] < 0.2 and err[4] < err[1]

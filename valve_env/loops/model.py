@@ -5,7 +5,10 @@
 
 The valve is the project's one stick-slip model, :mod:`valve_env.physics.stickslip`, in % of
 OP: ``J = 0`` is backlash (a deadband of width ``S``), ``0 < J <= S`` stick-slip with band ``S``
-and slip jump ``J`` (Choudhury et al. 2005), ``S = 0`` a linear valve.
+and slip jump ``J`` (Choudhury et al. 2005), ``S = 0`` a linear valve. A historian records OP as interval
+means, so the valve runs at ``Settings.substeps`` steps per sample on a mean-preserving sub-sample OP
+(:func:`subsample_op`) and the process is fed its position averaged over each sample (one substep: the valve
+at the record's rate, nested).
 
 The process is an output-error model (docs/loops.md, "Model"): the valve path ``x`` delayed by
 ``d + f >= 1`` samples, a fractional delay ``u[k] = (1-f) x[k-d] + f x[k-d-1]`` (the controller reacts to the
@@ -236,8 +239,10 @@ class Settings:
     disturbance_knot_s: float = 1200.0
     #: the valve's steps per recorded sample, driven by the mean-preserving sub-sample OP (:func:`subsample_op`) and
     #: averaged back over each sample, as the historian averages OP; 1 is the sample-rate valve of the earlier
-    #: sessions, nested (docs/loops.md, "Model"; seventh session)
-    substeps: int = 4
+    #: sessions (nested). The decision's fits use ``substeps``, the band's fit ``band_substeps`` (docs/loops.md,
+    #: "Model" and "Band uncertainty"; seventh session)
+    substeps: int = 1
+    band_substeps: int = 4
 
     @property
     def k0(self) -> int:
