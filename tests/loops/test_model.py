@@ -35,7 +35,9 @@ def test_sticky_simulated_loop_gives_its_band(process: str, S: float, J: float) 
     floor = np.hypot(BAND_REL_SD * st["band_pct"], SAMPLING_SD_SHARE * st["sampling_offset_pct"])
     assert st["std_pct"] >= floor - 1e-12 and st["std_pct"] > 0
     # the band is the stick-slip candidate's, and this slow loop's record resolves it
-    assert st["band_fitted_pct"] == pytest.approx(d.fits["stiction"].S)  # BAND_CANDIDATE
+    # (refitted with the valve between the samples: Settings.band_substeps, tests/loops/test_substeps.py)
+    assert d.band_fit is not None and d.band_fit.valve == "stiction"  # BAND_CANDIDATE
+    assert st["band_fitted_pct"] == pytest.approx(d.band_fit.S) and d.band_fit.substeps == st["valve_substeps"] == 4
     assert st["band_resolved"] is True
     # the bootstrap's replicates are off by default: only its scan is reported
     assert d.result["decision"]["bootstrap"]["n_run"] == 0 and d.result["decision"]["bootstrap"]["p_value"] is None

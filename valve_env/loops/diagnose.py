@@ -90,6 +90,9 @@ class Diagnosis:
     settings: Settings
     loop: LoopData
     neff_factor: float
+    #: the fit that gives the band when stiction is named: the ``BAND_CANDIDATE`` refitted with the valve at
+    #: ``Settings.band_substeps`` (the decision's own fit when they are equal), else None
+    band_fit: ValveFit | None = None
 
     @property
     def cause(self) -> str:
@@ -184,6 +187,17 @@ def band_uncertainty(fit: ValveFit, factor: float, offset: float = 0.0,
     return band, sd, min(lo, band - 1.96 * sd), max(hi, band + 1.96 * sd)
 
 
+def _band_fit(loop: LoopData, fit: ValveFit, s: Settings, scan_S: float) -> ValveFit:
+    """The fit that gives the band: ``fit`` (the decision's ``BAND_CANDIDATE``) refitted with the valve at
+    ``s.band_substeps`` steps per sample on the mean-preserving sub-sample OP (docs/loops.md, "Band uncertainty":
+    the recorded OP is an interval mean, so the sample-rate valve never sees the band's ends on a fast cycle),
+    its band grid holding the decision fit's and the LR scan's bands. The decision itself stays with the
+    sample-rate valve, whose false-alarm rate and held-out check were calibrated."""
+    if s.band_substeps == fit.substeps:
+        return fit
+    return fit_valve(loop.op, loop.pv, fit.valve, replace(s, substeps=s.band_substeps), extra_S=(fit.S, scan_S))
+
+
 def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> Settings:
     """The AR order of the noise by BIC of the linear-valve model (then fixed for every candidate)."""
     best: tuple[float, Settings] | None = None
@@ -204,7 +218,7 @@ def bootstrap_test(loop: LoopData, lin: ValveFit, s: Settings, alpha: float, see
     reaches the observed statistic (then ``p >= 2 alpha``: not significant). Seeded, so a record's verdict
     repeats. With ``run`` false only the scan is done (its best band seeds the valve fits): no replicates,
     ``n_run`` 0 and the null's figures and ``p_value`` None."""
-    paths = scan_paths(loop.op)
+    paths = scan_paths(loop.op, s.substeps)
     sc = scan_valve(loop.pv, paths, s)
     n_boot = max(int(round(1.0 / alpha)) - 1, 1)
     if not run:
@@ -266,9 +280,10 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     sim_lin = simulate(loop.op, lin.process)
     r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
     result: dict[str, Any] = {"cause": "none"}
+    band_fit: ValveFit | None = None
     if by_likelihood:  # the decision is the likelihood comparison alone (docs/loops.md)
         result["cause"] = "stiction"
-        fit = fits[BAND_CANDIDATE]
+        fit = band_fit = _band_fit(loop, fits[BAND_CANDIDATE], s, boot["S_scan_pct"])
         offset = sampling_offset(loop.op)
         band, sd, lo, hi = band_uncertainty(fit, f, offset)
         result["stiction"] = {
@@ -282,6 +297,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "kind": "deadband (backlash, J = 0)" if fit.J <= 0.0 else "stick-slip",
             "model": nonlin["candidate"],
             "initial_direction": "up" if fit.direction > 0 else "down",
+            "valve_substeps": fit.substeps,
         }
     elif osc["oscillating"]:
         result["cause"] = "aggressive_tuning" if r2 > 0.5 else "external_oscillation"
@@ -302,7 +318,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
                       "op_range_pct": [float(loop.op.min()), float(loop.op.max())],
                       "process": lin.process.describe(s.dt)}
     result["notes"] = list(loop.notes)
-    return Diagnosis(result, fits, s, loop, f)
+    return Diagnosis(result, fits, s, loop, f, band_fit)
 
 
 __all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty",

@@ -5,7 +5,10 @@
 
 The valve is the project's one stick-slip model, :mod:`valve_env.physics.stickslip`, in % of
 OP: ``J = 0`` is backlash (a deadband of width ``S``), ``0 < J <= S`` stick-slip with band ``S``
-and slip jump ``J`` (Choudhury et al. 2005), ``S = 0`` a linear valve.
+and slip jump ``J`` (Choudhury et al. 2005), ``S = 0`` a linear valve. A historian records OP as interval
+means, so the valve runs at ``Settings.substeps`` steps per sample on a mean-preserving sub-sample OP
+(:func:`subsample_op`) and the process is fed its position averaged over each sample (one substep: the valve
+at the record's rate, nested).
 
 The process is an output-error model (docs/loops.md, "Model"): the valve path ``x`` delayed by
 ``d + f >= 1`` samples, a fractional delay ``u[k] = (1-f) x[k-d] + f x[k-d-1]`` (the controller reacts to the
@@ -29,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from scipy.linalg import solve_banded
 from scipy.optimize import minimize_scalar
 from scipy.signal import lfilter
 
@@ -56,13 +60,47 @@ def _valve_path(op: np.ndarray, S: float, J: float, d0: float, out: np.ndarray) 
     return stick_slip_path(op, S, J, -np.inf, np.inf, out, d0)
 
 
-def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0) -> np.ndarray:
+@functools.lru_cache(maxsize=4)
+def _centre_system(n: int) -> np.ndarray:
+    """The banded matrix (scipy ``solve_banded`` form) of :func:`subsample_op`: interval ``k``'s mean of the
+    line through the centre values is ``(c[k-1] + 6 c[k] + c[k+1]) / 8`` (flat beyond the ends)."""
+    ab = np.zeros((3, n))
+    ab[0, 1:] = 1.0 / 8.0
+    ab[1, :] = 6.0 / 8.0
+    ab[2, :-1] = 1.0 / 8.0
+    ab[1, 0] += 1.0 / 8.0
+    ab[1, -1] += 1.0 / 8.0
+    return ab
+
+
+def subsample_op(op: np.ndarray, substeps: int) -> np.ndarray:
+    """The controller output between the recorded samples, ``substeps`` values per sample (docs/loops.md,
+    "Model"): a historian's sample is the mean of OP over its interval, so OP is reconstructed as the line
+    through values at the intervals' centres chosen so that each interval's mean is the recorded one
+    (mean-preserving; flat beyond the record's ends), taken at the midpoints of ``substeps`` equal parts of
+    each interval (exactly mean-preserving for an even ``substeps``: the centre is then a part's boundary).
+    ``substeps`` 1 returns the record itself."""
+    op = np.ascontiguousarray(op, dtype=float)
+    if substeps <= 1 or op.size < 3:
+        return op.copy() if substeps <= 1 else np.repeat(op, substeps)
+    c = solve_banded((1, 1), _centre_system(op.size), op)
+    t = (np.arange(op.size * substeps) + 0.5) / substeps - 0.5
+    return np.interp(t, np.arange(op.size, dtype=float), c)
+
+
+def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1) -> np.ndarray:
     """The valve position (% of OP) for the controller output ``op``: at rest at ``op[0]``, stuck after a
-    motion upwards (``direction`` +1, :func:`valve_env.physics.stickslip.initial_state`) or downwards (-1)."""
+    motion upwards (``direction`` +1, :func:`valve_env.physics.stickslip.initial_state`) or downwards (-1).
+    With ``substeps`` > 1 the valve is driven by the sub-sample OP of :func:`subsample_op` and its position
+    averaged over each sample's interval (as the record averages OP); 1 is the sample-rate valve."""
     op = np.ascontiguousarray(op, dtype=float)
     if S <= 0.0:
         return op.copy()
-    return _valve_path(op, float(S), float(J), float(direction), np.empty_like(op))
+    if substeps <= 1:
+        return _valve_path(op, float(S), float(J), float(direction), np.empty_like(op))
+    fine = subsample_op(op, substeps)
+    x = _valve_path(fine, float(S), float(J), float(direction), np.empty_like(fine))
+    return x.reshape(op.size, substeps).mean(axis=1)
 
 
 @njit(cache=True)
@@ -199,6 +237,12 @@ class Settings:
     allow_integrating: bool = True
     n_grid: int = 16
     disturbance_knot_s: float = 1200.0
+    #: the valve's steps per recorded sample, driven by the mean-preserving sub-sample OP (:func:`subsample_op`) and
+    #: averaged back over each sample, as the historian averages OP; 1 is the sample-rate valve of the earlier
+    #: sessions (nested). The decision's fits use ``substeps``, the band's fit ``band_substeps`` (docs/loops.md,
+    #: "Model" and "Band uncertainty"; seventh session)
+    substeps: int = 1
+    band_substeps: int = 4
 
     @property
     def k0(self) -> int:
@@ -298,6 +342,7 @@ class ValveFit:
     n_params: int
     profile: list[tuple[float, float]] = field(default_factory=list)  # (S, loglik maximised over J and process)
     direction: float = 1.0  # the valve's last motion before the record (+1 up, -1 down)
+    substeps: int = 1  # the valve's steps per recorded sample (Settings.substeps)
 
     @property
     def loglik(self) -> float:
@@ -312,7 +357,7 @@ class ValveFit:
         return -2.0 * self.loglik + self.n_params * math.log(self.n)
 
     def path(self, op: np.ndarray) -> np.ndarray:
-        return valve_path(op, self.S, self.J, self.direction)
+        return valve_path(op, self.S, self.J, self.direction, self.substeps)
 
 
 def op_scale(op: np.ndarray) -> float:
@@ -334,7 +379,7 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
                                      [v for v in extra_S if v > 0.0]]))
 
     def best_over_j(S: float) -> tuple[float, float, float, ProcessFit]:
-        cand = [(fit_process(pv, valve_path(op, S, f * S, d0), s, k1, k0), f * S, d0)
+        cand = [(fit_process(pv, valve_path(op, S, f * S, d0, s.substeps), s, k1, k0), f * S, d0)
                 for f in fracs for d0 in DIRECTIONS]
         pf, J, d0 = max(cand, key=lambda c: c[0].loglik)
         return pf.loglik, J, d0, pf
@@ -358,7 +403,7 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
             best = (ll, float(res.x), J, d0, pf)
     profile.sort()
     ll, S, J, d0, pf = best
-    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile, d0)
+    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile, d0, s.substeps)
 
 
 #: the LR scan's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md, "Decision")
@@ -467,12 +512,15 @@ class Scan:
 def resolution(op: np.ndarray) -> float:
     """The record's resolution of a band, % of OP: the median OP move per sample. The valve slips between two
     samples; a band narrower than one sample's move holds the valve for less than a sample, which the record
-    cannot show (docs/loops.md, "Decision"; the same move is the band's sampling offset, "Band uncertainty")."""
+    cannot show (docs/loops.md, "Decision"; the same move is the band's sampling offset, "Band uncertainty").
+    It is the record's: a sub-sample OP (:func:`subsample_op`) interpolates the record and adds no information
+    about where between two samples the valve slipped."""
     return float(np.median(np.abs(np.diff(op))))
 
 
-def scan_paths(op: np.ndarray) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
-    """The valve paths of the scan: the linear valve first, then every (S, J, direction) of the grid."""
+def scan_paths(op: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
+    """The valve paths of the scan: the linear valve first, then every (S, J, direction) of the grid (the valve
+    at ``substeps`` steps per sample, :func:`valve_path`)."""
     op = np.ascontiguousarray(op, dtype=float)
     r = op_scale(op)
     lo = max(SCAN_S_FRACTIONS[0] * r, resolution(op))
@@ -484,7 +532,7 @@ def scan_paths(op: np.ndarray) -> tuple[np.ndarray, list[tuple[float, float, flo
     xs = np.empty((len(params), op.size))
     xs[0] = op
     for i, (S, J, d0) in enumerate(params[1:], start=1):
-        _valve_path(op, S, J, d0, xs[i])
+        xs[i] = valve_path(op, S, J, d0, substeps)
     return xs, params
 
 
@@ -529,7 +577,7 @@ def bootstrap_lr(op: np.ndarray, lin: ProcessFit, s: Settings, n_boot: int, seed
     Besag & Clifford 1991)."""
     rng = np.random.default_rng(seed)
     mean = simulate(op, lin)
-    paths = scan_paths(op) if paths is None else paths
+    paths = scan_paths(op, s.substeps) if paths is None else paths
     out: list[float] = []
     for _ in range(n_boot):
         out.append(scan_valve(mean + simulate_noise(lin, op.size, rng), paths, s).lr)
@@ -540,4 +588,4 @@ def bootstrap_lr(op: np.ndarray, lin: ProcessFit, s: Settings, n_boot: int, seed
 
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
            "refit_gain", "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
-           "scan_paths", "resolution", "bootstrap_lr", "simulate_noise"]
+           "scan_paths", "resolution", "bootstrap_lr", "simulate_noise", "subsample_op"]
