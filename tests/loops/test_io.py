@@ -46,6 +46,7 @@ def test_loop_csv_round_trip(tmp_path: Path) -> None:
     ({"pv": np.where(np.arange(300) == 17, np.nan, 50.0)}, "column pv has 1 NaN"),
     ({"time_s": np.r_[np.arange(100) * 10.0, np.arange(200) * 10.0]}, "time is not strictly increasing at sample 101"),
     ({"op": np.full(300, 42.0)}, "constant OP"),
+    ({"op": 1040.0 + 5.0 * np.cos(np.arange(300) / 30.0)}, "OP runs from 1035 to 1045"),
 ])
 def test_bad_records_name_the_problem(tmp_path: Path, override: dict, needle: str) -> None:
     p = _write_csv(tmp_path / "bad.csv", **override)
@@ -113,3 +114,12 @@ def test_repeated_timestamps_are_merged_with_a_note(tmp_path: Path) -> None:
     with pytest.raises(LoopDataError, match="time is not strictly increasing at sample 52") as exc:
         read_loop(_write_historian(tmp_path / "back.txt", back))
     assert "\n" not in str(exc.value)
+
+
+def test_a_column_named_twice_is_refused(tmp_path: Path) -> None:
+    """A header that names pv twice: which copy is the signal? (the reader took the first silently)."""
+    p = _write_csv(tmp_path / "twice.csv")
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + ",pv"] + [line + ",1" for line in lines[1:]]) + "\n")
+    with pytest.raises(LoopDataError, match="names column.s. pv more than once"):
+        read_loop(p)

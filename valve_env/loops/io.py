@@ -32,6 +32,9 @@ import numpy as np
 MIN_SAMPLES = 240
 #: OP whose range is below this (in %) is constant
 MIN_OP_RANGE_PCT = 1e-3
+#: the widest controller output a record may carry, %: 0-100 % and the overdrive some DCSs allow beyond it
+#: (Honeywell TDC/Experion: OP limits -6.9 to 106.9 %); anything further is not an output in % (docs/loops.md)
+OP_RANGE_PCT = (-10.0, 110.0)
 
 
 class LoopDataError(ValueError):
@@ -89,6 +92,9 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
     if not rows:
         raise LoopDataError(f"{p}: empty file")
     header = [h.strip() for h in rows[0]]
+    twice = sorted({h for h in header if h and header.count(h) > 1})
+    if twice:  # which copy is the signal? (csv would silently take the first)
+        raise LoopDataError(f"{p}: the header names column(s) {', '.join(twice)} more than once")
     missing = [c for c in ("time_s", "sp", "pv", "op") if c not in header]
     if missing:
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op)")
@@ -252,6 +258,9 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
                      f"{step.max():g} s)")
         t = grid
     op = data["op"]
+    if float(op.min()) < OP_RANGE_PCT[0] or float(op.max()) > OP_RANGE_PCT[1]:
+        raise LoopDataError(f"{where}: OP runs from {float(op.min()):.4g} to {float(op.max()):.4g}: a controller "
+                            f"output in % lies within {OP_RANGE_PCT[0]:g} to {OP_RANGE_PCT[1]:g} %")
     if float(np.ptp(op)) < MIN_OP_RANGE_PCT:
         raise LoopDataError(f"{where}: constant OP (range {float(np.ptp(op)):.3g} %): nothing to diagnose")
     if float(np.ptp(data["pv"])) == 0.0:
