@@ -142,3 +142,56 @@ def test_slips_show_band_needs_slips_of_the_fitted_band() -> None:
     smooth = demand + s_w * rng.standard_normal(n)
     assert not slips_show_band(smooth, stroke, band)
     assert not slips_show_band(x, stroke, 0.0)
+
+
+@pytest.mark.parametrize(("significant_at_slips_band", "held_out_shows_it"), [(True, True), (True, False),
+                                                                           (False, True)])
+def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
+        monkeypatch: pytest.MonkeyPatch, significant_at_slips_band: bool, held_out_shows_it: bool) -> None:
+    """Round 7 (docs/diagnosis.md): where the training slips (two or more) do not show the likelihood's band,
+    stiction is refitted with the band held at the slips' median; that finding replaces the first only if it
+    is significant and the held-out opening's slips show the band too; otherwise the first stays, with the
+    slips' band's statistic recorded."""
+    from valve_env.diagnosis import diagnose as dg
+
+    calls: list[dict] = []
+
+    class Fit:
+        def __init__(self, band: float, ll: float) -> None:
+            self.params = {"band_mm": band}
+            self.loglik = ll
+
+    class Est:
+        def __init__(self, band: float, ll: float) -> None:
+            self.result_ = Fit(band, ll)
+
+    class Data:
+        x = np.zeros(4)
+
+    def fake_fit(effects, valve, train, start=None, fixed=None):  # type: ignore[no-untyped-def]
+        calls.append({"start": start, "fixed": fixed})
+        return Est(fixed["band_mm"] if fixed else 0.012, 100.0)
+
+    def fake_finding(effect, est, *args):  # type: ignore[no-untyped-def]
+        band = est.result_.params["band_mm"]
+        shown = dg.band_shown(2, 0.033, band)
+        f = dg.Finding.__new__(dg.Finding)
+        f.lr_stat, f.estimator, f.validated = (40.0 if band > 0.02 else 280.0), est, True
+        f.significant = shown and significant_at_slips_band
+        f.training_slips = {"n": 2, "median_mm": 0.033, "show_band": shown}
+        return f
+
+    monkeypatch.setattr(dg, "_fit", fake_fit)
+    monkeypatch.setattr(dg, "_finding", fake_finding)
+    monkeypatch.setattr(dg, "slips_show_band", lambda x, stroke, band: held_out_shows_it and band == 0.033)
+    valve = type("V", (), {"stroke": 2.0})()
+    f = dg._try("stiction", (), Fit(0.0, 0.0), None, Data(), (0, 4), valve, 0.001, (0.0, 0.0, 0.0), None, 2.0, 1.0)
+    assert calls[-1]["fixed"] == {"band_mm": 0.033} and calls[-1]["start"]["band_mm"] == 0.033
+    if significant_at_slips_band and held_out_shows_it:
+        assert f.estimator.result_.params["band_mm"] == 0.033 and f.significant and f.validated
+        assert f.training_slips["band_from"] == "slips" and f.training_slips["held_out_show_band"]
+        assert f.training_slips["likelihood_band_mm"] == 0.012 and f.training_slips["likelihood_lr"] == 280.0
+    else:
+        assert f.estimator.result_.params["band_mm"] == 0.012 and not f.significant
+        assert f.training_slips["slips_band_lr"] == 40.0
+        assert f.training_slips["held_out_show_band"] is held_out_shows_it
