@@ -176,6 +176,21 @@ def test_small_randomised_study_stiction() -> None:
     assert d.cause == "stiction", d.summary()
 
 
+def test_summary_says_when_a_band_has_no_sd(results) -> None:  # type: ignore[no-untyped-def]
+    """With --bootstrap 0 stiction's band (measured from the slips) has no sd: the summary said '+- nan'."""
+    _, d = results["stiction"]
+    std = d.findings[0].fit.std
+    saved = dict(std)
+    try:
+        std["band_mm"] = float("nan")
+        text = d.summary()
+    finally:
+        std.clear()
+        std.update(saved)
+    assert "nan" not in text and "band_mm=" in text and "no sd without the bootstrap" in text
+    assert "+- nan" not in d.summary() and "band_mm=" in d.summary()
+
+
 def test_bad_arguments() -> None:
     df = simulate_experiment(seed=1, duration_h=3.0)
     with pytest.raises(ValueError):

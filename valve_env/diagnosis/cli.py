@@ -28,7 +28,7 @@ def register(subparsers: Any) -> None:
     d.add_argument("--validate", metavar="OTHER.csv", default=None,
                    help="an independent run for validation (default: hold out the end of RUN.csv)")
     d.add_argument("--holdout", type=float, default=0.25, metavar="FRACTION",
-                   help="fraction at the end of RUN.csv held out for validation when --validate is absent (0.25)")
+                   help="fraction at the end of RUN.csv held out for validation when --validate is absent")
     d.add_argument("--alpha", type=float, default=0.001, help="significance level of the likelihood-ratio test")
     d.add_argument("--effects", default=None, metavar="A,B,...", help="candidate effects (default: all)")
     d.add_argument("--report", default=None, metavar="REPORT.md",
@@ -36,7 +36,7 @@ def register(subparsers: Any) -> None:
     d.add_argument("--no-report", action="store_true", help="write the JSON only")
     d.add_argument("--bootstrap", type=int, default=16, metavar="B",
                    help="bootstrap replicates for the named effects' sd (0: inverse Hessian/HAC, "
-                   "faster but optimistic)")
+                   "faster but optimistic; stiction's band, measured from the slips, then has no sd)")
     add_force(d)
     d.add_argument("--valve-out", metavar="VALVE.yaml", default=None,
                    help="write the diagnosed valve (base parameters and named effects) as a valve file for "

@@ -275,11 +275,18 @@ class Diagnosis:
                        f"{best.validation_rms_after_mm * 1e3:.2f} um)")
             return f"cause: none: no extension of the base model is justified{why}"
         f = self.findings[0]
-        pars = ", ".join(f"{k}={v:.4g} +- {f.fit.std.get(k, float('nan')):.2g}"
-                         for k, v in f.fit.effect_params.items())
+        def sd(k: str) -> str:
+            v = f.fit.std.get(k, float("nan"))
+            # stiction's band is measured from the slips, not fitted: only the bootstrap gives it an sd
+            return f" +- {v:.2g}" if math.isfinite(v) else " (no sd without the bootstrap)"
+
+        pars = ", ".join(f"{k}={v:.4g}{sd(k)}" for k, v in f.fit.effect_params.items())
         more = f"; forward selection: {' -> '.join(self.selected)}" if len(self.selected) > 1 else ""
+        how = ""
+        if "stiction" in self.selected and self.final_valid_rms > self.base_valid_rms:
+            how = " (stiction is validated by the held-out opening's slips, not by the RMS)"
         return (f"cause: {self.cause} ({pars}); LR={f.lr_stat:.1f}, p={f.p_value:.2g}, dBIC={f.delta_bic:.1f}; "
-                f"validation RMS {self.base_valid_rms * 1e3:.2f} -> {self.final_valid_rms * 1e3:.2f} um{more}")
+                f"validation RMS {self.base_valid_rms * 1e3:.2f} -> {self.final_valid_rms * 1e3:.2f} um{how}{more}")
 
 
 # --------------------------------------------------------------------------- the procedure
