@@ -44,6 +44,7 @@ from scipy import stats
 from valve_env.loops.detectors import horch
 from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
+    BAND_J_FRACTIONS,
     VALVE_EXTRA_PARAMS,
     Settings,
     ValveFit,
@@ -191,11 +192,13 @@ def _band_fit(loop: LoopData, fit: ValveFit, s: Settings, scan_S: float) -> Valv
     """The fit that gives the band: ``fit`` (the decision's ``BAND_CANDIDATE``) refitted with the valve at
     ``s.band_substeps`` steps per sample on the mean-preserving sub-sample OP (docs/loops.md, "Band uncertainty":
     the recorded OP is an interval mean, so the sample-rate valve never sees the band's ends on a fast cycle),
-    its band grid holding the decision fit's and the LR scan's bands. The decision itself stays with the
+    its band grid holding the decision fit's and the LR scan's bands and its J / S grid the finer ``BAND_J_FRACTIONS``
+    (seventh session, second round: a small slip jump was read as J = 0). The decision itself stays with the
     sample-rate valve, whose false-alarm rate and held-out check were calibrated."""
     if s.band_substeps == fit.substeps:
         return fit
-    return fit_valve(loop.op, loop.pv, fit.valve, replace(s, substeps=s.band_substeps), extra_S=(fit.S, scan_S))
+    return fit_valve(loop.op, loop.pv, fit.valve, replace(s, substeps=s.band_substeps), extra_S=(fit.S, scan_S),
+                     j_fractions=BAND_J_FRACTIONS)
 
 
 def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> Settings:

@@ -44,6 +44,9 @@ VALVES: tuple[str, ...] = ("linear", "backlash", "stiction")
 VALVE_EXTRA_PARAMS = {"linear": 0, "backlash": 1, "stiction": 2}
 #: J / S values tried for the stiction valve (it includes J = 0, so it nests the backlash candidate)
 J_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)
+#: J / S values tried by the band's fit (docs/loops.md, "Band uncertainty", seventh session, second round): a finer
+#: grid holding J_FRACTIONS (nested), so that a small slip jump (J/S 0.3-0.4) is not read as J = 0
+BAND_J_FRACTIONS: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)
 #: time constants tried for the self-regulating process, s
 TAUS_S: tuple[float, ...] = (1e-3, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0, 640.0)
 #: band grid: fractions of the OP range (1st-99th percentile)
@@ -367,13 +370,15 @@ def op_scale(op: np.ndarray) -> float:
 
 
 def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int | None = None,
-              k0: int | None = None, extra_S: tuple[float, ...] = ()) -> ValveFit:
+              k0: int | None = None, extra_S: tuple[float, ...] = (),
+              j_fractions: tuple[float, ...] = J_FRACTIONS) -> ValveFit:
     """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J); ``extra_S`` are
-    bands added to the grid (the LR scan's best band)."""
+    bands added to the grid (the LR scan's best band); ``j_fractions`` the J / S values of the stiction valve
+    (J profiled out at each S)."""
     if valve == "linear":
         pf = fit_process(pv, op, s, k1, k0)
         return ValveFit("linear", 0.0, 0.0, pf, pf.n_params)
-    fracs = (0.0,) if valve == "backlash" else J_FRACTIONS
+    fracs = (0.0,) if valve == "backlash" else j_fractions
     r = op_scale(op)
     grid = np.unique(np.concatenate([r * np.geomspace(S_FRACTIONS[0], S_FRACTIONS[1], s.n_grid),
                                      [v for v in extra_S if v > 0.0]]))

@@ -1,0 +1,38 @@
+"""The band's fit resolves a small slip jump (docs/loops.md, "Band uncertainty", seventh session, second round): its
+J / S grid is finer than the decision's, so a stick-slip valve with J/S about a third is not read as a deadband (J = 0)
+with a band a quarter short; the decision (the sample-rate fits) is unchanged."""
+
+from __future__ import annotations
+
+import pytest
+
+from valve_env.loops import diagnose as diag
+from valve_env.loops.model import BAND_J_FRACTIONS, J_FRACTIONS
+from valve_env.loops.sim import simulate_loop
+
+#: the pressure loop of the simulated benchmark's seed 6413 (benchmarks/loop_benchmark.py, sim_cases(6400, 20)[13]):
+#: J/S 0.33, which the {0, 1/2, 1} grid read as J = 0 with the band 21 % short
+SMALL_JUMP = {"process": "pressure", "S": 1.0505504287648848, "J": 0.3431704026061891, "seed": 6413}
+
+
+def test_band_j_grid_nests_the_decisions() -> None:
+    assert set(J_FRACTIONS) <= set(BAND_J_FRACTIONS) and 0.0 in BAND_J_FRACTIONS
+    assert min(b - a for a, b in zip(BAND_J_FRACTIONS, BAND_J_FRACTIONS[1:], strict=False)) > 0.0
+    assert any(0.0 < f < 0.5 for f in BAND_J_FRACTIONS)  # a jump below half the band is on the grid
+
+
+def test_small_jump_band_within_20_percent(monkeypatch: pytest.MonkeyPatch) -> None:
+    loop, _ = simulate_loop(SMALL_JUMP["process"], S=SMALL_JUMP["S"], J=SMALL_JUMP["J"], seed=SMALL_JUMP["seed"])
+    S = SMALL_JUMP["S"]
+    d = diag.diagnose(loop)
+    assert d.cause == "stiction"
+    st = d.result["stiction"]
+    assert abs(st["band_pct"] - S) / S <= 0.2
+    assert abs(st["band_pct"] - S) <= 2.0 * st["std_pct"]
+    assert st["jump_pct"] > 0.0 and st["kind"] == "stick-slip"  # the jump is resolved, not read as a deadband
+    # the decision's grid {0, 1/2, 1} in the band's fit: J = 0 and the band more than 20 % short
+    monkeypatch.setattr(diag, "BAND_J_FRACTIONS", J_FRACTIONS)
+    old = diag.diagnose(loop)
+    assert old.result["findings"] == d.result["findings"]  # the decision's fits are the same
+    assert old.result["stiction"]["jump_pct"] == 0.0
+    assert (S - old.result["stiction"]["band_pct"]) / S > 0.2
