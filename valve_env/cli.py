@@ -107,11 +107,16 @@ def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse
     rejected by validation, with one line, before any computation."""
     import warnings
 
+    from valve_env.outputs import discard_uncommitted
+
     try:
         with warnings.catch_warnings():
             if not os.environ.get("THERMOVALVE_DEBUG"):
                 warnings.simplefilter("ignore", RuntimeWarning)
-            return int(func(args) or 0)
+            try:
+                return int(func(args) or 0)
+            finally:  # whatever a command staged and did not commit (an error, a signal) goes now
+                discard_uncommitted()
     except KeyboardInterrupt:
         print("thermovalve: interrupted; no output was replaced", file=sys.stderr)
         return 130

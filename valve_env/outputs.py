@@ -31,6 +31,7 @@ import shutil
 import signal
 import tempfile
 import threading
+import weakref
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -238,6 +239,7 @@ class OutputSet:
         #: every temporary file made and not yet renamed into place or removed (what discard removes)
         self._temps: set[Path] = set()
         self.written: list[Path] = []
+        _LIVE.add(self)
 
     def add(self, path: PathLike, what: str = "output") -> Path:
         """Declare an output; refuses an input, an existing file without force, or a path
@@ -395,5 +397,20 @@ class OutputSet:
             self.discard()
 
 
-__all__ = ["OutputError", "OutputSet", "check_output", "check_output_dir", "atomic_path", "atomic_write_text",
-           "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text", "under_default_out"]
+#: every OutputSet not yet garbage-collected: :func:`discard_uncommitted` clears what they staged
+_LIVE: weakref.WeakSet[OutputSet] = weakref.WeakSet()
+
+
+def discard_uncommitted() -> None:
+    """Remove whatever any output set has staged and not committed. The commands call it when they end
+    (valve_env/cli.py, ``run_command``): a signal or an error between staging and committing (a report
+    directory staged while the fit's report is drawn, say) would otherwise leave the temporaries until
+    the set is garbage-collected, which an interpreter that is exiting need not do (a set caught in a
+    reference cycle is not). A committed set has nothing staged, so this never removes an output."""
+    for outs in list(_LIVE):
+        with contextlib.suppress(Exception):
+            outs.discard()
+
+
+__all__ = ["OutputError", "OutputSet", "discard_uncommitted", "check_output", "check_output_dir", "atomic_path",
+           "atomic_write_text", "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text", "under_default_out"]

@@ -208,3 +208,27 @@ def test_an_interrupt_while_a_temporary_is_made_leaves_none(tmp_path: Path, monk
         outs.write_text(outs.add(tmp_path / "a.json"), "new\n")
     outs.discard()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_command_that_ends_early_leaves_no_staged_temporaries(tmp_path: Path) -> None:
+    """An error (or SIGTERM) between staging and committing: run_command removes what was staged even
+    while the output set is still referenced (in the SIGTERM test above, a set kept alive by a reference
+    cycle left its staged report directory behind when the interpreter exited without collecting it)."""
+    import argparse
+
+    from valve_env.cli import run_command
+    from valve_env.outputs import OutputSet
+
+    alive: list[OutputSet] = []
+
+    def command(args: argparse.Namespace) -> int:
+        outs = OutputSet()
+        outs.add_in_dir(tmp_path / "rep", ["report.md"])
+        (outs.stage_dir(tmp_path / "rep") / "report.md").write_text("partial")
+        outs.stage(tmp_path / "out.json", lambda tmp: tmp.write_text("{}"))
+        alive.append(outs)  # still referenced: garbage collection cannot clean it up
+        raise RuntimeError("the fit failed after staging")
+
+    assert [p for p in tmp_path.iterdir()] == []
+    assert run_command(command, argparse.Namespace()) == 1
+    assert alive and sorted(p.name for p in tmp_path.iterdir()) == []
