@@ -63,6 +63,11 @@ def controllers_for(
         names = [b for b in BASELINE_NAMES if env_id in getattr(BASELINES[b], "supported_env_ids", (env_id,))]
         names += available_agents(env_id, zoo)
     out: dict[str, Any] = {}
+    shipped = available_agents(env_id, zoo)
+    for name in names:
+        if name not in BASELINES and name not in shipped:
+            raise ValueError(f"unknown controller {name!r} for {env_id}; built-in: {', '.join(BASELINES)}; "
+                             f"shipped agents: {', '.join(shipped) or 'none'}")
     for name in names:
         if name in BASELINES:
             out[name] = make_controller(name, env_id)

@@ -60,6 +60,10 @@ def test_agent_commands_refuse_bad_input_up_front(tmp_path: Path, capsys: pytest
     assert main(["sweep", "--workers", "0", "--out", str(sw)]) == 2
     assert "--workers must be >= 1" in capsys.readouterr().err
     assert not sw.exists()
+    # leaderboard: an unknown name listed only the shipped agents
+    assert main(["leaderboard", "--controllers", "pi_compensted", "--out", str(tmp_path / "lb")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown controller 'pi_compensted'" in err and "pi_compensated" in err and "ppo" in err
     # task-leaderboard: a cache that is not a benchmark's episodes.csv was read only after the episodes
     garbage = tmp_path / "garbage.csv"
     garbage.write_text("a;b\n1;2\n")
