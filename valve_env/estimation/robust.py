@@ -331,18 +331,18 @@ def effect_misspecification(model: Model, data: RunData, fit: FitResult, *, alph
     tell the right stick-slip model from a wrong one), with the whiteness result beside it (``whiteness``)."""
     nu, S = model.prediction_errors(data, fit.params)
     e = np.where(S > 0, nu / np.sqrt(np.where(S > 0, S, 1.0)), np.nan)
-    label = "+".join(model.effects) or "base"
+    label = ("+".join(model.effects) or "base") + " valve model"
     advice = BOOTSTRAP_ADVICE if bootstrap_sd else ROBUST_ADVICE
-    white = whiteness_check({"x_mm": e}, alpha=alpha, nlags=nlags, warn=False, label=f"{label} valve model",
+    stick_slip = "stiction" in model.effects
+    # a stick-slip effect: the whiteness of its filter's errors says nothing (the docstring of stick_slip_check),
+    # so only the stick-slip check warns; the whiteness result is kept beside it
+    white = whiteness_check({"x_mm": e}, alpha=alpha, nlags=nlags, warn=warn and not stick_slip, label=label,
                             advice=advice)
-    if "stiction" in model.effects:
-        # a stick-slip effect: the whiteness of its filter's errors says nothing (the docstring of stick_slip_check)
-        out = stick_slip_check(model, data, fit, warn=warn, label=f"{label} valve model", advice=advice)
-        out["whiteness"] = white
-        return out
-    if white["misspecified"] and warn:
-        warnings.warn(f"{label} valve model: {white['message']}", MisspecificationWarning, stacklevel=2)
-    return white
+    if not stick_slip:
+        return white
+    out = stick_slip_check(model, data, fit, warn=warn, label=label, advice=advice)
+    out["whiteness"] = white
+    return out
 
 
 def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = True,
