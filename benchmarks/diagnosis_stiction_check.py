@@ -3,8 +3,8 @@
 The stiction-only stand-in of the diagnosis (``diagnose(df, effects=["stiction"], bootstrap_B=0)``, whose
 base fit the other candidates do not improve, so it is harsher on the null than the full diagnosis) on the
 `none` and `stiction` runs of generated studies (:func:`valve_env.experiment.random_cases`). For each run it
-records the decision, the fitted band, the training slips and the band restarts (``training_slips``), and
-the slips that :func:`valve_env.diagnosis.stiction.slips` finds with shorter plateaus (the 30 s question).
+records the decision, the LR test, the fitted band and the training slips with round 7's test of the slips'
+band (the finding's ``training_slips``).
 
     python benchmarks/diagnosis_stiction_check.py --set 31:24:none --set 5151:60 --workers 2 --json out/s.json
 
