@@ -68,3 +68,13 @@ def test_simc_rules_by_hand() -> None:
     # IPDT k=1e-4 K/s per unit, theta=0 -> theta_eff=15 s, tau_c=585 s: Kc = 1/(1e-4*600) = 16.67, Ti = 2400 s
     g = simc_pi(ModelFit("ipdt", 1e-4, math.nan, 0.0, 0.0), 585.0, 30.0)
     assert (g.Kp, g.Ti_s) == pytest.approx((1.0 / 0.06, 2400.0))
+
+
+def test_a_zero_delay_is_reported_as_zero() -> None:
+    """A step response with no dead time: the fit's delay sits on its bound and is 0, not a float residue
+    (``thermovalve tune`` printed and stored ``theta_s=1.5e-17`` for the pressure loop)."""
+    t = 30.0 * np.arange(1, 60)
+    fit = fit_ipdt(StepResponse(t_s=t, y=2e-5 * 10.0 * t, y0=0.0, dt_s=30.0), 10.0)
+    assert fit.theta_s == 0.0 and fit.K == pytest.approx(2e-5, rel=1e-6)
+    fit = fit_fopdt(StepResponse(t_s=t, y=fopdt_response(t, 1.3, 700.0, 0.0, 2.0, 60.0), y0=60.0, dt_s=30.0), 2.0)
+    assert fit.theta_s == 0.0 and fit.tau_s == pytest.approx(700.0, rel=1e-4)

@@ -203,7 +203,7 @@ def fit_fopdt(resp: StepResponse, du: float) -> ModelFit:
         x_scale=[1.0, 100.0, 10.0], xtol=1e-12, ftol=1e-12, gtol=1e-12,
     )
     K, tau, theta = (float(v) for v in sol.x)
-    return ModelFit("fopdt", K, tau, theta, float(np.sqrt(np.mean(sol.fun**2))))
+    return ModelFit("fopdt", K, tau, _at_bound(theta, resp.dt_s), float(np.sqrt(np.mean(sol.fun**2))))
 
 
 def fit_ipdt(resp: StepResponse, du: float) -> ModelFit:
@@ -218,7 +218,15 @@ def fit_ipdt(resp: StepResponse, du: float) -> ModelFit:
         res, x0=[k0 * 1e4, 0.5 * resp.dt_s], bounds=([0.0, 0.0], [np.inf, 3600.0]),
         xtol=1e-12, ftol=1e-12, gtol=1e-12,
     )
-    return ModelFit("ipdt", float(sol.x[0]) * 1e-4, math.nan, float(sol.x[1]), float(np.sqrt(np.mean(sol.fun**2))))
+    return ModelFit("ipdt", float(sol.x[0]) * 1e-4, math.nan, _at_bound(float(sol.x[1]), resp.dt_s),
+                    float(np.sqrt(np.mean(sol.fun**2))))
+
+
+def _at_bound(theta_s: float, dt_s: float) -> float:
+    """A fitted dead time below a thousandth of the sampling interval is 0, its lower bound: the step test
+    cannot resolve it, and least_squares' trust region keeps the estimate strictly inside its bounds, which
+    left a zero delay printed and stored as 1.5e-17 s."""
+    return 0.0 if theta_s < 1e-3 * dt_s else theta_s
 
 
 def simc_pi(model: ModelFit, tau_c_s: float | None, dt_s: float) -> PIGains:
