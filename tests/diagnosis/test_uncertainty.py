@@ -68,12 +68,11 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
 
 @pytest.mark.xfail(strict=True, reason="issue 20, known and reported: the filter moment-matches 'stuck' and "
                    "'slipped' before the measurement and decides at a prior slip probability of 0.5, so a slip "
-                   "that comes while that probability is below one half is caught late; with round 5's scoring "
-                   "(each measurement once, under the mixture of the moving stem's hypotheses) the likelihood "
-                   "here peaks at 0.85 band and the band is 86 log-units below. Round 4 (measurement-updated slip "
-                   "decision) and round 5's resting-stem mixture pass or nearly pass this test but named more "
-                   "none runs stiction (docs/diagnosis.md, 'The stick-slip filter, round 4' and 'round 5'). "
-                   "The band is measured from the slips.")
+                   "that comes while that probability is below one half is caught late; here the likelihood "
+                   "peaks at 0.85 band with the band 86 log-units below. The measured slip decisions of rounds "
+                   "4, 5 and 8 catch the slip at once but peak below the band (round 8: 0.5 band, the band 13.5 "
+                   "below), and named more none runs stiction (docs/diagnosis.md, 'The stick-slip filter, "
+                   "round 8'). The band is measured from the slips.")
 def test_stick_filter_nested_and_peaks_at_the_band() -> None:
     """Exact stick-slip data: the filter's likelihood is maximal near the true band (the first-passage
     hazard; a filter that re-applied the slip probability every sub-step peaked at 2.5 times the band),
