@@ -27,7 +27,9 @@ round (docs/uncertainty.md, "Named effects"): held out 20261201 (effects, indepe
 20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
 development. Fourth round (the named effects' pre-processing bracket): development 7700, 7702
 (independent), 7701 (project); held out 20261125 (effects, independent) and 20261126 (effects,
-project), run once with the final code.
+project), run once with the final code. Eighth round (the smooth effects per effect): development
+20261124, 20261125 (independent), 20261202, 7301 (project); held out 20270213 (independent) and
+20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study.
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
