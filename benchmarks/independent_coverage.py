@@ -27,7 +27,9 @@ round (docs/uncertainty.md, "Named effects"): held out 20261201 (effects, indepe
 20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
 development. Fourth round (the named effects' pre-processing bracket): development 7700, 7702
 (independent), 7701 (project); held out 20261125 (effects, independent) and 20261126 (effects,
-project), run once with the final code.
+project), run once with the final code. Eighth round (the smooth effects per effect): development
+20261124, 20261125 (independent), 20261202, 7301 (project); held out 20270213 (independent) and
+20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study.
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
@@ -299,7 +301,23 @@ EFFECT_SDS: dict[str, str] = {
     "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std), about the IRW ML estimate "
                  "(stiction's band: about its bias-corrected estimate)",
     "tv_bootstrap": "the TV refit with the bootstrap's sd alone (no IRW-TV term; smooth effects)",
+    "tv_whole_d": "the TV refit, max(bootstrap, Hessian/HAC) (+) the whole IRW-TV difference (smooth effects)",
+    "midpoint": "the IRW-TV midpoint, max(bootstrap, Hessian/HAC) (+) half the IRW-TV difference (two "
+                "exchangeable pre-processing errors; smooth effects)",
 }
+
+
+#: the alternative bracket rules (EFFECT_SDS): centre ("tv" or the IRW-TV "midpoint") and weight of the difference
+BRACKET_RULES: dict[str, tuple[str, float]] = {"tv_whole_d": ("tv", 1.0), "midpoint": ("midpoint", 0.5)}
+
+
+def _bracket_rule(r: dict[str, Any], name: str) -> tuple[float, float]:
+    """Centre and sd of an alternative bracket rule of a smooth effect (:data:`BRACKET_RULES`), from the
+    run's two pre-processings' estimates and its bootstrap and Hessian sds (nan where not bracketed)."""
+    irw, tv = float(r.get("irw_value", math.nan)), float(r.get("tv_value", math.nan))
+    sb = float(np.fmax(r.get("std_bootstrap", math.nan), r.get("std_hessian", math.nan)))
+    centre, weight = BRACKET_RULES[name]
+    return (tv if centre == "tv" else 0.5 * (tv + irw)), math.hypot(sb, weight * (tv - irw))
 
 
 def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -311,13 +329,15 @@ def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
     centre = {"reported": "estimate_value", "hessian": "ml_value", "robust": "ml_value", "bootstrap": "ml_value",
               "tv_bootstrap": "tv_value"}
 
-    def centre_of(r: dict[str, Any], name: str) -> float:
+    def z_of(r: dict[str, Any], name: str) -> float:
+        if name in BRACKET_RULES:
+            c, sd = _bracket_rule(r, name)
+            return _z(c, r["true_value"], sd)
         if r["effect"] == "stiction" and name == "bootstrap":
-            return float(r["estimate_value"])
-        return float(r.get(centre[name], r["estimate_value"]))
+            return _z(float(r["estimate_value"]), r["true_value"], r.get(key[name], float("nan")))
+        return _z(float(r.get(centre[name], r["estimate_value"])), r["true_value"], r.get(key[name], float("nan")))
 
-    return {name: _coverage([_z(centre_of(r, name), r["true_value"], r.get(key[name], float("nan"))) for r in rs])
-            for name in EFFECT_SDS}
+    return {name: _coverage([z_of(r, name) for r in rs]) for name in EFFECT_SDS}
 
 
 def pooled_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -389,9 +409,31 @@ def _print_effects(summ: dict[str, Any]) -> None:
           f"{t['false_findings_on_none']}, wrong effect {t['wrong_effect']}, median {t['median_seconds']:.0f} s/run")
 
 
+def _summarise_files(study: str, paths: list[str]) -> int:
+    """Print the pooled summary of earlier --json files of ``study`` (exit status 2 naming a bad file)."""
+    results: list[dict[str, Any]] = []
+    for path in paths:
+        try:
+            with open(path, encoding="utf-8") as fh:
+                doc = json.load(fh)
+            if doc.get("study") != study:
+                raise ValueError(f"a {doc.get('study')!r} study, not {study!r}")
+            results += list(doc["results"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            print(f"thermovalve: error: {path}: {exc}", file=sys.stderr)
+            return 2
+    print(f"{study} study pooled from {len(paths)} file(s): {len(results)} runs", flush=True)
+    summ = summarise_base(results) if study == "base" else summarise_effects(results)
+    (_print_base if study == "base" else _print_effects)(summ)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--study", choices=("base", "effects"), required=True)
+    ap.add_argument("--summarise", nargs="+", metavar="JSON", default=None,
+                    help="run nothing: pool the results of these earlier --json files of --study and print their "
+                    "summary (e.g. several seeds, or candidate sds added since)")
     ap.add_argument("--generator", choices=("independent", "project"), default="independent")
     ap.add_argument("--runs", type=int, default=30, help="base: runs; effects: runs per class")
     ap.add_argument("--eiv-B", type=int, default=8, help="base: temperature-bootstrap replicates of --eiv (0: none)")
@@ -407,6 +449,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="base: temperature noise sd, degC (negative: drawn per run from U(0.001, 0.02))")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
+    if args.summarise:
+        return _summarise_files(args.study, args.summarise)
     seed = args.seed if args.seed is not None else SEEDS[(args.study, args.generator)]
     outs = OutputSet(force=args.force)
     try:
