@@ -184,6 +184,8 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "irw_value": ((unc.get("preprocessing") or {}).get("irw") or {}).get(name, float("nan")),
                     "tv_value": ((unc.get("preprocessing") or {}).get("tv") or {}).get(name, float("nan")),
                     "misspecified": mis.get("misspecified"),
+                    # stiction's band: the parts of its sd (noise copies, the slips' own, their number)
+                    "band_sd_parts": unc.get("band_sd_parts"),
                     "ljung_box_p": ((mis.get("outputs") or {}).get("x_mm") or {}).get("ljung_box_p")})
     elif d.cause != "none":
         js = d.findings[0].to_json()
