@@ -111,7 +111,7 @@ def slips_sd(sizes: np.ndarray, rng: np.random.Generator, resamples: int = 999) 
     """sd (mm) of the median of the slip ``sizes`` (the band of :func:`jump_band`) from the slips' own spread:
     the standard error of a nonparametric bootstrap of the sizes (``scipy.stats.bootstrap``, the median
     re-taken on ``resamples`` resamples, drawn from ``rng``) times the small-sample factor
-    ``t(0.975, n - 1) / z(0.975)`` of ``n`` slips (1.63 for 4, 1.08 for 20), the widening a Student t
+    ``t(0.975, n - 1) / z(0.975)`` of ``n`` slips (1.62 for 4, 1.07 for 20), the widening a Student t
     interval gives a sd estimated from few values. nan with fewer than 2 slips.
 
     The bootstrap of a median from few values is coarse (its resampled medians take few distinct values);
