@@ -29,7 +29,10 @@ development. Fourth round (the named effects' pre-processing bracket): developme
 (independent), 7701 (project); held out 20261125 (effects, independent) and 20261126 (effects,
 project), run once with the final code. Eighth round (the smooth effects per effect): development
 20261124, 20261125 (independent), 20261202, 7301 (project); held out 20270213 (independent) and
-20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study.
+20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study. Eighth round (stiction's band sd; each
+stiction run's record carries ``band_sd_parts``): development 500, 777, 20261124, 20261201, 20270122, 20270131
+(independent), 20261126, 20261202, 20270121, 20270132 (project); held out 20270211 (independent, 4 runs) and
+20270212 (project, 8 runs).
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
@@ -186,6 +189,8 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "irw_value": ((unc.get("preprocessing") or {}).get("irw") or {}).get(name, float("nan")),
                     "tv_value": ((unc.get("preprocessing") or {}).get("tv") or {}).get(name, float("nan")),
                     "misspecified": mis.get("misspecified"),
+                    # stiction's band: the parts of its sd (noise copies, the slips' own, their number)
+                    "band_sd_parts": unc.get("band_sd_parts"),
                     "ljung_box_p": ((mis.get("outputs") or {}).get("x_mm") or {}).get("ljung_box_p")})
     elif d.cause != "none":
         js = d.findings[0].to_json()

@@ -58,6 +58,11 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
     fit = m.fit(d, with_std=False)
     b = bootstrap(m, d, fit, B=4, band_B=60, seed=2)
     assert 0.7 <= b.spread["band_mm"] / o.std(ddof=1) <= 1.4, (b.spread, o.std(ddof=1))
+    # the reported sd is at least the added-noise spread and the slips' own (issue 20, eighth round)
+    parts = b.band_parts
+    assert parts["n_slips"] >= 4 and parts["noise_sd_mm"] == b.spread["band_mm"], parts
+    assert b.std["band_mm"] >= max(parts["noise_sd_mm"], parts["slips_sd_mm"]), (b.std, parts)
+    assert b.to_json()["band_sd_parts"]["slips_sd_mm"] == parts["slips_sd_mm"]
     # the bootstrap's bias against the estimator's true overshoot (here 0.2 sampling sd), within 1 sampling sd
     assert abs(b.bias["band_mm"] - (o.mean() - band)) <= o.std(ddof=1), (b.bias, o.mean() - band)
     with pytest.raises(ValueError, match="noise_sd_mm"):

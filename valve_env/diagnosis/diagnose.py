@@ -479,6 +479,10 @@ def _bootstrap_finding(f: Finding, B: int) -> None:
     if bracket:
         how = (f"{', '.join(bracket)}: refitted on TV-denoised temperatures, sd the larger of the bootstrap's and "
                "the inverse-Hessian/HAC sd with half the IRW-TV difference added in quadrature; others " + how)
+    if "band_mm" in b.names:
+        # issue 20, eighth round: the band's sd is the slips' (docs/uncertainty.md)
+        how += ("; band_mm: measured from the slips, sd the larger of the band's spread over added-noise copies of "
+                "the opening and the slips' own (bootstrap of the slip sizes' median, small-sample t factor)")
     f.std_method = f"{METHOD} (B={B}{aside}; {how})"
     f.uncertainty = {**b.to_json(), "bootstrap_std": {k: float(v) for k, v in b.std.items()},
                      "hessian_std": {k: f.fit.extra[f"hessian_std_{k}"] for k in b.names}, "std_from": source}

@@ -107,6 +107,55 @@ def jump_band(x: np.ndarray, stroke: float, s_w: float | None = None, min_jumps:
     return float(np.median(sz)), int(sz.size)
 
 
+def slips_sd(sizes: np.ndarray, rng: np.random.Generator, resamples: int = 999) -> float:
+    """sd (mm) of the median of the slip ``sizes`` (the band of :func:`jump_band`) from the slips' own spread:
+    the standard error of a nonparametric bootstrap of the sizes (``scipy.stats.bootstrap``, the median
+    re-taken on ``resamples`` resamples, drawn from ``rng``) times the small-sample factor
+    ``t(0.975, n - 1) / z(0.975)`` of ``n`` slips (1.62 for 4, 1.07 for 20), the widening a Student t
+    interval gives a sd estimated from few values. nan with fewer than 2 slips.
+
+    The bootstrap of a median from few values is coarse (its resampled medians take few distinct values);
+    the factor keeps 2 sd from being an over-confident interval there (docs/uncertainty.md, "Issue 20,
+    eighth round")."""
+    from scipy import stats
+
+    sz = np.asarray(sizes, dtype=float)
+    sz = sz[np.isfinite(sz)]
+    if sz.size < 2:
+        return float("nan")
+    if np.ptp(sz) == 0:
+        return 0.0
+    res = stats.bootstrap((sz,), np.median, n_resamples=resamples, method="percentile", random_state=rng)
+    return float(res.standard_error * stats.t.ppf(0.975, sz.size - 1) / stats.norm.ppf(0.975))
+
+
+def band_spread(x: np.ndarray, stroke: float, s_w: float, draws: int, rng: np.random.Generator,
+                band: float, min_jumps: int = 4) -> tuple[float, dict[str, float], np.ndarray]:
+    """The sampling sd (mm) of :func:`jump_band`'s band measured on the opening ``x``, its parts, and the
+    added-noise re-estimates: (sd, parts, draws). The sd is the larger of two (docs/uncertainty.md,
+    "Issue 20, eighth round"):
+
+    * ``noise_sd_mm``: the sd of the band re-estimated on ``draws`` copies of ``x`` with fresh white noise
+      of its sd ``s_w`` added (:func:`band_draws`; a copy with too few slips counts as ``band``): which noisy
+      steps pass for a slip, and the noise on each slip's plateau and landing;
+    * ``slips_sd_mm``: the sd of the median from the slips' own spread (:func:`slips_sd`), with at least
+      ``min_jumps`` slips (with fewer the band is the likelihood's, not their median: nan, not used).
+      The slips differ by more than their noise: by where within its sampling interval each slip falls and
+      how fast the demand moves on (a stem that moves with the demand after a slip is measured anywhere in
+      that interval's travel), and a stem that re-sticks after every slip by its overshoot. The
+      added-noise copies keep each slip where it fell and do not see this.
+
+    Each slip's size already holds its noise, so the two are not added: where the noise makes most of the
+    slips' spread the first is the larger (it also sees the detection), else the second."""
+    r = band_draws(x, s_w, stroke, max(draws, 2), rng)
+    r = np.where(np.isfinite(r), r, band)
+    noise = float(np.std(r, ddof=1))
+    sz = slips(x, stroke, s_w)
+    between = slips_sd(sz, rng) if sz.size >= min_jumps else float("nan")
+    sd = max(noise, between) if math.isfinite(between) else noise
+    return sd, {"noise_sd_mm": noise, "slips_sd_mm": between, "n_slips": int(sz.size)}, r
+
+
 def band_sampling(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int = 200,
                   seed: int = 0) -> np.ndarray:
     """The band estimator's sampling distribution on a known opening: :func:`jump_band` of
@@ -133,4 +182,4 @@ def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int
                      for _ in range(draws)])
 
 
-__all__ = ["band_sampling", "jump_band", "noise_sd", "resting_noise_sd", "slips"]
+__all__ = ["band_sampling", "band_spread", "jump_band", "noise_sd", "resting_noise_sd", "slips", "slips_sd"]

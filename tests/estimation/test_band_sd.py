@@ -1,0 +1,66 @@
+"""Issue 20, eighth round: stiction's band sd from the slips' own spread (valve_env.diagnosis.stiction.slips_sd,
+band_spread; valve_env.estimation.bootstrap; docs/uncertainty.md, "Issue 20, eighth round")."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from valve_env.diagnosis.stiction import band_spread, jump_band, noise_sd, slips_sd
+from valve_env.studies.independent import stick_sj
+
+STROKE = 4.0
+
+
+def test_slips_sd_is_the_medians_sd_with_few_slips() -> None:
+    """On slip sizes drawn from a known law (8 slips, 15 % spread), the sd of their median is within a factor
+    of its true sd (simulated), and the median lies within 2 of its sd in >= 90 % of the draws (the
+    small-sample factor t(0.975, 7) / z = 1.2 keeps a bootstrap of 8 values from being over-confident).
+    Fewer than two slips have no sd; equal slips have a zero one."""
+    rng = np.random.default_rng(5)
+    draws = rng.normal(1.0, 0.15, size=(300, 8))
+    med = np.median(draws, axis=1)
+    sds = np.array([slips_sd(d, rng, resamples=399) for d in draws])
+    true_sd = float(med.std(ddof=1))
+    assert 0.8 <= float(np.mean(sds)) / true_sd <= 1.8, (np.mean(sds), true_sd)
+    assert np.mean(np.abs(med - 1.0) <= 2 * sds) >= 0.9
+    assert math.isnan(slips_sd(np.array([1.0]), rng))
+    assert slips_sd(np.full(5, 0.03), rng) == 0.0
+
+
+def _sticky_opening(seed: int, S: float, hours: float = 3.0, dt: int = 10) -> np.ndarray:
+    """An (S, J = S) stem (the independent simulator's ``sj`` rule) on a smooth demand of random periods and
+    phases, held at 1 s and sampled every ``dt`` s from a random offset, with 2.4 um of white noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, hours * 3600.0)
+    p = rng.uniform(0.0, 2 * np.pi, 2)
+    xd = (1.5 + 0.12 * np.sin(2 * np.pi * t / rng.uniform(4000, 7000) + p[0])
+          + 0.05 * np.sin(2 * np.pi * t / rng.uniform(900, 1600) + p[1]))
+    x = stick_sj(xd, S, S, STROKE)
+    idx = np.arange(int(rng.integers(0, dt)), t.size, dt)
+    return x[idx] + 2.4e-3 * rng.standard_normal(idx.size)
+
+
+@pytest.mark.parametrize("dt", [10, 30])
+def test_band_sd_on_generated_runs_with_known_band(dt: int) -> None:
+    """30 generated 3 h runs with a known band (0.03 mm, 10-25 slips each): the band's reported sd (band_spread,
+    as the bootstrap reports it) is within a factor of the estimator's true sampling sd over the runs (0.8-2.5:
+    it errs on the wide side, measured 1.3 and 1.4), and the truth lies within 1 / 2 reported sd in >= 60 % /
+    >= 85 % of the runs (issue 20's goals for a named effect; measured 73 / 97 % and 80 / 100 %)."""
+    S = 0.03
+    est, sds = [], []
+    for seed in range(30):
+        y = _sticky_opening(seed, S, dt=dt)
+        b, n = jump_band(y, STROKE)
+        assert n >= 4
+        sd, parts, r = band_spread(y, STROKE, noise_sd(y), 16, np.random.default_rng(seed), b)
+        assert sd >= parts["noise_sd_mm"] and r.shape == (16,) and parts["n_slips"] == n
+        est.append(b)
+        sds.append(sd)
+    e, s = np.array(est), np.array(sds)
+    true_sd = float(e.std(ddof=1))
+    assert 0.8 <= float(s.mean()) / true_sd <= 2.5, (s.mean(), true_sd)
+    z = (e - S) / s
+    assert np.mean(np.abs(z) <= 1) >= 0.6 and np.mean(np.abs(z) <= 2) >= 0.85, z
