@@ -29,10 +29,10 @@ development. Fourth round (the named effects' pre-processing bracket): developme
 (independent), 7701 (project); held out 20261125 (effects, independent) and 20261126 (effects,
 project), run once with the final code. Eighth round (the smooth effects per effect): development
 20261124, 20261125 (independent), 20261202, 7301 (project); held out 20270213 (independent) and
-20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study. Eighth round (stiction's band sd; each
-stiction run's record carries ``band_sd_parts``): development 500, 777, 20261124, 20261201, 20270122, 20270131
-(independent), 20261126, 20261202, 20270121, 20270132 (project); held out 20270211 (independent, 4 runs) and
-20270212 (project, 8 runs).
+20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study. Eighth
+round (stiction's band sd; each stiction run's record carries ``band_sd_parts``): development 500, 777,
+20261124, 20261201, 20270122, 20270131 (independent), 20261126, 20261202, 20270121, 20270132 (project);
+held out 20270211 (independent, 4 runs) and 20270212 (project, 8 runs).
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
