@@ -119,7 +119,7 @@ class BootstrapResult:
     def to_json(self) -> dict[str, object]:
         extra: dict[str, object] = {"band_replicates": int(self.band_B)} if self.band_B else {}
         if self.band_parts:
-            extra["band_sd_parts"] = {k: float(v) for k, v in self.band_parts.items()}
+            extra["band_sd_parts"] = {k: int(v) if k == "n_slips" else float(v) for k, v in self.band_parts.items()}
         return {"method": METHOD, "replicates": int(self.B), **extra, "dropped_replicates": int(self.dropped),
                 "split_replicates": bool(self.split),
                 "normality_p": {k: float(v) for k, v in self.normality_p.items()},
