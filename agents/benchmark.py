@@ -34,18 +34,13 @@ from typing import Any
 def run_cells(cells: Sequence[Any], scheduler: str | None = None, workers: int = 2,
               verbose: bool = True) -> list[dict[str, Any]]:
     """Run the cells on Dask (a LocalCluster unless ``scheduler``); results in the cells' order."""
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import as_completed
 
+    from agents.sweep import dask_client
     from valve_env.tasks.benchmark import run_cell
 
-    cluster = None
-    if scheduler:
-        client = Client(scheduler)
-    else:
-        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None)
-        client = Client(cluster)
     results: dict[str, dict[str, Any]] = {}
-    try:
+    with dask_client(scheduler, workers) as client:
         futures = {client.submit(run_cell, c, key=f"bench-{c.key}-{time.time_ns()}", pure=False): c for c in cells}
         for fut in as_completed(futures):
             c = futures[fut]
@@ -54,10 +49,6 @@ def run_cells(cells: Sequence[Any], scheduler: str | None = None, workers: int =
             if verbose:
                 print(f"[benchmark] {c.key}: {len(rec['episodes'])} episodes, {rec['wall_s']:.1f} s",
                       file=sys.stderr, flush=True)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
     return [results[c.key] for c in cells]
 
 
@@ -80,6 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import valve_env
+    from agents.sweep import check_workers
     from valve_env.outputs import OutputError, OutputSet
     from valve_env.params import ConfigError
     from valve_env.tasks import benchmark as bm
@@ -91,8 +83,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"unknown task {t!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
         if args.episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-        if args.scheduler is None and args.workers < 1:  # LocalCluster(n_workers=0) waits for ever
-            raise ValueError(f"--workers must be >= 1, got {args.workers}")
+        check_workers(args.scheduler, args.workers)
         names = [c for c in args.controllers.split(",") if c] if args.controllers else None
         cells = bm.make_cells(tasks, names, args.episodes, args.seed, smooth=not args.no_smooth)
         if args.horizon_h is not None:

@@ -59,11 +59,11 @@ def controllers_for(
     from agents.loader import available_agents, load_agent
     from valve_env.controllers import BASELINES, make_controller
 
+    shipped = available_agents(env_id, zoo)
     if names is None:
         names = [b for b in BASELINE_NAMES if env_id in getattr(BASELINES[b], "supported_env_ids", (env_id,))]
-        names += available_agents(env_id, zoo)
+        names += shipped
     out: dict[str, Any] = {}
-    shipped = available_agents(env_id, zoo)
     for name in names:
         if name not in BASELINES and name not in shipped:
             raise ValueError(f"unknown controller {name!r} for {env_id}; built-in: {', '.join(BASELINES)}; "

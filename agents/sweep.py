@@ -44,7 +44,8 @@ import sys
 import tempfile
 import time
 import traceback
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -338,6 +339,31 @@ def write_summary(out_dir: str | Path) -> pd.DataFrame:
     return df
 
 
+def check_workers(scheduler: str | None, workers: int) -> None:
+    """Refuse a local cluster of no workers (``LocalCluster(n_workers=0)`` waits for ever); with a
+    ``scheduler`` the cluster's own workers run the cells."""
+    if scheduler is None and workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
+
+
+@contextmanager
+def dask_client(scheduler: str | None, workers: int) -> Iterator[Any]:
+    """A Dask client on ``scheduler``, or on a LocalCluster of ``workers`` single-threaded processes, closed
+    (with the cluster) on exit: the runner of the sweep and of ``thermovalve benchmark``."""
+    from distributed import Client, LocalCluster
+
+    check_workers(scheduler, workers)
+    cluster = None if scheduler else LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                                                  dashboard_address=None)
+    client = Client(scheduler) if scheduler else Client(cluster)
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
 def run_sweep(
     cells: Sequence[Cell],
     out_dir: str | Path,
@@ -346,7 +372,7 @@ def run_sweep(
     verbose: bool = True,
 ) -> dict[str, Any]:
     """Run the pending cells on Dask; returns counts of done / failed / skipped cells."""
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import as_completed
 
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -356,15 +382,7 @@ def run_sweep(
     if verbose:
         print(f"[sweep] {len(cells)} cells, {stats['skipped']} already done, {len(todo)} to run", file=sys.stderr)
     if todo:
-        cluster = None
-        if scheduler:
-            client = Client(scheduler)
-        else:
-            cluster = LocalCluster(
-                n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None
-            )
-            client = Client(cluster)
-        try:
+        with dask_client(scheduler, workers) as client:
             futures = {client.submit(run_cell, c, str(out), key=f"cell-{c.key}-{time.time_ns()}", pure=False): c
                        for c in todo}
             for fut in as_completed(futures):
@@ -379,10 +397,6 @@ def run_sweep(
                 if verbose:
                     extra = f"return {rec['return']['mean']:.2f}" if rec["status"] == "done" else rec.get("error", "")
                     print(f"[sweep] {c.key}: {rec['status']} {extra}", file=sys.stderr, flush=True)
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
     write_summary(out)
     return stats
 
@@ -444,8 +458,7 @@ def check_cells(cells: Sequence[Cell]) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.timesteps is not None and args.timesteps < 1:
         raise ValueError(f"--timesteps must be >= 1, got {args.timesteps}")
-    if args.scheduler is None and args.workers < 1:  # LocalCluster(n_workers=0) waits for ever
-        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    check_workers(args.scheduler, args.workers)  # before any directory is made
     env_arg = [e for e in args.env.split(",") if e] if args.env else None
     grids = load_grid(args.grid, env_arg) if args.grid else None
     envs = env_arg or (list(grids) if grids else ["ThermoValve-v0"])
