@@ -191,6 +191,8 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "misspecified": mis.get("misspecified"),
                     # stiction's band: the parts of its sd (noise copies, the slips' own, their number)
                     "band_sd_parts": unc.get("band_sd_parts"),
+                    # stiction's breakaway travel S beside the slip J (the (S, J) profile; issue 20, ninth round)
+                    "stick_slip": unc.get("stick_slip"),
                     "ljung_box_p": ((mis.get("outputs") or {}).get("x_mm") or {}).get("ljung_box_p")})
     elif d.cause != "none":
         js = d.findings[0].to_json()
@@ -287,6 +289,12 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
             entry["rel_err"] = [r["estimate_value"] / r["true_value"] - 1.0 for r in rs]
             entry["by_sd"] = _effect_sd_coverage([r for r in rs if r.get("named")])
             entry["misspecified"] = [r.get("misspecified") for r in rs]
+            if e == "stiction":
+                # the band as the breakaway travel S (the (S, J) profile) or the slips' J, and J beside it
+                ss = [r.get("stick_slip") or {} for r in rs]
+                entry["breakaway_applied"] = [s.get("applied") for s in ss]
+                entry["J_rel_err"] = [s["J_mm"] / r["true_value"] - 1.0 if "J_mm" in s else float("nan")
+                                      for s, r in zip(ss, rs, strict=True)]
         summ[key] = entry
     n_eff = [r for r in results if r["effect"] != "none"]
     summ["_total"] = {"named_right": sum(r["cause"] == r["effect"] for r in results), "runs": len(results),
@@ -399,6 +407,9 @@ def _print_effects(summ: dict[str, Any]) -> None:
             rel = ", ".join(f"{v:+.0%}" for v in e["rel_err"])
             line += f"  z [{zs}]  1sd {e['cover_1sd']:.0%} 2sd {e['cover_2sd']:.0%}  rel err [{rel}]"
             line += f"  misspecified {e['misspecified']}"
+            if "breakaway_applied" in e:
+                rel_j = ", ".join(f"{v:+.0%}" for v in e["J_rel_err"])
+                line += f"  S from the (S, J) profile {e['breakaway_applied']}  J rel err [{rel_j}]"
         print(line)
         for name, c in e.get("by_sd", {}).items():
             print(f"    {name:10s} over {c['n']} named: 1sd {c['cover_1sd']:.0%} 2sd {c['cover_2sd']:.0%} "

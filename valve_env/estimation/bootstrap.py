@@ -88,6 +88,13 @@ BRACKET_DENOISER = "tv"
 BRACKET_WEIGHT = 0.5
 #: Re-estimates whose Shapiro-Wilk p-value is below this are too far from normal to bias-correct by their mean.
 NORMAL_P = 1e-3
+#: stiction's band as the breakaway travel S where the slips are shorter (:func:`breakaway_band`)
+BREAKAWAY = True
+#: the least median of the demand's travel while stuck over the slip, and the least profiled S / J, at which
+#: the band is taken as S (:func:`breakaway_evident`; chosen on 49 development runs: the J = S valves' profiles
+#: reached 2.0, docs/uncertainty.md, "Issue 20, ninth round")
+BREAKAWAY_TRAVEL = 1.0
+BREAKAWAY_RATIO = 2.25
 
 
 @dataclass
@@ -115,11 +122,15 @@ class BootstrapResult:
     normality_p: dict[str, float] = field(default_factory=dict)
     #: the parts of stiction's band sd (:func:`_band_spread_from_slips`), else empty
     band_parts: dict[str, float] = field(default_factory=dict)
+    #: stiction's breakaway travel S beside its slip J (:func:`breakaway_band`), else empty
+    stick_slip: dict[str, object] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, object]:
         extra: dict[str, object] = {"band_replicates": int(self.band_B)} if self.band_B else {}
         if self.band_parts:
             extra["band_sd_parts"] = {k: int(v) if k == "n_slips" else float(v) for k, v in self.band_parts.items()}
+        if self.stick_slip:
+            extra["stick_slip"] = dict(self.stick_slip)
         return {"method": METHOD, "replicates": int(self.B), **extra, "dropped_replicates": int(self.dropped),
                 "split_replicates": bool(self.split),
                 "normality_p": {k: float(v) for k, v in self.normality_p.items()},
@@ -353,12 +364,15 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     # re-estimates split into groups with no majority: no bias correction (the mean lies between them)
     sm = summarise(names, est, by_name, bias_z, no_correction=set(names) - {"band_mm"} if split else set())
     parts: dict[str, float] = {}
+    sj: dict[str, object] = {}
     if stuck and s_x is not None:
         parts = _band_spread_from_slips(sm, data.x, s_x, float(model.valve.stroke), band_B, fit.params["band_mm"],
                                         rng)
+        if "band_mm" in names and BREAKAWAY:
+            sj = breakaway_band(model, data, fit, sm)
     return BootstrapResult(names, reps, est, sm.std, sm.bias, sm.interval_95, B, sm.corrected, sm.bias_corrected,
                            sm.spread, int(dropped.sum()), B + len(extra) if stuck else 0, split, sm.normality_p,
-                           parts)
+                           parts, sj)
 
 
 def denoised_run(data: RunData, denoiser: str = BRACKET_DENOISER) -> RunData:
@@ -463,6 +477,60 @@ def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float, stroke: floa
     w = sm.std[k] / noise if noise > 0 else 1.0
     sm.interval_95[k] = (float(sm.corrected[k] - w * hi), float(sm.corrected[k] - w * lo))
     return parts
+
+
+def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> dict[str, object]:
+    """Stiction's band as the breakaway travel S where the slips say that the stem slips less than it sticks
+    (issue 20, ninth round; docs/uncertainty.md): returns the ``stick_slip`` block of the JSON, and where it is
+    applied updates ``sm`` in place (the band's estimate, sd and 95 % interval).
+
+    The band measured from the slips (``sm``'s, bias-corrected) is the slip J. The (S, J) profile
+    (:func:`valve_env.estimation.stick_profile.sj_profile`) gives the ratio k = S / J with its sd; it is applied
+    where :func:`breakaway_evident` says so (the profile reads S / J clearly above 1 and the stick-slip check's
+    statistic does not contradict it).
+    Then the band is k J and its sd ``sqrt((k sd_J)^2 + (J sd_k)^2)``: the slips' sd scaled and the profile's
+    width (the (S, J) trade-off). Elsewhere the band stays the slips' (J = S), and the block reports the profile
+    for information. The block: ``S_mm``, ``S_sd_mm`` (the band reported), ``J_mm``, ``J_sd_mm`` (the slips'),
+    ``applied``, the profile's reading (:meth:`~valve_env.estimation.stick_profile.SJProfile.to_json`) and the
+    check's ``travel_over_slip_median``."""
+    from valve_env.estimation.robust import stick_slip_check
+    from valve_env.estimation.stick_profile import sj_profile
+
+    k = "band_mm"
+    J, sd_J = float(sm.corrected[k]), float(sm.std[k])
+    if not (math.isfinite(J) and J > 0.0):
+        return {}
+    check = stick_slip_check(model, data, fit, warn=False)
+    prof = sj_profile(model, data, {**fit.params, k: float(fit.params[k])})
+    med = float(check["travel_over_slip_median"])
+    applied = breakaway_evident(med, prof.ratio)
+    out: dict[str, object] = {"J_mm": J, "J_sd_mm": sd_J, "applied": applied, **prof.to_json(),
+                              "travel_over_slip_median": med}
+    if applied:
+        S = prof.ratio * J
+        sd = math.sqrt((prof.ratio * sd_J) ** 2 + (J * prof.ratio_sd) ** 2)
+        sm.corrected[k] = S
+        sm.std[k] = sd
+        sm.interval_95[k] = (S - 1.96 * sd, S + 1.96 * sd)
+        out.update({"S_mm": S, "S_sd_mm": sd})
+    else:
+        out.update({"S_mm": J, "S_sd_mm": sd_J})
+    return out
+
+
+def breakaway_evident(travel_over_slip: float, ratio: float) -> bool:
+    """Whether the band is the (S, J) profile's S rather than the slips' J (:func:`breakaway_band`): the profile's
+    S / J is at least :data:`BREAKAWAY_RATIO`, and the fitted demand's travel while stuck over the slip
+    (the stick-slip check's statistic, :func:`valve_env.estimation.robust.stuck_travel`'s median; nan with no
+    slip measured) at least :data:`BREAKAWAY_TRAVEL`: the stem stuck longer than it slipped.
+
+    The open-loop profile alone is no test of J < S: on development runs whose valve has J = S (36 runs:
+    the independent simulator's ``reset`` and ``sj``, the project generator) it put S / J above 1 on 28 and
+    reached 2.0 (a stem that re-sticks after every slip lags its demand by half a step on average; the fitted
+    demand errs near the reversals by the lag's size). The threshold lies above that, so ``force`` valves
+    whose profile reads 1.75-2.0 keep the slips' band (J)."""
+    return bool(math.isfinite(travel_over_slip) and travel_over_slip >= BREAKAWAY_TRAVEL
+                and ratio >= BREAKAWAY_RATIO)
 
 
 class Summary(NamedTuple):

@@ -1,0 +1,91 @@
+"""Stiction's breakaway travel S beside its slip J (issue 20, ninth round): the (S, J) profile on stick-slip runs
+of the independent simulator's variants ``reset``, ``sj`` and ``force`` and of the project's generator
+(docs/uncertainty.md, "Issue 20, ninth round").
+
+Each run is drawn and diagnosed as ``benchmarks/stiction_misspecification.py`` does it (stiction the only
+candidate, no bootstrap, the training part); then the profile of S / J
+(:func:`valve_env.estimation.stick_profile.sj_profile`) and the stick-slip check's statistic are taken at the ML
+estimate, and :func:`valve_env.estimation.bootstrap.breakaway_evident` says whether the diagnosis's bootstrap
+would report S (the profile's) or J (the slips') as the band. Printed per run: the truth S, the slips' band J,
+the profile's S / J and its sd, both errors against S, the check's statistic and the decision.
+
+    python benchmarks/stiction_breakaway.py --generator independent --runs 2 --seed 500 --json out/sb_i_500.json
+    python benchmarks/stiction_breakaway.py --generator project --runs 3 --seed 20261126 --json out/sb_p.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+from independent_coverage import cases  # noqa: E402
+from stiction_misspecification import run_case  # noqa: E402
+
+from valve_env.outputs import OutputError, OutputSet  # noqa: E402
+
+
+def profile_case(case: dict[str, Any]) -> dict[str, Any]:
+    """:func:`stiction_misspecification.run_case` (its fit kept in memory) and the (S, J) profile of its fit."""
+    import pickle
+    import tempfile
+
+    from valve_env.estimation.bootstrap import breakaway_evident
+    from valve_env.estimation.stick_profile import sj_profile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = run_case({**case, "dump": tmp})
+        with open(os.path.join(tmp, f"{case['generator']}_{case['seed']}_{case['i']}.pkl"), "rb") as fh:
+            dump = pickle.load(fh)
+    t0 = time.process_time()
+    p = sj_profile(dump["model"], dump["train"], dump["fit"].params)
+    med = float(out.pop("misspecification")["travel_over_slip_median"])
+    out.update({"profile": p.to_json(), "S_profile": p.S_mm, "travel_over_slip": med,
+                "applied": breakaway_evident(med, p.ratio), "profile_cpu_s": time.process_time() - t0})
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--generator", choices=("independent", "project"), default="independent")
+    ap.add_argument("--runs", type=int, default=2, help="runs per stick-slip variant")
+    ap.add_argument("--seed", type=int, required=True)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", dest="json_out", required=True)
+    ap.add_argument("--force", action="store_true", help="replace an existing --json file")
+    a = ap.parse_args(argv)
+    if a.runs < 1 or a.workers < 1:
+        print("thermovalve: error: --runs and --workers must be at least 1", file=sys.stderr)
+        return 2
+    outs = OutputSet(force=a.force)
+    try:
+        json_path = outs.add(a.json_out)
+    except OutputError as exc:
+        print(f"thermovalve: error: {exc}", file=sys.stderr)
+        return 2
+    cs = [c for c in cases("effects", a.generator, a.runs, 0, a.seed) if c["effect"] == "stiction"]
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(a.workers) as ex:
+        res = list(ex.map(profile_case, cs))
+    for r in res:
+        S, J = r["true_band"], r["band"]
+        print(f"{r['generator']:11s} {r['i']:3d} {r['variant']!s:6s} named {r['named']!s:5s} S {S:.4f} J {J:.4f} "
+              f"S/J profile {r['profile']['profile_S_over_J']:.2f} +- {r['profile']['profile_S_over_J_sd']:.2f}  "
+              f"err: profile {r['S_profile'] / S - 1:+.0%} slips {J / S - 1:+.0%}  "
+              f"travel/slip {r['travel_over_slip']:.2f}  band = {'S' if r['applied'] else 'J'}")
+    doc = {"generator": a.generator, "seed": a.seed, "runs": len(cs), "results": res,
+           "seconds": time.perf_counter() - t0, "machine": platform.platform(), "command": " ".join(sys.argv)}
+    outs.write_text(json_path, json.dumps(doc, indent=1, default=float))
+    outs.commit()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,120 @@
+"""Issue 20, ninth round: stiction's breakaway travel S beside its slip J, the (S, J) profile
+(valve_env.estimation.stick_profile; valve_env.estimation.bootstrap.breakaway_band; docs/uncertainty.md,
+"Issue 20, ninth round")."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from valve_env.diagnosis.diagnose import check_run, prepare
+from valve_env.diagnosis.engine import stick_simulate
+from valve_env.diagnosis.fitting import FitResult, Model
+from valve_env.diagnosis.stiction import jump_band
+from valve_env.estimation.bootstrap import BREAKAWAY_RATIO, Summary, breakaway_band, breakaway_evident
+from valve_env.estimation.stick_profile import sj_profile, spring_rate, stick_simulate_sj
+from valve_env.studies.independent import COLUMNS, IndependentRun, simulate_independent
+
+S_TRUE = 0.035
+
+
+def _demand_on_substeps() -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(0.0, 6 * 3600.0, 2.5)
+    x_sub = 1.0 + 0.1 * np.sin(2 * np.pi * t / 5400) + 0.04 * np.sin(2 * np.pi * t / 1300 + 1.0)
+    return x_sub, np.arange(0, t.size, 4)
+
+
+def test_sj_stem_reduces_to_the_diagnosis_stem_at_j_equal_s() -> None:
+    """With J = S the (S, J) stem is the diagnosis's (engine.stick_simulate), sample for sample; with J < S it
+    lags the demand by (S - J) / 2 while it moves, and its slips are J."""
+    x_sub, idx = _demand_on_substeps()
+    S = 0.03
+    a = stick_simulate_sj(x_sub, idx, S, S, 2.0)
+    np.testing.assert_array_equal(a, stick_simulate(x_sub, idx, S, 2.0))
+    b = stick_simulate_sj(x_sub, idx, S, S / 3, 2.0)
+    steps = np.abs(np.diff(b))
+    assert not np.allclose(a, b)
+    # the largest sampled steps are J plus the motion of one sample, not S
+    assert np.quantile(steps, 0.999) < 0.75 * S
+    moving = np.flatnonzero(np.abs(np.diff(b)) > 0)[1:]
+    lag = np.abs(b[moving + 1] - x_sub[idx][moving + 1])
+    assert abs(float(np.median(lag)) - S / 3) < 0.1 * S
+
+
+@pytest.fixture(scope="module")
+def runs() -> dict[str, tuple[Model, object, dict[str, float]]]:
+    """12 h at 10 s of the independent simulator's ``force`` (r = 0.5, J = S / 3), ``sj`` (J = S) and ``reset``
+    valves with a 0.035 mm band, and the values a fit of the project's model (J = S) takes: J from the slips
+    (the ``force`` valve's few measurable slips: its J), the lag (S - J) / 2 in a larger F_hmax."""
+    out = {}
+    m = Model(("stiction",))
+    for variant in ("force", "sj", "reset"):
+        df = simulate_independent(IndependentRun(seed=11, duration_h=12.0, dt_s=10.0, T_noise_C=0.005,
+                                                 effects={"stiction": {"band_mm": S_TRUE}},
+                                                 stiction_variant=variant))
+        run = prepare(check_run(df.loc[:, list(COLUMNS)]))
+        J = jump_band(run.x, 2.0)[0] if variant != "force" else S_TRUE / 3
+        lag = (S_TRUE - J) / 2 if variant == "force" else 0.0
+        vals = {"sigma": 6.41, "F_hmax": 1.31 + spring_rate(m, run) * lag, "p_bset": 0.0776, "band_mm": float(J),
+                "s_w": 2.4e-3, "s_e": 0.003, "tau_e": 300.0}
+        out[variant] = (m, run, vals)
+    return out
+
+
+def test_profile_reads_the_breakaway_of_a_force_valve(runs) -> None:  # type: ignore[no-untyped-def]
+    """The force valve's profile puts S / J well above 1 and S within 25 % of the truth; the (S, J = S)
+    valve's stays at 1 (S = J, the slips' band)."""
+    m, run, vals = runs["force"]
+    p = sj_profile(m, run, vals)
+    assert p.ratio >= BREAKAWAY_RATIO
+    assert abs(p.S_mm - S_TRUE) / S_TRUE < 0.25, p.to_json()
+    assert p.to_json()["profile_loglik"]["1"] == 0.0
+    assert 0.0 < p.ratio_sd < p.ratio
+    m, run, vals = runs["sj"]
+    q = sj_profile(m, run, vals)
+    assert q.ratio == 1.0 and q.ratio_sd == 0.0 and q.S_mm == vals["band_mm"], q.to_json()
+    with pytest.raises(ValueError, match="ratios"):
+        sj_profile(m, run, vals, ratios=(1.5, 2.0))
+
+
+def _summary(band: float, sd: float) -> Summary:
+    k = "band_mm"
+    return Summary({k: sd}, {k: 0.0}, {k: (band - 2 * sd, band + 2 * sd)}, {k: band}, {k: False}, {k: sd}, {k: 1.0})
+
+
+def _fit(vals: dict[str, float]) -> FitResult:
+    return FitResult(("stiction",), dict(vals), {}, 0.0, 0, 0, 0.0, True)
+
+
+def test_breakaway_band_moves_force_and_keeps_reset(runs) -> None:  # type: ignore[no-untyped-def]
+    """The bootstrap's band: on the force valve S (within 25 %), its sd the slips' scaled plus the profile's
+    width, J reported beside it; on the reset valve (re-sticks after every slip) the slips' band and sd
+    exactly as they were."""
+    m, run, vals = runs["force"]
+    J, sd = vals["band_mm"], 0.1 * vals["band_mm"]
+    sm = _summary(J, sd)
+    out = breakaway_band(m, run, _fit(vals), sm)
+    assert out["applied"] is True
+    S = sm.corrected["band_mm"]
+    assert abs(S - S_TRUE) / S_TRUE < 0.25
+    assert out["J_mm"] == J and out["S_mm"] == S
+    assert sm.std["band_mm"] > out["profile_S_over_J"] * sd  # the (S, J) trade-off widens it
+    assert out["S_sd_mm"] == sm.std["band_mm"]
+    lo, hi = sm.interval_95["band_mm"]
+    assert lo < S < hi
+    m, run, vals = runs["reset"]
+    J, sd = vals["band_mm"], 0.05 * vals["band_mm"]
+    sm = _summary(J, sd)
+    out = breakaway_band(m, run, _fit(vals), sm)
+    assert out["applied"] is False
+    assert sm.corrected["band_mm"] == J and sm.std["band_mm"] == sd and out["S_mm"] == J
+    assert abs(J - S_TRUE) / S_TRUE < 0.1
+
+
+def test_breakaway_evident_needs_both_signs() -> None:
+    assert breakaway_evident(1.5, BREAKAWAY_RATIO)
+    assert not breakaway_evident(1.5, BREAKAWAY_RATIO - 0.25)
+    assert not breakaway_evident(0.9, 3.0)
+    assert not breakaway_evident(math.nan, 3.0)
