@@ -34,6 +34,7 @@ import threading
 import weakref
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 PathLike = str | os.PathLike[str]
 
@@ -119,18 +120,36 @@ def _umask() -> int:
 @contextlib.contextmanager
 def _signals_held() -> Iterator[None]:
     """SIGINT and SIGTERM held back for a step that must not be cut in half (a temporary made and
-    recorded where the clean-up will find it); a signal that came meanwhile is delivered at the end.
-    The commands turn both signals into exceptions (valve_env/cli.py), which Python raises between
-    any two statements: without this, one arriving just after a temporary was made and before it was
-    recorded left it behind."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+    recorded where the clean-up will find it; the commit's renames); a signal that came meanwhile is
+    delivered at the end. The commands turn both signals into exceptions (valve_env/cli.py), which Python
+    raises between any two statements: without this, one arriving just after a temporary was made and
+    before it was recorded left it behind. The Python-level handlers are swapped for one that only records
+    the signal, rather than the main thread's signal mask: a process-directed signal reaches any thread that
+    does not block it (a numerical library's worker, a progress bar's monitor), and Python then runs its
+    handler in the main thread all the same (measured: a fit's commit cut between the JSON and its report)."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    caught: list[int] = []
+
+    def hold(signum: int, frame: object) -> None:
+        caught.append(signum)
+
+    old: dict[int, Any] = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        if signal.getsignal(sig) is not None:  # None: a handler not installed from Python, left alone
+            old[sig] = signal.signal(sig, hold)
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for held, previous in old.items():
+            signal.signal(held, previous)
+        for signum in dict.fromkeys(caught):
+            handler = old[signum]
+            if callable(handler):
+                handler(signum, None)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(signum)
 
 
 @contextlib.contextmanager
@@ -322,7 +341,13 @@ class OutputSet:
 
     def commit(self) -> list[Path]:
         """Rename every staged file into place (each rename is atomic). Every file of a staged
-        directory is checked first, so a refusal leaves nothing renamed."""
+        directory is checked first, so a refusal leaves nothing renamed. SIGINT and SIGTERM are held
+        back while the renames run: a signal then ends the run after its outputs are all in place,
+        never with some of them new and the rest old (a few renames: milliseconds)."""
+        with _signals_held():
+            return self._commit()
+
+    def _commit(self) -> list[Path]:
         moves: list[tuple[Path, Path]] = []
         for d, tmp_dir in self._staged_dirs.items():
             for f in sorted(q for q in tmp_dir.rglob("*") if q.is_file()):

@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -68,26 +67,61 @@ def test_killed_writer_leaves_previous_output(tmp_path: Path, sig: signal.Signal
         assert all(n.startswith(".out.json.") for n in _temps(tmp_path))
 
 
-def test_sigterm_during_fit_keeps_previous_result(tmp_path: Path, run_csv: Path) -> None:
-    out = tmp_path / "out.json"
-    out.write_text(PREVIOUS)
+#: ``thermovalve fit`` with a SIGTERM sent to itself at a chosen point of the output policy (argv[1]:
+#: ``stage_dir``, as the report directory is staged, or ``place``, after the first file of the commit is in
+#: place): the point is exact, where a signal sent from outside would race the run (it missed the staging
+#: window at load 11-13)
+FIT_SIGNALLED = r"""
+import os, signal, sys
+from valve_env import outputs
+where = sys.argv[1]
+if where == "stage_dir":
+    orig_stage_dir = outputs.OutputSet.stage_dir
+    def stage_dir(self, directory):
+        tmp = orig_stage_dir(self, directory)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return tmp
+    outputs.OutputSet.stage_dir = stage_dir
+else:
+    orig_place = outputs.OutputSet._place
+    def place(self, tmp, final):
+        orig_place(self, tmp, final)
+        os.kill(os.getpid(), signal.SIGTERM)
+    outputs.OutputSet._place = place
+from valve_env.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def _fit_signalled(where: str, run_csv: Path, out: Path, rep: Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "THERMOVALVE_NO_PROGRESS": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "valve_env.cli", "fit", str(run_csv), "--json", str(out),
-                             "--force", "--n-starts", "20", "--report", str(tmp_path / "rep"), "--ml"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    # wait until the report is being staged (a hidden temporary entry beside the outputs): mid-write
-    deadline = time.monotonic() + 300
-    while proc.poll() is None and time.monotonic() < deadline:
-        if any(p.name.startswith(".") for p in tmp_path.iterdir()):
-            break
-        time.sleep(0.005)
-    assert proc.poll() is None, "the fit ended before its outputs were staged"
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode != 0, err
+    return subprocess.run([sys.executable, "-c", FIT_SIGNALLED, where, "fit", str(run_csv), "--json", str(out),
+                           "--force", "--report", str(rep), "--ml"],
+                          capture_output=True, text=True, env=env, timeout=600)
+
+
+def test_sigterm_during_fit_keeps_previous_result(tmp_path: Path, run_csv: Path) -> None:
+    out, rep = tmp_path / "out.json", tmp_path / "rep"
+    out.write_text(PREVIOUS)
+    proc = _fit_signalled("stage_dir", run_csv, out, rep)
+    assert proc.returncode != 0, proc.stderr
+    assert "terminated" in proc.stderr
     assert out.read_text() == PREVIOUS
-    assert not (tmp_path / "rep").exists()
-    assert [p.name for p in tmp_path.rglob("*") if p.name.endswith(".tmp")] == []
+    assert not rep.exists()
+    assert [p.name for p in tmp_path.rglob("*") if p.name.endswith(".tmp") or p.name.startswith(".")] == []
+
+
+def test_sigterm_during_commit_places_every_output(tmp_path: Path, run_csv: Path) -> None:
+    """A signal that arrives once the renames have begun waits for them: the outputs are all new (the
+    report beside the JSON), never the new JSON beside no report."""
+    out, rep = tmp_path / "out.json", tmp_path / "rep"
+    out.write_text(PREVIOUS)
+    proc = _fit_signalled("place", run_csv, out, rep)
+    assert proc.returncode != 0, proc.stderr
+    assert "terminated" in proc.stderr
+    assert json.loads(out.read_text()) != json.loads(PREVIOUS)
+    assert rep.is_dir() and any(rep.iterdir())
+    assert [p.name for p in tmp_path.rglob("*") if p.name.endswith(".tmp") or p.name.startswith(".")] == []
 
 
 def test_force_replaces_and_refuses_without(tmp_path: Path) -> None:
