@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     from valve_env.tasks import benchmark as bm
 
     try:
-        tasks = [t for t in (args.tasks or ",".join(valve_env.TASK_IDS)).split(",") if t]
+        tasks = [t for t in (args.tasks or ",".join(valve_env.CURRENT_TASK_IDS)).split(",") if t]
         for t in tasks:
             if t not in valve_env.ALL_ENV_IDS:
                 raise ValueError(f"unknown task {t!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")

@@ -118,49 +118,13 @@ def oracle(seed: int, episodes: int, tasks: list[str], settings: dict[str, Any] 
         print(f"| {task} | {mean:.1f} | {mx:.1f} |")
 
 
-def store_free_band(band_K: float) -> dict[str, Any]:
-    """Screening only (docs/tasks.md, "Fifth round", lever b): the district-heating tasks' tracking term with
-    a free band above the target, as if a thermostatic mixing valve at the store's outlet delivered the target
-    from a store up to ``band_K`` hotter (EN 15092; ``inf``: one-sided): the kernel's symmetric term is
-    switched off (``control.w_track = 0``, returned as gym.make keyword arguments) and every district-heating
-    layer built in this process charges the task's own ``w_track e^2`` on ``e = T_top - T_target`` below the
-    target and on ``e - band_K`` above the band, from the step's final top temperature. Patches
-    ``valve_env.tasks.env.make_layer`` (the evaluated envs and the oracle's simulator alike); not a task."""
-    import numpy as np
-
-    from valve_env import simulator as sim
-    from valve_env.tasks import env as task_env
-    from valve_env.tasks import task_config
-
-    ctl = task_config("ThermoValveDistrictHeating-v0").control
-    w, target = float(ctl.w_track), float(ctl.T_target_C)
-    make = task_env.make_layer
-
-    def make_one_sided(name: Any, params: Any, scenario: Any, dt_s: float) -> Any:
-        layer = make(name, params, scenario, dt_s)
-        if name not in ("district_heating", "district_heating_power"):
-            return layer
-        step = layer.step
-
-        def one_sided(k: Any, out: Any, dt: float, acc: Any = None) -> Any:
-            r, inc = step(k, out, dt, acc)
-            e = out[:, sim.O_T_TOP] - target
-            off = np.minimum(e, 0.0) + np.maximum(e - band_K, 0.0)
-            return r - w * off * off, inc
-
-        layer.step = one_sided
-        return layer
-
-    task_env.make_layer = make_one_sided
-    return {"control": {"w_track": 0.0}}
-
-
 def storage_bound(task: str, seed: int, env_kwargs: dict[str, Any] | None = None) -> dict[str, float]:
     """A lower bound on the cost (-return) of any controller on one district-heating day (docs/controllers.md,
     "A bound on the district-heating tasks"): the tank as one energy store (heat in at most the fully open
     valve's flow times supply minus cold water, out the day's draws and the standing loss, linear in the mean
     temperature), bought at the step's price, settled at the end as the task settles it; tracking costs at
-    least w_track (T_mean - T_target)^2 (the top is the hottest layer), the floor at least w_floor times the
+    least w_track (T_mean - T_target - free_band_K)^2 above the band (the top is the hottest layer; v1's
+    store behind a mixing valve is free up to free_band_K above the target), the floor at least w_floor times the
     top's shortfall when all the heat sat in the top layer; the return tariff is counted as zero. The coil
     gives at most UA_coil (T_sup - its layers' mean), and no layer is hotter than the hottest supply or
     start, so a full store bounds the heat it can still take (and the store's own size). A linear
@@ -221,12 +185,13 @@ def storage_bound(task: str, seed: int, env_kwargs: dict[str, Any] | None = None
     A_eq = sparse.csr_matrix((vals, (rows, cols)), shape=(N, nv))
     ub_r, ub_c, ub_v, b_ub = [], [], [], []
     r = 0
-    for d in (*np.arange(0.25, 3.0, 0.25), *np.arange(3.0, 12.1, 1.0)):  # track_k >= w (2 d x - d^2), x = E/C - T_t
+    T_band = ctl.T_target_C + ctl.free_band_K  # the top of the band free of tracking (v1: a mixing valve)
+    for d in (*np.arange(0.25, 3.0, 0.25), *np.arange(3.0, 12.1, 1.0)):  # track_k >= w (2 d x - d^2), x = E/C - T_b
         for k in range(N):
             ub_r += [r, r]
             ub_c += [iE + k, it + k]
             ub_v += [ctl.w_track * 2 * d / C, -1.0]
-            b_ub.append(ctl.w_track * (2 * d * ctl.T_target_C + d * d))
+            b_ub.append(ctl.w_track * (2 * d * T_band + d * d))
             r += 1
     for k in range(N):  # short_k >= T_floor - T_top_max, T_top_max = (E - (M - m_l) T_cold) / m_l
         ub_r += [r, r]
@@ -320,9 +285,6 @@ def main() -> None:
     ap.add_argument("--baselines", default="pi",
                     help="comma-separated controllers the oracle's headroom is taken against (first: the table's "
                          "reference), e.g. pi,self_acting,pi_wear")
-    ap.add_argument("--store-free-band", type=float, default=None, metavar="K",
-                    help="screening only: no district-heating tracking charge from the target to K above it "
-                         "(a mixing valve at the store's outlet; inf: one-sided; docs/tasks.md, 'Fifth round')")
     a = ap.parse_args()
     for flag, text in (("--oracle-settings", a.oracle_settings), ("--env-kwargs", a.env_kwargs)):
         try:
@@ -343,11 +305,6 @@ def main() -> None:
         else:
             env_kwargs = value
     baselines = tuple(b.strip() for b in a.baselines.split(",") if b.strip()) or ("pi",)
-    if a.store_free_band is not None:
-        if not a.store_free_band >= 0:
-            print(f"thermovalve: error: --store-free-band must be >= 0 K, got {a.store_free_band!r}", file=sys.stderr)
-            raise SystemExit(2)
-        env_kwargs = {**env_kwargs, **store_free_band(a.store_free_band)}
     if a.what == "compensators":
         compensators(a.seed, a.episodes or 10, 0.1 if a.band is None else a.band)
     elif a.what == "task-compensators":

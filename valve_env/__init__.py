@@ -3,8 +3,8 @@ its hot-water tank as Gymnasium environments, controllers and grey-box
 identification.
 
 ``import valve_env`` registers ThermoValve-v0, ThermoValvePressure-v0 and
-ThermoValveDual-v0, and the benchmark tasks of valve_env.tasks (TASK_IDS;
-``thermovalve tasks`` lists them).
+ThermoValveDual-v0, and the benchmark tasks of valve_env.tasks (TASK_IDS, superseded
+versions included; CURRENT_TASK_IDS, which ``thermovalve tasks`` lists).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ for _id, _mode in ENV_MODES.items():
             max_episode_steps=MAX_EPISODE_STEPS,
         )
 
-from valve_env.tasks import TASK_IDS, TASKS, register_tasks  # noqa: E402
+from valve_env.tasks import CURRENT_TASK_IDS, TASK_IDS, TASKS, register_tasks  # noqa: E402
 
 register_tasks(MAX_EPISODE_STEPS)
 #: every registered id (the original three, then the tasks) -> what the agent sets
@@ -68,6 +68,7 @@ __all__ = [
     "ENV_IDS",
     "ENV_MODES",
     "BulbParams",
+    "CURRENT_TASK_IDS",
     "ConfigError",
     "ControlParams",
     "EnvConfig",

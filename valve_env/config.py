@@ -57,6 +57,7 @@ class ControlParams:
     | setting_C | degC | the setting when the agent does not set it (ThermoValvePressure-v0); 62 | [10, 120], within the setting range |
     | dp_min_mbar, dp_max_mbar | mbar | range of the pump's differential pressure (action); 0 .. 300 | [0, 2000] (0 .. 2 bar, DP_MAX_MBAR) |
     | w_track | 1/K^2 | reward weight of the squared tracking error; 0.04 (= (e / 5 K)^2) | [0, 100] (a weight) |
+    | free_band_K | K | no tracking error from T_target_C up to this much above it (a store behind a thermostatic mixing valve, EN 15092: the tap gets the target from a hotter store; docs/tasks.md, "ThermoValveDistrictHeating-v1"); 0: the error is T_top - T_target both ways | [0, 50] (up to a 110 degC store over a 60 degC target) |
     | w_floor | 1/K | reward weight of the shortfall below the floor; 1.0 | [0, 100] (a weight) |
     | w_energy | 1/kW | reward weight of the mean primary heat plus 2.5 x pump power (primary energy factor); 0.02 | [0, 100] (a weight) |
     """  # noqa: E501
@@ -74,6 +75,7 @@ class ControlParams:
     dp_min_mbar: float = param(0.0, 0.0, DP_MAX_MBAR, "mbar", "0 .. 2 bar")
     dp_max_mbar: float = param(300.0, 0.0, DP_MAX_MBAR, "mbar", "0 .. 2 bar")
     w_track: float = param(0.04, 0.0, 100.0, "1/K^2", "a weight")
+    free_band_K: float = param(0.0, 0.0, 50.0, "K", "up to a 110 degC store over a 60 degC target")
     w_floor: float = param(1.0, 0.0, 100.0, "1/K", "a weight")
     w_energy: float = param(0.02, 0.0, 100.0, "1/kW", "a weight")
 

@@ -65,8 +65,10 @@ from valve_env.physics.valve import dahl_update, flow_kgh, opening, setpoint_pre
  P_EFFECTS, P_BETA, P_STICK_S, P_STICK_J, P_DRIFT,
  # the hot-water circulation loop (physics.tank.circulation_heat): flow kg/s (0: none), pipes' UA W/K,
  # the return's layer
- P_CIRC_M, P_CIRC_UA, P_CIRC_LAYER) = range(31)
-N_PLANT = 31  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
+ P_CIRC_M, P_CIRC_UA, P_CIRC_LAYER,
+ # the tracking term's free band above the target, K (control.free_band_K; 0: symmetric)
+ P_FREE_BAND) = range(32)
+N_PLANT = 32  # then, if P_CLOCK_N > 0, the clock table: (sin, cos) of each step of a day
 # state offsets after the layers: gas temperature, friction force, stem position, direction of the last
 # motion; the stem's stick-slip state (valve_env.physics.stickslip); time since reset (s); demanded opening
 S_TG, S_FH, S_X, S_DIR, S_UPREV, S_DUPREV, S_US, S_STUCK, S_D, S_AGE, S_XD = range(11)
@@ -122,6 +124,7 @@ def pack_plant(cfg: EnvConfig) -> np.ndarray:
     pp[P_CIRC_M] = t.circ_kgh / 3600.0
     pp[P_CIRC_UA] = t.circ_UA
     pp[P_CIRC_LAYER] = t.circ_layer
+    pp[P_FREE_BAND] = c.free_band_K
     # the time-of-day features of the observation, tabulated when a day is a whole
     # number of steps (two libm calls per env-step otherwise)
     per_day = 86400.0 / c.dt_s
@@ -219,6 +222,7 @@ def plant_step(Z, lo, hi, vp, pp):
     T_cold = pp[P_T_COLD]
     T_target = pp[P_T_TARGET]
     T_floor = pp[P_T_FLOOR]
+    free_band = pp[P_FREE_BAND]
     a_b = pp[P_BULB_A]
     ps = pp[P_PS]
     T = Z[:nl]
@@ -315,7 +319,11 @@ def plant_step(Z, lo, hi, vp, pp):
             ret[i] += mi * T_ret[i] * dt
             mass[i] += mi * dt
             draw_mass[i] += m_draw[i] * dt
+            # the tracking error: the top's distance from the band [T_target, T_target + free_band]
+            # (a store behind a mixing valve, docs/tasks.md "ThermoValveDistrictHeating-v1"); with no
+            # band it is T_top - T_target exactly (e - 0.0 == e)
             e = T_top[i] - T_target
+            e = e - free_band if e > free_band else (0.0 if e > 0.0 else e)
             e2[i] += e * e
             eabs[i] += abs(e)
             sh = T_floor - T_top[i]

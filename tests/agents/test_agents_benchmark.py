@@ -42,7 +42,7 @@ def test_tasks_lists_one_line_per_task(capsys: pytest.CaptureFixture[str]) -> No
 
     assert main(["tasks"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert [ln.split()[0] for ln in lines] == list(valve_env.TASK_IDS)
+    assert [ln.split()[0] for ln in lines] == list(valve_env.CURRENT_TASK_IDS)
     assert all("Box(" in ln for ln in lines)
 
 

@@ -2,7 +2,9 @@
 
     thermovalve tasks [--all] [--sources]
 
-``--all`` also lists the three original ids; ``--sources`` prints each task's cited parameters.
+The current tasks; ``--all`` also lists the three original ids and the superseded versions (still
+registered, bit for bit: ThermoValveDistrictHeating-v0 and -Power-v0, superseded by their v1);
+``--sources`` prints each task's cited parameters.
 """
 
 from __future__ import annotations
@@ -15,11 +17,13 @@ def task_lines(include_original: bool = False, sources: bool = False) -> list[st
     """The lines that ``thermovalve tasks`` prints."""
     from valve_env.tasks import TASKS
 
-    rows = [t for t in TASKS.values() if include_original or not t.is_original]
+    rows = [t for t in TASKS.values()
+            if include_original or not (t.is_original or t.superseded_by is not None)]
     width = max(len(t.id) for t in rows)
     lines = []
     for t in rows:
-        lines.append(f"{t.id:<{width}}  {t.hard}  [{t.action_space_text()}]")
+        old = f" (superseded by {t.superseded_by})" if t.superseded_by else ""
+        lines.append(f"{t.id:<{width}}  {t.hard}{old}  [{t.action_space_text()}]")
         if sources:
             lines += [f"{'':<{width}}    {param}: {src}" for param, src in t.sources.items()]
     return lines
@@ -33,6 +37,7 @@ def cmd_tasks(args: argparse.Namespace) -> int:
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser("tasks", help="list the benchmark tasks (id, what makes it hard, action space)",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--all", action="store_true", help="also list ThermoValve-v0, -Pressure-v0 and -Dual-v0")
+    p.add_argument("--all", action="store_true",
+                   help="also list ThermoValve-v0, -Pressure-v0, -Dual-v0 and the superseded task versions")
     p.add_argument("--sources", action="store_true", help="print the sources of each task's parameters")
     p.set_defaults(func=cmd_tasks)

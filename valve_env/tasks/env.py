@@ -469,6 +469,9 @@ class ThermoValveDistrictHeatingEnv(ThermoValveTaskEnv):
     * v0, revised (issue 18, 23 Nov 2026): steady start at 60 +- 0.5 degC and the end-of-day
       settlement of the stored heat (an oracle seeing the end emptied the tank); the id was kept
       (the tasks are not released yet; the earlier figures are in git history).
+    * v1 (24 Nov 2026, ThermoValveDistrictHeating-v1): the store behind a thermostatic mixing valve,
+      no tracking charge from 60 to 65 degC. v0 stays registered, bit for bit, for reproducibility;
+      ``thermovalve tasks`` lists it under ``--all``.
     """
 
     task_id: ClassVar[str] = "ThermoValveDistrictHeating-v0"
@@ -525,9 +528,119 @@ class ThermoValveDistrictHeatingPowerEnv(ThermoValveTaskEnv):
     ## Version history
 
     * v0: initial release (issue 18, 24 Nov 2026).
+    * v1 (24 Nov 2026, ThermoValveDistrictHeatingPower-v1): the store behind a thermostatic mixing
+      valve, no tracking charge from 60 to 65 degC. v0 stays registered, bit for bit.
     """
 
     task_id: ClassVar[str] = "ThermoValveDistrictHeatingPower-v0"
+
+
+_V1_TRACKING = """``w_track e^2`` with ``e`` the top's distance from the band [60, 65] degC: ``T_out - 60``
+    below 60 degC, 0 from 60 to 65 degC, ``T_out - 65`` above (control.free_band_K = 5; the kernel
+    computes it on each sub-step, as v0's ``T_out - 60``)"""
+
+_V1_KPIS = """On v1 ``rmse_K`` and ``iae_Kh`` (docs/reference.md, section 5; the names are
+    kept) measure the same banded error: the RMS and the time integral of the top's distance from
+    [60, 65] degC. Behind a mixing valve the tap gets ``min(T_top, 60)`` degC (the valve tempers a
+    hotter store down to 60 and cannot heat a colder one), so below the band they are the tap's
+    shortfall from its 60 degC; a store at 63 degC is not an error; above 65 degC they count the
+    store's excess over the top of its usual range (a hotter store loses more and scalds if the
+    mixing valve fails)."""
+
+_V1_PARAMS = (
+    "| control.free_band_K | 5 K (no charge 60-65 degC) | an inline tempering (mixing) valve at the store's outlet, "
+    "EN 15092:2008 (45-65 degC delivered from up to 90 degC); the store at 60 degC or more against legionella "
+    "(ESGLI 2017 European Technical Guidelines; DVGW W 551), 60-65 degC its usual setting |"
+)
+
+
+class ThermoValveDistrictHeatingV1Env(ThermoValveTaskEnv):
+    __doc__ = f"""## Description
+
+    ThermoValveDistrictHeating-v1: ThermoValveDistrictHeating-v0 (the same
+    tank, network, scenario, heat price, return tariff and settlement of the
+    stored heat) with the store behind a thermostatic mixing valve at its
+    outlet (EN 15092), as installations that keep a store hotter than the tap
+    fit. The store is kept at 60 degC or more against legionella; the mixing
+    valve delivers 60 degC to the taps from a store up to 65 degC, so a top
+    held at 60-65 degC costs no tracking: charging the tank in the cheap
+    hours, before the price peaks, is no longer charged as an error. What a
+    hotter store does cost is in the physics and the bill: a larger standing
+    loss and a hotter return (the return tariff).
+
+    ## Action space
+
+    Box(1,) float32: the valve temperature setting, degC, [40, 80].
+
+    ## Observation space
+
+    Box(19,) float32: as ThermoValveDistrictHeating-v0.
+
+    ## Reward
+
+    As ThermoValveDistrictHeating-v0, with the tracking term
+    {_V1_TRACKING}.
+
+    ## KPIs
+
+    As ThermoValveDistrictHeating-v0. {_V1_KPIS}
+
+    ## Physical and economic parameters (sources: docs/tasks.md)
+
+    | parameter | value | source |
+    |---|---|---|
+    | everything of DistrictHeating-v0 | | its sources |
+    {_V1_PARAMS}
+
+    ## Version history
+
+    * v0: ThermoValveDistrictHeating-v0 (its docstring; registered, bit for bit).
+    * v1: the store behind a thermostatic mixing valve, free from 60 to 65 degC (issue 18, 24 Nov 2026).
+    """
+
+    task_id: ClassVar[str] = "ThermoValveDistrictHeating-v1"
+
+
+class ThermoValveDistrictHeatingPowerV1Env(ThermoValveTaskEnv):
+    __doc__ = f"""## Description
+
+    ThermoValveDistrictHeatingPower-v1: ThermoValveDistrictHeatingPower-v0
+    (DistrictHeating-v0's network and bill plus the power charge on the
+    day's highest hourly mean power) with the store behind a thermostatic
+    mixing valve, as ThermoValveDistrictHeating-v1: no tracking charge from
+    60 to 65 degC.
+
+    ## Action space
+
+    Box(1,) float32: the valve temperature setting, degC, [40, 80].
+
+    ## Observation space
+
+    Box(21,) float32: as ThermoValveDistrictHeatingPower-v0.
+
+    ## Reward
+
+    As ThermoValveDistrictHeatingPower-v0, with the tracking term
+    {_V1_TRACKING}.
+
+    ## KPIs
+
+    As ThermoValveDistrictHeatingPower-v0. {_V1_KPIS}
+
+    ## Physical and economic parameters (sources: docs/tasks.md)
+
+    | parameter | value | source |
+    |---|---|---|
+    | everything of DistrictHeatingPower-v0 | | its sources |
+    {_V1_PARAMS}
+
+    ## Version history
+
+    * v0: ThermoValveDistrictHeatingPower-v0 (its docstring; registered, bit for bit).
+    * v1: the store behind a thermostatic mixing valve, free from 60 to 65 degC (issue 18, 24 Nov 2026).
+    """
+
+    task_id: ClassVar[str] = "ThermoValveDistrictHeatingPower-v1"
 
 
 class ThermoValveStickyValveVectorEnv(ThermoValveTaskVectorEnv):
@@ -555,6 +668,16 @@ class ThermoValveDistrictHeatingPowerVectorEnv(ThermoValveTaskVectorEnv):
     task_id: ClassVar[str] = "ThermoValveDistrictHeatingPower-v0"
 
 
+class ThermoValveDistrictHeatingV1VectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveDistrictHeatingV1Env.__doc__
+    task_id: ClassVar[str] = "ThermoValveDistrictHeating-v1"
+
+
+class ThermoValveDistrictHeatingPowerV1VectorEnv(ThermoValveTaskVectorEnv):
+    __doc__ = ThermoValveDistrictHeatingPowerV1Env.__doc__
+    task_id: ClassVar[str] = "ThermoValveDistrictHeatingPower-v1"
+
+
 def make_task_env(task_id: str, render_mode: str | None = None, **kwargs: Any) -> gym.Env:
     """A task's single env by id, with the sensor wrappers its configuration asks for
     (as valve_env.envs.make_thermovalve does for the original ids)."""
@@ -574,7 +697,11 @@ __all__ = [
     "TaskSimState",
     "ThermoValveDistrictHeatingEnv",
     "ThermoValveDistrictHeatingPowerEnv",
+    "ThermoValveDistrictHeatingPowerV1Env",
+    "ThermoValveDistrictHeatingPowerV1VectorEnv",
     "ThermoValveDistrictHeatingPowerVectorEnv",
+    "ThermoValveDistrictHeatingV1Env",
+    "ThermoValveDistrictHeatingV1VectorEnv",
     "ThermoValveDistrictHeatingVectorEnv",
     "ThermoValveSmallCylinderEnv",
     "ThermoValveSmallCylinderVectorEnv",
