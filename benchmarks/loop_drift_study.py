@@ -50,7 +50,7 @@ def drift_filter(op: np.ndarray, pv: np.ndarray, base: np.ndarray, S: float, J: 
                  k0: int, n_part: int, seed: int) -> tuple:  # pragma: no cover - compiled
     """Bootstrap particle filter of the loop model (valve_env.loops.model) with a random-walk drift of sd ``q``
     per sample on the valve's input; returns (log-likelihood over samples k0.., the mean ancestral valve path)."""
-    np.random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002 (numba: the compiled global generator, seeded per call)
     n = op.size
     dd = int(math.floor(delay))
     f = delay - dd
@@ -76,7 +76,7 @@ def drift_filter(op: np.ndarray, pv: np.ndarray, base: np.ndarray, S: float, J: 
     for k in range(n):
         for i in range(n_part):
             if k > 0:
-                drift[i] += q * np.random.standard_normal()
+                drift[i] += q * np.random.standard_normal()  # noqa: NPY002
                 y, up, dup, us, stuck, d = stick_slip_step(op[k] + drift[i], st[i, 0], st[i, 1], st[i, 2], st[i, 3],
                                                            st[i, 4], st[i, 5], S, J, -np.inf, np.inf)
                 st[i, 0], st[i, 1], st[i, 2], st[i, 3], st[i, 4], st[i, 5] = y, up, dup, us, stuck, d
@@ -99,7 +99,7 @@ def drift_filter(op: np.ndarray, pv: np.ndarray, base: np.ndarray, S: float, J: 
                 logw[i] = math.exp(logw[i] - m)
                 tot += logw[i]
             ll += m + math.log(tot / n_part)
-            u = np.random.random() / n_part
+            u = np.random.random() / n_part  # noqa: NPY002
             j = 0
             cw = logw[0] / tot
             for i in range(n_part):  # systematic resampling

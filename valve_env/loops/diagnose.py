@@ -50,8 +50,8 @@ from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
     BAND_J_FRACTIONS,
     VALVE_EXTRA_PARAMS,
-    Settings,
     ProcessFit,
+    Settings,
     ValveFit,
     bootstrap_lr,
     fit_valve,
