@@ -168,7 +168,8 @@ def closed_loop(loop: LoopData, pf: ProcessFit) -> dict[str, Any]:
     modes = []
     for z in roots[roots.imag > 1e-9]:
         cycle = 2.0 * math.pi / abs(float(np.angle(z)))
-        modes.append({"period_s": cycle * loop.dt, "decay_per_cycle": float(abs(z)) ** cycle})
+        # in logs, capped at e^50: an unstable slow mode would overflow a float (and JSON has no infinity)
+        modes.append({"period_s": cycle * loop.dt, "decay_per_cycle": math.exp(min(cycle * math.log(abs(z)), 50.0))})
     modes.sort(key=lambda m: -m["decay_per_cycle"])
     return {"controller_fit_r2": r2, "controller_coefs": [float(v) for v in b], "modes": modes}
 
