@@ -20,8 +20,10 @@ from valve_env.loops.envloop import ENV_ID, record_env_loop
 STICKY_MM = 0.1
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parse_env_args(description: str, argv: list[str] | None) -> tuple[argparse.Namespace, list[int]]:
+    """The env-loop studies' command line (this script and loop_drift_study.py): ``--env-id``, ``--seeds``,
+    ``--kp``/``--ti`` (both or neither); returns the arguments and the seeds."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--env-id", default=ENV_ID)
     ap.add_argument("--seeds", default="0-5", help="a range A-B or a comma list")
     ap.add_argument("--kp", type=float, default=None, help="PI gain, K of setting per K")
@@ -30,9 +32,13 @@ def main(argv: list[str] | None = None) -> int:
     if (a.kp is None) != (a.ti is None):
         ap.error("give both --kp and --ti, or neither")
     try:
-        seeds = int_list(a.seeds)
+        return a, int_list(a.seeds)
     except ValueError:
         ap.error(f"--seeds must be A-B or a comma list of integers, got {a.seeds!r}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    a, seeds = parse_env_args(__doc__.splitlines()[0], argv)
     named = {STICKY_MM: 0, 0.0: 0}
     causes: dict[float, Counter[str]] = {STICKY_MM: Counter(), 0.0: Counter()}
     for seed in seeds:

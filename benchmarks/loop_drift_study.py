@@ -22,22 +22,23 @@ valve (a drifting input behind a linear valve).
 """
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 from numba import njit
 
-from valve_env.cli import int_list
 from valve_env.loops.diagnose import diagnose
-from valve_env.loops.envloop import ENV_ID, record_env_loop
+from valve_env.loops.envloop import record_env_loop
 from valve_env.loops.io import LoopData
 from valve_env.loops.model import ProcessFit, Settings, fit_process, resolution, valve_path
 from valve_env.physics.stickslip import initial_state, stick_slip_step
 
-STICKY_MM = 0.1
+sys.path.insert(0, str(Path(__file__).parent))
+from env_loop_study import STICKY_MM, parse_env_args  # noqa: E402
+
 Q_FACTORS = (0.03, 0.1, 0.3)
 SIGMA_FACTORS = (1.0, 0.9)
 J_FRACTIONS = (0.0, 1.0)
@@ -152,18 +153,7 @@ def drift_gain(loop: LoopData, s: Settings, S: float, J: float, d0: float) -> fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--env-id", default=ENV_ID)
-    ap.add_argument("--seeds", default="0-5", help="a range A-B or a comma list")
-    ap.add_argument("--kp", type=float, default=None, help="PI gain, K of setting per K")
-    ap.add_argument("--ti", type=float, default=None, help="PI integral time, s")
-    a = ap.parse_args(argv)
-    if (a.kp is None) != (a.ti is None):
-        ap.error("give both --kp and --ti, or neither")
-    try:
-        seeds = int_list(a.seeds)
-    except ValueError:
-        ap.error(f"--seeds must be A-B or a comma list of integers, got {a.seeds!r}")
+    a, seeds = parse_env_args(__doc__.splitlines()[0], argv)
     gains: dict[float, list[float]] = {STICKY_MM: [], 0.0: []}
     for seed in seeds:
         for band in (STICKY_MM, 0.0):
