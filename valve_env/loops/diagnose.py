@@ -176,7 +176,10 @@ def closed_loop(loop: LoopData, pf: ProcessFit) -> dict[str, Any]:
 
 def rings(cl: dict[str, Any], period_s: float) -> bool:
     """Whether a mode of :func:`closed_loop` sustains an oscillation of ``period_s``: its period within
-    ``RING_PERIOD_FACTOR`` of it and its decay per cycle at least ``RING_DECAY_MIN``."""
+    ``RING_PERIOD_FACTOR`` of it and its decay per cycle at least ``RING_DECAY_MIN``. Weak evidence of tuning: a
+    dominating external oscillation biases the fitted process so that the loop seems to ring at its period too
+    (closed-loop identification; docs/loops.md, "Oscillation causes"); a loop that does not ring is the informative
+    case."""
     return any(m["decay_per_cycle"] >= RING_DECAY_MIN and period_s / RING_PERIOD_FACTOR <= m["period_s"]
                <= period_s * RING_PERIOD_FACTOR for m in cl["modes"])
 
