@@ -4,13 +4,14 @@ environment").
     python benchmarks/env_loop_study.py --env-id ThermoValveStickyCirculation-v0 --seeds 100-111 --kp 5 --ti 1500
 
 For each seed: a record with a 0.1 mm stem band and one with a smooth stem (``record_env_loop``), each diagnosed
-(``valve_env.loops.diagnose``); prints one line per record and the counts. ``--kp``/``--ti`` override the PI's
-stored gains (both or neither)."""
+(``valve_env.loops.diagnose``); prints one line per record, the counts named stiction and every cause's
+count. ``--kp``/``--ti`` override the PI's stored gains (both or neither)."""
 from __future__ import annotations
 
 import argparse
 import sys
 import time
+from collections import Counter
 
 from valve_env.cli import int_list
 from valve_env.loops.diagnose import diagnose
@@ -19,8 +20,10 @@ from valve_env.loops.envloop import ENV_ID, record_env_loop
 STICKY_MM = 0.1
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parse_env_args(description: str, argv: list[str] | None) -> tuple[argparse.Namespace, list[int]]:
+    """The env-loop studies' command line (this script and loop_drift_study.py): ``--env-id``, ``--seeds``,
+    ``--kp``/``--ti`` (both or neither); returns the arguments and the seeds."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--env-id", default=ENV_ID)
     ap.add_argument("--seeds", default="0-5", help="a range A-B or a comma list")
     ap.add_argument("--kp", type=float, default=None, help="PI gain, K of setting per K")
@@ -29,19 +32,27 @@ def main(argv: list[str] | None = None) -> int:
     if (a.kp is None) != (a.ti is None):
         ap.error("give both --kp and --ti, or neither")
     try:
-        seeds = int_list(a.seeds)
+        return a, int_list(a.seeds)
     except ValueError:
         ap.error(f"--seeds must be A-B or a comma list of integers, got {a.seeds!r}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    a, seeds = parse_env_args(__doc__.splitlines()[0], argv)
     named = {STICKY_MM: 0, 0.0: 0}
+    causes: dict[float, Counter[str]] = {STICKY_MM: Counter(), 0.0: Counter()}
     for seed in seeds:
         for band in (STICKY_MM, 0.0):
             t0 = time.perf_counter()
             cause = diagnose(record_env_loop(band, seed=seed, env_id=a.env_id, Kp=a.kp, Ti_s=a.ti)).cause
             named[band] += cause == "stiction"
+            causes[band][cause] += 1
             print(f"seed {seed} band {band:g} mm: {cause} ({time.perf_counter() - t0:.1f} s)", flush=True)
     n = len(seeds)
     print(f"{a.env_id}, PI {'stored' if a.kp is None else f'Kp {a.kp:g}, Ti {a.ti:g} s'}: sticky named stiction "
           f"{named[STICKY_MM]}/{n}, smooth named stiction {named[0.0]}/{n}")
+    for band, label in ((STICKY_MM, "sticky"), (0.0, "smooth")):
+        print(f"{label} causes: " + ", ".join(f"{c} {k}" for c, k in causes[band].most_common()))
     return 0
 
 

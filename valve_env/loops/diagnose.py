@@ -28,8 +28,12 @@ the same record, with the PV's increments when the fitted process integrates) is
 decision (``decision.shape``) but does not vote (docs/loops.md, "Grouped cross-validation").
 
 Otherwise the cause is ``none`` when the loop does not oscillate, or, for an oscillating loop,
-``aggressive_tuning`` when the linear loop model reproduces the PV oscillation from the OP
-(the loop's own feedback sustains it) and ``external_oscillation`` when it does not.
+``external_oscillation`` when the linear loop model does not reproduce the PV oscillation from the OP, and when
+it does (the oscillation is the loop's own): ``aggressive_tuning`` when the fitted linear process closed by the
+controller identified from the record rings at the observed period (:func:`closed_loop`, :func:`rings`), or
+when the controller cannot be identified (the earlier rule), and ``nonlinear_oscillation`` when the linear loop
+damps it, so that a nonlinearity the likelihood did not confirm as stiction sustains it (docs/loops.md,
+"Oscillation causes"; ninth session).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
     BAND_J_FRACTIONS,
     VALVE_EXTRA_PARAMS,
+    ProcessFit,
     Settings,
     ValveFit,
     bootstrap_lr,
@@ -58,7 +63,15 @@ from valve_env.loops.model import (
     simulate,
 )
 
-CAUSES: tuple[str, ...] = ("stiction", "none", "external_oscillation", "aggressive_tuning")
+CAUSES: tuple[str, ...] = ("stiction", "none", "external_oscillation", "aggressive_tuning", "nonlinear_oscillation")
+#: the controller counts as identified from the record when its velocity-form fit explains this share of the OP
+#: moves (docs/loops.md, "Oscillation causes"); below it the earlier rule (R^2 of the linear simulation) alone decides
+CONTROLLER_FIT_R2_MIN = 0.8
+#: a linear closed-loop mode sustains the observed oscillation when it decays by less than this per cycle: the same
+#: 0.3 as the oscillation test's first ACF peak, since a noise-driven mode's ACF peaks at about its decay per cycle
+RING_DECAY_MIN = 0.3
+#: ... and its period lies within this factor of the observed one
+RING_PERIOD_FACTOR = 2.0
 #: inflation of the profile-likelihood sd of the band, from the simulated calibration study
 #: (benchmarks/loop_benchmark.py --calibrate; docs/loops.md, "Band uncertainty")
 BAND_SD_INFLATION = 1.0
@@ -131,6 +144,44 @@ def oscillation(y: np.ndarray, dt: float) -> dict[str, Any]:
     peak = float(r[i0:i1 + 1].max())
     osc = bool(reg > 1.0 and peak > 0.3)
     return {"oscillating": osc, "period_s": period * dt, "regularity": min(reg, 1e6), "acf_peak": peak}
+
+
+def closed_loop(loop: LoopData, pf: ProcessFit) -> dict[str, Any]:
+    """The linear loop's own ringing (docs/loops.md, "Oscillation causes"): the controller identified from the record
+    in velocity form, ``dOP[k] = b0 e[k] + b1 e[k-1] + b2 e[k-2]`` (``e = SP - PV``; a PI acting on this or the
+    previous sample's error, least squares), closed around the fitted linear process ``pf``; returns the fit's R^2,
+    the coefficients and the closed loop's oscillatory modes (period s, decay of the amplitude per cycle; a decay
+    above 1 is unstable), least damped first."""
+    e = loop.sp - loop.pv
+    dop = np.diff(loop.op)[1:]
+    X = np.column_stack([e[2:], e[1:-1], e[:-2]])
+    b, *_ = np.linalg.lstsq(X, dop, rcond=None)
+    r2 = 1.0 - float(np.var(dop - X @ b) / max(float(np.var(dop)), 1e-300))
+    d = int(math.floor(pf.delay))
+    f = pf.delay - d
+    num_g = np.zeros(d + 2)  # polynomials in z^-1, ascending powers: the process of model.simulate
+    num_g[d], num_g[d + 1] = 1.0 - f, f
+    num_g *= pf.K if pf.integrating else pf.K * (1.0 - pf.a)
+    den_g = np.array([1.0, -1.0 if pf.integrating else -pf.a])
+    char = np.polynomial.polynomial.polyadd(np.convolve([1.0, -1.0], den_g), np.convolve(b, num_g))
+    roots = np.roots(np.trim_zeros(char, "b"))  # ascending in z^-1 is descending in z
+    modes = []
+    for z in roots[roots.imag > 1e-9]:
+        cycle = 2.0 * math.pi / abs(float(np.angle(z)))
+        # in logs, capped at e^50: an unstable slow mode would overflow a float (and JSON has no infinity)
+        modes.append({"period_s": cycle * loop.dt, "decay_per_cycle": math.exp(min(cycle * math.log(abs(z)), 50.0))})
+    modes.sort(key=lambda m: -m["decay_per_cycle"])
+    return {"controller_fit_r2": r2, "controller_coefs": [float(v) for v in b], "modes": modes}
+
+
+def rings(cl: dict[str, Any], period_s: float) -> bool:
+    """Whether a mode of :func:`closed_loop` sustains an oscillation of ``period_s``: its period within
+    ``RING_PERIOD_FACTOR`` of it and its decay per cycle at least ``RING_DECAY_MIN``. Weak evidence of tuning: a
+    dominating external oscillation biases the fitted process so that the loop seems to ring at its period too
+    (closed-loop identification; docs/loops.md, "Oscillation causes"); a loop that does not ring is the informative
+    case."""
+    return any(m["decay_per_cycle"] >= RING_DECAY_MIN and period_s / RING_PERIOD_FACTOR <= m["period_s"]
+               <= period_s * RING_PERIOD_FACTOR for m in cl["modes"])
 
 
 def _heldout_gain(loop: LoopData, valve: str, s: Settings) -> float:
@@ -302,8 +353,14 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "initial_direction": "up" if fit.direction > 0 else "down",
             "valve_substeps": fit.substeps,
         }
-    elif osc["oscillating"]:
-        result["cause"] = "aggressive_tuning" if r2 > 0.5 else "external_oscillation"
+    cl = closed_loop(loop, lin.process)
+    if not by_likelihood and osc["oscillating"]:
+        if r2 <= 0.5:  # OP does not explain the PV oscillation: it comes from outside the loop
+            result["cause"] = "external_oscillation"
+        elif cl["controller_fit_r2"] < CONTROLLER_FIT_R2_MIN or rings(cl, osc["period_s"]):
+            result["cause"] = "aggressive_tuning"
+        else:  # inside the loop, but the linear loop damps it: a nonlinearity sustains it (docs/loops.md)
+            result["cause"] = "nonlinear_oscillation"
     result["findings"] = findings
     result["decision"] = {
         "alpha": alpha,
@@ -316,7 +373,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "shape": {k: shape[k] for k in ("statistic", "phase_signed_deg", "ratio", "tau_r", "tau_l", "integrating",
                                         "verdict")},
     }
-    result["oscillation"] = {**osc, "linear_sim_r2": r2}
+    result["oscillation"] = {**osc, "linear_sim_r2": r2, "closed_loop": cl}
     result["loop"] = {"tag": loop.tag, "source": loop.source, "n_samples": loop.n, "dt_s": loop.dt,
                       "op_range_pct": [float(loop.op.min()), float(loop.op.max())],
                       "process": lin.process.describe(s.dt)}
@@ -325,4 +382,4 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
 
 
 __all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty",
-           "sampling_offset", "BAND_CANDIDATE"]
+           "sampling_offset", "BAND_CANDIDATE", "closed_loop", "rings"]
