@@ -156,6 +156,8 @@ class Finding:
     #: issue 20: the inverse-Hessian and HAC-sandwich sds side by side and the misspecification check
     #: (valve_env.estimation.robust.robust_finding), for a named effect
     robust: dict[str, Any] | None = None
+    #: stiction's simulated null (:func:`stiction_null`), where it was run (a finding that would be named)
+    null_guard: dict[str, Any] | None = None
 
     @property
     def fit(self) -> FitResult:
@@ -189,6 +191,7 @@ class Finding:
             "relevant": bool(self.relevant),
             "effect_size_mm": float(self.effect_size_mm),
             **({"training_slips": self.training_slips} if self.training_slips is not None else {}),
+            **({"null_guard": self.null_guard} if self.null_guard is not None else {}),
             "on_top_of": list(self.reference),
             "std_method": self.std_method,
             "uncertainty": self.uncertainty,
@@ -360,6 +363,19 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         if g.significant and held:
             return g
         seen.update(slips_band_lr=float(g.lr_stat), held_out_show_band=held)
+    return _null_guarded(f, ref_fit, train, valve)
+
+
+def _null_guarded(f: Finding, ref_fit: FitResult, train: RunData, valve: ValveParams) -> Finding:
+    """Stiction's null guard (docs/diagnosis.md, "The stick-slip filter, round 9"): a stiction finding that
+    would be named is named only if its statistic exceeds every copy of :func:`stiction_null` (the
+    reference model's world with the run's inputs, the pre-processing's error included)."""
+    if not (NULL_GUARD and EFFECTS[f.effect].variance_gain and f.accepted):
+        return f
+    g = stiction_null(ref_fit, f.fit, train, valve)
+    g["passed"] = bool(g["statistic"] > max(g["null"]))
+    f.null_guard = g
+    f.significant = f.significant and g["passed"]
     return f
 
 
@@ -413,6 +429,79 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
     else:
         f.validated = f.validation_loglik_gain > min_gain and v_rms <= ref_val[0]
     return f
+
+
+#: round 9 (docs/diagnosis.md): whether a stiction finding that would be named must pass the simulated null
+NULL_GUARD = True
+#: the stiction null guard (issue 20, round 9, docs/diagnosis.md): copies of the training run simulated
+#: under the reference model, the band's grid (factors of the fitted band) on which the statistic is
+#: profiled, and the noise of the copies ("residuals": the reference fit's residuals resampled in circular
+#: blocks; "model": its white plus Ornstein-Uhlenbeck noise model)
+NULL_COPIES = 19
+NULL_BAND_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
+NULL_NOISE = "world"
+
+
+def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valve: ValveParams,
+                  copies: int = NULL_COPIES, noise: str = NULL_NOISE, seed: int = 0) -> dict[str, Any]:
+    """A parametric bootstrap of stiction's likelihood-ratio statistic under the reference model.
+
+    The statistic is the cheap one, the same on the run and on each copy: twice the largest log-likelihood
+    gain of the stick-slip filter over the reference model, both at the reference fit's parameters, over the
+    band grid ``NULL_BAND_FACTORS`` times the fitted band (nothing else refitted). The copies are the
+    reference model's opening simulated from the run's own (smoothed) temperatures and pressures at its
+    fitted parameters, plus noise (``noise``). Returns the observed statistic, the copies' statistics and
+    the fraction of copies at or above the observed one (a Monte Carlo p-value, (1 + k) / (1 + copies))."""
+    from dataclasses import replace
+
+    from valve_env.diagnosis.fitting import Model
+    from valve_env.diagnosis.stiction import resting_noise_sd
+    from valve_env.estimation.bootstrap import (
+        _ou_path,
+        block_resample,
+        denoised_run,
+        residual_block_length,
+        world_opening,
+    )
+
+    ref_model = Model(ref_fit.effects, valve)
+    stick_model = Model(stick_fit.effects, valve)
+    ref = dict(ref_fit.params)
+    band = float(stick_fit.params["band_mm"])
+    grid = [band * f for f in NULL_BAND_FACTORS]
+
+    def stat(data: RunData) -> float:
+        l0 = ref_model.loglik(data, ref)
+        best = max(stick_model.loglik(data, {**ref, "band_mm": b}) for b in grid)
+        return max(2.0 * (best - l0), 0.0)
+
+    rng = np.random.default_rng(seed)
+    obs = stat(train)
+    null = np.empty(copies)
+    block = 0
+    if noise == "world":
+        world = denoised_run(train)
+        x_w = world_opening(ref_model, world, ref)
+        sd = resting_noise_sd(train.x, float(valve.stroke), None)
+        n = len(train)
+        for i in range(copies):
+            T = world.T + train.s_T * rng.standard_normal(n)
+            M = world.M + train.s_M * rng.standard_normal(n)
+            y = x_w + sd * rng.standard_normal(n)
+            null[i] = stat(RunData.from_arrays(train.t, T, M, y, train.dp, train.ps, name="null copy"))
+    else:
+        x_ref, _, _ = ref_model.simulate(train, ref)
+        resid = train.x - x_ref
+        block = residual_block_length(resid) if noise == "residuals" else 0
+        for i in range(copies):
+            if noise == "residuals":
+                e = block_resample(resid, block, rng)
+            else:
+                e = ref["s_w"] * rng.standard_normal(len(train)) + _ou_path(train.t, ref["s_e"], ref["tau_e"], rng)
+            null[i] = stat(replace(train, x=np.ascontiguousarray(x_ref + e)))
+    k = int(np.sum(null >= obs))
+    return {"statistic": float(obs), "null": [float(v) for v in null], "p_value": (1 + k) / (1 + copies),
+            "noise": noise, "block": int(block), "band_factors": list(NULL_BAND_FACTORS)}
 
 
 def slip_sizes(x: np.ndarray, stroke: float) -> tuple[int, float | None]:
