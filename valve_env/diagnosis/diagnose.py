@@ -361,7 +361,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
                                 likelihood_band_mm=float(f.fit.params["band_mm"]), likelihood_lr=float(f.lr_stat))
         g.validated = g.validated and held
         if g.significant and held:
-            return g
+            return _null_guarded(g, ref_fit, train, valve)
         seen.update(slips_band_lr=float(g.lr_stat), held_out_show_band=held)
     return _null_guarded(f, ref_fit, train, valve)
 
