@@ -368,12 +368,12 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
 
 def _null_guarded(f: Finding, ref_fit: FitResult, train: RunData, valve: ValveParams) -> Finding:
     """Stiction's null guard (docs/diagnosis.md, "The stick-slip filter, round 9"): a stiction finding that
-    would be named is named only if its statistic exceeds every copy of :func:`stiction_null` (the
+    would be named is named only if at most ``NULL_EXCEED`` copies of :func:`stiction_null` reach its statistic (the
     reference model's world with the run's inputs, the pre-processing's error included)."""
     if not (NULL_GUARD and EFFECTS[f.effect].variance_gain and f.accepted):
         return f
     g = stiction_null(ref_fit, f.fit, train, valve)
-    g["passed"] = bool(g["statistic"] > max(g["null"]))
+    g["passed"] = bool(np.sum(np.asarray(g["null"]) >= g["statistic"]) <= NULL_EXCEED)
     f.null_guard = g
     f.significant = f.significant and g["passed"]
     return f
@@ -440,6 +440,9 @@ NULL_GUARD = True
 NULL_COPIES = 19
 NULL_BAND_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
 NULL_NOISE = "world"
+#: how many copies may reach the run's statistic (one: a single copy of 19 went wild on a development run,
+#: 3103 against a null median of 0 and the run's 912, seed 20270127 run 33, true stiction)
+NULL_EXCEED = 1
 
 
 def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valve: ValveParams,
