@@ -62,7 +62,10 @@ RESTICK_P = math.exp(-2.0)
 #: the prior probability of a slip (between measurements) at which the filter with the measured slip
 #: decision (``measured=True``) decides that a resting stem moves
 DECIDE_PRIOR = 0.999
-#: round 8 (docs/diagnosis.md): whether a resting stem's slip is weighed by each measurement
+#: rounds 8-9 (docs/diagnosis.md): whether a resting stem's slip is weighed by each measurement (in use since
+#: round 9, behind diagnose's simulated null guard); MIXTURE_SCORE: each such measurement is scored under the
+#: two-component mixture (True, in use) or under the moment-matched predictive (round 8's variant: worse on
+#: the null, LR 157 and 111 on two development `none` runs)
 MEASURED_SLIP = True
 MIXTURE_SCORE = True
 
@@ -436,7 +439,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     measurement that moves the stem estimate towards the demand.
 
     **The measured slip decision** (``measured``, default ``MEASURED_SLIP``; docs/diagnosis.md, "The
-    stick-slip filter, round 8"): a resting stem is not moment-matched between measurements. Each
+    stick-slip filter, round 8" and "round 9"): a resting stem is not moment-matched between measurements. Each
     measurement is scored once under the mixture of "stuck where it rests" (prior ``1 - p_slip``) and
     "slipped onto the demand" (prior ``p_slip``, landing sd ``landing * band``); Bayes' rule updates
     ``p_slip``, and where the slip is the more probable (``DECIDE_MOVING``) the stem is put on the demand
