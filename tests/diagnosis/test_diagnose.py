@@ -166,12 +166,10 @@ def test_small_randomised_study() -> None:
     assert not wrong, wrong
 
 
-@pytest.mark.xfail(strict=True, reason="issue 20, known and reported: the small study's stiction run (about 10 h, "
-                   "five training slips) has LR 6.6 (p = 0.005) under the shipped stick-slip filter, which catches a "
-                   "slip late where its prior slip probability stays below one half. Round 8's measured slip "
-                   "decision names it (LR 104) but named 2 of 18 development none runs stiction, so it was "
-                   "reverted (docs/diagnosis.md, 'The stick-slip filter, round 8')")
 def test_small_randomised_study_stiction() -> None:
+    """The small study's stiction run (about 10 h, five training slips): LR 6.6 (p = 0.005, `none`) under the
+    moment-matched filter of rounds 3-8; named since round 9 (the measured slip decision behind the simulated
+    null guard, docs/diagnosis.md, "The stick-slip filter, round 9")."""
     df = dict(_small_study())["stiction"]
     d = diagnose(df, bootstrap_B=0)
     assert d.cause == "stiction", d.summary()
