@@ -33,7 +33,10 @@ automatic:
    the training opening: at least two slips whose median size is the fitted band within 50 %
    (:func:`slips_show_band`). Where the slips do not show the likelihood's band, stiction is tested
    again with the band held at the slips' median, and named with it only if that is significant and
-   the held-out opening's slips show that band too (docs/diagnosis.md, "Round 7"). Where
+   the held-out opening's slips show that band too (docs/diagnosis.md, "Round 7"). A stiction finding
+   that would be named must also pass a simulated null (:func:`stiction_null`: the reference model's world
+   with the run's inputs, the temperatures' pre-processing error included; docs/diagnosis.md, "The
+   stick-slip filter, round 9"). Where
    several candidates pass, the best is the one with the largest held-out
    log-likelihood gain (:func:`rank_key`); the others are ranked by delta BIC.
 6. Forward selection: with the named effect in the model, try the remaining
@@ -451,10 +454,25 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
 
     The statistic is the cheap one, the same on the run and on each copy: twice the largest log-likelihood
     gain of the stick-slip filter over the reference model, both at the reference fit's parameters, over the
-    band grid ``NULL_BAND_FACTORS`` times the fitted band (nothing else refitted). The copies are the
-    reference model's opening simulated from the run's own (smoothed) temperatures and pressures at its
-    fitted parameters, plus noise (``noise``). Returns the observed statistic, the copies' statistics and
-    the fraction of copies at or above the observed one (a Monte Carlo p-value, (1 + k) / (1 + copies))."""
+    band grid ``NULL_BAND_FACTORS`` times the fitted band (nothing else refitted).
+
+    The copies (``noise``):
+
+    * ``"world"`` (in use): the errors-in-variables world. Its true temperatures are the run's TV-denoised
+      ones (:func:`valve_env.estimation.bootstrap.denoised_run`, which keeps the kinks of the tank's heating
+      steps), the reference model's opening is simulated from them on a 1 s grid
+      (:func:`~valve_env.estimation.bootstrap.world_opening`), and each copy adds white noise of the run's
+      measured sd to both temperature channels (re-smoothed like a measured run, so the smoothed
+      temperatures lead the world's at its kinks as the run's lead the water) and to the opening (the
+      resting steps' sd, :func:`valve_env.diagnosis.stiction.resting_noise_sd`). Under the null the stick-slip
+      filter's gain comes from that misfit (docs/diagnosis.md, rounds 5-6), which the two variants below lack;
+    * ``"model"``: the reference model's opening from the run's smoothed temperatures plus its fitted white
+      and Ornstein-Uhlenbeck noise;
+    * ``"residuals"``: the same opening plus the reference fit's residuals resampled in circular blocks.
+
+    Both of the latter gave a null of 0 on every development run tried, false findings included
+    (docs/diagnosis.md, "The stick-slip filter, round 9"). Returns the observed statistic, the copies'
+    statistics and the Monte Carlo p-value (1 + k) / (1 + copies), k the copies at or above the observed one."""
     from dataclasses import replace
 
     from valve_env.diagnosis.fitting import Model
