@@ -437,53 +437,38 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
 #: round 9 (docs/diagnosis.md): whether a stiction finding that would be named must pass the simulated null
 NULL_GUARD = True
 #: the stiction null guard (issue 20, round 9, docs/diagnosis.md): copies of the training run simulated
-#: under the reference model, the band's grid (factors of the fitted band) on which the statistic is
-#: profiled, and the noise of the copies ("residuals": the reference fit's residuals resampled in circular
-#: blocks; "model": its white plus Ornstein-Uhlenbeck noise model)
+#: under the reference model (:func:`stiction_null`), and the band's grid (factors of the fitted band) on
+#: which the statistic is profiled
 NULL_COPIES = 19
 NULL_BAND_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
-NULL_NOISE = "world"
 #: how many copies may reach the run's statistic (one: a single copy of 19 went wild on a development run,
 #: 3103 against a null median of 0 and the run's 912, seed 20270127 run 33, true stiction)
 NULL_EXCEED = 1
 
 
 def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valve: ValveParams,
-                  copies: int = NULL_COPIES, noise: str = NULL_NOISE, seed: int = 0) -> dict[str, Any]:
+                  copies: int = NULL_COPIES, seed: int = 0) -> dict[str, Any]:
     """A parametric bootstrap of stiction's likelihood-ratio statistic under the reference model.
 
     The statistic is the cheap one, the same on the run and on each copy: twice the largest log-likelihood
     gain of the stick-slip filter over the reference model, both at the reference fit's parameters, over the
     band grid ``NULL_BAND_FACTORS`` times the fitted band (nothing else refitted).
 
-    The copies (``noise``):
-
-    * ``"world"`` (in use): the errors-in-variables world. Its true temperatures are the run's TV-denoised
-      ones (:func:`valve_env.estimation.bootstrap.denoised_run`, which keeps the kinks of the tank's heating
-      steps), the reference model's opening is simulated from them on a 1 s grid
-      (:func:`~valve_env.estimation.bootstrap.world_opening`), and each copy adds white noise of the run's
-      measured sd to both temperature channels (re-smoothed like a measured run, so the smoothed
-      temperatures lead the world's at its kinks as the run's lead the water) and to the opening (the
-      resting steps' sd, :func:`valve_env.diagnosis.stiction.resting_noise_sd`). Under the null the stick-slip
-      filter's gain comes from that misfit (docs/diagnosis.md, rounds 5-6), which the two variants below lack;
-    * ``"model"``: the reference model's opening from the run's smoothed temperatures plus its fitted white
-      and Ornstein-Uhlenbeck noise;
-    * ``"residuals"``: the same opening plus the reference fit's residuals resampled in circular blocks.
-
-    Both of the latter gave a null of 0 on every development run tried, false findings included
-    (docs/diagnosis.md, "The stick-slip filter, round 9"). Returns the observed statistic, the copies'
-    statistics and the Monte Carlo p-value (1 + k) / (1 + copies), k the copies at or above the observed one."""
-    from dataclasses import replace
-
+    The copies come from the errors-in-variables world. Its true temperatures are the run's TV-denoised
+    ones (:func:`valve_env.estimation.bootstrap.denoised_run`, which keeps the kinks of the tank's heating
+    steps), the reference model's opening is simulated from them on a 1 s grid
+    (:func:`~valve_env.estimation.bootstrap.world_opening`), and each copy adds white noise of the run's
+    measured sd to both temperature channels (smoothed again like a measured run, so that the smoothed
+    temperatures lead the world's at its kinks as the run's lead the water) and to the opening (the resting
+    steps' sd, :func:`valve_env.diagnosis.stiction.resting_noise_sd`). Under the null the stick-slip filter's
+    gain comes from that misfit (docs/diagnosis.md, rounds 5-6); copies driven by the run's smoothed
+    temperatures, with the fitted noise model or the residuals resampled in blocks, lack it and gave a null
+    of 0 on every development run tried, false findings included (docs/diagnosis.md, "The stick-slip filter,
+    round 9"). Returns the observed statistic, the copies' statistics and the Monte Carlo p-value
+    (1 + k) / (1 + copies), k the copies at or above the observed one."""
     from valve_env.diagnosis.fitting import Model
     from valve_env.diagnosis.stiction import resting_noise_sd
-    from valve_env.estimation.bootstrap import (
-        _ou_path,
-        block_resample,
-        denoised_run,
-        residual_block_length,
-        world_opening,
-    )
+    from valve_env.estimation.bootstrap import denoised_run, world_opening
 
     ref_model = Model(ref_fit.effects, valve)
     stick_model = Model(stick_fit.effects, valve)
@@ -498,31 +483,19 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
 
     rng = np.random.default_rng(seed)
     obs = stat(train)
+    world = denoised_run(train)
+    x_w = world_opening(ref_model, world, ref)
+    sd = resting_noise_sd(train.x, float(valve.stroke), None)
+    n = len(train)
     null = np.empty(copies)
-    block = 0
-    if noise == "world":
-        world = denoised_run(train)
-        x_w = world_opening(ref_model, world, ref)
-        sd = resting_noise_sd(train.x, float(valve.stroke), None)
-        n = len(train)
-        for i in range(copies):
-            T = world.T + train.s_T * rng.standard_normal(n)
-            M = world.M + train.s_M * rng.standard_normal(n)
-            y = x_w + sd * rng.standard_normal(n)
-            null[i] = stat(RunData.from_arrays(train.t, T, M, y, train.dp, train.ps, name="null copy"))
-    else:
-        x_ref, _, _ = ref_model.simulate(train, ref)
-        resid = train.x - x_ref
-        block = residual_block_length(resid) if noise == "residuals" else 0
-        for i in range(copies):
-            if noise == "residuals":
-                e = block_resample(resid, block, rng)
-            else:
-                e = ref["s_w"] * rng.standard_normal(len(train)) + _ou_path(train.t, ref["s_e"], ref["tau_e"], rng)
-            null[i] = stat(replace(train, x=np.ascontiguousarray(x_ref + e)))
+    for i in range(copies):
+        T = world.T + train.s_T * rng.standard_normal(n)
+        M = world.M + train.s_M * rng.standard_normal(n)
+        y = x_w + sd * rng.standard_normal(n)
+        null[i] = stat(RunData.from_arrays(train.t, T, M, y, train.dp, train.ps, name="null copy"))
     k = int(np.sum(null >= obs))
     return {"statistic": float(obs), "null": [float(v) for v in null], "p_value": (1 + k) / (1 + copies),
-            "noise": noise, "block": int(block), "band_factors": list(NULL_BAND_FACTORS)}
+            "band_factors": list(NULL_BAND_FACTORS)}
 
 
 def slip_sizes(x: np.ndarray, stroke: float) -> tuple[int, float | None]:
