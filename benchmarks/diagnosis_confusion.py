@@ -64,7 +64,7 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     out["first_step"] = [{"effect": f.effect, "accepted": bool(f.accepted), "lr_stat": float(f.lr_stat),
                           "delta_bic": float(f.delta_bic),
                           "validation_loglik_gain": float(f.validation_loglik_gain),
-                          "training_slips": f.training_slips,
+                          "training_slips": f.training_slips, "null_guard": f.null_guard,
                           "validation_sim_rms_after_mm": float(f.validation_sim_rms_after_mm),
                           "significant": bool(f.significant), "relevant": bool(f.relevant),
                           "validated": bool(f.validated), "effect_size_mm": float(f.effect_size_mm),

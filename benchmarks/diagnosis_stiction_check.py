@@ -51,7 +51,7 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
             "lr_stat": float(f.lr_stat), "p_value": float(f.p_value), "delta_bic": float(f.delta_bic),
             "significant": bool(f.significant), "relevant": bool(f.relevant), "validated": bool(f.validated),
             "band_mm": float(f.fit.params["band_mm"]), "s_w": float(f.fit.params["s_w"]),
-            "training_slips": ts}
+            "training_slips": ts, "null_guard": f.null_guard}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -86,6 +86,12 @@ def main(argv: list[str] | None = None) -> int:
             if c["truth"] in ("none", "stiction"):
                 cases.append({**c, "seed_set": int(parts[0]), "few_slips_only": a.few_slips_only})
 
+    def guard(r: dict[str, Any]) -> str:
+        g = r.get("null_guard")
+        if not g:
+            return ""
+        return f" null: {g['statistic']:.0f} vs max {max(g['null']):.0f} ({'passed' if g['passed'] else 'stopped'})"
+
     def show(r: dict[str, Any], done: int) -> None:
         ts = r["training_slips"]
         if r.get("skipped"):
@@ -94,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
             return
         print(f"[{done}/{len(cases)}] {r['seed_set']}/{r['i']} {r['truth']:<8} -> {r['cause']:<8} "
               f"(before {r['before']}) LR {r['lr_stat']:.0f} band {r['band_mm'] * 1e3:.1f} um slips "
-              f"{ts.get('n')} med {1e3 * (ts.get('median_mm') or float('nan')):.1f} dt {r['dt_s']:g}", flush=True)
+              f"{ts.get('n')} med {1e3 * (ts.get('median_mm') or float('nan')):.1f} dt {r['dt_s']:g}{guard(r)}",
+              flush=True)
 
     results = run_cases(run_case, cases, a.workers, show)
     for truth in ("none", "stiction"):
