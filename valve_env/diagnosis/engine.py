@@ -332,30 +332,38 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
 
 
 @njit(cache=True)
-def stick_simulate(x_sub: np.ndarray, sub_idx: np.ndarray, band: float, stroke: float) -> np.ndarray:
-    """Open-loop stick-slip of the stem on the sub-step grid, sampled: the (S, J = S) model of
+def stick_simulate_sj(x_sub: np.ndarray, sub_idx: np.ndarray, S: float, J: float, stroke: float) -> np.ndarray:
+    """Open-loop stick-slip of the stem on the sub-step grid, sampled: the (S, J) model of
     :mod:`valve_env.physics.stickslip` (the generator's and the environments'): the resting stem
-    sticks until the demanded opening has moved ``band`` away, slips onto it and follows it until it
-    stops or reverses; the end stops win (physics.trajectory.stem_step). The model runs on the demand
+    sticks until the demanded opening has moved ``S`` away, slips by ``J`` towards it and follows it until
+    it stops or reverses; the end stops win (physics.trajectory.stem_step). The model runs on the demand
     freed of its noise's reversals (:func:`stick_demand`); a moving stem follows the demand as
     computed (its deviation from the cleaned path included, as in the base model's opening) and a
-    stuck one keeps the deviation it had when it stuck, so that ``band = 0`` is the base model and the
-    stem of :func:`stick_loglik` (which follows the computed demand's increments) is this one."""
+    stuck one keeps the deviation it had when it stuck, so that ``S = 0`` is the base model. The
+    diagnosis's stem is its ``J = S`` case (:func:`stick_simulate`); the (S, J) profile of the band
+    (valve_env.estimation.stick_profile) uses ``J < S``."""
     n = sub_idx.shape[0]
     out = np.empty(n)
-    c = stick_demand(x_sub, sub_idx, stroke) if band > 0.0 else x_sub
-    y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(c[0], band, band, 0.0, stroke)
+    c = stick_demand(x_sub, sub_idx, stroke) if S > 0.0 else x_sub
+    y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(c[0], S, J, 0.0, stroke)
     # the demand's deviation from the cleaned path, which a moving stem follows and a stuck one keeps
     off = x_sub[0] - c[0]
     out[0] = y + off
     for k in range(1, n):
         for j in range(sub_idx[k - 1] + 1, sub_idx[k] + 1):
-            y, u_prev, du_prev, u_s, stuck, d = stem_step(c[j], y, u_prev, du_prev, u_s, stuck, d, band, band,
-                                                          stroke)
+            y, u_prev, du_prev, u_s, stuck, d = stem_step(c[j], y, u_prev, du_prev, u_s, stuck, d, S, J, stroke)
             if stuck == 0.0:
                 off = x_sub[j] - c[j]
         out[k] = min(max(y + off, 0.0), stroke)
     return out
+
+
+@njit(cache=True)
+def stick_simulate(x_sub: np.ndarray, sub_idx: np.ndarray, band: float, stroke: float) -> np.ndarray:
+    """The diagnosis's open-loop stem, :func:`stick_simulate_sj` with ``J = S = band`` (the project's
+    stick-slip, J = S), so that ``band = 0`` is the base model and the stem of :func:`stick_loglik` (which
+    follows the computed demand's increments) is this one."""
+    return stick_simulate_sj(x_sub, sub_idx, band, band, stroke)
 
 
 # --------------------------------------------------------------------------- 3. the output-error model

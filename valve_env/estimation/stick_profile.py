@@ -37,11 +37,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit
 
-from valve_env.diagnosis.engine import ou_loglik, simulate_valve, stick_demand
-from valve_env.physics.stickslip import initial_state as stick_initial_state
-from valve_env.physics.trajectory import stem_step
+from valve_env.diagnosis.engine import ou_loglik, simulate_valve, stick_simulate_sj
 
 if TYPE_CHECKING:
     from valve_env.diagnosis.fitting import Model
@@ -53,27 +50,6 @@ PROFILE_RATIOS: tuple[float, ...] = (1.0, 1.25, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75,
 #: offsets (N) about the hysteresis-keeping F_hmax scanned at each ratio (:func:`sj_profile`)
 PROFILE_F_SCAN: tuple[float, ...] = tuple(float(v) for v in np.linspace(-0.15, 0.15, 7))
 _FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
-
-
-@njit(cache=True)
-def stick_simulate_sj(x_sub: np.ndarray, sub_idx: np.ndarray, S: float, J: float, stroke: float) -> np.ndarray:
-    """Open-loop (S, J) stick-slip of the stem on the demand ``x_sub`` of the sub-step grid, sampled at
-    ``sub_idx``: :func:`valve_env.diagnosis.engine.stick_simulate` (its J = S case) with a slip ``J``
-    (:func:`valve_env.physics.trajectory.stem_step`; the demand freed of its noise's reversals by
-    :func:`~valve_env.diagnosis.engine.stick_demand`, a moving stem following the demand as computed)."""
-    n = sub_idx.shape[0]
-    out = np.empty(n)
-    c = stick_demand(x_sub, sub_idx, stroke) if S > 0.0 else x_sub
-    y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(c[0], S, J, 0.0, stroke)
-    off = x_sub[0] - c[0]
-    out[0] = y + off
-    for k in range(1, n):
-        for j in range(sub_idx[k - 1] + 1, sub_idx[k] + 1):
-            y, u_prev, du_prev, u_s, stuck, d = stem_step(c[j], y, u_prev, du_prev, u_s, stuck, d, S, J, stroke)
-            if stuck == 0.0:
-                off = x_sub[j] - c[j]
-        out[k] = min(max(y + off, 0.0), stroke)
-    return out
 
 
 def sj_loglik(model: Model, data: RunData, values: dict[str, float], S: float, J: float) -> float:
