@@ -104,11 +104,13 @@ def confusion(results: list[dict[str, Any]]) -> dict[str, Any]:
             for k, v in r["estimate"].items():
                 true = r["effects"][r["truth"]][k]
                 s = r["std"][k]
+                pe = per_effect.setdefault(r["truth"], {"z": [], "rel": []})
+                # the relative error needs no sd: every correctly named run counts (with --bootstrap 0 a stiction
+                # band has no sd, and the error used to be summarised over the one run that had one)
+                pe["rel"].append(abs(v - true) / abs(true))
                 if s and math.isfinite(s) and s > 0:
                     z.append((v - true) / s)
-                    pe = per_effect.setdefault(r["truth"], {"z": [], "rel": []})
                     pe["z"].append((v - true) / s)
-                    pe["rel"].append(abs(v - true) / abs(true))
     z_abs = np.abs(np.array(z)) if z else np.zeros(0)
     extra = sum(1 for r in results if len(r["selected"]) > (0 if r["truth"] == "none" else 1))
     return {
@@ -121,7 +123,8 @@ def confusion(results: list[dict[str, Any]]) -> dict[str, Any]:
         "param_within_3sd": float(np.mean(z_abs <= 3)) if z else float("nan"),
         "n_param": len(z),
         "runs_with_extra_effect": extra,
-        "per_effect": {e: {"n": len(v["z"]), "within_3sd": float(np.mean(np.abs(v["z"]) <= 3)),
+        "per_effect": {e: {"n": len(v["rel"]), "n_with_sd": len(v["z"]),
+                           "within_3sd": float(np.mean(np.abs(v["z"]) <= 3)) if v["z"] else float("nan"),
                            "median_rel_error": float(np.median(v["rel"])), "max_rel_error": float(np.max(v["rel"]))}
                        for e, v in per_effect.items()},
         "seconds_median": float(np.median([r["seconds"] for r in results])) if results else float("nan"),
@@ -146,8 +149,9 @@ def markdown(c: dict[str, Any], cmd: str, results: list[dict[str, Any]]) -> str:
           f"- parameters of correctly named effects within 1/2/3 reported sd: {c['param_within_1sd']:.0%} / "
           f"{c['param_within_2sd']:.0%} / {c['param_within_3sd']:.0%} (of {c['n_param']})",
           "- per effect (correctly named runs): " + "; ".join(
-              f"{e}: {v['within_3sd']:.0%} within 3 sd, relative error median {v['median_rel_error']:.1%}, "
-              f"max {v['max_rel_error']:.1%}" for e, v in c["per_effect"].items()),
+              f"{e}: {v['within_3sd']:.0%} within 3 sd (of {v['n_with_sd']} with an sd), relative error median "
+              f"{v['median_rel_error']:.1%}, max {v['max_rel_error']:.1%} (of {v['n']})"
+              for e, v in c["per_effect"].items()),
           f"- diagnosis time per run: median {c['seconds_median']:.1f} s, max {c['seconds_max']:.1f} s "
           f"(two runs at a time on the 2-core machine)", "",
           "Randomisation: " + "; ".join(f"{k} {v[0]} {v[1:]}" for k, v in RANGES.items()) + ".", "",
