@@ -78,3 +78,19 @@ def test_env_sticky_stem_is_not_called_aggressive_tuning() -> None:
     assert d.result["oscillation"]["oscillating"]
     assert d.cause == "nonlinear_oscillation"
     assert d.result["oscillation"]["closed_loop"]["controller_fit_r2"] > 0.99
+
+
+def test_process_transfer_is_the_simulated_process() -> None:
+    """``ProcessFit.transfer`` (what closed_loop closes the controller around) is the recursion the model simulates:
+    filtered by scipy from rest, a path that starts at rest gives model.simulate's output exactly, fractional delay
+    included."""
+    from scipy.signal import lfilter
+
+    from valve_env.loops.model import ProcessFit, simulate
+
+    rng = np.random.default_rng(3)
+    x = np.concatenate([np.zeros(5), np.cumsum(rng.standard_normal(400))])
+    for a, delay in ((0.9, 2.25), (0.6, 1.0), (0.95, 3.75)):
+        pf = ProcessFit(a, delay, False, 1.7, np.zeros(1), np.zeros((x.size, 1)), (0.0, 0.0), 0.0, x.size, 3)
+        num, den = pf.transfer()
+        np.testing.assert_allclose(lfilter(num, den, x), simulate(x, pf), rtol=1e-12, atol=1e-12)

@@ -157,12 +157,7 @@ def closed_loop(loop: LoopData, pf: ProcessFit) -> dict[str, Any]:
     X = np.column_stack([e[2:], e[1:-1], e[:-2]])
     b, *_ = np.linalg.lstsq(X, dop, rcond=None)
     r2 = 1.0 - float(np.var(dop - X @ b) / max(float(np.var(dop)), 1e-300))
-    d = int(math.floor(pf.delay))
-    f = pf.delay - d
-    num_g = np.zeros(d + 2)  # polynomials in z^-1, ascending powers: the process of model.simulate
-    num_g[d], num_g[d + 1] = 1.0 - f, f
-    num_g *= pf.K if pf.integrating else pf.K * (1.0 - pf.a)
-    den_g = np.array([1.0, -1.0 if pf.integrating else -pf.a])
+    num_g, den_g = pf.transfer()  # polynomials in z^-1, ascending powers: the process of model.simulate
     char = np.polynomial.polynomial.polyadd(np.convolve([1.0, -1.0], den_g), np.convolve(b, num_g))
     roots = np.roots(np.trim_zeros(char, "b"))  # ascending in z^-1 is descending in z
     modes = []

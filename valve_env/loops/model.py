@@ -287,6 +287,19 @@ class ProcessFit:
             return math.inf
         return 0.0 if self.a <= 1e-12 else -dt / math.log(self.a)
 
+    def transfer(self) -> tuple[np.ndarray, np.ndarray]:
+        """The process from the valve path to ``K w`` as a transfer function: numerator and denominator, polynomials
+        in z^-1 in ascending powers (:func:`_filtered`'s recursion: the fractional delay ``(1-f) z^-d + f z^-(d+1)``,
+        then ``(1-a) / (1 - a z^-1)``, or ``1 / (1 - z^-1)`` when integrating), e.g. for the loop closed by the
+        controller identified from the record (valve_env.loops.diagnose.closed_loop)."""
+        d = int(math.floor(self.delay))
+        f = self.delay - d
+        num = np.zeros(d + 2)
+        num[d], num[d + 1] = 1.0 - f, f
+        num *= self.K if self.integrating else self.K * (1.0 - self.a)
+        den = np.array([1.0, -1.0 if self.integrating else -self.a])
+        return num, den
+
     def describe(self, dt: float) -> str:
         if self.integrating:
             return f"integrating, gain {self.K:.4g}/sample per %, delay {self.delay * dt:g} s"
