@@ -158,7 +158,7 @@ def closed_loop(loop: LoopData, pf: ProcessFit) -> dict[str, Any]:
     b, *_ = np.linalg.lstsq(X, dop, rcond=None)
     r2 = 1.0 - float(np.var(dop - X @ b) / max(float(np.var(dop)), 1e-300))
     num_g, den_g = pf.transfer()  # polynomials in z^-1, ascending powers: the process of model.simulate
-    char = np.polynomial.polynomial.polyadd(np.convolve([1.0, -1.0], den_g), np.convolve(b, num_g))
+    char: np.ndarray = np.polynomial.polynomial.polyadd(np.convolve([1.0, -1.0], den_g), np.convolve(b, num_g))
     roots = np.roots(np.trim_zeros(char, "b"))  # ascending in z^-1 is descending in z
     modes = []
     for z in roots[roots.imag > 1e-9]:
