@@ -63,11 +63,10 @@ RESTICK_P = math.exp(-2.0)
 #: decision (``measured=True``) decides that a resting stem moves
 DECIDE_PRIOR = 0.999
 #: rounds 8-9 (docs/diagnosis.md): whether a resting stem's slip is weighed by each measurement (in use since
-#: round 9, behind diagnose's simulated null guard); MIXTURE_SCORE: each such measurement is scored under the
-#: two-component mixture (True, in use) or under the moment-matched predictive (round 8's variant: worse on
-#: the null, LR 157 and 111 on two development `none` runs)
+#: round 9, behind diagnose's simulated null guard); each such measurement is scored under the two-component
+#: mixture (round 8's variant, scored under the moment-matched predictive, was worse on the null: LR 157 and 111
+#: on two development `none` runs; commit 97e27fb)
 MEASURED_SLIP = True
-MIXTURE_SCORE = True
 
 
 # --------------------------------------------------------------------------- 2. the valve simulation
@@ -609,15 +608,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             l_1 = math.log(p_slip) - 0.5 * (math.log(S1) + nu1 * nu1 / S1)
             top = max(l_s, l_1)
             tot = math.exp(l_s - top) + math.exp(l_1 - top)
-            if MIXTURE_SCORE:
-                lk = -0.5 * LOG2PI + top + math.log(tot)
-            else:
-                # scored under the moment-matched predictive (one Gaussian of both outcomes, as the filter
-                # without the measured decision); the measurement only decides where the stem is
-                dd = xk - ms
-                Sm = (1.0 - p_slip) * S + p_slip * S1 + p_slip * (1.0 - p_slip) * dd * dd
-                num = nu - p_slip * dd
-                lk = -0.5 * (LOG2PI + math.log(Sm) + num * num / Sm)
+            lk = -0.5 * LOG2PI + top + math.log(tot)
             p_slip = math.exp(l_1 - top) / tot
             if p_slip >= DECIDE_MOVING:
                 moving = True
