@@ -15,12 +15,23 @@ the true opening; per method and noise level this prints
 * ``x rms um``: RMS error of the opening simulated by the output-error engine with the *true*
   parameters from the pre-processed temperatures against the true opening (the driver's error as
   the valve sees it);
+* ``s/noise``: each method's estimate of the tank channel's noise sd over the true one (TV's is
+  :func:`~valve_env.estimation.temperature.noise_sd`, which sets its penalty; the smoother's is its
+  fitted measurement noise, ``RunData.s_T``, which the diagnosis uses);
 * with ``--fit``: the |error| (%) of sigma, F_hmax and p_bset fitted from each by output error
   (:class:`valve_env.diagnosis.fitting.Model`) and by the EKF
   (:class:`valve_env.estimation.fit.MLEstimator`, ``ekf_*``).
 
     python benchmarks/temperature_preprocessing.py --seeds 900 901 902 903 904 905
     python benchmarks/temperature_preprocessing.py --noise 0.01 --fit
+    python benchmarks/temperature_preprocessing.py --survey 20261231 --cases 30
+
+``--survey SEED`` is the collapse survey instead (docs/estimation.md, "The collapse of the noise
+estimate"): the smoother on both temperature channels of the diagnosis study's randomised runs
+(:func:`valve_env.experiment.random_cases`, ``--cases`` of them: 5-30 s sampling, 12-30 h, noise
+0-0.01 K); per channel its noise sd over the true one (the count below 0.1, a collapse, and the
+quantiles), the RMS errors of the level and of the rate over each interval against the truth, and
+the CPU time.
 
 Nothing is tuned here: both methods run with their defaults; the seeds 900-905 were not used while
 building either method (their factors were set on the project's earlier runs).
@@ -38,9 +49,9 @@ import pandas as pd
 from valve_env.diagnosis.diagnose import check_run, prepare
 from valve_env.diagnosis.fitting import Model, RunData
 from valve_env.estimation.fit import MLEstimator
-from valve_env.estimation.temperature import denoise_temperature, smooth_temperature
+from valve_env.estimation.temperature import denoise_temperature, noise_sd, smooth_temperature
 from valve_env.estimation.valve_model import base_valve_model, prepare_inputs
-from valve_env.experiment import simulate_experiment
+from valve_env.experiment import random_cases, simulate_case, simulate_experiment
 
 
 def _rate(t: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -92,6 +103,7 @@ def _run(seed: int, noise: float, duration_h: float, dt_s: float, fit: bool) -> 
             "reversals_h": _reversals_per_h(t, T),
             "true_reversals_h": _reversals_per_h(t, truth),
             "x_rms_um": 1e3 * float(np.sqrt(np.mean((xs - x_true) ** 2))),
+            "s_over_noise": (noise_sd(df["T_tank_C"].to_numpy()) if name == "tv" else d.s_T) / noise,
         }
         if fit:
             est = model.fit(d, with_std=False).params
@@ -103,6 +115,29 @@ def _run(seed: int, noise: float, duration_h: float, dt_s: float, fit: bool) -> 
     return out
 
 
+def survey(seed: int, cases: int) -> None:
+    """The collapse survey: the smoother's noise sd, level and rate errors on the study's randomised runs."""
+    rows = []
+    cpu = 0.0
+    for case in random_cases(cases, seed):
+        df = simulate_case(case)
+        t = df["time_s"].to_numpy()
+        for col in ("T_tank_C", "T_med_C"):
+            truth = df[f"true_{col}"].to_numpy()
+            c0 = time.process_time()
+            level, _, s, _ = smooth_temperature(t, df[col].to_numpy())
+            cpu += time.process_time() - c0
+            rows.append((s / case["T_noise_C"], 1e3 * float(np.sqrt(np.mean((level - truth) ** 2))),
+                         3.6e6 * float(np.sqrt(np.mean((_rate(t, level) - _rate(t, truth)) ** 2)))))
+    a = np.array(rows)
+    q = np.quantile(a[:, 0], [0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0])
+    print(f"seed {seed}, {cases} cases, {len(a)} channels: s/noise < 0.1 (collapsed) on {int((a[:, 0] < 0.1).sum())}; "
+          f"quantiles 0/10/25/50/75/90/100 % {' '.join(f'{v:.3g}' for v in q)}")
+    print(f"T error mK RMS mean {a[:, 1].mean():.3g} (max {a[:, 1].max():.3g}); rate error mK/h RMS mean "
+          f"{a[:, 2].mean():.4g} (max {a[:, 2].max():.4g}); smoother CPU {cpu:.1f} s ({1e3 * cpu / len(a):.0f} ms "
+          "per channel)")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[900, 901, 902, 903, 904, 905])
@@ -112,9 +147,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fit", action="store_true",
                     help="also fit the base model by output error from each and report |error| %% of sigma, "
                          "F_hmax, p_bset")
+    ap.add_argument("--survey", type=int, metavar="SEED",
+                    help="run the collapse survey on the study's randomised runs of this seed instead")
+    ap.add_argument("--cases", type=int, default=30, help="--survey's number of runs (two channels each)")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    keys = ["T_rms_mK", "Tmed_rms_mK", "rate_rms_mK_h", "reversals_h", "x_rms_um"]
+    if args.survey is not None:
+        survey(args.survey, args.cases)
+        print(f"{time.perf_counter() - t0:.0f} s")
+        return 0
+    keys = ["T_rms_mK", "Tmed_rms_mK", "rate_rms_mK_h", "reversals_h", "x_rms_um", "s_over_noise"]
     if args.fit:
         keys += ["sigma_err_pct", "F_hmax_err_pct", "p_bset_err_pct", "ekf_sigma_err_pct", "ekf_F_hmax_err_pct",
                  "ekf_p_bset_err_pct"]
