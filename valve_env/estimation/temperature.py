@@ -5,8 +5,9 @@ likelihood, kept both for a measured reason (``benchmarks/temperature_preprocess
 docs/estimation.md, "Temperature pre-processing"):
 
 * :func:`smooth_temperature`: a robust integrated-random-walk Rauch-Tung-Striebel smoother
-  (maximum-likelihood noise levels, a scale mixture for the kinks of the heating). Smooth level and
-  rate at every sample, zero phase. The output-error likelihood of the diagnosis
+  (Student-t process noise for the kinks of the heating, the noise levels by variational EM; its
+  measurement noise sd is the channel's ``s_T``/``s_M``). Smooth level and rate at every sample,
+  zero phase. The output-error likelihood of the diagnosis
   (:mod:`valve_env.diagnosis.engine`) drives its fine-grid valve simulation with it, after removing
   reversals smaller than 5 noise sd (``monotone_path``).
 * :func:`denoise_temperature`: relaxed total-variation denoising (:func:`relaxed_tv`, Condat's
