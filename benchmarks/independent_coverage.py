@@ -293,6 +293,10 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
                 # the band as the breakaway travel S (the (S, J) profile) or the slips' J, and J beside it
                 ss = [r.get("stick_slip") or {} for r in rs]
                 entry["breakaway_applied"] = [s.get("applied") for s in ss]
+                # the stick-slip filter's profile of S / J (tenth round; the ninth round's open-loop profile
+                # before it) and the stick-slip check's statistic, which decide it
+                entry["S_over_J"] = [s.get("profile_S_over_J") for s in ss]
+                entry["travel_over_slip"] = [s.get("travel_over_slip_median") for s in ss]
                 entry["J_rel_err"] = [s["J_mm"] / r["true_value"] - 1.0 if "J_mm" in s else float("nan")
                                       for s, r in zip(ss, rs, strict=True)]
         summ[key] = entry
@@ -410,6 +414,8 @@ def _print_effects(summ: dict[str, Any]) -> None:
             if "breakaway_applied" in e:
                 rel_j = ", ".join(f"{v:+.0%}" for v in e["J_rel_err"])
                 line += f"  S from the (S, J) profile {e['breakaway_applied']}  J rel err [{rel_j}]"
+                if "S_over_J" in e:
+                    line += f"  S/J {e['S_over_J']}"
         print(line)
         for name, c in e.get("by_sd", {}).items():
             print(f"    {name:10s} over {c['n']} named: 1sd {c['cover_1sd']:.0%} 2sd {c['cover_2sd']:.0%} "

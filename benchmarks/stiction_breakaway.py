@@ -1,13 +1,15 @@
-"""Stiction's breakaway travel S beside its slip J (issue 20, ninth round): the (S, J) profile on stick-slip runs
-of the independent simulator's variants ``reset``, ``sj`` and ``force`` and of the project's generator
-(docs/uncertainty.md, "Issue 20, ninth round").
+"""Stiction's breakaway travel S beside its slip J (issue 20, ninth and tenth rounds): the (S, J) profiles on
+stick-slip runs of the independent simulator's variants ``reset``, ``sj`` and ``force`` and of the project's
+generator (docs/uncertainty.md, "Issue 20, ninth round" and "Tenth round").
 
 Each run is drawn and diagnosed as ``benchmarks/stiction_misspecification.py`` does it (stiction the only
-candidate, no bootstrap, the training part); then the profile of S / J
-(:func:`valve_env.estimation.stick_profile.sj_profile`) and the stick-slip check's statistic are taken at the ML
-estimate, and :func:`valve_env.estimation.bootstrap.breakaway_evident` says whether the diagnosis's bootstrap
-would report S (the profile's) or J (the slips') as the band. Printed per run: the truth S, the slips' band J,
-the profile's S / J and its sd, both errors against S, the check's statistic and the decision.
+candidate, no bootstrap, the training part); then the profiles of S / J
+(:func:`valve_env.estimation.stick_profile.sj_profile`: the ninth round's open-loop one, and the tenth round's
+on the stick-slip filter's likelihood, :func:`~valve_env.estimation.stick_profile.sj_filter_loglik`) and the
+stick-slip check's statistic are taken at the ML estimate, and :func:`valve_env.estimation.bootstrap.breakaway_evident`
+(on the filter's profile) says whether the diagnosis's bootstrap would report S or J (the slips') as the band.
+Printed per run: the truth S, the slips' band J, both profiles' S / J, the filter's gain over J = S, the errors
+against S, the check's statistic and the decision. ``--variants force`` runs one variant only.
 
     python benchmarks/stiction_breakaway.py --generator independent --runs 2 --seed 500 --json out/sb_i_500.json
     python benchmarks/stiction_breakaway.py --generator project --runs 3 --seed 20261126 --json out/sb_p.json
@@ -38,17 +40,24 @@ def profile_case(case: dict[str, Any]) -> dict[str, Any]:
     import tempfile
 
     from valve_env.estimation.bootstrap import breakaway_evident
-    from valve_env.estimation.stick_profile import sj_profile
+    from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile
 
     with tempfile.TemporaryDirectory() as tmp:
         out = run_case({**case, "dump": tmp})
         with open(os.path.join(tmp, f"{case['generator']}_{case['seed']}_{case['i']}.pkl"), "rb") as fh:
             dump = pickle.load(fh)
+    med = float(out.pop("misspecification")["travel_over_slip_median"])
+    if not float(dump["fit"].params.get("band_mm", 0.0)) > 0.0:
+        return {**out, "profile": None, "filter_profile": None, "travel_over_slip": med, "applied": False}
     t0 = time.process_time()
     p = sj_profile(dump["model"], dump["train"], dump["fit"].params)
-    med = float(out.pop("misspecification")["travel_over_slip_median"])
-    out.update({"profile": p.to_json(), "S_profile": p.S_mm, "travel_over_slip": med,
-                "applied": breakaway_evident(med, p.ratio), "profile_cpu_s": time.process_time() - t0})
+    t1 = time.process_time()
+    # the stick-slip filter's profile (tenth round): the diagnosis's likelihood with slips of J < S
+    pf = sj_profile(dump["model"], dump["train"], dump["fit"].params, loglik=sj_filter_loglik)
+    applied = breakaway_evident(med, pf.ratio)
+    out.update({"profile": p.to_json(), "S_profile": p.S_mm, "travel_over_slip": med, "applied": applied,
+                "profile_cpu_s": t1 - t0, "filter_profile": pf.to_json(), "S_filter": pf.S_mm,
+                "S_reported": pf.S_mm if applied else float(out["band"]), "filter_cpu_s": time.process_time() - t1})
     return out
 
 
@@ -58,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=2, help="runs per stick-slip variant")
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--variants", default="", help="only these stick-slip variants (comma-separated, e.g. force)")
     ap.add_argument("--json", dest="json_out", required=True)
     ap.add_argument("--force", action="store_true", help="replace an existing --json file")
     a = ap.parse_args(argv)
@@ -70,15 +80,22 @@ def main(argv: list[str] | None = None) -> int:
     except OutputError as exc:
         print(f"thermovalve: error: {exc}", file=sys.stderr)
         return 2
-    cs = [c for c in cases("effects", a.generator, a.runs, 0, a.seed) if c["effect"] == "stiction"]
+    keep = {v for v in a.variants.split(",") if v}
+    cs = [c for c in cases("effects", a.generator, a.runs, 0, a.seed)
+          if c["effect"] == "stiction" and (not keep or c["variant"] in keep)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as ex:
         res = list(ex.map(profile_case, cs))
     for r in res:
+        if r["profile"] is None:
+            print(f"{r['generator']:11s} {r['i']:3d} {r['variant']!s:6s} named {r['named']!s:5s} no band fitted")
+            continue
         S, J = r["true_band"], r["band"]
         print(f"{r['generator']:11s} {r['i']:3d} {r['variant']!s:6s} named {r['named']!s:5s} S {S:.4f} J {J:.4f} "
               f"S/J profile {r['profile']['profile_S_over_J']:.2f} +- {r['profile']['profile_S_over_J_sd']:.2f}  "
-              f"err: profile {r['S_profile'] / S - 1:+.0%} slips {J / S - 1:+.0%}  "
+              f"filter {r['filter_profile']['profile_S_over_J']:.2f} "
+              f"(+{max(r['filter_profile']['profile_loglik'].values()):.0f})  "
+              f"err: profile {r['S_profile'] / S - 1:+.0%} filter {r['S_filter'] / S - 1:+.0%} slips {J / S - 1:+.0%}  "
               f"travel/slip {r['travel_over_slip']:.2f}  band = {'S' if r['applied'] else 'J'}")
     doc = {"generator": a.generator, "seed": a.seed, "runs": len(cs), "results": res,
            "seconds": time.perf_counter() - t0, "machine": platform.platform(), "command": " ".join(sys.argv)}

@@ -411,7 +411,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                  stroke: float, s_w: float, s_e: float, tau_e: float,
                  mask: np.ndarray, spread: float = BAND_SPREAD,
                  landing: float = LANDING_SD,
-                 measured: bool = MEASURED_SLIP) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+                 measured: bool = MEASURED_SLIP,
+                 slip: float = -1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
     The stem follows the (S, J = S) model of :mod:`valve_env.physics.stickslip` (:func:`stick_simulate`):
@@ -459,6 +460,12 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     With ``band = 0`` the stem always slips onto the demand with no uncertainty and the likelihood
     is exactly that of :func:`ou_loglik` on ``y - x`` (the base model): the models are nested.
 
+    **The slip J** (``slip``; negative, the default: ``J = band``, the diagnosis's stem, whose arithmetic is
+    then the J = S filter's exactly): with ``0 < slip < band`` the stem of :func:`stick_simulate_sj` with
+    ``S = band``: a slip lands ``band - slip`` short of the demand (at most the distance it broke away at),
+    and the moving stem follows the demand's increments with that lag (issue 20, tenth round;
+    docs/uncertainty.md, "Tenth round"). Only the measured slip decision (``measured``) carries the lag.
+
     Returns (loglik, one-step prediction errors of the hypothesis followed, their variances, each
     sample's log-likelihood term: the mixture's where the filter weighed hypotheses, 0 off ``mask``)."""
     n = t.shape[0]
@@ -466,6 +473,10 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     vw = s_w * s_w
     vl = (landing * band) ** 2
     vb = (spread * band) ** 2
+    # the lag of a slipped stem behind the demand (0: J = S, the stem lands on the demand) and the side of
+    # the demand on which the resting stem last broke away
+    lag = band - slip if 0.0 < slip < band else 0.0
+    side = 0.0
     me = 0.0
     ms = min(max(x_sub[0], 0.0), stroke)
     Pee = ve
@@ -515,7 +526,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     # stem sticks where it is; with the measured slip decision a resting one that has more
                     # likely than not slipped since it stuck has followed the demand here and sticks here
                     if measured and not moving and p_slip >= DECIDE_MOVING:
-                        ms = min(max(xd, 0.0), stroke)
+                        ms = min(max(xd - side * lag, 0.0), stroke) if lag > 0.0 else min(max(xd, 0.0), stroke)
                         Pss = vl
                         Pes = 0.0
                     moving = False
@@ -544,10 +555,12 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     # weighs them (below). Between measurements the filter decides that the stem moves only
                     # where the prior alone makes it near certain
                     p_slip = 1.0 - (1.0 - p_slip) * (1.0 - pi)
+                    if lag > 0.0:
+                        side = 1.0 if d > 0.0 else -1.0
                     if p_slip >= DECIDE_PRIOR:
                         moving = True
                         s_alt = ms  # where it would be had it not slipped
-                        ms = xd
+                        ms = xd - side * min(lag, ad) if lag > 0.0 else xd
                         Pss = vl
                         Pes = 0.0
                 elif pi > 1e-12:
@@ -602,6 +615,9 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             # mixture of "stuck at ms" (prior 1 - p_slip) and "on the demand" (p_slip), and updates the slip
             # probability by Bayes' rule; where the slip is now the more probable, the stem moves
             xk = x_sub[sub_idx[k]]
+            if lag > 0.0:
+                # a slip of J < S lands the lag short of the demand, on the side it broke away to
+                xk = xk - side * min(lag, abs(xk - ms))
             S1 = Pee + vl + vw
             nu1 = y[k] - xk - me
             l_s = math.log(1.0 - p_slip) - 0.5 * (math.log(S) + nu * nu / S) if p_slip < 1.0 else -math.inf

@@ -90,11 +90,12 @@ BRACKET_WEIGHT = 0.5
 NORMAL_P = 1e-3
 #: stiction's band as the breakaway travel S where the slips are shorter (:func:`breakaway_band`)
 BREAKAWAY = True
-#: the least median of the demand's travel while stuck over the slip, and the least profiled S / J, at which
-#: the band is taken as S (:func:`breakaway_evident`; chosen on 49 development runs: the J = S valves' profiles
-#: reached 2.0, docs/uncertainty.md, "Issue 20, ninth round")
+#: the least median of the demand's travel while stuck over the slip, and the least S / J of the stick-slip
+#: filter's (S, J) profile, at which the band is taken as S (:func:`breakaway_evident`; docs/uncertainty.md,
+#: "Tenth round": on development runs whose travel passed the first threshold the filter's profile read
+#: 1.75-4.0 on `force` valves and 1.0-1.5 on J = S valves)
 BREAKAWAY_TRAVEL = 1.0
-BREAKAWAY_RATIO = 2.25
+BREAKAWAY_RATIO = 1.75
 
 
 @dataclass
@@ -481,31 +482,37 @@ def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float, stroke: floa
 
 def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> dict[str, object]:
     """Stiction's band as the breakaway travel S where the slips say that the stem slips less than it sticks
-    (issue 20, ninth round; docs/uncertainty.md): returns the ``stick_slip`` block of the JSON, and where it is
-    applied updates ``sm`` in place (the band's estimate, sd and 95 % interval).
+    (issue 20, ninth and tenth rounds; docs/uncertainty.md): returns the ``stick_slip`` block of the JSON, and where
+    it is applied updates ``sm`` in place (the band's estimate, sd and 95 % interval).
 
-    The band measured from the slips (``sm``'s, bias-corrected) is the slip J. The (S, J) profile
-    (:func:`valve_env.estimation.stick_profile.sj_profile`) gives the ratio k = S / J with its sd; it is applied
+    The band measured from the slips (``sm``'s, bias-corrected) is the slip J. The (S, J) profile of the stick-slip
+    filter's likelihood (:func:`valve_env.estimation.stick_profile.sj_profile` with
+    :func:`~valve_env.estimation.stick_profile.sj_filter_loglik`) gives the ratio k = S / J with its sd; it is applied
     where :func:`breakaway_evident` says so (the profile reads S / J clearly above 1 and the stick-slip check's
     statistic does not contradict it).
     Then the band is k J and its sd ``sqrt((k sd_J)^2 + (J sd_k)^2)``: the slips' sd scaled and the profile's
     width (the (S, J) trade-off). Elsewhere the band stays the slips' (J = S), and the block reports the profile
     for information. The block: ``S_mm``, ``S_sd_mm`` (the band reported), ``J_mm``, ``J_sd_mm`` (the slips'),
-    ``applied``, the profile's reading (:meth:`~valve_env.estimation.stick_profile.SJProfile.to_json`) and the
-    check's ``travel_over_slip_median``."""
+    ``applied``, the filter profile's reading (:meth:`~valve_env.estimation.stick_profile.SJProfile.to_json`), the
+    ninth round's open-loop profile's (``open_loop``, for information) and the check's
+    ``travel_over_slip_median``."""
     from valve_env.estimation.robust import stick_slip_check
-    from valve_env.estimation.stick_profile import sj_profile
+    from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile
 
     k = "band_mm"
     J, sd_J = float(sm.corrected[k]), float(sm.std[k])
     if not (math.isfinite(J) and J > 0.0):
         return {}
     check = stick_slip_check(model, data, fit, warn=False)
-    prof = sj_profile(model, data, {**fit.params, k: float(fit.params[k])})
+    values = {**fit.params, k: float(fit.params[k])}
+    # the open-loop profile (ninth round), reported for information, and the stick-slip filter's (tenth), which
+    # decides and measures S
+    prof_ol = sj_profile(model, data, values)
+    prof = sj_profile(model, data, values, loglik=sj_filter_loglik)
     med = float(check["travel_over_slip_median"])
     applied = breakaway_evident(med, prof.ratio)
     out: dict[str, object] = {"J_mm": J, "J_sd_mm": sd_J, "applied": applied, **prof.to_json(),
-                              "travel_over_slip_median": med}
+                              "open_loop": prof_ol.to_json(), "travel_over_slip_median": med}
     if applied:
         S = prof.ratio * J
         sd = math.sqrt((prof.ratio * sd_J) ** 2 + (J * prof.ratio_sd) ** 2)
@@ -520,15 +527,17 @@ def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> 
 
 def breakaway_evident(travel_over_slip: float, ratio: float) -> bool:
     """Whether the band is the (S, J) profile's S rather than the slips' J (:func:`breakaway_band`): the profile's
-    S / J is at least :data:`BREAKAWAY_RATIO`, and the fitted demand's travel while stuck over the slip
+    S / J (the stick-slip filter's, tenth round) is at least :data:`BREAKAWAY_RATIO`, and the fitted demand's travel
+    while stuck over the slip
     (the stick-slip check's statistic, :func:`valve_env.estimation.robust.stuck_travel`'s median; nan with no
     slip measured) at least :data:`BREAKAWAY_TRAVEL`: the stem stuck longer than it slipped.
 
-    The open-loop profile alone is no test of J < S: on development runs whose valve has J = S (36 runs:
-    the independent simulator's ``reset`` and ``sj``, the project generator) it put S / J above 1 on 28 and
-    reached 2.0 (a stem that re-sticks after every slip lags its demand by half a step on average; the fitted
-    demand errs near the reversals by the lag's size). The threshold lies above that, so ``force`` valves
-    whose profile reads 1.75-2.0 keep the slips' band (J)."""
+    Neither profile alone is a test of J < S: the ninth round's open-loop profile put J = S valves up to 2.0
+    and ``force`` valves at 1.75-2.75; the filter's puts some J = S valves at 1.25-2.25 too. Those valves stuck
+    less long than they slipped (travel ratio below 1: a stem that re-sticks after every slip), while on the
+    ``force`` valves the ratio is above 1 (their slip J is shorter than the breakaway travel). On the development
+    runs that pass the travel test the filter's profile read 1.0-1.5 on J = S valves and 1.75-4.0 on ``force``
+    valves (docs/uncertainty.md, "Tenth round")."""
     return bool(math.isfinite(travel_over_slip) and travel_over_slip >= BREAKAWAY_TRAVEL
                 and ratio >= BREAKAWAY_RATIO)
 

@@ -34,11 +34,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from valve_env.diagnosis.engine import ou_loglik, simulate_valve, stick_simulate_sj
+from valve_env.diagnosis.engine import ou_loglik, simulate_valve, stick_loglik, stick_simulate_sj
 
 if TYPE_CHECKING:
     from valve_env.diagnosis.fitting import Model
@@ -62,6 +62,27 @@ def sj_loglik(model: Model, data: RunData, values: dict[str, float], S: float, J
     mask = np.ones(len(data), dtype=np.bool_)
     ll, _, _ = ou_loglik(data.t, data.x - xs, values["s_w"], values["s_e"], values["tau_e"], mask)
     return float(ll)
+
+
+def sj_filter_loglik(model: Model, data: RunData, values: dict[str, float], S: float, J: float) -> float:
+    """The stick-slip filter's log-likelihood of the opening (:func:`valve_env.diagnosis.engine.stick_loglik`, the
+    diagnosis's own, with its measured slip decision) under the (S, J) stem of :mod:`valve_env.physics.stickslip`:
+    a resting stem breaks away where the demand is ``(S + J) / 2`` from it (the filter's band; from a reversal the
+    demand has then travelled S), slips ``J`` and moves ``(S - J) / 2`` behind the demand (the filter's lag). At
+    ``J = S`` this is the diagnosis's likelihood exactly."""
+    vp, e = model._vectors(values)
+    _, _, _, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, model.max_step_s,
+                                         model.delta(data, values), True)
+    mask = np.ones(len(data), dtype=np.bool_)
+    B = 0.5 * (S + J) if J < S else S
+    ll, _, _, _ = stick_loglik(data.t, data.x, x_sub, idx, B, float(model.valve.stroke), values["s_w"],
+                               values["s_e"], values["tau_e"], mask, model.band_spread, model.landing_sd, True,
+                               J if J < S else -1.0)
+    return float(ll)
+
+
+class SJLoglik(Protocol):
+    def __call__(self, model: Model, data: RunData, values: dict[str, float], S: float, J: float) -> float: ...
 
 
 @dataclass(frozen=True)
@@ -99,11 +120,13 @@ def spring_rate(model: Model, data: RunData) -> float:
 
 
 def sj_profile(model: Model, data: RunData, values: dict[str, float], J: float | None = None,
-               ratios: tuple[float, ...] = PROFILE_RATIOS, f_scan: tuple[float, ...] = PROFILE_F_SCAN) -> SJProfile:
+               ratios: tuple[float, ...] = PROFILE_RATIOS, f_scan: tuple[float, ...] = PROFILE_F_SCAN,
+               loglik: SJLoglik = sj_loglik) -> SJProfile:
     """The profile of S / J (module docstring) for a fit ``values`` of ``model`` (with stiction) to ``data``;
     ``J`` defaults to the fitted band (the slips'). At each ratio k the hysteresis of the moving branches,
     ``2 F_hmax / C + (S - J)``, is kept at the fit's: ``F_hmax`` is the fit's less ``C (k - 1) J / 2``, then
-    the best of the offsets ``f_scan`` (N) about that; the other parameters stay at the fit's."""
+    the best of the offsets ``f_scan`` (N) about that; the other parameters stay at the fit's. ``loglik`` is the
+    open-loop likelihood (:func:`sj_loglik`) or the stick-slip filter's (:func:`sj_filter_loglik`)."""
     if not ratios or ratios[0] != 1.0 or any(b <= a for a, b in zip(ratios, ratios[1:], strict=False)):
         raise ValueError("ratios must be increasing and start at 1 (the J = S model)")
     J = float(values["band_mm"] if J is None else J)
@@ -117,7 +140,7 @@ def sj_profile(model: Model, data: RunData, values: dict[str, float], J: float |
         best = -math.inf
         for dF in f_scan:
             f = max(F0 + dF, 0.05 * float(values["F_hmax"]))
-            v = sj_loglik(model, data, {**values, "F_hmax": f}, k * J, J)
+            v = loglik(model, data, {**values, "F_hmax": f}, k * J, J)
             if v > best:
                 best, F[i] = v, f
         ll[i] = best
@@ -131,5 +154,6 @@ def sj_profile(model: Model, data: RunData, values: dict[str, float], J: float |
     return SJProfile(J, tuple(ratios), tuple(map(float, ll)), float(ratios[i]), width / _FWHM, float(F[i]))
 
 
-__all__ = ["PROFILE_F_SCAN", "PROFILE_RATIOS", "SJProfile", "sj_loglik", "sj_profile", "spring_rate",
+__all__ = ["PROFILE_F_SCAN", "PROFILE_RATIOS", "SJLoglik", "SJProfile", "sj_filter_loglik", "sj_loglik", "sj_profile",
+           "spring_rate",
            "stick_simulate_sj"]
