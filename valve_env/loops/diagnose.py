@@ -7,7 +7,7 @@ structure), because the likelihood is rugged in S and the coarse grid alone miss
 Because the output-error residuals of a real loop are serially correlated, the likelihood-ratio statistic
 is scaled by ``n_eff / n`` (the residuals' effective-sample-size factor from their autocorrelation,
 statsmodels ``acf``) before it is referred to chi-square and before the BIC difference is taken. A valve
-nonlinearity is named ``stiction`` only when all three hold:
+nonlinearity is named ``stiction`` only when all of these hold:
 
 1. the adjusted likelihood-ratio test rejects the linear valve at ``alpha``;
 2. the adjusted BIC prefers it by more than 20 (``delta_bic < -20``; Kass & Raftery 1995 call 10 very strong);
@@ -15,7 +15,12 @@ nonlinearity is named ``stiction`` only when all three hold:
    fitted on one half, and on the other only the gain, offset and noise are re-estimated; the held-out
    log-likelihood gain over the linear valve, summed over both halves, must exceed ``-0.1`` times the
    adjusted LR statistic (a half often holds none of the record's few valve reversals, so a small loss
-   there is no evidence against the valve).
+   there is no evidence against the valve);
+4. on a record that oscillates, 1-3 hold again when every candidate's disturbance basis also carries a sinusoidal
+   load at the oscillation's period (the periodogram peak near the oscillation test's period; the noise order
+   chosen again): an external periodic load is the other explanation of an oscillation, and it is given to the
+   linear valve and the nonlinear ones alike, so the comparison is between valves, not disturbances
+   (:func:`with_periodic_load`; docs/loops.md, "Tenth session: external oscillation").
 
 A **parametric-bootstrap LR test** (the scan's statistic against 19 records simulated from the fitted
 linear loop, :func:`bootstrap_test`; its replicates only with ``bootstrap=True``) is reported
