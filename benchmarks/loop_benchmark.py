@@ -6,7 +6,9 @@ Prints, in one run:
   detector, overall and per loop tag, with the time per loop;
 * on simulated loops (valve_env.loops.sim, seeds --sim-seed .. +--sim-n; run whenever --sim-n > 0, with or
   without --data): the share of bands within 20 % of the truth, the 1-sd and 2-sd coverage, how many bands
-  the record resolves, and the false-alarm rate on smooth valves. Without --data no real loop is read.
+  the record resolves, and the false-alarm rate on smooth valves; and (unless --no-external) the external-oscillation
+  set: the same smooth and sticky valves under a sinusoidal load, with how many are named stiction and the causes.
+  Without --data no real loop is read.
 
     python benchmarks/loop_benchmark.py --data /path/to/plant_loops --set dev
     python benchmarks/loop_benchmark.py --data /path/to/plant_loops --set heldout --sim-seed 1000
@@ -99,33 +101,66 @@ def real_loops(data: Path, which: str) -> None:
           f"max {np.max(cpu):.2f} s (records of {np.mean(sizes):.0f} samples on average, 10 s sampling)")
 
 
+#: the external-oscillation set's load (docs/loops.md, "Tenth session: external oscillation"): a sinusoid added to the
+#: process input (``sim.simulate_loop``'s ``external_amp``, % of valve travel, like the load random walk), its period
+#: and amplitude drawn uniformly from these ranges, s and %
+EXTERNAL_PERIOD_S = (300.0, 1200.0)
+EXTERNAL_AMP = (0.5, 2.0)
+
+
 def sim_cases(seed0: int, n: int) -> list[dict]:
     """The simulated benchmark loops of seeds ``seed0 .. seed0 + n - 1``: process, band S and jump J of the
-    sticky loop (its seed), and the seed of its smooth twin."""
+    sticky loop (its seed), the seed of its smooth twin, and the external-oscillation set's sinusoid (period and
+    amplitude, drawn from their own stream, so the sticky loops and twins are those of the earlier sessions)."""
     rng = np.random.default_rng(seed0)
+    ext = np.random.default_rng([seed0, 21])
     procs = ["flow", "pressure", "temperature", "level"]
     out = []
     for i in range(n):
         S = float(rng.uniform(1.0, 4.0))
         J = S * float(rng.uniform(0.3, 1.0))
         out.append({"process": procs[i % len(procs)], "S": S, "J": J, "seed": seed0 + i,
-                    "smooth_seed": seed0 + 10_000 + i})
+                    "smooth_seed": seed0 + 10_000 + i, "ext_period_s": float(ext.uniform(*EXTERNAL_PERIOD_S)),
+                    "ext_amp": float(ext.uniform(*EXTERNAL_AMP))})
     return out
 
 
-def sim_loops(seed0: int, n: int) -> None:
+def _sim_one(job: tuple[dict, str]) -> dict:
+    """One simulated record of a case, diagnosed: ``kind`` sticky, smooth (the twin), ext_smooth or ext_sticky (the
+    same records under the case's external sinusoid)."""
+    c, kind = job
+    sticky = kind in ("sticky", "ext_sticky")
+    ext = kind.startswith("ext_")
+    loop, _ = simulate_loop(c["process"], S=c["S"] if sticky else 0.0, J=c["J"] if sticky else None,
+                            seed=c["seed"] if sticky else c["smooth_seed"],
+                            external_amp=c["ext_amp"] if ext else 0.0,
+                            external_period_s=c["ext_period_s"] if ext else 600.0)
+    t0 = time.process_time()
+    d = diagnose(loop)
+    return {"cause": d.cause, "stiction": d.result.get("stiction"), "cpu": time.process_time() - t0}
+
+
+def sim_loops(seed0: int, n: int, external: bool = True, jobs: int = 1) -> None:
     hits = cover = cover1 = found = resolved = 0
-    false_alarm = 0
-    times = []
-    print(f"\nsimulated loops, seeds {seed0}..{seed0 + n - 1}: sticky valve, S ~ U(1, 4) %, J/S ~ U(0.3, 1)")
-    for c in sim_cases(seed0, n):
+    kinds = ["sticky", "smooth"] + (["ext_smooth", "ext_sticky"] if external else [])
+    cases = sim_cases(seed0, n)
+    work = [(c, k) for c in cases for k in kinds]
+    if jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(jobs) as ex:
+            res = list(ex.map(_sim_one, work))
+    else:
+        res = [_sim_one(w) for w in work]
+    out = {(c["seed"], k): r for (c, k), r in zip(work, res, strict=True)}
+    print(f"\nsimulated loops, seeds {seed0}..{seed0 + n - 1}: sticky valve, S ~ U(1, 4) %, J/S ~ U(0.3, 1)"
+          + (f"; external set: sinusoid of period U{EXTERNAL_PERIOD_S} s, amplitude U{EXTERNAL_AMP} % of valve"
+             if external else ""))
+    for c in cases:
         proc, S, J = c["process"], c["S"], c["J"]
-        loop, truth = simulate_loop(proc, S=S, J=J, seed=c["seed"])
-        t0 = time.process_time()
-        d = diagnose(loop)
-        times.append(time.process_time() - t0)
-        st = d.result.get("stiction")
-        line = f"  {proc:12s} S={S:5.2f} J={J:5.2f}: {d.cause}"
+        r = out[(c["seed"], "sticky")]
+        st = r["stiction"]
+        line = f"  {proc:12s} S={S:5.2f} J={J:5.2f}: {r['cause']}"
         if st is not None:
             found += 1
             err = abs(st["band_pct"] - S) / S
@@ -135,13 +170,23 @@ def sim_loops(seed0: int, n: int) -> None:
             resolved += st["band_resolved"]
             line += (f" band {st['band_pct']:.2f} +/- {st['std_pct']:.2f} (error {100 * err:.0f} %"
                      f"{'' if st['band_resolved'] else ', not resolved'})")
+        if external:
+            line += (f" | external {c['ext_period_s']:.0f} s x {c['ext_amp']:.2f}: smooth "
+                     f"{out[(c['seed'], 'ext_smooth')]['cause']}, sticky {out[(c['seed'], 'ext_sticky')]['cause']}")
         print(line)
-        smooth, _ = simulate_loop(proc, S=0.0, seed=c["smooth_seed"])
-        false_alarm += diagnose(smooth).cause == "stiction"
+    times = [out[(c["seed"], "sticky")]["cpu"] for c in cases]
+    false_alarm = sum(out[(c["seed"], "smooth")]["cause"] == "stiction" for c in cases)
     print(f"named stiction on {found}/{n} sticky loops; band within 20 % of the truth: {hits}/{found}; "
           f"1-sd coverage: {cover1}/{found}; 2-sd coverage: {cover}/{found}; bands resolved (fitted band at least "
           f"one sample's OP move): {resolved}/{found}; smooth valves called stiction: {false_alarm}/{n}; "
           f"CPU time per sticky loop mean {np.mean(times):.2f} s, max {np.max(times):.2f} s")
+    if external:
+        for k, what in (("ext_smooth", "smooth valves"), ("ext_sticky", "sticky valves")):
+            causes = [out[(c["seed"], k)]["cause"] for c in cases]
+            hist = ", ".join(f"{v} {causes.count(v)}" for v in sorted(set(causes)))
+            print(f"external oscillation, {what}: named stiction {causes.count('stiction')}/{n} (causes: {hist})")
+        cpu = [r["cpu"] for r in res]
+        print(f"CPU time per loop, all {len(res)} records: mean {np.mean(cpu):.2f} s, max {np.max(cpu):.2f} s")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -150,11 +195,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", choices=("dev", "heldout", "all"), default="dev")
     ap.add_argument("--sim-seed", type=int, default=0)
     ap.add_argument("--sim-n", type=int, default=20)
+    ap.add_argument("--no-external", action="store_true",
+                    help="skip the simulated external-oscillation set (smooth, sticky valves under a sinusoidal load)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes for the simulated loops")
     args = ap.parse_args(argv)
     if args.data is not None:
         real_loops(args.data, args.set)
     if args.sim_n > 0:
-        sim_loops(args.sim_seed, args.sim_n)
+        sim_loops(args.sim_seed, args.sim_n, not args.no_external, args.jobs)
     return 0
 
 

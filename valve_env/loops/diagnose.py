@@ -7,7 +7,7 @@ structure), because the likelihood is rugged in S and the coarse grid alone miss
 Because the output-error residuals of a real loop are serially correlated, the likelihood-ratio statistic
 is scaled by ``n_eff / n`` (the residuals' effective-sample-size factor from their autocorrelation,
 statsmodels ``acf``) before it is referred to chi-square and before the BIC difference is taken. A valve
-nonlinearity is named ``stiction`` only when all three hold:
+nonlinearity is named ``stiction`` only when all of these hold:
 
 1. the adjusted likelihood-ratio test rejects the linear valve at ``alpha``;
 2. the adjusted BIC prefers it by more than 20 (``delta_bic < -20``; Kass & Raftery 1995 call 10 very strong);
@@ -15,7 +15,12 @@ nonlinearity is named ``stiction`` only when all three hold:
    fitted on one half, and on the other only the gain, offset and noise are re-estimated; the held-out
    log-likelihood gain over the linear valve, summed over both halves, must exceed ``-0.1`` times the
    adjusted LR statistic (a half often holds none of the record's few valve reversals, so a small loss
-   there is no evidence against the valve).
+   there is no evidence against the valve);
+4. on a record that oscillates, 1-3 hold again when every candidate's disturbance basis also carries a sinusoidal
+   load at the oscillation's period (the periodogram peak near the oscillation test's period; the noise order
+   chosen again): an external periodic load is the other explanation of an oscillation, and it is given to the
+   linear valve and the nonlinear ones alike, so the comparison is between valves, not disturbances
+   (:func:`with_periodic_load`; docs/loops.md, "Tenth session: external oscillation").
 
 A **parametric-bootstrap LR test** (the scan's statistic against 19 records simulated from the fitted
 linear loop, :func:`bootstrap_test`; its replicates only with ``bootstrap=True``) is reported
@@ -54,7 +59,9 @@ from valve_env.loops.model import (
     Settings,
     ValveFit,
     bootstrap_lr,
+    dominant_period,
     fit_valve,
+    load_sinusoid,
     refit_gain,
     residuals,
     resolution,
@@ -247,11 +254,13 @@ def _band_fit(loop: LoopData, fit: ValveFit, s: Settings, scan_S: float) -> Valv
                      j_fractions=BAND_J_FRACTIONS)
 
 
-def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> Settings:
-    """The AR order of the noise by BIC of the linear-valve model (then fixed for every candidate)."""
+def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2),
+                       load_period_s: float = math.inf) -> Settings:
+    """The AR order of the noise by BIC of the linear-valve model (then fixed for every candidate), with the
+    periodic load ``load_period_s`` in the disturbance basis (inf: none)."""
     best: tuple[float, Settings] | None = None
     for p in orders:
-        s = Settings(dt=loop.dt, noise_order=p)
+        s = Settings(dt=loop.dt, noise_order=p, load_period_s=load_period_s)
         fit = fit_valve(loop.op, loop.pv, "linear", s)
         if best is None or fit.bic < best[0]:
             best = (fit.bic, s)
@@ -280,14 +289,34 @@ def bootstrap_test(loop: LoopData, lin: ValveFit, s: Settings, alpha: float, see
             "p_value": (1.0 + exceed) / (1.0 + null.size), "resolution_pct": resolution(loop.op)}
 
 
-def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.01,
-             heldout: bool = True, bootstrap: bool = False) -> Diagnosis:
-    """Diagnose one loop record; returns the docs/reference.md, section 10 result and the fits behind it.
-    ``bootstrap`` runs the replicates of the non-voting parametric-bootstrap test (:func:`bootstrap_test`;
-    the LR scan itself always runs)."""
-    s = settings or select_noise_order(loop)
-    if s.dt != loop.dt:
-        s = replace(s, dt=loop.dt)
+def with_periodic_load(loop: LoopData, s: Settings, period_s: float, reselect: bool = True) -> Settings:
+    """``s`` with a sinusoidal load in every candidate's disturbance basis (docs/loops.md, "Tenth session: external
+    oscillation"), at the periodogram peak of the control error near the oscillation test's ``period_s``
+    (:func:`~valve_env.loops.model.dominant_period`); with ``reselect`` the noise order is chosen again with it."""
+    period = dominant_period(loop.pv - loop.sp, loop.dt, period_s)
+    if reselect:
+        return replace(select_noise_order(loop, load_period_s=period), dt=loop.dt)
+    return replace(s, load_period_s=period)
+
+
+@dataclass
+class Comparison:
+    """The likelihood comparison of the valve candidates under one disturbance model (settings ``s``): the fits, the
+    LR scan (``boot``), the residuals' ``n_eff / n`` factor, each candidate's finding, the better nonlinearity's
+    finding (with its held-out gain) and whether it is justified (the three conditions of the module docstring)."""
+
+    s: Settings
+    fits: dict[str, ValveFit]
+    boot: dict[str, Any]
+    neff: float
+    findings: list[dict[str, Any]]
+    nonlin: dict[str, Any]
+    justified: bool
+
+
+def compare(loop: LoopData, s: Settings, alpha: float = 0.01, heldout: bool = True,
+            bootstrap: bool = False) -> Comparison:
+    """Fit the three valve candidates with the disturbance model of ``s`` and compare them (:class:`Comparison`)."""
     fits = {"linear": fit_valve(loop.op, loop.pv, "linear", s)}
     boot = bootstrap_test(loop, fits["linear"], s, BOOTSTRAP_ALPHA, run=bootstrap)
     for v in ("backlash", "stiction"):
@@ -320,12 +349,33 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     nonlin = min((fd for fd in findings if fd["candidate"] != "linear"), key=lambda fd: fd["delta_bic"])
     gain = _heldout_gain(loop, nonlin["candidate"], s) if heldout else math.nan
     nonlin["heldout_loglik_gain"] = gain
-    by_likelihood = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
-                     and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
+    justified = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
+                 and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
+    return Comparison(s, fits, boot, f, findings, nonlin, bool(justified))
+
+
+def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.01,
+             heldout: bool = True, bootstrap: bool = False, periodic_load: bool = True) -> Diagnosis:
+    """Diagnose one loop record; returns the docs/reference.md, section 10 result and the fits behind it.
+    ``bootstrap`` runs the replicates of the non-voting parametric-bootstrap test (:func:`bootstrap_test`;
+    the LR scan itself always runs). With ``periodic_load``, a stiction finding on an oscillating record must also
+    hold when every candidate carries a sinusoidal load at the oscillation's period (:func:`with_periodic_load`;
+    docs/loops.md, "Tenth session: external oscillation")."""
+    s = settings or select_noise_order(loop)
+    if s.dt != loop.dt:
+        s = replace(s, dt=loop.dt)
+    osc = oscillation(loop.pv - loop.sp, loop.dt)
+    cmp = compare(loop, s, alpha, heldout, bootstrap)
+    fits, boot, f, findings, nonlin = cmp.fits, cmp.boot, cmp.neff, cmp.findings, cmp.nonlin
+    gain = nonlin["heldout_loglik_gain"]
+    periodic: Comparison | None = None
+    if periodic_load and cmp.justified and osc["oscillating"] and not math.isfinite(s.load_period_s):
+        periodic = compare(loop, with_periodic_load(loop, s, osc["period_s"], settings is None), alpha, heldout)
+    by_likelihood = cmp.justified and (periodic is None or periodic.justified)
+    lin = fits["linear"]
     # reported beside the decision, not part of it: Horch's CCF test on the same loop (PV increments for an
     # integrating process)
     shape = horch(loop, integrating=lin.process.integrating)
-    osc = oscillation(loop.pv - loop.sp, loop.dt)
     sim_lin = simulate(loop.op, lin.process)
     r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
     result: dict[str, Any] = {"cause": "none"}
@@ -368,6 +418,13 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "shape": {k: shape[k] for k in ("statistic", "phase_signed_deg", "ratio", "tau_r", "tau_l", "integrating",
                                         "verdict")},
     }
+    if periodic is not None:  # the check under a periodic load (docs/loops.md, "Tenth session")
+        pn = periodic.nonlin
+        result["decision"]["periodic_load"] = {
+            "period_s": periodic.s.load_period_s,
+            "amplitude": float(math.sqrt(2.0) * np.std(load_sinusoid(periodic.fits["linear"].process, periodic.s))),
+            "justified": periodic.justified, "best_nonlinear": pn["candidate"], "delta_bic": pn["delta_bic"],
+            "p_value": pn["p_value"], "heldout_loglik_gain": pn["heldout_loglik_gain"], "neff_factor": periodic.neff}
     result["oscillation"] = {**osc, "linear_sim_r2": r2, "closed_loop": cl}
     result["loop"] = {"tag": loop.tag, "source": loop.source, "n_samples": loop.n, "dt_s": loop.dt,
                       "op_range_pct": [float(loop.op.min()), float(loop.op.max())],
@@ -377,4 +434,4 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
 
 
 __all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty",
-           "sampling_offset", "BAND_CANDIDATE", "closed_loop", "rings"]
+           "sampling_offset", "BAND_CANDIDATE", "closed_loop", "rings", "Comparison", "compare", "with_periodic_load"]

@@ -213,15 +213,37 @@ def _best_process(pv: np.ndarray, x: np.ndarray, basis: np.ndarray, alist: np.nd
     return best
 
 
-def disturbance_basis(n: int, dt: float, knot_s: float) -> np.ndarray:
+def disturbance_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) -> np.ndarray:
     """Hat functions (linear B-splines) with knots every ``knot_s``: a slow load disturbance (one
-    column, a constant, when ``knot_s`` is infinite or longer than the record)."""
+    column, a constant, when ``knot_s`` is infinite or longer than the record); with a finite ``period_s``, also a
+    sine and a cosine of that period: a periodic load at the record's oscillation period, the same for every valve
+    candidate (docs/loops.md, "Tenth session: external oscillation")."""
     t = np.arange(n) * dt
     if not np.isfinite(knot_s) or knot_s >= t[-1]:
-        return np.ones((n, 1))
-    knots = np.arange(0.0, t[-1] + knot_s, knot_s)
-    B = np.maximum(0.0, 1.0 - np.abs(t[:, None] - knots[None, :]) / knot_s)
-    return np.ascontiguousarray(B[:, B.sum(axis=0) > 0])
+        B = np.ones((n, 1))
+    else:
+        knots = np.arange(0.0, t[-1] + knot_s, knot_s)
+        B = np.maximum(0.0, 1.0 - np.abs(t[:, None] - knots[None, :]) / knot_s)
+        B = B[:, B.sum(axis=0) > 0]
+    if np.isfinite(period_s):
+        ph = 2.0 * np.pi * t / period_s
+        B = np.column_stack([B, np.sin(ph), np.cos(ph)])
+    return np.ascontiguousarray(B)
+
+
+def dominant_period(r: np.ndarray, dt: float, near_s: float, factor: float = 1.5, pad: int = 8) -> float:
+    """The period (s) of the largest peak of the periodogram of ``r`` (its linear trend removed; zero-padded
+    ``pad`` times, so the peak is located to a fraction of a Fourier bin) between ``near_s / factor`` and
+    ``near_s * factor`` (and at least two samples): the least-squares period of a sinusoid near an oscillation's
+    period ``near_s`` (docs/loops.md, "Tenth session: external oscillation")."""
+    z = r - np.polyval(np.polyfit(np.arange(r.size), r, 1), np.arange(r.size))
+    m = pad * r.size
+    power = np.abs(np.fft.rfft(z, m)) ** 2
+    freq = np.fft.rfftfreq(m, dt)
+    ok = (freq >= 1.0 / (near_s * factor)) & (freq <= min(factor / near_s, 0.5 / dt))
+    if not ok.any():
+        return float(near_s)
+    return float(1.0 / freq[ok][int(np.argmax(power[ok]))])
 
 
 @dataclass(frozen=True)
@@ -240,6 +262,9 @@ class Settings:
     allow_integrating: bool = True
     n_grid: int = 16
     disturbance_knot_s: float = 1200.0
+    #: the period of a sinusoidal load in the disturbance basis of every candidate, s (inf: none; set by
+    #: valve_env.loops.diagnose for an oscillating record: docs/loops.md, "Tenth session: external oscillation")
+    load_period_s: float = math.inf
     #: the valve's steps per recorded sample, driven by the mean-preserving sub-sample OP (:func:`subsample_op`) and
     #: averaged back over each sample, as the historian averages OP; 1 is the sample-rate valve of the earlier
     #: sessions (nested). The decision's fits use ``substeps``, the band's fit ``band_substeps`` (docs/loops.md,
@@ -314,7 +339,7 @@ def fit_process(pv: np.ndarray, x: np.ndarray, s: Settings, k1: int | None = Non
     """Maximum-likelihood process for a given valve path ``x`` (samples ``k0..k1-1``)."""
     k0 = s.k0 if k0 is None else k0
     k1 = pv.size if k1 is None else k1
-    basis = disturbance_basis(pv.size, s.dt, s.disturbance_knot_s)
+    basis = disturbance_basis(pv.size, s.dt, s.disturbance_knot_s, s.load_period_s)
     rss, a, d, integ, theta, r1, r2 = _best_process(
         np.ascontiguousarray(pv, dtype=float), np.ascontiguousarray(x, dtype=float), basis, s.alist(),
         s.delays(), k0, k1, s.noise_order, s.n_iter, s.allow_integrating)
@@ -338,6 +363,14 @@ def simulate(x: np.ndarray, pf: ProcessFit) -> np.ndarray:
     (no noise): the fitted loop's simulation against the data, for the report."""
     w = _filtered(np.ascontiguousarray(x, dtype=float), pf.a, pf.delay, pf.integrating)
     return pf.K * w + pf.basis @ pf.weights
+
+
+def load_sinusoid(pf: ProcessFit, s: Settings) -> np.ndarray:
+    """The fitted sinusoidal load of :func:`disturbance_basis` (the basis's last two columns when ``s`` has a
+    finite ``load_period_s``; zeros otherwise)."""
+    if not math.isfinite(s.load_period_s):
+        return np.zeros(pf.basis.shape[0])
+    return pf.basis[:, -2:] @ pf.weights[-2:]
 
 
 def residuals(pv: np.ndarray, x: np.ndarray, pf: ProcessFit, k0: int) -> np.ndarray:
@@ -555,10 +588,10 @@ def scan_paths(op: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, list[tupl
 
 
 @functools.lru_cache(maxsize=8)
-def _scan_basis(n: int, dt: float, knot_s: float) -> tuple[np.ndarray, np.ndarray, int]:
+def _scan_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) -> tuple[np.ndarray, np.ndarray, int]:
     """The disturbance basis of a record of ``n`` samples in the scan's sparse form (columns, values, width):
     the same for the record and each of its bootstrap replicates, so built once (callers only read it)."""
-    basis = disturbance_basis(n, dt, knot_s)
+    basis = disturbance_basis(n, dt, knot_s, period_s)
     idx, val = _sparse_basis(basis)
     return idx, val, basis.shape[1]
 
@@ -567,7 +600,7 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
     """The LR scan (:class:`Scan`) of ``pv`` over the valve ``paths`` of :func:`scan_paths`."""
     xs, params = paths
     pv = np.ascontiguousarray(pv, dtype=float)
-    idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s))
+    idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s), float(s.load_period_s))
     rss = _scan_rss(pv, xs, idx, val, q, s.alist(), s.delays(), s.k0, s.allow_integrating)
     i = int(np.argmin(rss[1:])) + 1
     n = pv.size - s.k0
@@ -606,4 +639,5 @@ def bootstrap_lr(op: np.ndarray, lin: ProcessFit, s: Settings, n_boot: int, seed
 
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
            "refit_gain", "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
-           "scan_paths", "resolution", "bootstrap_lr", "simulate_noise", "subsample_op"]
+           "scan_paths", "resolution", "bootstrap_lr", "simulate_noise", "subsample_op", "disturbance_basis",
+           "dominant_period", "load_sinusoid"]
