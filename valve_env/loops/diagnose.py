@@ -49,7 +49,6 @@ from valve_env.loops.detectors import horch
 from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
     BAND_J_FRACTIONS,
-    VALVE_EXTRA_PARAMS,
     ProcessFit,
     Settings,
     ValveFit,
@@ -59,6 +58,7 @@ from valve_env.loops.model import (
     residuals,
     resolution,
     scan_paths,
+    scan_seats,
     scan_valve,
     simulate,
 )
@@ -179,15 +179,17 @@ def rings(cl: dict[str, Any], period_s: float) -> bool:
                <= period_s * RING_PERIOD_FACTOR for m in cl["modes"])
 
 
-def _heldout_gain(loop: LoopData, valve: str, s: Settings) -> float:
-    """Held-out log-likelihood gain of ``valve`` over the linear valve, summed over the two halves."""
+def _heldout_gain(loop: LoopData, valve: str, s: Settings, seat_lin: float = -math.inf,
+                  seat: float = -math.inf) -> float:
+    """Held-out log-likelihood gain of ``valve`` (on its ``seat``) over the linear valve (on ``seat_lin``), summed
+    over the two halves."""
     n = loop.n
     mid = n // 2
     gain = 0.0
     s = replace(s, n_grid=10)
     for (a0, a1), (b0, b1) in (((s.k0, mid), (mid + s.k0, n)), ((mid + s.k0, n), (s.k0, mid))):
-        lin = fit_valve(loop.op, loop.pv, "linear", s, k1=a1, k0=a0)
-        cand = fit_valve(loop.op, loop.pv, valve, s, k1=a1, k0=a0)
+        lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seat_lin), k1=a1, k0=a0)
+        cand = fit_valve(loop.op, loop.pv, valve, replace(s, seat=seat), k1=a1, k0=a0)
         ll_lin = refit_gain(loop.pv, lin.path(loop.op), lin.process, s, b0, b1).loglik
         ll_c = refit_gain(loop.pv, cand.path(loop.op), cand.process, s, b0, b1).loglik
         gain += ll_c - ll_lin
@@ -243,7 +245,8 @@ def _band_fit(loop: LoopData, fit: ValveFit, s: Settings, scan_S: float) -> Valv
     sample-rate valve, whose false-alarm rate and held-out check were calibrated."""
     if s.band_substeps == fit.substeps:
         return fit
-    return fit_valve(loop.op, loop.pv, fit.valve, replace(s, substeps=s.band_substeps), extra_S=(fit.S, scan_S),
+    return fit_valve(loop.op, loop.pv, fit.valve, replace(s, substeps=s.band_substeps, seat=fit.seat),
+                     extra_S=(fit.S, scan_S),
                      j_fractions=BAND_J_FRACTIONS)
 
 
@@ -280,6 +283,11 @@ def bootstrap_test(loop: LoopData, lin: ValveFit, s: Settings, alpha: float, see
             "p_value": (1.0 + exceed) / (1.0 + null.size), "resolution_pct": resolution(loop.op)}
 
 
+def _pct_or_none(seat: float) -> float | None:
+    """A seat level for the JSON: None for no seat (JSON has no infinity)."""
+    return float(seat) if math.isfinite(seat) else None
+
+
 def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.01,
              heldout: bool = True, bootstrap: bool = False) -> Diagnosis:
     """Diagnose one loop record; returns the docs/reference.md, section 10 result and the fits behind it.
@@ -288,17 +296,20 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     s = settings or select_noise_order(loop)
     if s.dt != loop.dt:
         s = replace(s, dt=loop.dt)
-    fits = {"linear": fit_valve(loop.op, loop.pv, "linear", s)}
-    boot = bootstrap_test(loop, fits["linear"], s, BOOTSTRAP_ALPHA, run=bootstrap)
+    # the valve's seat, each kind of valve on its own (docs/loops.md, "Loops from the environment", tenth session)
+    seats = scan_seats(loop.op, loop.pv, s)
+    s_nl = replace(s, seat=seats.nonlinear)
+    fits = {"linear": fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seats.linear))}
+    boot = bootstrap_test(loop, fits["linear"], s_nl, BOOTSTRAP_ALPHA, run=bootstrap)
     for v in ("backlash", "stiction"):
-        fits[v] = fit_valve(loop.op, loop.pv, v, s, extra_S=(boot["S_scan_pct"],))
+        fits[v] = fit_valve(loop.op, loop.pv, v, s_nl, extra_S=(boot["S_scan_pct"], seats.S))
     lin = fits["linear"]
-    e_lin = residuals(loop.pv, loop.op, lin.process, s.k0)
+    e_lin = residuals(loop.pv, lin.path(loop.op), lin.process, s.k0)
     f = neff_factor(e_lin)
     n = lin.n
     findings: list[dict[str, Any]] = []
     for name, fit in fits.items():
-        df = VALVE_EXTRA_PARAMS[name]
+        df = fit.n_params - lin.n_params  # VALVE_EXTRA_PARAMS, and a seat the linear valve has not
         lr = 2.0 * (fit.loglik - lin.loglik)
         lr_adj = max(lr, 0.0) * f
         p = float(stats.chi2.sf(lr_adj, df)) if df else 1.0
@@ -318,7 +329,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         })
     # the better valve nonlinearity by adjusted BIC
     nonlin = min((fd for fd in findings if fd["candidate"] != "linear"), key=lambda fd: fd["delta_bic"])
-    gain = _heldout_gain(loop, nonlin["candidate"], s) if heldout else math.nan
+    gain = _heldout_gain(loop, nonlin["candidate"], s, seats.linear, seats.nonlinear) if heldout else math.nan
     nonlin["heldout_loglik_gain"] = gain
     by_likelihood = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
                      and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
@@ -326,7 +337,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     # integrating process)
     shape = horch(loop, integrating=lin.process.integrating)
     osc = oscillation(loop.pv - loop.sp, loop.dt)
-    sim_lin = simulate(loop.op, lin.process)
+    sim_lin = simulate(lin.path(loop.op), lin.process)
     r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
     result: dict[str, Any] = {"cause": "none"}
     band_fit: ValveFit | None = None
@@ -347,6 +358,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "model": nonlin["candidate"],
             "initial_direction": "up" if fit.direction > 0 else "down",
             "valve_substeps": fit.substeps,
+            "seat_pct": _pct_or_none(fit.seat),
         }
     cl = closed_loop(loop, lin.process)
     if not by_likelihood and osc["oscillating"]:
@@ -362,6 +374,8 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "bootstrap": boot,
         "best_nonlinear": nonlin["candidate"],
         "neff_factor": f,
+        "seat": {"linear_pct": _pct_or_none(seats.linear), "nonlinear_pct": _pct_or_none(seats.nonlinear),
+                 "lr_scan_linear": seats.lr_linear, "lr_scan_nonlinear": seats.lr_nonlinear},
         "heldout_loglik_gain": gain,
         "justified": bool(by_likelihood),
         "by_likelihood": bool(by_likelihood),
