@@ -50,6 +50,7 @@ from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
     BAND_J_FRACTIONS,
     ProcessFit,
+    Seats,
     Settings,
     ValveFit,
     bootstrap_lr,
@@ -288,16 +289,26 @@ def _pct_or_none(seat: float) -> float | None:
     return float(seat) if math.isfinite(seat) else None
 
 
-def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.01,
-             heldout: bool = True, bootstrap: bool = False) -> Diagnosis:
-    """Diagnose one loop record; returns the docs/reference.md, section 10 result and the fits behind it.
-    ``bootstrap`` runs the replicates of the non-voting parametric-bootstrap test (:func:`bootstrap_test`;
-    the LR scan itself always runs)."""
-    s = settings or select_noise_order(loop)
-    if s.dt != loop.dt:
-        s = replace(s, dt=loop.dt)
-    # the valve's seat, each kind of valve on its own (docs/loops.md, "Loops from the environment", tenth session)
-    seats = scan_seats(loop.op, loop.pv, s)
+#: no seat for either kind of valve (the earlier sessions' comparison)
+NO_SEAT = Seats(-math.inf, -math.inf, 0.0, 0.0)
+
+
+@dataclass
+class _Comparison:
+    """The likelihood comparison of the three valve candidates on given seats (:func:`_compare`)."""
+
+    fits: dict[str, ValveFit]
+    boot: dict[str, Any]
+    neff: float
+    findings: list[dict[str, Any]]
+    nonlin: dict[str, Any]
+    gain: float
+    by_likelihood: bool
+
+
+def _compare(loop: LoopData, s: Settings, seats: Seats, alpha: float, heldout: bool, bootstrap: bool) -> _Comparison:
+    """Fit the three candidates (the linear valve on ``seats.linear``, the nonlinear ones on ``seats.nonlinear``),
+    compare them by the adjusted LR, BIC and the held-out check (the module's rule 1-3)."""
     s_nl = replace(s, seat=seats.nonlinear)
     fits = {"linear": fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seats.linear))}
     boot = bootstrap_test(loop, fits["linear"], s_nl, BOOTSTRAP_ALPHA, run=bootstrap)
@@ -333,6 +344,30 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     nonlin["heldout_loglik_gain"] = gain
     by_likelihood = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
                      and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
+    return _Comparison(fits, boot, f, findings, nonlin, gain, bool(by_likelihood))
+
+
+def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.01,
+             heldout: bool = True, bootstrap: bool = False) -> Diagnosis:
+    """Diagnose one loop record; returns the docs/reference.md, section 10 result and the fits behind it.
+    ``bootstrap`` runs the replicates of the non-voting parametric-bootstrap test (:func:`bootstrap_test`;
+    the LR scan itself always runs)."""
+    s = settings or select_noise_order(loop)
+    if s.dt != loop.dt:
+        s = replace(s, dt=loop.dt)
+    # the valve's seat (docs/loops.md, "Loops from the environment", tenth session): the comparison without a seat
+    # decides as before; where it does not name stiction and the record holds a seat, the same comparison with each
+    # kind of valve on its seat decides (the seat is searched only then)
+    cmp = _compare(loop, s, NO_SEAT, alpha, heldout, bootstrap)
+    seats = NO_SEAT if cmp.by_likelihood else scan_seats(loop.op, loop.pv, s)  # not searched when already named
+    seated = False
+    if not cmp.by_likelihood and (math.isfinite(seats.linear) or math.isfinite(seats.nonlinear)):
+        alt = _compare(loop, s, seats, alpha, heldout, bootstrap)
+        if alt.by_likelihood:
+            cmp, seated = alt, True
+    fits, boot, f, findings, nonlin, gain, by_likelihood = (cmp.fits, cmp.boot, cmp.neff, cmp.findings, cmp.nonlin,
+                                                            cmp.gain, cmp.by_likelihood)
+    lin = fits["linear"]
     # reported beside the decision, not part of it: Horch's CCF test on the same loop (PV increments for an
     # integrating process)
     shape = horch(loop, integrating=lin.process.integrating)
@@ -375,7 +410,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "best_nonlinear": nonlin["candidate"],
         "neff_factor": f,
         "seat": {"linear_pct": _pct_or_none(seats.linear), "nonlinear_pct": _pct_or_none(seats.nonlinear),
-                 "lr_scan_linear": seats.lr_linear, "lr_scan_nonlinear": seats.lr_nonlinear},
+                 "lr_scan_linear": seats.lr_linear, "lr_scan_nonlinear": seats.lr_nonlinear, "seated": seated},
         "heldout_loglik_gain": gain,
         "justified": bool(by_likelihood),
         "by_likelihood": bool(by_likelihood),

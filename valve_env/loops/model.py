@@ -605,7 +605,7 @@ SEAT_QUANTILES: tuple[float, ...] = tuple(float(q) for q in np.round(np.arange(0
 
 #: the seat's second stage: quantile steps of the seat levels and points of the band grid, searched around the first
 #: stage's seat for the valves that rest on it (docs/loops.md, "Loops from the environment", tenth session)
-SEAT_FINE_STEP = 0.0125
+SEAT_FINE_STEP = 0.025
 SEAT_FINE_SPAN = 0.1
 SEAT_FINE_N_S = 60
 
