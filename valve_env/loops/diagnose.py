@@ -23,6 +23,10 @@ linear loop, :func:`bootstrap_test`; its replicates only with ``bootstrap=True``
 the fourth session's grouped cross-validation rejected it (its Gaussian AR null is too narrow for the
 simulated smooth loops' load drift; docs/loops.md, "Decision").
 
+**The valve's seat** (docs/loops.md, "Loops from the environment", tenth session): where the comparison above does
+not name stiction and the record holds a seat (:func:`valve_env.loops.model.scan_seats`), the same comparison runs
+again with each kind of valve on its seat (the stick-slip's lower end stop) and decides (:func:`_compare`).
+
 Nothing else names it. The OP-PV cross-correlation's shape (:func:`valve_env.loops.detectors.horch` on
 the same record, with the PV's increments when the fitted process integrates) is reported beside the
 decision (``decision.shape``) but does not vote (docs/loops.md, "Grouped cross-validation").
