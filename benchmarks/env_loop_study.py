@@ -4,8 +4,9 @@ environment").
     python benchmarks/env_loop_study.py --env-id ThermoValveStickyCirculation-v0 --seeds 100-111 --kp 5 --ti 1500
 
 For each seed: a record with a 0.1 mm stem band and one with a smooth stem (``record_env_loop``), each diagnosed
-(``valve_env.loops.diagnose``); prints one line per record, the counts named stiction and every cause's
-count. ``--kp``/``--ti`` override the PI's stored gains (both or neither)."""
+(``valve_env.loops.diagnose``); prints one line per record (the cause, the band when named, the seat the
+nonlinear valves were fitted on), the counts named stiction and every cause's count. ``--kp``/``--ti`` override
+the PI's stored gains (both or neither)."""
 from __future__ import annotations
 
 import argparse
@@ -44,10 +45,15 @@ def main(argv: list[str] | None = None) -> int:
     for seed in seeds:
         for band in (STICKY_MM, 0.0):
             t0 = time.perf_counter()
-            cause = diagnose(record_env_loop(band, seed=seed, env_id=a.env_id, Kp=a.kp, Ti_s=a.ti)).cause
+            res = diagnose(record_env_loop(band, seed=seed, env_id=a.env_id, Kp=a.kp, Ti_s=a.ti)).result
+            cause = str(res["cause"])
             named[band] += cause == "stiction"
             causes[band][cause] += 1
-            print(f"seed {seed} band {band:g} mm: {cause} ({time.perf_counter() - t0:.1f} s)", flush=True)
+            seat = res["decision"]["seat"]["nonlinear_pct"]
+            band_txt = f", band {res['stiction']['band_pct']:.2f} % of OP" if cause == "stiction" else ""
+            print(f"seed {seed} band {band:g} mm: {cause}{band_txt} (seat of the nonlinear valves "
+                  f"{'none' if seat is None else format(seat, '.2f') + ' %'}; {time.perf_counter() - t0:.1f} s)",
+                  flush=True)
     n = len(seeds)
     print(f"{a.env_id}, PI {'stored' if a.kp is None else f'Kp {a.kp:g}, Ti {a.ti:g} s'}: sticky named stiction "
           f"{named[STICKY_MM]}/{n}, smooth named stiction {named[0.0]}/{n}")

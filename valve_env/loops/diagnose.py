@@ -28,6 +28,10 @@ linear loop, :func:`bootstrap_test`; its replicates only with ``bootstrap=True``
 the fourth session's grouped cross-validation rejected it (its Gaussian AR null is too narrow for the
 simulated smooth loops' load drift; docs/loops.md, "Decision").
 
+**The valve's seat** (docs/loops.md, "Loops from the environment", tenth session): where the comparison above does
+not name stiction and the record holds a seat (:func:`valve_env.loops.model.scan_seats`), the same comparison runs
+again with each kind of valve on its seat (the stick-slip's lower end stop) and decides (:func:`_compare`).
+
 Nothing else names it. The OP-PV cross-correlation's shape (:func:`valve_env.loops.detectors.horch` on
 the same record, with the PV's increments when the fitted process integrates) is reported beside the
 decision (``decision.shape``) but does not vote (docs/loops.md, "Grouped cross-validation").
@@ -54,8 +58,8 @@ from valve_env.loops.detectors import horch
 from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
     BAND_J_FRACTIONS,
-    VALVE_EXTRA_PARAMS,
     ProcessFit,
+    Seats,
     Settings,
     ValveFit,
     bootstrap_lr,
@@ -66,6 +70,7 @@ from valve_env.loops.model import (
     residuals,
     resolution,
     scan_paths,
+    scan_seats,
     scan_valve,
     simulate,
 )
@@ -186,15 +191,17 @@ def rings(cl: dict[str, Any], period_s: float) -> bool:
                <= period_s * RING_PERIOD_FACTOR for m in cl["modes"])
 
 
-def _heldout_gain(loop: LoopData, valve: str, s: Settings) -> float:
-    """Held-out log-likelihood gain of ``valve`` over the linear valve, summed over the two halves."""
+def _heldout_gain(loop: LoopData, valve: str, s: Settings, seat_lin: float = -math.inf,
+                  seat: float = -math.inf) -> float:
+    """Held-out log-likelihood gain of ``valve`` (on its ``seat``) over the linear valve (on ``seat_lin``), summed
+    over the two halves."""
     n = loop.n
     mid = n // 2
     gain = 0.0
     s = replace(s, n_grid=10)
     for (a0, a1), (b0, b1) in (((s.k0, mid), (mid + s.k0, n)), ((mid + s.k0, n), (s.k0, mid))):
-        lin = fit_valve(loop.op, loop.pv, "linear", s, k1=a1, k0=a0)
-        cand = fit_valve(loop.op, loop.pv, valve, s, k1=a1, k0=a0)
+        lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seat_lin), k1=a1, k0=a0)
+        cand = fit_valve(loop.op, loop.pv, valve, replace(s, seat=seat), k1=a1, k0=a0)
         ll_lin = refit_gain(loop.pv, lin.path(loop.op), lin.process, s, b0, b1).loglik
         ll_c = refit_gain(loop.pv, cand.path(loop.op), cand.process, s, b0, b1).loglik
         gain += ll_c - ll_lin
@@ -250,7 +257,8 @@ def _band_fit(loop: LoopData, fit: ValveFit, s: Settings, scan_S: float) -> Valv
     sample-rate valve, whose false-alarm rate and held-out check were calibrated."""
     if s.band_substeps == fit.substeps:
         return fit
-    return fit_valve(loop.op, loop.pv, fit.valve, replace(s, substeps=s.band_substeps), extra_S=(fit.S, scan_S),
+    return fit_valve(loop.op, loop.pv, fit.valve, replace(s, substeps=s.band_substeps, seat=fit.seat),
+                     extra_S=(fit.S, scan_S),
                      j_fractions=BAND_J_FRACTIONS)
 
 
@@ -299,13 +307,24 @@ def with_periodic_load(loop: LoopData, s: Settings, period_s: float, reselect: b
     return replace(s, load_period_s=period)
 
 
+def _pct_or_none(seat: float) -> float | None:
+    """A seat level for the JSON: None for no seat (JSON has no infinity)."""
+    return float(seat) if math.isfinite(seat) else None
+
+
+#: no seat for either kind of valve (the earlier sessions' comparison)
+NO_SEAT = Seats(-math.inf, -math.inf, 0.0, 0.0)
+
+
 @dataclass
 class Comparison:
-    """The likelihood comparison of the valve candidates under one disturbance model (settings ``s``): the fits, the
-    LR scan (``boot``), the residuals' ``n_eff / n`` factor, each candidate's finding, the better nonlinearity's
-    finding (with its held-out gain) and whether it is justified (the three conditions of the module docstring)."""
+    """The likelihood comparison of the valve candidates under one disturbance model (settings ``s``) and on given
+    seats (the linear valve on ``seats.linear``, the nonlinear ones on ``seats.nonlinear``): the fits, the LR scan
+    (``boot``), the residuals' ``n_eff / n`` factor, each candidate's finding, the better nonlinearity's finding (with
+    its held-out gain) and whether it is justified (the first three conditions of the module docstring)."""
 
     s: Settings
+    seats: Seats
     fits: dict[str, ValveFit]
     boot: dict[str, Any]
     neff: float
@@ -315,19 +334,21 @@ class Comparison:
 
 
 def compare(loop: LoopData, s: Settings, alpha: float = 0.01, heldout: bool = True,
-            bootstrap: bool = False) -> Comparison:
-    """Fit the three valve candidates with the disturbance model of ``s`` and compare them (:class:`Comparison`)."""
-    fits = {"linear": fit_valve(loop.op, loop.pv, "linear", s)}
-    boot = bootstrap_test(loop, fits["linear"], s, BOOTSTRAP_ALPHA, run=bootstrap)
+            bootstrap: bool = False, seats: Seats = NO_SEAT) -> Comparison:
+    """Fit the three valve candidates with the disturbance model of ``s`` on ``seats`` and compare them
+    (:class:`Comparison`)."""
+    s_nl = replace(s, seat=seats.nonlinear)
+    fits = {"linear": fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seats.linear))}
+    boot = bootstrap_test(loop, fits["linear"], s_nl, BOOTSTRAP_ALPHA, run=bootstrap)
     for v in ("backlash", "stiction"):
-        fits[v] = fit_valve(loop.op, loop.pv, v, s, extra_S=(boot["S_scan_pct"],))
+        fits[v] = fit_valve(loop.op, loop.pv, v, s_nl, extra_S=(boot["S_scan_pct"], seats.S))
     lin = fits["linear"]
-    e_lin = residuals(loop.pv, loop.op, lin.process, s.k0)
+    e_lin = residuals(loop.pv, lin.path(loop.op), lin.process, s.k0)
     f = neff_factor(e_lin)
     n = lin.n
     findings: list[dict[str, Any]] = []
     for name, fit in fits.items():
-        df = VALVE_EXTRA_PARAMS[name]
+        df = fit.n_params - lin.n_params  # VALVE_EXTRA_PARAMS, and a seat the linear valve has not
         lr = 2.0 * (fit.loglik - lin.loglik)
         lr_adj = max(lr, 0.0) * f
         p = float(stats.chi2.sf(lr_adj, df)) if df else 1.0
@@ -347,11 +368,11 @@ def compare(loop: LoopData, s: Settings, alpha: float = 0.01, heldout: bool = Tr
         })
     # the better valve nonlinearity by adjusted BIC
     nonlin = min((fd for fd in findings if fd["candidate"] != "linear"), key=lambda fd: fd["delta_bic"])
-    gain = _heldout_gain(loop, nonlin["candidate"], s) if heldout else math.nan
+    gain = _heldout_gain(loop, nonlin["candidate"], s, seats.linear, seats.nonlinear) if heldout else math.nan
     nonlin["heldout_loglik_gain"] = gain
     justified = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
                  and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
-    return Comparison(s, fits, boot, f, findings, nonlin, bool(justified))
+    return Comparison(s, seats, fits, boot, f, findings, nonlin, bool(justified))
 
 
 def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.01,
@@ -360,23 +381,42 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     ``bootstrap`` runs the replicates of the non-voting parametric-bootstrap test (:func:`bootstrap_test`;
     the LR scan itself always runs). With ``periodic_load``, a stiction finding on an oscillating record must also
     hold when every candidate carries a sinusoidal load at the oscillation's period (:func:`with_periodic_load`;
-    docs/loops.md, "Tenth session: external oscillation")."""
+    docs/loops.md, "Tenth session: external oscillation"). Where the comparison without a seat does not name
+    stiction and the record holds a seat, the same comparison with each kind of valve on its seat decides, its band
+    resolved by the record (docs/loops.md, "Loops from the environment", tenth session)."""
     s = settings or select_noise_order(loop)
     if s.dt != loop.dt:
         s = replace(s, dt=loop.dt)
     osc = oscillation(loop.pv - loop.sp, loop.dt)
+
+    def checked(c: Comparison) -> tuple[bool, Comparison | None]:
+        """Whether ``c`` names stiction, with condition 4 (the periodic load, on the same seats) where it applies."""
+        if not (periodic_load and c.justified and osc["oscillating"] and not math.isfinite(s.load_period_s)):
+            return c.justified, None
+        per = compare(loop, with_periodic_load(loop, s, osc["period_s"], settings is None), alpha, heldout,
+                      seats=c.seats)
+        return per.justified, per
+
     cmp = compare(loop, s, alpha, heldout, bootstrap)
+    by_likelihood, periodic = checked(cmp)
+    # the valve's seat: searched only where the comparison without one does not name stiction
+    seats = NO_SEAT if by_likelihood else scan_seats(loop.op, loop.pv, s)
+    seated = False
+    if not by_likelihood and (math.isfinite(seats.linear) or math.isfinite(seats.nonlinear)):
+        alt = compare(loop, s, alpha, heldout, bootstrap, seats=seats)
+        # a band below one sample's OP move is not resolved by the record (Band uncertainty): the seated fallback
+        # does not name one (the flow loops' smooth twins 16612 and 16616 were named at 0.06-0.07 % of OP)
+        if alt.justified and alt.fits[BAND_CANDIDATE].S >= sampling_offset(loop.op):
+            alt_named, alt_periodic = checked(alt)
+            if alt_named:
+                cmp, by_likelihood, periodic, seated = alt, True, alt_periodic, True
     fits, boot, f, findings, nonlin = cmp.fits, cmp.boot, cmp.neff, cmp.findings, cmp.nonlin
     gain = nonlin["heldout_loglik_gain"]
-    periodic: Comparison | None = None
-    if periodic_load and cmp.justified and osc["oscillating"] and not math.isfinite(s.load_period_s):
-        periodic = compare(loop, with_periodic_load(loop, s, osc["period_s"], settings is None), alpha, heldout)
-    by_likelihood = cmp.justified and (periodic is None or periodic.justified)
     lin = fits["linear"]
     # reported beside the decision, not part of it: Horch's CCF test on the same loop (PV increments for an
     # integrating process)
     shape = horch(loop, integrating=lin.process.integrating)
-    sim_lin = simulate(loop.op, lin.process)
+    sim_lin = simulate(lin.path(loop.op), lin.process)
     r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
     result: dict[str, Any] = {"cause": "none"}
     band_fit: ValveFit | None = None
@@ -397,6 +437,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "model": nonlin["candidate"],
             "initial_direction": "up" if fit.direction > 0 else "down",
             "valve_substeps": fit.substeps,
+            "seat_pct": _pct_or_none(fit.seat),
         }
     cl = closed_loop(loop, lin.process)
     if not by_likelihood and osc["oscillating"]:
@@ -412,6 +453,8 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "bootstrap": boot,
         "best_nonlinear": nonlin["candidate"],
         "neff_factor": f,
+        "seat": {"linear_pct": _pct_or_none(seats.linear), "nonlinear_pct": _pct_or_none(seats.nonlinear),
+                 "lr_scan_linear": seats.lr_linear, "lr_scan_nonlinear": seats.lr_nonlinear, "seated": seated},
         "heldout_loglik_gain": gain,
         "justified": bool(by_likelihood),
         "by_likelihood": bool(by_likelihood),

@@ -58,9 +58,9 @@ DIRECTIONS: tuple[float, ...] = (1.0, -1.0)
 
 
 @njit(cache=True)
-def _valve_path(op: np.ndarray, S: float, J: float, d0: float, out: np.ndarray) -> np.ndarray:
+def _valve_path(op: np.ndarray, S: float, J: float, d0: float, out: np.ndarray, seat: float) -> np.ndarray:
     # pragma: no cover - compiled
-    return stick_slip_path(op, S, J, -np.inf, np.inf, out, d0)
+    return stick_slip_path(op, S, J, seat, np.inf, out, d0)
 
 
 @functools.lru_cache(maxsize=4)
@@ -91,19 +91,36 @@ def subsample_op(op: np.ndarray, substeps: int) -> np.ndarray:
     return np.interp(t, np.arange(op.size, dtype=float), c)
 
 
-def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1) -> np.ndarray:
+def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1,
+               seat: float = -math.inf) -> np.ndarray:
     """The valve position (% of OP) for the controller output ``op``: at rest at ``op[0]``, stuck after a
     motion upwards (``direction`` +1, :func:`valve_env.physics.stickslip.initial_state`) or downwards (-1).
     With ``substeps`` > 1 the valve is driven by the sub-sample OP of :func:`subsample_op` and its position
-    averaged over each sample's interval (as the record averages OP); 1 is the sample-rate valve."""
+    averaged over each sample's interval (as the record averages OP); 1 is the sample-rate valve. ``seat`` (% of
+    OP; -inf: none) is the valve's closed position, the stick-slip's lower end stop (the input clipped at it, so a
+    stem resting on its seat breaks away only once the OP has risen the slip jump above it; :func:`seated`)."""
     op = np.ascontiguousarray(op, dtype=float)
+    seat = float(seat) if np.isfinite(seat) else -math.inf
     if S <= 0.0:
-        return op.copy()
+        return seated(op, seat).copy()
     if substeps <= 1:
-        return _valve_path(op, float(S), float(J), float(direction), np.empty_like(op))
+        return _valve_path(op, float(S), float(J), float(direction), np.empty_like(op), seat)
     fine = subsample_op(op, substeps)
-    x = _valve_path(fine, float(S), float(J), float(direction), np.empty_like(fine))
+    x = _valve_path(fine, float(S), float(J), float(direction), np.empty_like(fine), seat)
     return x.reshape(op.size, substeps).mean(axis=1)
+
+
+def seated(x: np.ndarray, seat: float) -> np.ndarray:
+    """The valve position ``x`` (% of OP) on its seat at ``seat``: a control valve closes on its seat, so below it the
+    flow is nil whatever the stem's input or stiction (docs/loops.md, "Loops from the environment", tenth session);
+    for a sticky valve the seat is the stick-slip's end stop (:func:`valve_path`'s ``seat``). ``seat`` -inf (or any
+    non-finite value) is no seat."""
+    return np.maximum(x, seat) if np.isfinite(seat) else x
+
+
+def seat_params(seat: float) -> int:
+    """The parameters a seat adds to a valve: one (its level) if there is one."""
+    return 1 if np.isfinite(seat) else 0
 
 
 @njit(cache=True)
@@ -271,6 +288,9 @@ class Settings:
     #: "Model" and "Band uncertainty"; seventh session)
     substeps: int = 1
     band_substeps: int = 4
+    #: the valve's seat, % of OP: every candidate's valve position is clipped from below at it (:func:`seated`;
+    #: docs/loops.md, "Loops from the environment", tenth session); -inf is no seat (the earlier sessions' model)
+    seat: float = -math.inf
 
     @property
     def k0(self) -> int:
@@ -392,6 +412,7 @@ class ValveFit:
     profile: list[tuple[float, float]] = field(default_factory=list)  # (S, loglik maximised over J and process)
     direction: float = 1.0  # the valve's last motion before the record (+1 up, -1 down)
     substeps: int = 1  # the valve's steps per recorded sample (Settings.substeps)
+    seat: float = -math.inf  # the valve's seat, % of OP (Settings.seat; -inf: none)
 
     @property
     def loglik(self) -> float:
@@ -406,7 +427,7 @@ class ValveFit:
         return -2.0 * self.loglik + self.n_params * math.log(self.n)
 
     def path(self, op: np.ndarray) -> np.ndarray:
-        return valve_path(op, self.S, self.J, self.direction, self.substeps)
+        return valve_path(op, self.S, self.J, self.direction, self.substeps, self.seat)
 
 
 def op_scale(op: np.ndarray) -> float:
@@ -422,15 +443,15 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
     bands added to the grid (the LR scan's best band); ``j_fractions`` the J / S values of the stiction valve
     (J profiled out at each S)."""
     if valve == "linear":
-        pf = fit_process(pv, op, s, k1, k0)
-        return ValveFit("linear", 0.0, 0.0, pf, pf.n_params)
+        pf = fit_process(pv, seated(op, s.seat), s, k1, k0)
+        return ValveFit("linear", 0.0, 0.0, pf, pf.n_params + seat_params(s.seat), seat=s.seat)
     fracs = (0.0,) if valve == "backlash" else j_fractions
     r = op_scale(op)
     grid = np.unique(np.concatenate([r * np.geomspace(S_FRACTIONS[0], S_FRACTIONS[1], s.n_grid),
                                      [v for v in extra_S if v > 0.0]]))
 
     def best_over_j(S: float) -> tuple[float, float, float, ProcessFit]:
-        cand = [(fit_process(pv, valve_path(op, S, f * S, d0, s.substeps), s, k1, k0), f * S, d0)
+        cand = [(fit_process(pv, valve_path(op, S, f * S, d0, s.substeps, s.seat), s, k1, k0), f * S, d0)
                 for f in fracs for d0 in DIRECTIONS]
         pf, J, d0 = max(cand, key=lambda c: c[0].loglik)
         return pf.loglik, J, d0, pf
@@ -454,7 +475,8 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
             best = (ll, float(res.x), J, d0, pf)
     profile.sort()
     ll, S, J, d0, pf = best
-    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile, d0, s.substeps)
+    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve] + seat_params(s.seat), profile, d0,
+                    s.substeps, s.seat)
 
 
 #: the LR scan's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md, "Decision")
@@ -569,9 +591,10 @@ def resolution(op: np.ndarray) -> float:
     return float(np.median(np.abs(np.diff(op))))
 
 
-def scan_paths(op: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
+def scan_paths(op: np.ndarray, substeps: int = 1,
+               seat: float = -math.inf) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
     """The valve paths of the scan: the linear valve first, then every (S, J, direction) of the grid (the valve
-    at ``substeps`` steps per sample, :func:`valve_path`)."""
+    at ``substeps`` steps per sample, :func:`valve_path`, on its ``seat``, :func:`seated`)."""
     op = np.ascontiguousarray(op, dtype=float)
     r = op_scale(op)
     lo = max(SCAN_S_FRACTIONS[0] * r, resolution(op))
@@ -581,9 +604,9 @@ def scan_paths(op: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, list[tupl
             for d0 in DIRECTIONS:
                 params.append((float(S), float(f * S), d0))
     xs = np.empty((len(params), op.size))
-    xs[0] = op
+    xs[0] = seated(op, seat)
     for i, (S, J, d0) in enumerate(params[1:], start=1):
-        xs[i] = valve_path(op, S, J, d0, substeps)
+        xs[i] = valve_path(op, S, J, d0, substeps, seat)
     return xs, params
 
 
@@ -609,6 +632,78 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
     return Scan(float(lr), S, J, d0)
 
 
+#: the seat levels tried (quantiles of the recorded OP: the share of the record the valve would spend closed)
+SEAT_QUANTILES: tuple[float, ...] = tuple(float(q) for q in np.round(np.arange(0.05, 0.951, 0.05), 3))
+
+
+#: the seat's second stage: quantile steps of the seat levels and points of the band grid, searched around the first
+#: stage's seat for the valves that rest on it (docs/loops.md, "Loops from the environment", tenth session)
+SEAT_FINE_STEP = 0.025
+SEAT_FINE_SPAN = 0.1
+SEAT_FINE_N_S = 60
+
+
+@dataclass(frozen=True)
+class Seats:
+    """The seat of each kind of valve (docs/loops.md, "Loops from the environment", tenth session), % of OP (-inf:
+    no seat): the linear valve's and the nonlinear valves' (backlash and stick-slip, whose stem rests on the seat and
+    breaks away from it), each the level of :data:`SEAT_QUANTILES` (or none) that the LR scan's best path of that
+    kind fits best, a level kept only where it gains more than a parameter's BIC cost (``log n``) over no seat; the
+    scan's LR statistics of each kind seated against unseated; and, for a seated nonlinear valve, the band of the
+    second stage's best path (``S``; 0 when there is none), whose seat is ``nonlinear``."""
+
+    linear: float
+    nonlinear: float
+    lr_linear: float
+    lr_nonlinear: float
+    S: float = 0.0
+
+
+def _scan_rss_paths(pv: np.ndarray, xs: np.ndarray, s: Settings) -> np.ndarray:
+    idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s))
+    return _scan_rss(pv, xs, idx, val, q, s.alist(), s.delays(), s.k0, s.allow_integrating)
+
+
+def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
+    """The seats of :class:`Seats`: the LR scan (:func:`scan_paths`, :func:`scan_valve`'s kernel: white-noise least
+    squares, each path with its best process structure) repeated with the valve on each seat level; then, for a
+    seated nonlinear valve, a second stage on a finer grid of seat levels (quantile steps ``SEAT_FINE_STEP`` within
+    ``SEAT_FINE_SPAN`` of the first stage's) and bands (``SEAT_FINE_N_S`` points over the scan's range): a valve
+    that rests on its seat is a relay whose likelihood has narrow ridges in its band and seat."""
+    op = np.ascontiguousarray(op, dtype=float)
+    pv = np.ascontiguousarray(pv, dtype=float)
+    levels = [-math.inf] + [float(c) for c in np.quantile(op, SEAT_QUANTILES)]
+    lin, nonlin = [], []
+    for c in levels:
+        rss = _scan_rss_paths(pv, scan_paths(op, s.substeps, c)[0], s)
+        lin.append(float(rss[0]))
+        nonlin.append(float(rss[1:].min()))
+    n = pv.size - s.k0
+
+    def best(rss: list[float]) -> tuple[int, float]:
+        i = int(np.argmin(rss))
+        return i, n * math.log(rss[0] / rss[i])
+
+    (i_lin, lr_lin), (i_nl, lr_nl) = best(lin), best(nonlin)
+    c_lin = levels[i_lin] if lr_lin > math.log(n) else -math.inf
+    if lr_nl <= math.log(n):
+        return Seats(c_lin, -math.inf, lr_lin, lr_nl)
+    q0 = SEAT_QUANTILES[i_nl - 1]
+    fine_q = np.arange(max(q0 - SEAT_FINE_SPAN, 0.0), min(q0 + SEAT_FINE_SPAN, 1.0) + 1e-9, SEAT_FINE_STEP)
+    r = op_scale(op)
+    lo = max(SCAN_S_FRACTIONS[0] * r, resolution(op))
+    bands = np.geomspace(lo, max(SCAN_S_FRACTIONS[1] * r, 2.0 * lo), SEAT_FINE_N_S)
+    best_rss, c_nl, S_nl = nonlin[i_nl], levels[i_nl], 0.0
+    for c in np.quantile(op, fine_q):
+        xs = np.array([valve_path(op, S, f * S, d0, s.substeps, float(c))
+                       for S in bands for f in SCAN_J_FRACTIONS for d0 in DIRECTIONS])
+        rss = _scan_rss_paths(pv, xs, s)
+        k = int(np.argmin(rss))
+        if rss[k] < best_rss:
+            best_rss, c_nl, S_nl = float(rss[k]), float(c), float(bands[k // (len(SCAN_J_FRACTIONS) * len(DIRECTIONS))])
+    return Seats(c_lin, c_nl, lr_lin, n * math.log(nonlin[0] / best_rss), S_nl)
+
+
 def simulate_noise(pf: ProcessFit, n: int, rng: np.random.Generator, burn: int = 200) -> np.ndarray:
     """A draw of the fitted AR noise (innovation variance ``rss / n``), ``n`` samples."""
     sd = math.sqrt(pf.rss / pf.n)
@@ -627,8 +722,8 @@ def bootstrap_lr(op: np.ndarray, lin: ProcessFit, s: Settings, n_boot: int, seed
     the first replicate at or above ``stop_at`` (the observed statistic: the test's decision is then settled,
     Besag & Clifford 1991)."""
     rng = np.random.default_rng(seed)
-    mean = simulate(op, lin)
-    paths = scan_paths(op, s.substeps) if paths is None else paths
+    mean = simulate(seated(op, s.seat), lin)
+    paths = scan_paths(op, s.substeps, s.seat) if paths is None else paths
     out: list[float] = []
     for _ in range(n_boot):
         out.append(scan_valve(mean + simulate_noise(lin, op.size, rng), paths, s).lr)
@@ -640,4 +735,4 @@ def bootstrap_lr(op: np.ndarray, lin: ProcessFit, s: Settings, n_boot: int, seed
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
            "refit_gain", "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
            "scan_paths", "resolution", "bootstrap_lr", "simulate_noise", "subsample_op", "disturbance_basis",
-           "dominant_period", "load_sinusoid"]
+           "dominant_period", "load_sinusoid", "seated", "scan_seats", "Seats", "SEAT_QUANTILES", "seat_params"]
