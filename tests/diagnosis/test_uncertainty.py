@@ -113,10 +113,7 @@ def test_stick_filter_nested_and_peaks_at_the_band() -> None:
 @pytest.mark.parametrize(("effect", "param", "value", "seed"), [
     ("sensor_lag", "tau_s", 70.0, 21),
     ("setpoint_drift", "rate_MPa_per_h", -5e-5, 22),
-    pytest.param("stiction", "band_mm", 0.02, 23, marks=pytest.mark.xfail(
-        strict=True, reason="regression with the Student-t temperature smoother (docs/estimation.md, 'The collapse "
-        "of the noise estimate'): the output-error stiction fit of this 8 h, 20 s, 0.008 K run returns 0.070 mm "
-        "(sd 0.023) for a 0.02 mm band; not investigated")),
+    ("stiction", "band_mm", 0.02, 23),
 ])
 def test_bootstrap_sd_covers_the_truth(effect: str, param: str, value: float, seed: int) -> None:
     """A fit and its bootstrap on a short run: the truth lies within 3 reported sd, and the sd is
