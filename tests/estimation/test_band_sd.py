@@ -64,3 +64,17 @@ def test_band_sd_on_generated_runs_with_known_band(dt: int) -> None:
     assert 0.8 <= float(s.mean()) / true_sd <= 2.5, (s.mean(), true_sd)
     z = (e - S) / s
     assert np.mean(np.abs(z) <= 1) >= 0.6 and np.mean(np.abs(z) <= 2) >= 0.85, z
+
+
+def test_band_spread_with_two_slips_is_not_zero() -> None:
+    """With 2-3 slips the band is the likelihood's and the added-noise copies, finding too few slips, keep it (a
+    spread of 0); the sd is then the slips' own, widened by the small-sample factor (a 2-slip run of project seed
+    20270332 reported 6.6e-5 mm for a band 18 % off before this)."""
+    S = 0.03
+    x = np.full(200, 1.0)
+    x[80:] += S
+    x[150:] += 0.8 * S  # two slips of different sizes
+    x = x + 1e-3 * np.random.default_rng(0).standard_normal(x.size)
+    sd, parts, _ = band_spread(x, STROKE, 1e-3, 16, np.random.default_rng(1), S)
+    assert parts["n_slips"] == 2 and parts["noise_sd_mm"] == 0.0
+    assert parts["slips_sd_mm"] > 0.1 * S and sd == parts["slips_sd_mm"], parts
