@@ -40,7 +40,7 @@ from valve_env.diagnosis.engine import (
     ou_loglik,
     simulate_valve,
     stick_loglik,
-    stick_simulate,
+    stick_simulate_sj,
 )
 from valve_env.diagnosis.stiction import jump_band
 from valve_env.estimation.covariance import hessian_sandwich_sd
@@ -161,19 +161,24 @@ class Model:
     def _stuck(self, values: dict[str, float]) -> bool:
         return "stiction" in self.effects and values.get("band_mm", 0.0) > 0.0
 
-    def simulate(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Open-loop simulation: (opening mm, gas temperature degC, friction force N) at the samples."""
+    def simulate(self, data: RunData, values: dict[str, float],
+                 slip: float = -1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Open-loop simulation: (opening mm, gas temperature degC, friction force N) at the samples. With
+        stiction the stem breaks away at ``band_mm`` and slips ``slip`` where ``0 < slip < band_mm`` (the (S, J)
+        stem, :func:`~valve_env.diagnosis.engine.stick_simulate_sj`), else the whole band (J = S)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
         x, Tg, F, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s,
                                               self.delta(data, values), stuck)
         if stuck:
-            x = stick_simulate(x_sub, idx, values["band_mm"], float(vp[I_STROKE]))
+            band = values["band_mm"]
+            x = stick_simulate_sj(x_sub, idx, band, slip if 0.0 < slip < band else band, float(vp[I_STROKE]))
         return x, Tg, F
 
-    def _filter(self, data: RunData, values: dict[str, float],
-                mask: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """(log-likelihood, one-step prediction errors, their variances, each sample's log-likelihood term)."""
+    def _filter(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None,
+                slip: float = -1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """(log-likelihood, one-step prediction errors, their variances, each sample's log-likelihood term);
+        ``slip`` is the stick-slip filter's (:func:`~valve_env.diagnosis.engine.stick_loglik`; negative: J = S)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
         x, _, _, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s,
@@ -183,13 +188,15 @@ class Model:
         if stuck:
             return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),
                                 values["s_w"], values["s_e"], values["tau_e"], mask, self.band_spread,
-                                self.landing_sd)
+                                self.landing_sd, slip=slip)
         ll, innov, S = ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
         return ll, innov, S, np.where(mask, -0.5 * (LOG2PI + np.log(S) + innov**2 / S), 0.0)
 
-    def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None) -> float:
-        """Exact Gaussian log-likelihood of the measured opening (over the samples in ``mask``)."""
-        return float(self._filter(data, values, mask)[0])
+    def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None,
+               slip: float = -1.0) -> float:
+        """Exact Gaussian log-likelihood of the measured opening (over the samples in ``mask``); with stiction
+        ``slip`` is the stick-slip filter's slip J (negative, the default: J = ``band_mm``)."""
+        return float(self._filter(data, values, mask, slip)[0])
 
     def one_step(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One filter pass: the one-step prediction errors (mm), their variances and each sample's term of

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from valve_env.diagnosis.engine import ou_loglik, simulate_valve, stick_loglik, stick_simulate_sj
+from valve_env.diagnosis.engine import ou_loglik, stick_simulate_sj
 
 if TYPE_CHECKING:
     from valve_env.diagnosis.fitting import Model
@@ -54,31 +54,22 @@ _FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
 def sj_loglik(model: Model, data: RunData, values: dict[str, float], S: float, J: float) -> float:
     """The open-loop log-likelihood of the opening under the (S, J) stem on ``model``'s valve with ``values``
-    (module docstring)."""
-    vp, e = model._vectors(values)
-    _, _, _, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, model.max_step_s,
-                                         model.delta(data, values), True)
-    xs = stick_simulate_sj(x_sub, idx, S, J, float(model.valve.stroke))
+    (module docstring): ``model.simulate``'s stem with band S and slip J, its residual scored by
+    :func:`~valve_env.diagnosis.engine.ou_loglik`."""
+    xs = model.simulate(data, {**values, "band_mm": S}, slip=J)[0]
     mask = np.ones(len(data), dtype=np.bool_)
     ll, _, _ = ou_loglik(data.t, data.x - xs, values["s_w"], values["s_e"], values["tau_e"], mask)
     return float(ll)
 
 
 def sj_filter_loglik(model: Model, data: RunData, values: dict[str, float], S: float, J: float) -> float:
-    """The stick-slip filter's log-likelihood of the opening (:func:`valve_env.diagnosis.engine.stick_loglik`, the
-    diagnosis's own, with its measured slip decision) under the (S, J) stem of :mod:`valve_env.physics.stickslip`:
-    a resting stem breaks away where the demand is ``(S + J) / 2`` from it (the filter's band; from a reversal the
-    demand has then travelled S), slips ``J`` and moves ``(S - J) / 2`` behind the demand (the filter's lag). At
-    ``J = S`` this is the diagnosis's likelihood exactly."""
-    vp, e = model._vectors(values)
-    _, _, _, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, model.max_step_s,
-                                         model.delta(data, values), True)
-    mask = np.ones(len(data), dtype=np.bool_)
+    """The stick-slip filter's log-likelihood of the opening (``model.loglik``, the diagnosis's own, with its
+    measured slip decision) under the (S, J) stem of :mod:`valve_env.physics.stickslip`: a resting stem breaks
+    away where the demand is ``(S + J) / 2`` from it (the filter's band; from a reversal the demand has then
+    travelled S), slips ``J`` and moves ``(S - J) / 2`` behind the demand (the filter's lag). At ``J = S`` this is
+    the diagnosis's likelihood exactly."""
     B = 0.5 * (S + J) if J < S else S
-    ll, _, _, _ = stick_loglik(data.t, data.x, x_sub, idx, B, float(model.valve.stroke), values["s_w"],
-                               values["s_e"], values["tau_e"], mask, model.band_spread, model.landing_sd, True,
-                               J if J < S else -1.0)
-    return float(ll)
+    return model.loglik(data, {**values, "band_mm": B}, slip=J if J < S else -1.0)
 
 
 class SJLoglik(Protocol):
