@@ -29,31 +29,27 @@ from typing import Any
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from independent_coverage import cases  # noqa: E402
-from stiction_misspecification import run_case  # noqa: E402
+from stiction_misspecification import add_misspecification, diagnose_case  # noqa: E402
 
 from valve_env.outputs import OutputError, OutputSet  # noqa: E402
 
 
 def profile_case(case: dict[str, Any]) -> dict[str, Any]:
-    """:func:`stiction_misspecification.run_case` (its fit kept in memory) and the (S, J) profile of its fit."""
-    import pickle
-    import tempfile
-
+    """:func:`stiction_misspecification.run_case`'s record and the (S, J) profiles of its fit."""
     from valve_env.estimation.bootstrap import breakaway_evident
     from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile
 
-    with tempfile.TemporaryDirectory() as tmp:
-        out = run_case({**case, "dump": tmp})
-        with open(os.path.join(tmp, f"{case['generator']}_{case['seed']}_{case['i']}.pkl"), "rb") as fh:
-            dump = pickle.load(fh)
+    out, f, d = diagnose_case(case)
+    add_misspecification(out, f, d)
     med = float(out.pop("misspecification")["travel_over_slip_median"])
-    if not float(dump["fit"].params.get("band_mm", 0.0)) > 0.0:
+    model, train, fit = f.estimator.backend_, d.train, f.fit
+    if not float(fit.params.get("band_mm", 0.0)) > 0.0:
         return {**out, "profile": None, "filter_profile": None, "travel_over_slip": med, "applied": False}
     t0 = time.process_time()
-    p = sj_profile(dump["model"], dump["train"], dump["fit"].params)
+    p = sj_profile(model, train, fit.params)
     t1 = time.process_time()
     # the stick-slip filter's profile (tenth round): the diagnosis's likelihood with slips of J < S
-    pf = sj_profile(dump["model"], dump["train"], dump["fit"].params, loglik=sj_filter_loglik)
+    pf = sj_profile(model, train, fit.params, loglik=sj_filter_loglik)
     applied = breakaway_evident(med, pf.ratio)
     out.update({"profile": p.to_json(), "S_profile": p.S_mm, "travel_over_slip": med, "applied": applied,
                 "profile_cpu_s": t1 - t0, "filter_profile": pf.to_json(), "S_filter": pf.S_mm,

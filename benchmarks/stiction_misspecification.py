@@ -33,7 +33,9 @@ from independent_coverage import _as_measured, _simulate, cases  # noqa: E402
 from valve_env.outputs import OutputError, OutputSet  # noqa: E402
 
 
-def run_case(case: dict[str, Any]) -> dict[str, Any]:
+def diagnose_case(case: dict[str, Any]) -> tuple[dict[str, Any], Any, Any]:
+    """The run drawn, read back and diagnosed with stiction the only candidate: (its record, the stiction finding,
+    the diagnosis)."""
     from valve_env.diagnosis.diagnose import diagnose
 
     df, _truth, effects = _simulate(case)
@@ -46,15 +48,25 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     out = {k: case[k] for k in ("generator", "seed", "i", "variant", "run_seed", "duration_h", "dt_s", "T_noise_C")}
     out.update({"named": d.cause == "stiction", "true_band": effects["stiction"]["band_mm"],
                 "band": float(f.fit.params["band_mm"]), "lr": float(f.lr_stat), "cpu_s": time.process_time() - t0})
-    if case.get("dump"):
-        with open(os.path.join(case["dump"], f"{case['generator']}_{case['seed']}_{case['i']}.pkl"), "wb") as fh:
-            pickle.dump({"model": f.estimator.backend_, "train": d.train, "fit": f.fit, "info": out}, fh)
+    return out, f, d
+
+
+def add_misspecification(out: dict[str, Any], f: Any, d: Any) -> None:
+    """The misspecification checks of the stiction finding ``f`` at its fit, into the record ``out``."""
     from valve_env.estimation.robust import effect_misspecification
 
     mis = effect_misspecification(f.estimator.backend_, d.train, f.fit, warn=False)
     out["fired"] = bool(mis["misspecified"])
     out["whiteness_fired"] = bool(mis["whiteness"]["misspecified"])  # type: ignore[index]
     out["misspecification"] = mis
+
+
+def run_case(case: dict[str, Any]) -> dict[str, Any]:
+    out, f, d = diagnose_case(case)
+    if case.get("dump"):
+        with open(os.path.join(case["dump"], f"{case['generator']}_{case['seed']}_{case['i']}.pkl"), "wb") as fh:
+            pickle.dump({"model": f.estimator.backend_, "train": d.train, "fit": f.fit, "info": out}, fh)
+    add_misspecification(out, f, d)
     return out
 
 
