@@ -18,20 +18,14 @@ against S, the check's statistic and the decision. ``--variants force`` runs one
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from independent_coverage import cases  # noqa: E402
-from stiction_misspecification import add_misspecification, diagnose_case  # noqa: E402
-
-from valve_env.outputs import OutputError, OutputSet  # noqa: E402
+from stiction_misspecification import add_misspecification, diagnose_case, study_main  # noqa: E402
 
 
 def profile_case(case: dict[str, Any]) -> dict[str, Any]:
@@ -57,31 +51,7 @@ def profile_case(case: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--generator", choices=("independent", "project"), default="independent")
-    ap.add_argument("--runs", type=int, default=2, help="runs per stick-slip variant")
-    ap.add_argument("--seed", type=int, required=True)
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--variants", default="", help="only these stick-slip variants (comma-separated, e.g. force)")
-    ap.add_argument("--json", dest="json_out", required=True)
-    ap.add_argument("--force", action="store_true", help="replace an existing --json file")
-    a = ap.parse_args(argv)
-    if a.runs < 1 or a.workers < 1:
-        print("thermovalve: error: --runs and --workers must be at least 1", file=sys.stderr)
-        return 2
-    outs = OutputSet(force=a.force)
-    try:
-        json_path = outs.add(a.json_out)
-    except OutputError as exc:
-        print(f"thermovalve: error: {exc}", file=sys.stderr)
-        return 2
-    keep = {v for v in a.variants.split(",") if v}
-    cs = [c for c in cases("effects", a.generator, a.runs, 0, a.seed)
-          if c["effect"] == "stiction" and (not keep or c["variant"] in keep)]
-    t0 = time.perf_counter()
-    with ProcessPoolExecutor(a.workers) as ex:
-        res = list(ex.map(profile_case, cs))
+def _report(a: argparse.Namespace, res: list[dict[str, Any]]) -> None:
     for r in res:
         if r["profile"] is None:
             print(f"{r['generator']:11s} {r['i']:3d} {r['variant']!s:6s} named {r['named']!s:5s} no band fitted")
@@ -93,11 +63,17 @@ def main(argv: list[str] | None = None) -> int:
               f"(+{max(r['filter_profile']['profile_loglik'].values()):.0f})  "
               f"err: profile {r['S_profile'] / S - 1:+.0%} filter {r['S_filter'] / S - 1:+.0%} slips {J / S - 1:+.0%}  "
               f"travel/slip {r['travel_over_slip']:.2f}  band = {'S' if r['applied'] else 'J'}")
-    doc = {"generator": a.generator, "seed": a.seed, "runs": len(cs), "results": res,
-           "seconds": time.perf_counter() - t0, "machine": platform.platform(), "command": " ".join(sys.argv)}
-    outs.write_text(json_path, json.dumps(doc, indent=1, default=float))
-    outs.commit()
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    def variants_arg(ap: argparse.ArgumentParser) -> None:
+        ap.add_argument("--variants", default="", help="only these stick-slip variants (comma-separated, e.g. force)")
+
+    def keep_variants(a: argparse.Namespace, cs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        keep = {v for v in a.variants.split(",") if v}
+        return [c for c in cs if not keep or c["variant"] in keep]
+
+    return study_main(argv, __doc__, profile_case, _report, "independent", 2, variants_arg, keep_variants)
 
 
 if __name__ == "__main__":

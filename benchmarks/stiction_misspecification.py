@@ -23,6 +23,7 @@ import platform
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
@@ -70,16 +71,28 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--generator", choices=("independent", "project"), default="project")
-    ap.add_argument("--runs", type=int, default=4, help="runs per stick-slip variant")
+def study_main(argv: list[str] | None, doc: str, fn: Callable[[dict[str, Any]], dict[str, Any]],
+               report: Callable[[argparse.Namespace, list[dict[str, Any]]], None], generator: str, runs: int,
+               add_args: Callable[[argparse.ArgumentParser], None] | None = None,
+               select: Callable[[argparse.Namespace, list[dict[str, Any]]], list[dict[str, Any]]] | None = None) -> int:
+    """The driver of a stiction study over the stick-slip runs of ``independent_coverage.cases`` (this script's and
+    ``stiction_breakaway.py``'s): the common options (``--generator``, default ``generator``; ``--runs``, default
+    ``runs``; ``--seed``, ``--workers``, ``--json``, ``--force``) and ``add_args``'s, the output checked before the
+    work, ``fn`` on each run (``select``: the runs kept, given the options) in a process pool, ``report`` printed,
+    and the JSON written atomically."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--generator", choices=("independent", "project"), default=generator)
+    ap.add_argument("--runs", type=int, default=runs, help="runs per stick-slip variant")
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", dest="json_out", required=True)
-    ap.add_argument("--dump", default=None, help="directory to pickle each run's stiction fit into (studies)")
     ap.add_argument("--force", action="store_true", help="replace an existing --json file")
+    if add_args is not None:
+        add_args(ap)
     a = ap.parse_args(argv)
+    if a.runs < 1 or a.workers < 1:
+        print("thermovalve: error: --runs and --workers must be at least 1", file=sys.stderr)
+        return 2
     outs = OutputSet(force=a.force)
     try:
         json_path = outs.add(a.json_out)
@@ -87,11 +100,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermovalve: error: {exc}", file=sys.stderr)
         return 2
     cs = [c for c in cases("effects", a.generator, a.runs, 0, a.seed) if c["effect"] == "stiction"]
-    for c in cs:
-        c["dump"] = a.dump
+    if select is not None:
+        cs = select(a, cs)
     t0 = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as ex:
-        res = list(ex.map(run_case, cs))
+        res = list(ex.map(fn, cs))
+    report(a, res)
+    out = {"generator": a.generator, "seed": a.seed, "runs": len(cs), "results": res,
+           "seconds": time.perf_counter() - t0, "machine": platform.platform(), "command": " ".join(sys.argv)}
+    outs.write_text(json_path, json.dumps(out, indent=1, default=float))
+    outs.commit()
+    return 0
+
+
+def _report(a: argparse.Namespace, res: list[dict[str, Any]]) -> None:
     for r in res:
         m = r["misspecification"]
         print(f"{r['generator']:11s} {r['i']:3d} {r['variant']!s:6s} dt {r['dt_s']:5.1f} named {r['named']!s:5s} "
@@ -102,11 +124,16 @@ def main(argv: list[str] | None = None) -> int:
         rs = [r for r in res if str(r["variant"]) == v]
         print(f"{a.generator} {v}: stick-slip check fired {sum(r['fired'] for r in rs)}/{len(rs)}, "
               f"whiteness {sum(r['whiteness_fired'] for r in rs)}/{len(rs)}, named {sum(r['named'] for r in rs)}")
-    doc = {"generator": a.generator, "seed": a.seed, "runs": len(cs), "results": res,
-           "seconds": time.perf_counter() - t0, "machine": platform.platform(), "command": " ".join(sys.argv)}
-    outs.write_text(json_path, json.dumps(doc, indent=1, default=float))
-    outs.commit()
-    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    def dump_arg(ap: argparse.ArgumentParser) -> None:
+        ap.add_argument("--dump", default=None, help="directory to pickle each run's stiction fit into (studies)")
+
+    def with_dump(a: argparse.Namespace, cs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [{**c, "dump": a.dump} for c in cs]
+
+    return study_main(argv, __doc__, run_case, _report, "project", 4, dump_arg, with_dump)
 
 
 if __name__ == "__main__":
