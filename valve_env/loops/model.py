@@ -619,12 +619,18 @@ def _scan_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) ->
     return idx, val, basis.shape[1]
 
 
+def _scan_rss_paths(pv: np.ndarray, xs: np.ndarray, s: Settings) -> np.ndarray:
+    """The scan's residual sum of squares of ``pv`` behind each valve path of ``xs`` (each with its best process
+    structure, the disturbance basis of ``s``, its periodic load included)."""
+    idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s), float(s.load_period_s))
+    return _scan_rss(pv, xs, idx, val, q, s.alist(), s.delays(), s.k0, s.allow_integrating)
+
+
 def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float, float]]], s: Settings) -> Scan:
     """The LR scan (:class:`Scan`) of ``pv`` over the valve ``paths`` of :func:`scan_paths`."""
     xs, params = paths
     pv = np.ascontiguousarray(pv, dtype=float)
-    idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s), float(s.load_period_s))
-    rss = _scan_rss(pv, xs, idx, val, q, s.alist(), s.delays(), s.k0, s.allow_integrating)
+    rss = _scan_rss_paths(pv, xs, s)
     i = int(np.argmin(rss[1:])) + 1
     n = pv.size - s.k0
     lr = n * math.log(rss[0] / min(rss[i], rss[0]))
@@ -657,11 +663,6 @@ class Seats:
     lr_linear: float
     lr_nonlinear: float
     S: float = 0.0
-
-
-def _scan_rss_paths(pv: np.ndarray, xs: np.ndarray, s: Settings) -> np.ndarray:
-    idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s))
-    return _scan_rss(pv, xs, idx, val, q, s.alist(), s.delays(), s.k0, s.allow_integrating)
 
 
 def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
