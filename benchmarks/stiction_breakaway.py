@@ -44,7 +44,7 @@ def profile_case(case: dict[str, Any]) -> dict[str, Any]:
     t1 = time.process_time()
     # the stick-slip filter's profile (tenth round): the diagnosis's likelihood with slips of J < S
     pf = sj_profile(model, train, fit.params, loglik=sj_filter_loglik)
-    applied = breakaway_evident(med, pf.ratio)
+    applied = breakaway_evident(med, pf.ratio, pf.ratio_sd)
     out.update({"profile": p.to_json(), "S_profile": p.S_mm, "travel_over_slip": med, "applied": applied,
                 "profile_cpu_s": t1 - t0, "filter_profile": pf.to_json(), "S_filter": pf.S_mm,
                 "S_reported": pf.S_mm if applied else float(out["band"]), "filter_cpu_s": time.process_time() - t1})

@@ -134,7 +134,7 @@ def test_filter_profile_tells_force_from_j_equal_s(runs) -> None:  # type: ignor
         m, run, vals = runs[variant]
         q = sj_profile(m, run, vals, loglik=sj_filter_loglik)
         med = stick_slip_check(m, run, _fit(vals), warn=False)["travel_over_slip_median"]
-        assert not breakaway_evident(med, q.ratio), (variant, med, q.to_json())
+        assert not breakaway_evident(med, q.ratio, q.ratio_sd), (variant, med, q.to_json())
         assert q.ratio < BREAKAWAY_RATIO
 
 
@@ -166,7 +166,9 @@ def test_breakaway_band_moves_force_and_keeps_reset(runs) -> None:  # type: igno
 
 
 def test_breakaway_evident_needs_both_signs() -> None:
-    assert breakaway_evident(1.5, BREAKAWAY_RATIO)
-    assert not breakaway_evident(1.5, BREAKAWAY_RATIO - 0.25)
-    assert not breakaway_evident(0.9, 3.0)
-    assert not breakaway_evident(math.nan, 3.0)
+    assert breakaway_evident(1.5, BREAKAWAY_RATIO, 0.5)
+    assert not breakaway_evident(1.5, BREAKAWAY_RATIO - 0.25, 0.1)
+    assert not breakaway_evident(0.9, 3.0, 0.5)
+    assert not breakaway_evident(math.nan, 3.0, 0.5)
+    # a flat profile (its reading less than one sd above J = S) is no evidence of J < S
+    assert not breakaway_evident(1.5, BREAKAWAY_RATIO, 1.27)
