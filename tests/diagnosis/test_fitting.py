@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from valve_env.diagnosis.diagnose import check_run, prepare
 from valve_env.diagnosis.fitting import Model
 from valve_env.experiment import simulate_experiment
@@ -18,6 +20,27 @@ def test_a_warm_start_is_kept_by_the_grid_scan_and_the_refit_does_not_lose() -> 
     fit = m.fit(d, with_std=False)
     assert abs(fit.params["tau_s"] - 73.0) < 5.0
     p = next(q for q in m.eff_params if q.name == "tau_s")
-    assert m._scan(d, fit.params, p, keep_start=True) == fit.params["tau_s"]
+    assert m._scan(d, fit.params, p, {}, keep_start=True) == {"tau_s": fit.params["tau_s"]}
     again = m.fit(d, start=fit.params, with_std=False)
     assert again.loglik >= fit.loglik - 1e-6
+
+
+def test_a_drift_scan_turns_about_the_record_middle_and_the_fit_keeps_the_better_path() -> None:
+    """setpoint_drift's rate and p_bset trade off along the record: the turned scan moves p_bset with the rate so
+    that the set pressure at the record's middle stays (Model._moved), and fit() keeps the better of the held and
+    the turned paths (a 10 h run drifting -6e-5 MPa/h had kept the rate at 0 on one machine and found it on
+    another: tests/diagnosis/test_diagnose.py's seed 104)."""
+    df = simulate_experiment(seed=104, duration_h=10.0, effects={"setpoint_drift": {"rate_MPa_per_h": -6e-5}})
+    d = prepare(check_run(df))
+    m = Model(("setpoint_drift",))
+    p = next(q for q in m.eff_params if q.name == "rate_MPa_per_h")
+    vals = {**m.default_start(d), "rate_MPa_per_h": 0.0}
+    t_mid_h = 0.5 * (d.t[-1] - d.t[0]) / 3600.0
+    turned = m._moved(d, vals, p, -6e-5, {}, True)
+    assert turned["p_bset"] + turned["rate_MPa_per_h"] * t_mid_h == pytest.approx(vals["p_bset"], rel=1e-12)
+    assert m._moved(d, vals, p, -6e-5, {}, False)["p_bset"] == vals["p_bset"]
+    assert m._moved(d, vals, p, -6e-5, {"p_bset": vals["p_bset"]}, True)["p_bset"] == vals["p_bset"]
+    fit = m.fit(d, with_std=False)
+    paths = [m._fit_path(d, {**vals}, {}, True, 300, turn) for turn in (False, True)]
+    assert fit.loglik == pytest.approx(max(q.loglik for q in paths), abs=1e-6)
+    assert abs(fit.params["rate_MPa_per_h"] / -6e-5 - 1.0) < 0.25, fit.params
