@@ -97,7 +97,7 @@ BREAKAWAY = True
 BREAKAWAY_TRAVEL = 1.0
 BREAKAWAY_RATIO = 1.75
 #: the filter profile's S / J reads low on the fitted valve (its demand's error near the reversals: on the true
-#: demand the same filter read S within -4 to -17 % on the three runs tried): the geometric mean of the reading over
+#: demand the same filter read S within -4 to -12 % on the three runs tried): the geometric mean of the reading over
 #: the true S / J, and the standard error of its log, over the 11 development ``force`` runs where the band is taken as
 #: S (independent seeds 20270302, 20270306, 20270311, 20270331; docs/uncertainty.md, "Eleventh round"). The band
 #: is the reading over this factor (:func:`breakaway_band`)
