@@ -18,7 +18,9 @@ against S, the check's statistic and the decision. ``--variants force`` runs one
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import statistics
 import sys
 import time
 from typing import Any
@@ -30,7 +32,7 @@ from stiction_misspecification import add_misspecification, diagnose_case, study
 
 def profile_case(case: dict[str, Any]) -> dict[str, Any]:
     """:func:`stiction_misspecification.run_case`'s record and the (S, J) profiles of its fit."""
-    from valve_env.estimation.bootstrap import breakaway_evident
+    from valve_env.estimation.bootstrap import breakaway_evident, calibrated_ratio
     from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile
 
     out, f, d = diagnose_case(case)
@@ -45,9 +47,12 @@ def profile_case(case: dict[str, Any]) -> dict[str, Any]:
     # the stick-slip filter's profile (tenth round): the diagnosis's likelihood with slips of J < S
     pf = sj_profile(model, train, fit.params, loglik=sj_filter_loglik)
     applied = breakaway_evident(med, pf.ratio, pf.ratio_sd)
+    # the band the bootstrap reports where applied: the filter's reading over its development calibration (eleventh
+    # round; here on the ML band, the bootstrap's is bias-corrected)
+    S_cal = calibrated_ratio(pf.ratio, pf.ratio_sd)[0] * pf.J_mm
     out.update({"profile": p.to_json(), "S_profile": p.S_mm, "travel_over_slip": med, "applied": applied,
                 "profile_cpu_s": t1 - t0, "filter_profile": pf.to_json(), "S_filter": pf.S_mm,
-                "S_reported": pf.S_mm if applied else float(out["band"]), "filter_cpu_s": time.process_time() - t1})
+                "S_reported": S_cal if applied else float(out["band"]), "filter_cpu_s": time.process_time() - t1})
     return out
 
 
@@ -62,7 +67,18 @@ def _report(a: argparse.Namespace, res: list[dict[str, Any]]) -> None:
               f"filter {r['filter_profile']['profile_S_over_J']:.2f} "
               f"(+{max(r['filter_profile']['profile_loglik'].values()):.0f})  "
               f"err: profile {r['S_profile'] / S - 1:+.0%} filter {r['S_filter'] / S - 1:+.0%} slips {J / S - 1:+.0%}  "
-              f"travel/slip {r['travel_over_slip']:.2f}  band = {'S' if r['applied'] else 'J'}")
+              f"travel/slip {r['travel_over_slip']:.2f}  band = {'S' if r['applied'] else 'J'} "
+              f"({r['S_reported'] / S - 1:+.0%})")
+    # the calibration of the filter's reading (bootstrap.BREAKAWAY_READ): its reading over the true S / J (over the
+    # slips' J) on the force runs where the band is taken as S and the slips measured J (within a factor 2 of the
+    # true S / 3), their geometric mean and the standard error of its log
+    logs = [math.log(r["filter_profile"]["profile_S_over_J"] * r["band"] / r["true_band"]) for r in res
+            if r["profile"] is not None and r["applied"] and r["variant"] == "force"
+            and 0.5 < 3.0 * r["band"] / r["true_band"] < 2.0]
+    if len(logs) >= 2:
+        m, s = statistics.mean(logs), statistics.stdev(logs)
+        print(f"filter's S / J over the truth where the band is S ({len(logs)} runs): "
+              f"geometric mean {math.exp(m):.3f}, sd of its log {s:.3f}, standard error {s / math.sqrt(len(logs)):.3f}")
 
 
 def main(argv: list[str] | None = None) -> int:

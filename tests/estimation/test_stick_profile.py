@@ -13,7 +13,15 @@ from valve_env.diagnosis.diagnose import check_run, prepare
 from valve_env.diagnosis.engine import stick_loglik, stick_simulate
 from valve_env.diagnosis.fitting import FitResult, Model
 from valve_env.diagnosis.stiction import jump_band
-from valve_env.estimation.bootstrap import BREAKAWAY_RATIO, Summary, breakaway_band, breakaway_evident
+from valve_env.estimation.bootstrap import (
+    BREAKAWAY_RATIO,
+    BREAKAWAY_READ,
+    BREAKAWAY_READ_SE,
+    Summary,
+    breakaway_band,
+    breakaway_evident,
+    calibrated_ratio,
+)
 from valve_env.estimation.data import RunData
 from valve_env.estimation.robust import stick_slip_check
 from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile, spring_rate, stick_simulate_sj
@@ -155,6 +163,11 @@ def test_breakaway_band_moves_force_and_keeps_reset(runs) -> None:  # type: igno
     assert out["S_sd_mm"] == sm.std["band_mm"]
     lo, hi = sm.interval_95["band_mm"]
     assert lo < S_TRUE < hi  # the band's interval covers the true breakaway travel
+    # the filter's reading (2.25 here against 3) corrected for its low reading on the fitted valve (eleventh round):
+    # S within 25 % of the truth and within its sd, the uncorrected S = 2.25 J was 25 % short
+    assert out["S_over_J"] == pytest.approx(out["profile_S_over_J"] / BREAKAWAY_READ)
+    assert abs(S - S_TRUE) < 0.25 * S_TRUE and abs(S - S_TRUE) < sm.std["band_mm"], out
+    assert abs(S - S_TRUE) < abs(out["profile_S_over_J"] * J - S_TRUE), out
     assert isinstance(out["open_loop"], dict) and "profile_S_over_J" in out["open_loop"]
     m, run, vals = runs["reset"]
     J, sd = vals["band_mm"], 0.05 * vals["band_mm"]
@@ -172,3 +185,13 @@ def test_breakaway_evident_needs_both_signs() -> None:
     assert not breakaway_evident(math.nan, 3.0, 0.5)
     # a flat profile (its reading less than one sd above J = S) is no evidence of J < S
     assert not breakaway_evident(1.5, BREAKAWAY_RATIO, 1.27)
+
+
+def test_calibrated_ratio_scales_the_reading_and_its_sd() -> None:
+    """The filter's reading over the development factor (it read low), its sd the width scaled and the factor's own
+    standard error in quadrature: never narrower than either."""
+    k, sd = calibrated_ratio(2.0, 0.5)
+    assert BREAKAWAY_READ < 1.0 and k == pytest.approx(2.0 / BREAKAWAY_READ)
+    assert sd == pytest.approx(math.hypot(0.5 / BREAKAWAY_READ, k * BREAKAWAY_READ_SE))
+    assert sd > 0.5 / BREAKAWAY_READ and sd > k * BREAKAWAY_READ_SE
+    assert calibrated_ratio(2.0, 0.0)[1] == pytest.approx(k * BREAKAWAY_READ_SE)
