@@ -125,16 +125,21 @@ def sim_cases(seed0: int, n: int) -> list[dict]:
     return out
 
 
-def _sim_one(job: tuple[dict, str]) -> dict:
-    """One simulated record of a case, diagnosed: ``kind`` sticky, smooth (the twin), ext_smooth or ext_sticky (the
-    same records under the case's external sinusoid)."""
-    c, kind = job
+def sim_record(c: dict, kind: str):
+    """One simulated record of a case of :func:`sim_cases`: ``kind`` sticky, smooth (the twin), ext_smooth or
+    ext_sticky (the same records under the case's external sinusoid)."""
     sticky = kind in ("sticky", "ext_sticky")
     ext = kind.startswith("ext_")
     loop, _ = simulate_loop(c["process"], S=c["S"] if sticky else 0.0, J=c["J"] if sticky else None,
                             seed=c["seed"] if sticky else c["smooth_seed"],
                             external_amp=c["ext_amp"] if ext else 0.0,
                             external_period_s=c["ext_period_s"] if ext else 600.0)
+    return loop
+
+
+def _sim_one(job: tuple[dict, str]) -> dict:
+    """One simulated record of a case (:func:`sim_record`), diagnosed."""
+    loop = sim_record(*job)
     t0 = time.process_time()
     d = diagnose(loop)
     return {"cause": d.cause, "stiction": d.result.get("stiction"), "cpu": time.process_time() - t0}
