@@ -177,29 +177,38 @@ def _oe_fit(pv: np.ndarray, w: np.ndarray, basis: np.ndarray, k0: int, k1: int, 
                 v -= theta[1 + j] * basis[k, j]
             r[k] = v
         if p > 0:
-            b00 = 1e-12
-            b01 = 0.0
-            b11 = 1e-12
-            c0 = 0.0
-            c1 = 0.0
-            for k in range(k0, k1):
-                b00 += r[k - 1] * r[k - 1]
-                b01 += r[k - 1] * r[k - 2]
-                b11 += r[k - 2] * r[k - 2]
-                c0 += r[k - 1] * r[k]
-                c1 += r[k - 2] * r[k]
-            if p == 1:
-                rho[0] = c0 / b00
-                rho[1] = 0.0
-            else:
-                det = b00 * b11 - b01 * b01
-                rho[0] = (c0 * b11 - c1 * b01) / det
-                rho[1] = (b00 * c1 - b01 * c0) / det
+            rho[0], rho[1] = _ar_fit(r, k0, k1, p)
+    return _ar_rss(r, rho[0], rho[1], k0, k1), theta, rho[0], rho[1]
+
+
+@njit(cache=True)
+def _ar_fit(r: np.ndarray, k0: int, k1: int, p: int) -> tuple[float, float]:  # pragma: no cover - compiled
+    """The AR(p <= 2) filter of the residual ``r`` by least squares over samples ``k0..k1-1`` (p >= 1)."""
+    b00 = 1e-12
+    b01 = 0.0
+    b11 = 1e-12
+    c0 = 0.0
+    c1 = 0.0
+    for k in range(k0, k1):
+        b00 += r[k - 1] * r[k - 1]
+        b01 += r[k - 1] * r[k - 2]
+        b11 += r[k - 2] * r[k - 2]
+        c0 += r[k - 1] * r[k]
+        c1 += r[k - 2] * r[k]
+    if p == 1:
+        return c0 / b00, 0.0
+    det = b00 * b11 - b01 * b01
+    return (c0 * b11 - c1 * b01) / det, (b00 * c1 - b01 * c0) / det
+
+
+@njit(cache=True)
+def _ar_rss(r: np.ndarray, rho0: float, rho1: float, k0: int, k1: int) -> float:  # pragma: no cover - compiled
+    """The residual sum of squares of ``r`` after the AR filter ``(rho0, rho1)`` over samples ``k0..k1-1``."""
     rss = 0.0
     for k in range(k0, k1):
-        e = r[k] - rho[0] * r[k - 1] - rho[1] * r[k - 2]
+        e = r[k] - rho0 * r[k - 1] - rho1 * r[k - 2]
         rss += e * e
-    return rss, theta, rho[0], rho[1]
+    return rss
 
 
 @njit(cache=True)
@@ -308,29 +317,8 @@ def _oe_fit_moments(pv: np.ndarray, w: np.ndarray, bidx: np.ndarray, bval: np.nd
                 v -= theta[1 + bidx[k, u]] * bval[k, u]
             r[k] = v
         if p > 0:
-            b00 = 1e-12
-            b01 = 0.0
-            b11 = 1e-12
-            c0 = 0.0
-            c1 = 0.0
-            for k in range(k0, k1):
-                b00 += r[k - 1] * r[k - 1]
-                b01 += r[k - 1] * r[k - 2]
-                b11 += r[k - 2] * r[k - 2]
-                c0 += r[k - 1] * r[k]
-                c1 += r[k - 2] * r[k]
-            if p == 1:
-                rho0 = c0 / b00
-                rho1 = 0.0
-            else:
-                det = b00 * b11 - b01 * b01
-                rho0 = (c0 * b11 - c1 * b01) / det
-                rho1 = (b00 * c1 - b01 * c0) / det
-    rss = 0.0
-    for k in range(k0, k1):
-        e = r[k] - rho0 * r[k - 1] - rho1 * r[k - 2]
-        rss += e * e
-    return rss, theta, rho0, rho1
+            rho0, rho1 = _ar_fit(r, k0, k1, p)
+    return _ar_rss(r, rho0, rho1, k0, k1), theta, rho0, rho1
 
 
 @njit(cache=True)
