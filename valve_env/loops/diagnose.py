@@ -58,6 +58,7 @@ from valve_env.loops.detectors import horch
 from valve_env.loops.io import LoopData
 from valve_env.loops.model import (
     BAND_J_FRACTIONS,
+    FitMemo,
     ProcessFit,
     Seats,
     Settings,
@@ -192,16 +193,16 @@ def rings(cl: dict[str, Any], period_s: float) -> bool:
 
 
 def _heldout_gain(loop: LoopData, valve: str, s: Settings, seat_lin: float = -math.inf,
-                  seat: float = -math.inf) -> float:
+                  seat: float = -math.inf, memo: FitMemo | None = None) -> float:
     """Held-out log-likelihood gain of ``valve`` (on its ``seat``) over the linear valve (on ``seat_lin``), summed
-    over the two halves."""
+    over the two halves (the fits looked up in ``memo`` first: :func:`~valve_env.loops.model.fit_valve`)."""
     n = loop.n
     mid = n // 2
     gain = 0.0
     s = replace(s, n_grid=10)
     for (a0, a1), (b0, b1) in (((s.k0, mid), (mid + s.k0, n)), ((mid + s.k0, n), (s.k0, mid))):
-        lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seat_lin), k1=a1, k0=a0)
-        cand = fit_valve(loop.op, loop.pv, valve, replace(s, seat=seat), k1=a1, k0=a0)
+        lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seat_lin), k1=a1, k0=a0, memo=memo)
+        cand = fit_valve(loop.op, loop.pv, valve, replace(s, seat=seat), k1=a1, k0=a0, memo=memo)
         ll_lin = refit_gain(loop.pv, lin.path(loop.op), lin.process, s, b0, b1).loglik
         ll_c = refit_gain(loop.pv, cand.path(loop.op), cand.process, s, b0, b1).loglik
         gain += ll_c - ll_lin
@@ -334,14 +335,17 @@ class Comparison:
 
 
 def compare(loop: LoopData, s: Settings, alpha: float = 0.01, heldout: bool = True,
-            bootstrap: bool = False, seats: Seats = NO_SEAT) -> Comparison:
+            bootstrap: bool = False, seats: Seats = NO_SEAT, memo: FitMemo | None = None) -> Comparison:
     """Fit the three valve candidates with the disturbance model of ``s`` on ``seats`` and compare them
-    (:class:`Comparison`)."""
+    (:class:`Comparison`). ``memo`` holds the record's process fits across the comparisons of one diagnosis (a fit
+    repeated is looked up: :func:`~valve_env.loops.model.fit_valve`; docs/loops.md, "Eleventh session: speed")."""
+    if memo is None:
+        memo = {}
     s_nl = replace(s, seat=seats.nonlinear)
-    fits = {"linear": fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seats.linear))}
+    fits = {"linear": fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seats.linear), memo=memo)}
     boot = bootstrap_test(loop, fits["linear"], s_nl, BOOTSTRAP_ALPHA, run=bootstrap)
     for v in ("backlash", "stiction"):
-        fits[v] = fit_valve(loop.op, loop.pv, v, s_nl, extra_S=(boot["S_scan_pct"], seats.S))
+        fits[v] = fit_valve(loop.op, loop.pv, v, s_nl, extra_S=(boot["S_scan_pct"], seats.S), memo=memo)
     lin = fits["linear"]
     e_lin = residuals(loop.pv, lin.path(loop.op), lin.process, s.k0)
     f = neff_factor(e_lin)
@@ -368,7 +372,7 @@ def compare(loop: LoopData, s: Settings, alpha: float = 0.01, heldout: bool = Tr
         })
     # the better valve nonlinearity by adjusted BIC
     nonlin = min((fd for fd in findings if fd["candidate"] != "linear"), key=lambda fd: fd["delta_bic"])
-    gain = _heldout_gain(loop, nonlin["candidate"], s, seats.linear, seats.nonlinear) if heldout else math.nan
+    gain = _heldout_gain(loop, nonlin["candidate"], s, seats.linear, seats.nonlinear, memo) if heldout else math.nan
     nonlin["heldout_loglik_gain"] = gain
     justified = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
                  and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
@@ -388,22 +392,23 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     if s.dt != loop.dt:
         s = replace(s, dt=loop.dt)
     osc = oscillation(loop.pv - loop.sp, loop.dt)
+    memo: FitMemo = {}  # the record's process fits, shared by its comparisons (the same fits, each computed once)
 
     def checked(c: Comparison) -> tuple[bool, Comparison | None]:
         """Whether ``c`` names stiction, with condition 4 (the periodic load, on the same seats) where it applies."""
         if not (periodic_load and c.justified and osc["oscillating"] and not math.isfinite(s.load_period_s)):
             return c.justified, None
         per = compare(loop, with_periodic_load(loop, s, osc["period_s"], settings is None), alpha, heldout,
-                      seats=c.seats)
+                      seats=c.seats, memo=memo)
         return per.justified, per
 
-    cmp = compare(loop, s, alpha, heldout, bootstrap)
+    cmp = compare(loop, s, alpha, heldout, bootstrap, memo=memo)
     by_likelihood, periodic = checked(cmp)
     # the valve's seat: searched only where the comparison without one does not name stiction
     seats = NO_SEAT if by_likelihood else scan_seats(loop.op, loop.pv, s)
     seated = False
     if not by_likelihood and (math.isfinite(seats.linear) or math.isfinite(seats.nonlinear)):
-        alt = compare(loop, s, alpha, heldout, bootstrap, seats=seats)
+        alt = compare(loop, s, alpha, heldout, bootstrap, seats=seats, memo=memo)
         # a band below one sample's OP move is not resolved by the record (Band uncertainty): the seated fallback
         # does not name one (the flow loops' smooth twins 16612 and 16616 were named at 0.06-0.07 % of OP)
         if alt.justified and alt.fits[BAND_CANDIDATE].S >= sampling_offset(loop.op):

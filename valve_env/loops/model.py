@@ -177,39 +177,162 @@ def _oe_fit(pv: np.ndarray, w: np.ndarray, basis: np.ndarray, k0: int, k1: int, 
                 v -= theta[1 + j] * basis[k, j]
             r[k] = v
         if p > 0:
-            b00 = 1e-12
-            b01 = 0.0
-            b11 = 1e-12
-            c0 = 0.0
-            c1 = 0.0
-            for k in range(k0, k1):
-                b00 += r[k - 1] * r[k - 1]
-                b01 += r[k - 1] * r[k - 2]
-                b11 += r[k - 2] * r[k - 2]
-                c0 += r[k - 1] * r[k]
-                c1 += r[k - 2] * r[k]
-            if p == 1:
-                rho[0] = c0 / b00
-                rho[1] = 0.0
-            else:
-                det = b00 * b11 - b01 * b01
-                rho[0] = (c0 * b11 - c1 * b01) / det
-                rho[1] = (b00 * c1 - b01 * c0) / det
-    rss = 0.0
-    for k in range(k0, k1):
-        e = r[k] - rho[0] * r[k - 1] - rho[1] * r[k - 2]
-        rss += e * e
-    return rss, theta, rho[0], rho[1]
+            rho[0], rho[1] = _ar_fit(r, k0, k1, p)
+    return _ar_rss(r, rho[0], rho[1], k0, k1), theta, rho[0], rho[1]
 
 
 @njit(cache=True)
-def _best_process(pv: np.ndarray, x: np.ndarray, basis: np.ndarray, alist: np.ndarray, delays: np.ndarray,
-                  k0: int, k1: int, p: int, n_iter: int, allow_integ: bool) -> tuple:  # pragma: no cover - compiled
-    """The best (lag, delay) for the valve path ``x``. Delays of a whole sample or more first; a delay below one
-    sample only with a gain of their best fit's sign (the controller's own relation between the same samples has
-    the opposite sign, negative feedback: docs/loops.md, "Model")."""
+def _ar_fit(r: np.ndarray, k0: int, k1: int, p: int) -> tuple[float, float]:  # pragma: no cover - compiled
+    """The AR(p <= 2) filter of the residual ``r`` by least squares over samples ``k0..k1-1`` (p >= 1)."""
+    b00 = 1e-12
+    b01 = 0.0
+    b11 = 1e-12
+    c0 = 0.0
+    c1 = 0.0
+    for k in range(k0, k1):
+        b00 += r[k - 1] * r[k - 1]
+        b01 += r[k - 1] * r[k - 2]
+        b11 += r[k - 2] * r[k - 2]
+        c0 += r[k - 1] * r[k]
+        c1 += r[k - 2] * r[k]
+    if p == 1:
+        return c0 / b00, 0.0
+    det = b00 * b11 - b01 * b01
+    return (c0 * b11 - c1 * b01) / det, (b00 * c1 - b01 * c0) / det
+
+
+@njit(cache=True)
+def _ar_rss(r: np.ndarray, rho0: float, rho1: float, k0: int, k1: int) -> float:  # pragma: no cover - compiled
+    """The residual sum of squares of ``r`` after the AR filter ``(rho0, rho1)`` over samples ``k0..k1-1``."""
+    rss = 0.0
+    for k in range(k0, k1):
+        e = r[k] - rho0 * r[k - 1] - rho1 * r[k - 2]
+        rss += e * e
+    return rss
+
+
+@njit(cache=True)
+def _fixed_moments(pv: np.ndarray, bidx: np.ndarray, bval: np.ndarray, q: int, k0: int,
+                   k1: int) -> tuple:  # pragma: no cover - compiled
+    """The lagged cross moments of the terms every candidate of :func:`_best_process` shares, over samples
+    ``k0..k1-1``: ``PB[l1, l2, j] = sum_k pv[k-l1] B[k-l2, j]`` and ``BB[l1, l2, i, j] = sum_k B[k-l1, i] B[k-l2, j]``
+    (lags 0-2, the AR(2) filter's; the basis ``B`` in the sparse form of :func:`_sparse_basis`)."""
+    wd = bidx.shape[1]
+    PB = np.zeros((3, 3, q))
+    BB = np.zeros((3, 3, q, q))
+    for k in range(k0, k1):
+        for l1 in range(3):
+            pk = pv[k - l1]
+            r1 = k - l1
+            for l2 in range(3):
+                r2 = k - l2
+                for u in range(wd):
+                    PB[l1, l2, bidx[r2, u]] += pk * bval[r2, u]
+                    for v in range(wd):
+                        BB[l1, l2, bidx[r1, u], bidx[r2, v]] += bval[r1, u] * bval[r2, v]
+    return PB, BB
+
+
+@njit(cache=True)
+def _oe_fit_moments(pv: np.ndarray, w: np.ndarray, bidx: np.ndarray, bval: np.ndarray, PB: np.ndarray,
+                    BB: np.ndarray, k0: int, k1: int, p: int, n_iter: int, r: np.ndarray) -> tuple:
+    # pragma: no cover - compiled
+    """:func:`_oe_fit` for :func:`_best_process`'s many candidates, the same alternating least squares computed
+    faster (docs/loops.md, "Eleventh session: speed"): the AR-filtered normal equations are sums over the lag pairs
+    of the AR(2) filter of the terms' lagged cross moments, so the moments of ``w`` are taken once (the basis's
+    and ``pv``'s, :func:`_fixed_moments`, once for all candidates) and each iteration assembles its equations from
+    them instead of a pass over the record; the residual, the AR filter and the RSS are computed on the record as
+    there, with the sparse basis. ``r`` is work space of ``pv``'s size. Returns (rss, theta, rho1, rho2)."""
+    q = PB.shape[2]
+    m = 1 + q
+    wd = bidx.shape[1]
+    # the lag pairs with a lag 0 by passes over the record, the rest from them by their window's two end terms
+    # (the pair (l1 + 1, l2 + 1) is the pair (l1, l2) over the window one sample earlier)
+    WW = np.zeros((3, 3))
+    WP = np.zeros((3, 3))
+    WB = np.zeros((3, 3, q))
+    for k in range(k0, k1):
+        w0 = w[k]
+        w1 = w[k - 1]
+        w2 = w[k - 2]
+        WW[0, 0] += w0 * w0
+        WW[0, 1] += w0 * w1
+        WW[0, 2] += w0 * w2
+        WP[0, 0] += w0 * pv[k]
+        WP[0, 1] += w0 * pv[k - 1]
+        WP[0, 2] += w0 * pv[k - 2]
+        WP[1, 0] += w1 * pv[k]
+        WP[2, 0] += w2 * pv[k]
+        for u in range(wd):
+            WB[0, 0, bidx[k, u]] += w0 * bval[k, u]
+            WB[1, 0, bidx[k, u]] += w1 * bval[k, u]
+            WB[2, 0, bidx[k, u]] += w2 * bval[k, u]
+            WB[0, 1, bidx[k - 1, u]] += w0 * bval[k - 1, u]
+            WB[0, 2, bidx[k - 2, u]] += w0 * bval[k - 2, u]
+    WW[1, 0] = WW[0, 1]
+    WW[2, 0] = WW[0, 2]
+    for l1, l2 in ((0, 0), (0, 1), (1, 0), (1, 1)):
+        a0 = k0 - 1 - l1  # the term entering the window one sample earlier
+        b0 = k0 - 1 - l2
+        a1 = k1 - 1 - l1  # the term leaving it
+        b1 = k1 - 1 - l2
+        WW[l1 + 1, l2 + 1] = WW[l1, l2] + w[a0] * w[b0] - w[a1] * w[b1]
+        WP[l1 + 1, l2 + 1] = WP[l1, l2] + w[a0] * pv[b0] - w[a1] * pv[b1]
+        WB[l1 + 1, l2 + 1, :] = WB[l1, l2, :]
+        for u in range(wd):
+            WB[l1 + 1, l2 + 1, bidx[b0, u]] += w[a0] * bval[b0, u]
+            WB[l1 + 1, l2 + 1, bidx[b1, u]] -= w[a1] * bval[b1, u]
+    c = np.zeros(3)
+    rho0 = 0.0
+    rho1 = 0.0
+    theta = np.zeros(m)
+    A = np.empty((m, m))
+    bb = np.empty(m)
+    iters = 1 if p == 0 else n_iter
+    for _ in range(iters):
+        c[0] = 1.0
+        c[1] = -rho0
+        c[2] = -rho1
+        A[:, :] = 0.0
+        bb[:] = 0.0
+        for l1 in range(3):
+            for l2 in range(3):
+                cc = c[l1] * c[l2]
+                if cc == 0.0:
+                    continue
+                A[0, 0] += cc * WW[l1, l2]
+                bb[0] += cc * WP[l2, l1]
+                for j in range(q):
+                    A[0, 1 + j] += cc * WB[l1, l2, j]
+                    A[1 + j, 0] += cc * WB[l2, l1, j]
+                    bb[1 + j] += cc * PB[l1, l2, j]
+                    for i in range(q):
+                        A[1 + i, 1 + j] += cc * BB[l1, l2, i, j]
+        for i in range(m):
+            A[i, i] += 1e-9 * A[i, i] + 1e-12
+        theta = np.linalg.solve(A, bb)
+        for k in range(k0 - 2, k1):
+            v = pv[k] - theta[0] * w[k]
+            for u in range(wd):
+                v -= theta[1 + bidx[k, u]] * bval[k, u]
+            r[k] = v
+        if p > 0:
+            rho0, rho1 = _ar_fit(r, k0, k1, p)
+    return _ar_rss(r, rho0, rho1, k0, k1), theta, rho0, rho1
+
+
+@njit(cache=True)
+def _best_process(pv: np.ndarray, x: np.ndarray, bidx: np.ndarray, bval: np.ndarray, q: int, alist: np.ndarray,
+                  delays: np.ndarray, k0: int, k1: int, p: int, n_iter: int,
+                  allow_integ: bool) -> tuple:  # pragma: no cover - compiled
+    """The best (lag, delay) for the valve path ``x`` (the disturbance basis in the sparse form of
+    :func:`_sparse_basis`, ``q`` columns; each candidate fitted by :func:`_oe_fit_moments`). Delays of a whole sample
+    or more first; a delay below one sample only with a gain of their best fit's sign (the controller's own relation
+    between the same samples has the opposite sign, negative feedback: docs/loops.md, "Model")."""
+    PB, BB = _fixed_moments(pv, bidx, bval, q, k0, k1)
+    r = np.zeros(pv.size)
     best_rss = 1e300
-    best = (1e300, 0.0, 0.0, False, np.zeros(1 + basis.shape[1]), 0.0, 0.0)
+    best = (1e300, 0.0, 0.0, False, np.zeros(1 + q), 0.0, 0.0)
     na = alist.size + (1 if allow_integ else 0)
     sign = 0.0
     for sub in (False, True):
@@ -220,7 +343,7 @@ def _best_process(pv: np.ndarray, x: np.ndarray, basis: np.ndarray, alist: np.nd
                 if (d < 1.0) != sub:
                     continue
                 w = _filtered(x, a, d, integ)
-                rss, theta, r1, r2 = _oe_fit(pv, w, basis, k0, k1, p, n_iter)
+                rss, theta, r1, r2 = _oe_fit_moments(pv, w, bidx, bval, PB, BB, k0, k1, p, n_iter, r)
                 if sub and theta[0] * sign <= 0.0:
                     continue
                 if rss < best_rss:
@@ -359,10 +482,10 @@ def fit_process(pv: np.ndarray, x: np.ndarray, s: Settings, k1: int | None = Non
     """Maximum-likelihood process for a given valve path ``x`` (samples ``k0..k1-1``)."""
     k0 = s.k0 if k0 is None else k0
     k1 = pv.size if k1 is None else k1
-    basis = disturbance_basis(pv.size, s.dt, s.disturbance_knot_s, s.load_period_s)
+    basis, idx, val = _settings_basis(pv.size, s)
     rss, a, d, integ, theta, r1, r2 = _best_process(
-        np.ascontiguousarray(pv, dtype=float), np.ascontiguousarray(x, dtype=float), basis, s.alist(),
-        s.delays(), k0, k1, s.noise_order, s.n_iter, s.allow_integrating)
+        np.ascontiguousarray(pv, dtype=float), np.ascontiguousarray(x, dtype=float), idx, val, basis.shape[1],
+        s.alist(), s.delays(), k0, k1, s.noise_order, s.n_iter, s.allow_integrating)
     n_params = 3 + basis.shape[1] + s.noise_order + 1  # K, a, d, disturbance weights, rho, sigma
     return ProcessFit(float(a), float(d), bool(integ), float(theta[0]), np.asarray(theta[1:]), basis,
                       (float(r1), float(r2)), float(rss), k1 - k0, n_params)
@@ -436,14 +559,35 @@ def op_scale(op: np.ndarray) -> float:
     return float(max(hi - lo, 1e-6))
 
 
+#: fitted processes of one record's valve paths (:func:`fit_valve`'s ``memo``), by settings, samples and valve
+FitMemo = dict[tuple[Settings, int, int, float, float, float], "ProcessFit"]
+
+
+def _fit_path(op: np.ndarray, pv: np.ndarray, S: float, J: float, d0: float, s: Settings, k1: int | None,
+              k0: int | None, memo: FitMemo | None) -> ProcessFit:
+    """:func:`fit_process` behind the valve ``(S, J, d0)`` (``S`` 0: the linear valve) on ``s.seat`` at
+    ``s.substeps``, looked up in ``memo`` (the same record's fits) first and stored there: the backlash valve's paths
+    are the stiction valve's at J = 0, and a comparison on other seats repeats the fits of a kind of valve whose seat
+    is the same (docs/loops.md, "Eleventh session: speed")."""
+    key = (s, s.k0 if k0 is None else k0, pv.size if k1 is None else k1, float(S), float(J), float(d0))
+    if memo is not None and key in memo:
+        return memo[key]
+    x = seated(op, s.seat) if S <= 0.0 else valve_path(op, S, J, d0, s.substeps, s.seat)
+    pf = fit_process(pv, x, s, k1, k0)
+    if memo is not None:
+        memo[key] = pf
+    return pf
+
+
 def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int | None = None,
               k0: int | None = None, extra_S: tuple[float, ...] = (),
-              j_fractions: tuple[float, ...] = J_FRACTIONS) -> ValveFit:
+              j_fractions: tuple[float, ...] = J_FRACTIONS, memo: FitMemo | None = None) -> ValveFit:
     """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J); ``extra_S`` are
     bands added to the grid (the LR scan's best band); ``j_fractions`` the J / S values of the stiction valve
-    (J profiled out at each S)."""
+    (J profiled out at each S). ``memo`` (a dict kept for one record, or None) holds the process fits of every valve
+    path fitted so far, so that a path fitted again is looked up (:func:`_fit_path`); the fit is the same."""
     if valve == "linear":
-        pf = fit_process(pv, seated(op, s.seat), s, k1, k0)
+        pf = _fit_path(op, pv, 0.0, 0.0, 1.0, s, k1, k0, memo)
         return ValveFit("linear", 0.0, 0.0, pf, pf.n_params + seat_params(s.seat), seat=s.seat)
     fracs = (0.0,) if valve == "backlash" else j_fractions
     r = op_scale(op)
@@ -451,8 +595,7 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
                                      [v for v in extra_S if v > 0.0]]))
 
     def best_over_j(S: float) -> tuple[float, float, float, ProcessFit]:
-        cand = [(fit_process(pv, valve_path(op, S, f * S, d0, s.substeps, s.seat), s, k1, k0), f * S, d0)
-                for f in fracs for d0 in DIRECTIONS]
+        cand = [(_fit_path(op, pv, S, f * S, d0, s, k1, k0, memo), f * S, d0) for f in fracs for d0 in DIRECTIONS]
         pf, J, d0 = max(cand, key=lambda c: c[0].loglik)
         return pf.loglik, J, d0, pf
 
@@ -490,9 +633,13 @@ def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray
     """For each valve path (row of ``xs``), the least white-noise RSS of ``pv ~ K w + basis weights`` over the
     process structures (lag, delay) on samples ``k0..``. The basis (hat functions) is given sparsely: row ``k``
     has the values ``bval[k]`` in the columns ``bidx[k]``. A delay shifts the lag's output (the filter starts
-    at rest at ``x[0]``; for the integrator the shift adds a constant, which the basis holds)."""
+    at rest at ``x[0]``; for the integrator the shift adds a constant, which the basis holds).
+
+    Computed fast (docs/loops.md, "Eleventh session: speed"): the basis block of the normal equations is the same
+    for every path and structure, so each is solved by its Schur complement with the basis block's inverse taken
+    once; the lag's output's moments are taken once per whole-sample delay (its squares and lag-one products from
+    prefix sums), a fractional delay's being the linear interpolation's combinations of its two whole delays'."""
     n = pv.size
-    m = 1 + q
     G = np.zeros((q, q))
     Bp = np.zeros(q)
     pp = 0.0
@@ -502,12 +649,23 @@ def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray
             Bp[bidx[k, u]] += bval[k, u] * pv[k]
             for v in range(bidx.shape[1]):
                 G[bidx[k, u], bidx[k, v]] += bval[k, u] * bval[k, v]
+    for i in range(q):
+        G[i, i] += 1e-9 * G[i, i] + 1e-12
+    Gi = np.linalg.inv(G)
+    GiBp = Gi @ Bp
+    pp_basis = pp - np.dot(Bp, GiBp)  # the RSS of the basis alone
+    d_lo = int(math.floor(delays[0]))
+    nd = int(math.floor(delays[-1])) + 2 - d_lo  # the whole delays of the grid and one beyond (a fraction's upper)
+    WW = np.empty(nd)
+    WC = np.empty(nd)
+    WP = np.empty(nd)
+    WB = np.empty((nd, q))
+    P2 = np.zeros(n + 1)
+    PC = np.zeros(n + 1)
+    wb = np.empty(q)
     na = alist.size + (1 if allow_integ else 0)
     out = np.empty(xs.shape[0])
     w = np.empty(n)
-    A = np.empty((m, m))
-    b = np.empty(m)
-    wb = np.empty(q)
     for ix in range(xs.shape[0]):
         best = 1e300
         sign = 0.0
@@ -523,35 +681,52 @@ def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray
                 w[0] = 0.0 if integ else x[0]
                 for k in range(1, n):
                     w[k] = w[k - 1] + (x[k] - xm) if integ else a * w[k - 1] + (1.0 - a) * x[k]
+                P2[1] = w[0] * w[0]
+                for k in range(1, n):
+                    P2[k + 1] = P2[k] + w[k] * w[k]
+                    PC[k + 1] = PC[k] + w[k] * w[k - 1]
+                for i in range(nd):  # the moments of w delayed by the whole delay d_lo + i
+                    d = d_lo + i
+                    WW[i] = P2[n - d] - P2[k0 - d]
+                    WC[i] = PC[n - d] - PC[k0 - d]
+                    wp = 0.0
+                    WB[i, :] = 0.0
+                    for k in range(k0, n):
+                        wk = w[k - d]
+                        wp += wk * pv[k]
+                        for u in range(bidx.shape[1]):
+                            WB[i, bidx[k, u]] += wk * bval[k, u]
+                    WP[i] = wp
                 for dly in delays:
                     if (dly < 1.0) != sub:
                         continue
-                    d = int(math.floor(dly))
-                    f = dly - d
-                    ww = 0.0
-                    wp = 0.0
-                    wb[:] = 0.0
-                    for k in range(k0, n):
-                        wk = w[k - d] if f == 0.0 else (1.0 - f) * w[k - d] + f * w[k - d - 1]
-                        ww += wk * wk
-                        wp += wk * pv[k]
-                        for u in range(bidx.shape[1]):
-                            wb[bidx[k, u]] += wk * bval[k, u]
-                    A[1:, 1:] = G
-                    A[0, 0] = ww
-                    A[0, 1:] = wb
-                    A[1:, 0] = wb
-                    b[0] = wp
-                    b[1:] = Bp
-                    for i in range(m):
-                        A[i, i] += 1e-9 * A[i, i] + 1e-12
-                    theta = np.linalg.solve(A, b)
-                    if sub and theta[0] * sign <= 0.0:
+                    i = int(math.floor(dly)) - d_lo
+                    f = dly - math.floor(dly)
+                    if f == 0.0:
+                        ww = WW[i]
+                        wp = WP[i]
+                        wb[:] = WB[i]
+                    else:  # (1 - f) w[k - d] + f w[k - d - 1]
+                        ww = (1.0 - f) ** 2 * WW[i] + 2.0 * f * (1.0 - f) * WC[i] + f * f * WW[i + 1]
+                        wp = (1.0 - f) * WP[i] + f * WP[i + 1]
+                        for j in range(q):
+                            wb[j] = (1.0 - f) * WB[i, j] + f * WB[i + 1, j]
+                    ww += 1e-9 * ww + 1e-12
+                    t = wp
+                    sc = ww
+                    for j in range(q):
+                        acc = 0.0
+                        for jj in range(q):
+                            acc += Gi[j, jj] * wb[jj]
+                        t -= wb[j] * GiBp[j]
+                        sc -= wb[j] * acc
+                    k_gain = t / sc  # the gain; the basis weights GiBp - K Gi wb
+                    if sub and k_gain * sign <= 0.0:
                         continue
-                    rss = max(pp - np.dot(theta, b), 1e-300)
+                    rss = max(pp_basis - t * k_gain, 1e-300)
                     if rss < best:
                         best = rss
-                        best_k = theta[0]
+                        best_k = k_gain
             if not sub:
                 sign = best_k
         out[ix] = best
@@ -611,19 +786,28 @@ def scan_paths(op: np.ndarray, substeps: int = 1,
 
 
 @functools.lru_cache(maxsize=8)
-def _scan_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) -> tuple[np.ndarray, np.ndarray, int]:
-    """The disturbance basis of a record of ``n`` samples in the scan's sparse form (columns, values, width):
-    the same for the record and each of its bootstrap replicates, so built once (callers only read it)."""
+def _cached_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) -> tuple[np.ndarray, np.ndarray,
+                                                                                          np.ndarray]:
+    """The disturbance basis of a record of ``n`` samples (:func:`disturbance_basis`), dense and in the sparse form
+    of :func:`_sparse_basis` (columns, values): the same for every fit and scan of the record and of its bootstrap
+    replicates, so built once (read-only: the fits hold it)."""
     basis = disturbance_basis(n, dt, knot_s, period_s)
     idx, val = _sparse_basis(basis)
-    return idx, val, basis.shape[1]
+    for arr in (basis, idx, val):
+        arr.setflags(write=False)
+    return basis, idx, val
+
+
+def _settings_basis(n: int, s: Settings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_cached_basis` of a record of ``n`` samples with the disturbance model of ``s``."""
+    return _cached_basis(n, float(s.dt), float(s.disturbance_knot_s), float(s.load_period_s))
 
 
 def _scan_rss_paths(pv: np.ndarray, xs: np.ndarray, s: Settings) -> np.ndarray:
     """The scan's residual sum of squares of ``pv`` behind each valve path of ``xs`` (each with its best process
     structure, the disturbance basis of ``s``, its periodic load included)."""
-    idx, val, q = _scan_basis(pv.size, float(s.dt), float(s.disturbance_knot_s), float(s.load_period_s))
-    return _scan_rss(pv, xs, idx, val, q, s.alist(), s.delays(), s.k0, s.allow_integrating)
+    basis, idx, val = _settings_basis(pv.size, s)
+    return _scan_rss(pv, xs, idx, val, basis.shape[1], s.alist(), s.delays(), s.k0, s.allow_integrating)
 
 
 def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float, float]]], s: Settings) -> Scan:
