@@ -130,7 +130,7 @@ def slips_sd(sizes: np.ndarray, rng: np.random.Generator, resamples: int = 999) 
 
 
 def band_spread(x: np.ndarray, stroke: float, s_w: float, draws: int, rng: np.random.Generator,
-                band: float, min_jumps: int = 4) -> tuple[float, dict[str, float], np.ndarray]:
+                band: float) -> tuple[float, dict[str, float], np.ndarray]:
     """The sampling sd (mm) of :func:`jump_band`'s band measured on the opening ``x``, its parts, and the
     added-noise re-estimates: (sd, parts, draws). The sd is the larger of two (docs/uncertainty.md,
     "Issue 20, eighth round"):
@@ -139,9 +139,9 @@ def band_spread(x: np.ndarray, stroke: float, s_w: float, draws: int, rng: np.ra
       of its sd ``s_w`` added (:func:`band_draws`; a copy with too few slips counts as ``band``): which noisy
       steps pass for a slip, and the noise on each slip's plateau and landing;
     * ``slips_sd_mm``: the sd of the median from the slips' own spread (:func:`slips_sd`), from 2 slips on.
-      With fewer than ``min_jumps`` the band is the likelihood's, not their median, but the slips are still
-      the only measurement of how far apart its events lie, and with 2-3 slips the added-noise copies find
-      too few slips and keep the band (a spread of 0: a 2-slip run of project seed 20270332 reported
+      With fewer than :func:`jump_band`'s ``min_jumps`` the band is the likelihood's, not their median, but the
+      slips are still the only measurement of how far apart its events lie, and with 2-3 slips the added-noise
+      copies find too few slips and keep the band (a spread of 0: a 2-slip run of project seed 20270332 reported
       6.6e-5 mm for a band 18 % off); the small-sample factor makes it wide there (6.5 for 2 slips).
       The slips differ by more than their noise: by where within its sampling interval each slip falls and
       how fast the demand moves on (a stem that moves with the demand after a slip is measured anywhere in
@@ -154,7 +154,7 @@ def band_spread(x: np.ndarray, stroke: float, s_w: float, draws: int, rng: np.ra
     r = np.where(np.isfinite(r), r, band)
     noise = float(np.std(r, ddof=1))
     sz = slips(x, stroke, s_w)
-    between = slips_sd(sz, rng) if sz.size >= 2 else float("nan")
+    between = slips_sd(sz, rng)  # nan with fewer than 2 slips
     sd = max(noise, between) if math.isfinite(between) else noise
     return sd, {"noise_sd_mm": noise, "slips_sd_mm": between, "n_slips": int(sz.size)}, r
 
