@@ -1,7 +1,8 @@
 """Loop diagnoses' decisions per record, stored and compared: a speed change must not change them (docs/loops.md,
 "Eleventh session: speed").
 
-    python benchmarks/loop_decisions.py --out before.json --sim 7000:20 --real dev --env seat:0-3
+    python benchmarks/loop_decisions.py --out before.json --sim 7000:20 --env seat:0-3 \
+        --real dev --data /path/to/plant_loops
     python benchmarks/loop_decisions.py --compare before.json after.json
 
 For each record (simulated loops of ``loop_benchmark.sim_cases``, all four kinds; real loops of a split set,
@@ -18,9 +19,7 @@ import argparse
 import csv
 import json
 import math
-import os
 import sys
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -28,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.cli import int_list
+from valve_env.outputs import OutputError, atomic_write_text, check_output
 
 KINDS = ("sticky", "smooth", "ext_smooth", "ext_sticky")
 ENV_SETS = {"seat": ("ThermoValveStickyValve-v0", None, None), "mid": ("ThermoValveStickyCirculation-v0", 5.0, 1500.0)}
-DEFAULT_DATA = Path("/work/shared/data/plant_loops")
 
 
 def _record(job: tuple) -> dict:
@@ -115,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--force", action="store_true", help="replace an existing --out")
     ap.add_argument("--sim", action="append", default=[], help="simulated cases SEED0:N (repeatable)")
     ap.add_argument("--real", choices=("dev",), default=None, help="the real loops' development half (--data)")
-    ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    ap.add_argument("--data", type=Path, default=None, help="the plant_loops folder (stiction/, non_stiction/)")
     ap.add_argument("--env", action="append", default=[], help="env records seat:SEEDS or mid:SEEDS (repeatable)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("OLD", "NEW"))
@@ -126,10 +125,14 @@ def main(argv: list[str] | None = None) -> int:
         return compare(old, new, a.tol)
     if a.out is None:
         ap.error("give --out or --compare")
-    if a.out.exists() and not a.force:
-        ap.error(f"{a.out} exists (use --force to replace it)")
+    try:
+        check_output(a.out, force=a.force)  # the project's output policy, checked before the work
+    except OutputError as exc:
+        ap.error(str(exc))
     if a.jobs < 1:
         ap.error("--jobs must be at least 1")
+    if a.real and a.data is None:
+        ap.error("--real needs --data (the plant_loops folder)")
     jobs = jobs_for(a)
     out: dict[str, dict] = {}
     with ProcessPoolExecutor(a.jobs) as ex:
@@ -139,10 +142,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{r['key']}: {r['cause']}{band}; CPU {r['cpu_s']:.2f} s ({r['n']} samples)", flush=True)
     cpu = [r["cpu_s"] / r["n"] * 720 for r in out.values() if math.isfinite(r["cpu_s"])]
     print(f"{len(out)} records; CPU per 720 samples mean {np.mean(cpu):.2f} s, max {np.max(cpu):.2f} s")
-    fd, tmp = tempfile.mkstemp(dir=a.out.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(out, fh, indent=1)
-    os.replace(tmp, a.out)
+    atomic_write_text(a.out, json.dumps(out, indent=1))
     return 0
 
 
