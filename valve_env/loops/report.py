@@ -94,10 +94,15 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
         lines += [f"Band S = {st['band_pct']:.3g} % of OP (sd {st['std_pct']:.2g} %, 95 % interval "
                   f"{st['ci95_pct'][0]:.3g}-{st['ci95_pct'][1]:.3g} %), slip jump J = {st['jump_pct']:.3g} %, "
                   f"{st['kind']}.", ""]
-        if not st["band_resolved"]:
+        if not st["band_resolved"] and st["band_fitted_pct"] < st["sampling_offset_pct"]:
             lines += [f"The fitted band ({st['band_fitted_pct']:.3g} %) is below one sample's OP move "
                       f"({st['sampling_offset_pct']:.3g} %): the record does not resolve it (the limit cycle is "
                       "about as fast as the sampling), so the band is a rough figure; its sd says so.", ""]
+        elif not st["band_resolved"]:
+            op_range = R["loop"]["op_range_pct"][1] - R["loop"]["op_range_pct"][0]
+            lines += [f"The fitted band ({st['band_fitted_pct']:.3g} %) is wider than the OP's whole range "
+                      f"({op_range:.3g} %): the valve is never pushed back through it, so the record shows its slip "
+                      "jump and that the band is at least the range, not how much wider.", ""]
     for note in R["notes"]:
         lines.append(f"- note: {note}")
     lines += ["", "| candidate | loglik | params | LR | LR adjusted | p | delta BIC | S % | J % | process |",
