@@ -1,14 +1,15 @@
-"""A band the record resolves (docs/loops.md, "Twelfth session: a band wider than the OP's range"): from one sample's
-OP move to the OP's whole range. A wider band can never be crossed back, so the valve only moves on in its first
-direction and the record shows the slip jump, not the band; the seated fallback does not name such a band."""
+"""A band the record resolves (docs/loops.md, "Twelfth session: a band the valve never crosses back"): at least one
+sample's OP move, and crossed back by the fitted valve at least once. A valve that only moves on in its first direction
+shows its slip jump, not its band (a band wider than the OP's whole range is never crossed back); the seated fallback
+does not name such a band."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from valve_env.loops.diagnose import band_resolved, compare, diagnose, sampling_offset, select_noise_order
+from valve_env.loops.diagnose import band_resolved, compare, crosses_back, diagnose, select_noise_order
 from valve_env.loops.envloop import record_env_loop
-from valve_env.loops.model import scan_seats, valve_path
+from valve_env.loops.model import FitMemo, scan_seats, valve_path
 
 
 def test_a_band_wider_than_the_op_range_is_never_crossed_back() -> None:
@@ -22,28 +23,25 @@ def test_a_band_wider_than_the_op_range_is_never_crossed_back() -> None:
         wider = valve_path(op, 3.0 * width, J, d0)
         moves = np.diff(wide)[np.abs(np.diff(wide)) > 1e-12]
         assert moves.size > 0 and np.all(np.sign(moves) == d0)  # only on, in its first direction
+        assert not crosses_back(wide)
         # every band beyond the range: the same path but for the resting offset (S - J) / 2
         np.testing.assert_allclose(wider - wide, -d0 * (3.0 - 1.2) * width / 2, atol=1e-9)
     # within the range the valve is pushed back through its band: it reverses
-    inside = np.diff(valve_path(op, 0.3 * width, J))
-    assert np.any(inside > 1e-12) and np.any(inside < -1e-12)
+    assert crosses_back(valve_path(op, 0.3 * width, J))
+    assert not crosses_back(np.full(10, 50.0)) and not crosses_back(np.linspace(0.0, 1.0, 10))
 
 
-def test_band_resolved_from_one_samples_move_to_the_range() -> None:
-    rng = np.random.default_rng(6)
-    op = 50 + np.cumsum(rng.normal(0, 0.3, 500))
-    lo, hi = sampling_offset(op), float(np.ptp(op))
-    assert band_resolved(lo, op) and band_resolved(hi, op) and band_resolved(0.5 * (lo + hi), op)
-    assert not band_resolved(0.9 * lo, op) and not band_resolved(1.01 * hi, op)
-
-
-def test_seated_fallback_does_not_name_a_band_wider_than_the_op_range() -> None:
-    """Smooth seat seed 8 (development): its seated comparison is justified with a stick-slip band wider than the OP's
-    whole range (a valve that slips twice, in one direction, in 4 h), which named it until the twelfth session."""
-    loop = record_env_loop(0.0, seed=8)
+def test_seated_fallback_does_not_name_a_band_never_crossed_back() -> None:
+    """Smooth seat seed 5 (development): its seated comparison is justified with a stick-slip that slips twice, upwards,
+    in 4 h (band 5.6 % of OP, inside the OP's range of 7.7 %, but never crossed back), which named it until the twelfth
+    session; the sticky seed 0's seated valve crosses its band back tens of times and stays named
+    (tests/loops/test_envloop.py)."""
+    loop = record_env_loop(0.0, seed=5)
     s = select_noise_order(loop)
-    memo: dict = {}
+    memo: FitMemo = {}
     alt = compare(loop, s, seats=scan_seats(loop.op, loop.pv, s), memo=memo)
-    assert alt.justified and alt.fits["stiction"].S > np.ptp(loop.op)
+    fit = alt.fits["stiction"]
+    assert alt.justified and fit.S > 0.5 * np.ptp(loop.op)
+    assert not crosses_back(fit.path(loop.op)) and not band_resolved(fit, loop.op)
     d = diagnose(loop)
     assert d.cause != "stiction" and d.result["decision"]["seat"]["seated"] is False

@@ -60,6 +60,7 @@ def test_env_loop_sticky_is_stiction(tmp_path: Path) -> None:
     assert d.result["decision"]["seat"]["seated"] is True
     assert d.fits["stiction"].seat == d.result["decision"]["seat"]["nonlinear_pct"]
     assert 1.0 < d.result["stiction"]["band_fitted_pct"] < 2.0
+    assert d.result["stiction"]["band_resolved"] is True  # its valve crosses the band back (twelfth session)
 
 
 @pytest.mark.slow

@@ -31,7 +31,7 @@ simulated smooth loops' load drift; docs/loops.md, "Decision").
 **The valve's seat** (docs/loops.md, "Loops from the environment", tenth session): where the comparison above does
 not name stiction and the record holds a seat (:func:`valve_env.loops.model.scan_seats`), the same comparison runs
 again with each kind of valve on its seat (the stick-slip's lower end stop) and decides, naming only a band the record
-resolves (:func:`band_resolved`: from one sample's OP move to the OP's whole range).
+resolves (:func:`band_resolved`: at least one sample's OP move, and crossed back by the fitted valve).
 
 Nothing else names it. The OP-PV cross-correlation's shape (:func:`valve_env.loops.detectors.horch` on
 the same record, with the PV's increments when the fitted process integrates) is reported beside the
@@ -221,13 +221,22 @@ def sampling_offset(op: np.ndarray) -> float:
     return resolution(op)
 
 
-def band_resolved(S: float, op: np.ndarray) -> bool:
-    """Whether the record ``op`` resolves a band ``S`` (% of OP; docs/loops.md, "Band uncertainty" and "Twelfth
-    session"): at least one sample's OP move (:func:`sampling_offset`: a narrower band holds the valve for less than a
-    sample) and at most the OP's whole range, max - min (a wider band can never be crossed back: the valve only ever
-    moves on in its first direction, so the record shows its slip jump J, and every wider band gives the same path but
-    for the resting offset ``(S - J) / 2``, which the process's offset absorbs)."""
-    return bool(sampling_offset(op) <= S <= float(np.max(op) - np.min(op)))
+def crosses_back(x: np.ndarray) -> bool:
+    """Whether the valve path ``x`` reverses its direction of motion at least once in the record."""
+    dx = np.diff(x)
+    moves = np.sign(dx[np.abs(dx) > 1e-9 * max(1.0, float(np.max(np.abs(x))))])
+    return bool(np.any(moves[1:] != moves[:-1]))
+
+
+def band_resolved(fit: ValveFit, op: np.ndarray) -> bool:
+    """Whether the record ``op`` resolves the band of the valve ``fit`` (docs/loops.md, "Band uncertainty" and "Twelfth
+    session: a band the valve never crosses back"): the band is at least one sample's OP move
+    (:func:`sampling_offset`: a narrower band holds the valve for less than a sample), and the fitted valve crosses it
+    back at least once (:func:`crosses_back`). A valve that only moves on in its first direction shows its slip jump J
+    and that the band exceeds every push back in the record, not the band: a band wider than the OP's whole range,
+    max - min, is never crossed back, and every such band gives the same path but for the resting offset
+    ``(S - J) / 2``, which the process's offset absorbs."""
+    return bool(fit.S >= sampling_offset(op) and crosses_back(fit.path(op)))
 
 
 def band_uncertainty(fit: ValveFit, factor: float, offset: float = 0.0,
@@ -420,9 +429,10 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     if not by_likelihood and (math.isfinite(seats.linear) or math.isfinite(seats.nonlinear)):
         alt = compare(loop, s, alpha, heldout, bootstrap, seats=seats, memo=memo)
         # the seated fallback names only a band the record resolves (band_resolved): not one below one sample's OP
-        # move (the flow loops' smooth twins 16612 and 16616 were named at 0.06-0.07 % of OP), nor one wider than the
-        # OP's whole range (smooth seat seed 8 at 7.3 % of OP against a range of 6.3 %; twelfth session)
-        if alt.justified and band_resolved(alt.fits[BAND_CANDIDATE].S, loop.op):
+        # move (the flow loops' smooth twins 16612 and 16616 were named at 0.06-0.07 % of OP), nor one its valve never
+        # crosses back (smooth seat seeds 5 and 8: two slips upwards in 4 h, bands 5.6 and 7.3 % of OP; twelfth
+        # session)
+        if alt.justified and band_resolved(alt.fits[BAND_CANDIDATE], loop.op):
             alt_named, alt_periodic = checked(alt)
             if alt_named:
                 cmp, by_likelihood, periodic, seated = alt, True, alt_periodic, True
@@ -445,7 +455,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "band_pct": band,
             "band_fitted_pct": fit.S,
             "sampling_offset_pct": offset,
-            "band_resolved": band_resolved(fit.S, loop.op),
+            "band_resolved": band_resolved(fit, loop.op),
             "std_pct": sd,
             "ci95_pct": [lo, hi],
             "jump_pct": fit.J,
@@ -493,5 +503,5 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
 
 
 __all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty",
-           "sampling_offset", "band_resolved", "BAND_CANDIDATE", "closed_loop", "rings", "Comparison", "compare",
-           "with_periodic_load"]
+           "sampling_offset", "band_resolved", "crosses_back", "BAND_CANDIDATE", "closed_loop", "rings", "Comparison",
+           "compare", "with_periodic_load"]

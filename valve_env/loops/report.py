@@ -99,10 +99,9 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
                       f"({st['sampling_offset_pct']:.3g} %): the record does not resolve it (the limit cycle is "
                       "about as fast as the sampling), so the band is a rough figure; its sd says so.", ""]
         elif not st["band_resolved"]:
-            op_range = R["loop"]["op_range_pct"][1] - R["loop"]["op_range_pct"][0]
-            lines += [f"The fitted band ({st['band_fitted_pct']:.3g} %) is wider than the OP's whole range "
-                      f"({op_range:.3g} %): the valve is never pushed back through it, so the record shows its slip "
-                      "jump and that the band is at least the range, not how much wider.", ""]
+            lines += ["The fitted valve never crosses its band back in this record (it only moves on in its first "
+                      "direction): the record shows the slip jump and that the band exceeds every push back, not the "
+                      "band itself, so the band is a rough figure.", ""]
     for note in R["notes"]:
         lines.append(f"- note: {note}")
     lines += ["", "| candidate | loglik | params | LR | LR adjusted | p | delta BIC | S % | J % | process |",
