@@ -184,9 +184,9 @@ def sim_loops(seed0: int, n: int, external: bool = True, jobs: int = 1) -> None:
     times = [out[(c["seed"], "sticky")]["cpu"] for c in cases]
     false_alarm = sum(out[(c["seed"], "smooth")]["cause"] == "stiction" for c in cases)
     print(f"named stiction on {found}/{n} sticky loops; band within 20 % of the truth: {hits}/{found}; "
-          f"1-sd coverage: {cover1}/{found}; 2-sd coverage: {cover}/{found}; bands resolved (fitted band at least "
-          f"one sample's OP move): {resolved}/{found}; smooth valves called stiction: {false_alarm}/{n}; "
-          f"CPU time per sticky loop mean {np.mean(times):.2f} s, max {np.max(times):.2f} s")
+          f"1-sd coverage: {cover1}/{found}; 2-sd coverage: {cover}/{found}; bands resolved (at least one sample's "
+          f"OP move, crossed back by the fitted valve): {resolved}/{found}; smooth valves called stiction: "
+          f"{false_alarm}/{n}; CPU time per sticky loop mean {np.mean(times):.2f} s, max {np.max(times):.2f} s")
     if external:
         for k, what in (("ext_smooth", "smooth valves"), ("ext_sticky", "sticky valves")):
             causes = [out[(c["seed"], k)]["cause"] for c in cases]
