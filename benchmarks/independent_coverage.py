@@ -185,6 +185,12 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "std_robust": (js.get("std_robust") or {}).get(name, float("nan")),
                     "std_bootstrap": (unc.get("bootstrap_std") or {}).get(name, float("nan")),
                     "std_from": (unc.get("std_from") or {}).get(name, ""),
+                    # the bootstrap's parts: bias and spread of the re-estimates about the world's truth, whether
+                    # corrected, and how the replicates were prepared (issue 20, twelfth round)
+                    "boot_bias": (unc.get("bias") or {}).get(name, float("nan")),
+                    "boot_spread": (unc.get("spread") or {}).get(name, float("nan")),
+                    "boot_corrected": (unc.get("bias_corrected") or {}).get(name),
+                    "replicates_prepared": unc.get("replicates_prepared"),
                     # the two pre-processings' estimates (the errors-in-variables bracket), where taken
                     "irw_value": ((unc.get("preprocessing") or {}).get("irw") or {}).get(name, float("nan")),
                     "tv_value": ((unc.get("preprocessing") or {}).get("tv") or {}).get(name, float("nan")),
