@@ -190,7 +190,7 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "boot_bias": (unc.get("bias") or {}).get(name, float("nan")),
                     "boot_spread": (unc.get("spread") or {}).get(name, float("nan")),
                     "boot_corrected": (unc.get("bias_corrected") or {}).get(name),
-                    "replicates_prepared": unc.get("replicates_prepared"),
+                    "replicates_prepared": unc.get("replicates_prepared"), "boot_B": unc.get("replicates"),
                     # the two pre-processings' estimates (the errors-in-variables bracket), where taken
                     "irw_value": ((unc.get("preprocessing") or {}).get("irw") or {}).get(name, float("nan")),
                     "tv_value": ((unc.get("preprocessing") or {}).get("tv") or {}).get(name, float("nan")),
@@ -318,11 +318,16 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
 #: the sds of a named effect that the effects study compares (issue 20: "chosen by measured coverage")
 EFFECT_SDS: dict[str, str] = {
     "reported": "the JSON's std (smooth effects: the TV refit, max(bootstrap, Hessian/HAC) (+) half the IRW-TV "
-                "difference; stiction's band: the bootstrap)",
+                "difference, the bootstrap's replicates refitted on TV since the twelfth round; stiction's band: "
+                "the bootstrap)",
     "hessian": "inverse Hessian (std_hessian)",
     "robust": "HAC sandwich of the per-sample scores (std_robust)",
-    "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std), about the IRW ML estimate "
+    "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std), about the estimate its replicates "
+                 "measure: the IRW ML one, or the TV refit where they were refitted on TV (replicates_prepared) "
                  "(stiction's band: about its bias-corrected estimate)",
+    "tv_corrected": "the TV refit corrected by its TV-refitted replicates' bias where clear, max(their spread (+) "
+                    "the correction's se, Hessian/HAC) (+) half the IRW-TV difference (bootstrap.BRACKET_CORRECT; "
+                    "smooth effects)",
     "tv_bootstrap": "the TV refit with the bootstrap's sd alone (no IRW-TV term; smooth effects)",
     "tv_whole_d": "the TV refit, max(bootstrap, Hessian/HAC) (+) the whole IRW-TV difference (smooth effects)",
     "midpoint": "the IRW-TV midpoint, max(bootstrap, Hessian/HAC) (+) half the IRW-TV difference (two "
@@ -343,6 +348,21 @@ def _bracket_rule(r: dict[str, Any], name: str) -> tuple[float, float]:
     return (tv if centre == "tv" else 0.5 * (tv + irw)), math.hypot(sb, weight * (tv - irw))
 
 
+def _tv_corrected(r: dict[str, Any]) -> tuple[float, float, float]:
+    """Estimate, truth and sd of the ``tv_corrected`` rule (:data:`EFFECT_SDS`; nan without TV-refitted replicates):
+    the TV refit less its replicates' bias where the bootstrap calls it clear (more than 2 se of their mean), the sd
+    their spread with the correction's se, else their RMS error; at least the Hessian/HAC sd; half the IRW-TV
+    difference in quadrature."""
+    if r.get("replicates_prepared") != "tv":
+        return math.nan, float(r["true_value"]), math.nan
+    irw, tv, bias, spread = (float(r[k]) for k in ("irw_value", "tv_value", "boot_bias", "boot_spread"))
+    B = int(r.get("boot_B") or 16)
+    clear = abs(bias) > 2.0 * spread / math.sqrt(B)
+    sd = math.sqrt(spread**2 * (1 + 1 / B)) if clear else math.hypot(spread, bias)
+    sd = float(np.fmax(sd, r.get("std_hessian", math.nan)))
+    return (tv - bias if clear else tv), float(r["true_value"]), math.hypot(sd, 0.5 * (tv - irw))
+
+
 def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
     """Coverage of each candidate sd over named runs."""
     key = {"reported": "std_value", "hessian": "std_hessian", "robust": "std_robust", "bootstrap": "std_bootstrap",
@@ -353,6 +373,10 @@ def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
               "tv_bootstrap": "tv_value"}
 
     def z_of(r: dict[str, Any], name: str) -> float:
+        if name == "tv_corrected":
+            return _z(*_tv_corrected(r))
+        if name == "bootstrap" and r.get("replicates_prepared") == "tv":
+            return _z(float(r["tv_value"]), r["true_value"], r.get("std_bootstrap", float("nan")))
         if name in BRACKET_RULES:
             c, sd = _bracket_rule(r, name)
             return _z(c, r["true_value"], sd)

@@ -159,3 +159,19 @@ def test_bootstrap_refits_replicates_on_tv_and_corrects_the_refit(monkeypatch: p
     seen.clear()
     b = bs.bootstrap(m, d, fit, B=6, seed=1)
     assert b.bias_corrected["beta"] and b.corrected["beta"] == pytest.approx(0.1010 - b.bias["beta"], rel=1e-12)
+
+
+def test_effects_study_prints_the_corrected_refit_beside_the_reported() -> None:
+    """``tv_corrected`` (the rejected ``BRACKET_CORRECT``): a TV refit 0.0990 whose 16 TV-refitted replicates lie
+    0.0008 low with spread 0.0004 (a clear bias, 8 se) becomes 0.0998 +- hypot(0.0004 x sqrt(17/16), 0.0005); a
+    run without TV-refitted replicates has no such rule (nan); the bootstrap's own sd is read about the TV refit."""
+    ic = load_study("independent_coverage")
+    r = {**_run(0.1000, 0.0990, 0.0009, 0.0002), "boot_bias": -0.0008, "boot_spread": 0.0004, "boot_B": 16,
+         "replicates_prepared": "tv"}
+    est, truth, sd = ic._tv_corrected(r)
+    assert est == pytest.approx(0.0998) and truth == 0.1
+    assert sd == pytest.approx(math.hypot(0.0004 * math.sqrt(17 / 16), 0.0005))
+    assert math.isnan(ic._tv_corrected(_run(0.1000, 0.0990, 0.0009, 0.0002))[0])
+    by_sd = ic.summarise_effects([r])["medium_temperature"]["by_sd"]
+    assert by_sd["tv_corrected"]["mean_z"] == pytest.approx(-0.0002 / sd)
+    assert by_sd["bootstrap"]["mean_z"] == pytest.approx(-0.0010 / 0.0009)
