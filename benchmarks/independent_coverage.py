@@ -32,7 +32,10 @@ project), run once with the final code. Eighth round (the smooth effects per eff
 20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study. Eighth
 round (stiction's band sd; each stiction run's record carries ``band_sd_parts``): development 500, 777,
 20261124, 20261201, 20270122, 20270131 (independent), 20261126, 20261202, 20270121, 20270132 (project);
-held out 20270211 (independent, 4 runs) and 20270212 (project, 8 runs).
+held out 20270211 (independent, 4 runs) and 20270212 (project, 8 runs). Twelfth round (a smooth
+effect's replicates refitted on TV; each record carries the bootstrap's ``boot_bias``, ``boot_spread``,
+``boot_B`` and ``replicates_prepared``, and the summary the ``tv_corrected`` rule): development 20270414,
+303 (project), 20270413 (independent); held out 20270614, 20270615 (project), 20270613 (independent).
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
