@@ -32,7 +32,10 @@ project), run once with the final code. Eighth round (the smooth effects per eff
 20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study. Eighth
 round (stiction's band sd; each stiction run's record carries ``band_sd_parts``): development 500, 777,
 20261124, 20261201, 20270122, 20270131 (independent), 20261126, 20261202, 20270121, 20270132 (project);
-held out 20270211 (independent, 4 runs) and 20270212 (project, 8 runs).
+held out 20270211 (independent, 4 runs) and 20270212 (project, 8 runs). Twelfth round (a smooth
+effect's replicates refitted on TV; each record carries the bootstrap's ``boot_bias``, ``boot_spread``,
+``boot_B`` and ``replicates_prepared``, and the summary the ``tv_corrected`` rule): development 20270414,
+303 (project), 20270413 (independent); held out 20270614, 20270615 (project), 20270613 (independent).
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
     python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
@@ -185,6 +188,12 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "std_robust": (js.get("std_robust") or {}).get(name, float("nan")),
                     "std_bootstrap": (unc.get("bootstrap_std") or {}).get(name, float("nan")),
                     "std_from": (unc.get("std_from") or {}).get(name, ""),
+                    # the bootstrap's parts: bias and spread of the re-estimates about the world's truth, whether
+                    # corrected, and how the replicates were prepared (issue 20, twelfth round)
+                    "boot_bias": (unc.get("bias") or {}).get(name, float("nan")),
+                    "boot_spread": (unc.get("spread") or {}).get(name, float("nan")),
+                    "boot_corrected": (unc.get("bias_corrected") or {}).get(name),
+                    "replicates_prepared": unc.get("replicates_prepared"), "boot_B": unc.get("replicates"),
                     # the two pre-processings' estimates (the errors-in-variables bracket), where taken
                     "irw_value": ((unc.get("preprocessing") or {}).get("irw") or {}).get(name, float("nan")),
                     "tv_value": ((unc.get("preprocessing") or {}).get("tv") or {}).get(name, float("nan")),
@@ -312,11 +321,16 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
 #: the sds of a named effect that the effects study compares (issue 20: "chosen by measured coverage")
 EFFECT_SDS: dict[str, str] = {
     "reported": "the JSON's std (smooth effects: the TV refit, max(bootstrap, Hessian/HAC) (+) half the IRW-TV "
-                "difference; stiction's band: the bootstrap)",
+                "difference, the bootstrap's replicates refitted on TV since the twelfth round; stiction's band: "
+                "the bootstrap)",
     "hessian": "inverse Hessian (std_hessian)",
     "robust": "HAC sandwich of the per-sample scores (std_robust)",
-    "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std), about the IRW ML estimate "
+    "bootstrap": "the model-based bootstrap alone (uncertainty.bootstrap_std), about the estimate its replicates "
+                 "measure: the IRW ML one, or the TV refit where they were refitted on TV (replicates_prepared) "
                  "(stiction's band: about its bias-corrected estimate)",
+    "tv_corrected": "the TV refit corrected by its TV-refitted replicates' bias where clear, max(their spread (+) "
+                    "the correction's se, Hessian/HAC) (+) half the IRW-TV difference (bootstrap.BRACKET_CORRECT; "
+                    "smooth effects)",
     "tv_bootstrap": "the TV refit with the bootstrap's sd alone (no IRW-TV term; smooth effects)",
     "tv_whole_d": "the TV refit, max(bootstrap, Hessian/HAC) (+) the whole IRW-TV difference (smooth effects)",
     "midpoint": "the IRW-TV midpoint, max(bootstrap, Hessian/HAC) (+) half the IRW-TV difference (two "
@@ -337,6 +351,21 @@ def _bracket_rule(r: dict[str, Any], name: str) -> tuple[float, float]:
     return (tv if centre == "tv" else 0.5 * (tv + irw)), math.hypot(sb, weight * (tv - irw))
 
 
+def _tv_corrected(r: dict[str, Any]) -> tuple[float, float, float]:
+    """Estimate, truth and sd of the ``tv_corrected`` rule (:data:`EFFECT_SDS`; nan without TV-refitted replicates):
+    the TV refit less its replicates' bias where the bootstrap calls it clear (more than 2 se of their mean), the sd
+    their spread with the correction's se, else their RMS error; at least the Hessian/HAC sd; half the IRW-TV
+    difference in quadrature."""
+    if r.get("replicates_prepared") != "tv":
+        return math.nan, float(r["true_value"]), math.nan
+    irw, tv, bias, spread = (float(r[k]) for k in ("irw_value", "tv_value", "boot_bias", "boot_spread"))
+    B = int(r.get("boot_B") or 16)
+    clear = abs(bias) > 2.0 * spread / math.sqrt(B)
+    sd = math.sqrt(spread**2 * (1 + 1 / B)) if clear else math.hypot(spread, bias)
+    sd = float(np.fmax(sd, r.get("std_hessian", math.nan)))
+    return (tv - bias if clear else tv), float(r["true_value"]), math.hypot(sd, 0.5 * (tv - irw))
+
+
 def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
     """Coverage of each candidate sd over named runs."""
     key = {"reported": "std_value", "hessian": "std_hessian", "robust": "std_robust", "bootstrap": "std_bootstrap",
@@ -347,6 +376,10 @@ def _effect_sd_coverage(rs: list[dict[str, Any]]) -> dict[str, Any]:
               "tv_bootstrap": "tv_value"}
 
     def z_of(r: dict[str, Any], name: str) -> float:
+        if name == "tv_corrected":
+            return _z(*_tv_corrected(r))
+        if name == "bootstrap" and r.get("replicates_prepared") == "tv":
+            return _z(float(r["tv_value"]), r["true_value"], r.get("std_bootstrap", float("nan")))
         if name in BRACKET_RULES:
             c, sd = _bracket_rule(r, name)
             return _z(c, r["true_value"], sd)

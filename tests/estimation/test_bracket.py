@@ -93,3 +93,85 @@ def test_effects_study_pools_runs_and_prints_the_other_bracket_rules(
     assert ic.main(["--study", "effects", "--summarise", str(tmp_path / "c.json")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("thermovalve: error:") and "c.json" in err[0]
+
+
+def test_replicates_are_prepared_as_the_reported_estimate() -> None:
+    """A named smooth effect's replicates are refitted on the bracket's denoiser (its reported estimate is the
+    TV refit); stiction's band and the base model's parameters keep the IRW-RTS smoother; no bracket, no TV."""
+    assert bs.replicate_denoiser(Model(("medium_temperature",)), ["beta"]) == "tv"
+    assert bs.replicate_denoiser(Model(("sensor_lag",)), ["tau_s"]) == "tv"
+    assert bs.replicate_denoiser(Model(("stiction",)), ["band_mm"]) == "irw"
+    assert bs.replicate_denoiser(Model(()), ["sigma", "F_hmax", "p_bset"]) == "irw"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(bs, "BRACKET", False)
+        assert bs.replicate_denoiser(Model(("medium_temperature",)), ["beta"]) == "irw"
+
+
+def test_bracket_takes_the_bootstrap_correction_of_the_refit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With TV-refitted replicates the bootstrap carries the run's TV refit (0.1020) and its correction by the
+    replicates' clear bias (-0.0015: TV low in the bootstrap's world): the estimate is 0.1035, and no second
+    refit is made; the sd is as before (the bootstrap's, the half difference in quadrature)."""
+    monkeypatch.setattr(bs, "preprocessing_refit", lambda *a: pytest.fail("refit made twice"))
+    model = Model(("medium_temperature",))
+    fit = _fit(model.effects, {"beta": 0.1000}, {"beta": 0.0005})
+    b = _boot(["beta"], {"beta": 0.1000}, {"beta": 0.0010}, {"beta": 0.1035})
+    b.bias, b.bias_corrected, b.denoiser, b.refit = {"beta": -0.0015}, {"beta": True}, "tv", {"beta": 0.1020}
+    source = bs.apply_bootstrap(model, None, fit, b)  # type: ignore[arg-type]
+    assert source == {"beta": "bootstrap+bracket"}
+    assert fit.params["beta"] == 0.1035
+    assert fit.extra["irw_beta"] == 0.1000 and fit.extra["tv_beta"] == 0.1020
+    assert fit.std["beta"] == pytest.approx(math.hypot(0.0010, 0.5 * 0.0020), rel=1e-12)
+    assert b.to_json()["replicates_prepared"] == "tv"
+
+
+def test_bootstrap_refits_replicates_on_tv_and_corrects_the_refit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole bootstrap on a short medium_temperature run: each replicate's refit sees TV-denoised
+    temperatures of that replicate's own noisy channels (not the IRW-RTS smoothed ones) and the run's TV refit is
+    kept. The replicates' clear bias (TV low by 0.002 in the world) is not a correction (``BRACKET_CORRECT`` off:
+    the world's temperatures are the smoothed ones, not the real ones) but part of the sd, their RMS error about
+    the world's truth; switched on, it corrects the refit."""
+    from valve_env.diagnosis.diagnose import check_run, prepare
+    from valve_env.estimation.temperature import denoise_temperature
+    from valve_env.experiment import simulate_experiment
+
+    df = simulate_experiment(seed=31, duration_h=4.0, dt_s=20.0, effects={"medium_temperature": {"beta": 0.1}},
+                             T_noise_C=0.008, x_noise_mm=2.5e-3)
+    d = prepare(check_run(df))
+    m = Model(("medium_temperature",))
+    fit = m.fit(d, with_std=False)
+    seen: list[bool] = []
+
+    def refit(model: Model, rep: bs.RunData, values: dict[str, float], names: list[str]) -> dict[str, float]:
+        seen.append(bool(np.array_equal(rep.T, denoise_temperature(rep.T_raw, rep.t, denoiser="tv")[0])
+                         and not np.array_equal(rep.T_raw, d.T_raw)))
+        return {**values, "beta": values["beta"] - 0.002 + 1e-4 * len(seen) % 3e-4}
+
+    monkeypatch.setattr(bs, "_refit", refit)
+    monkeypatch.setattr(bs, "preprocessing_refit", lambda model, data, fit, names: {"beta": 0.1010})
+    b = bs.bootstrap(m, d, fit, B=6, seed=1)
+    assert seen == [True] * 6
+    assert b.denoiser == "tv" and b.refit == {"beta": 0.1010}
+    assert not b.bias_corrected["beta"] and b.corrected["beta"] == 0.1010
+    reps = b.replicates[:, 0] - fit.params["beta"]
+    assert b.bias["beta"] == pytest.approx(reps.mean()) and b.bias["beta"] < -0.0015
+    assert b.std["beta"] == pytest.approx(math.sqrt(reps.var(ddof=1) + reps.mean() ** 2), rel=1e-9)
+    monkeypatch.setattr(bs, "BRACKET_CORRECT", True)
+    seen.clear()
+    b = bs.bootstrap(m, d, fit, B=6, seed=1)
+    assert b.bias_corrected["beta"] and b.corrected["beta"] == pytest.approx(0.1010 - b.bias["beta"], rel=1e-12)
+
+
+def test_effects_study_prints_the_corrected_refit_beside_the_reported() -> None:
+    """``tv_corrected`` (the rejected ``BRACKET_CORRECT``): a TV refit 0.0990 whose 16 TV-refitted replicates lie
+    0.0008 low with spread 0.0004 (a clear bias, 8 se) becomes 0.0998 +- hypot(0.0004 x sqrt(17/16), 0.0005); a
+    run without TV-refitted replicates has no such rule (nan); the bootstrap's own sd is read about the TV refit."""
+    ic = load_study("independent_coverage")
+    r = {**_run(0.1000, 0.0990, 0.0009, 0.0002), "boot_bias": -0.0008, "boot_spread": 0.0004, "boot_B": 16,
+         "replicates_prepared": "tv"}
+    est, truth, sd = ic._tv_corrected(r)
+    assert est == pytest.approx(0.0998) and truth == 0.1
+    assert sd == pytest.approx(math.hypot(0.0004 * math.sqrt(17 / 16), 0.0005))
+    assert math.isnan(ic._tv_corrected(_run(0.1000, 0.0990, 0.0009, 0.0002))[0])
+    by_sd = ic.summarise_effects([r])["medium_temperature"]["by_sd"]
+    assert by_sd["tv_corrected"]["mean_z"] == pytest.approx(-0.0002 / sd)
+    assert by_sd["bootstrap"]["mean_z"] == pytest.approx(-0.0010 / 0.0009)

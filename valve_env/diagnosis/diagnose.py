@@ -560,8 +560,9 @@ def _bootstrap_finding(f: Finding, B: int) -> None:
     how = ("bias-corrected where the bias is clear, else RMS error of the re-estimates; at least the "
            "inverse-Hessian/HAC sd")
     if bracket:
-        how = (f"{', '.join(bracket)}: refitted on TV-denoised temperatures, sd the larger of the bootstrap's and "
-               "the inverse-Hessian/HAC sd with half the IRW-TV difference added in quadrature; others " + how)
+        how = (f"{', '.join(bracket)}: refitted on TV-denoised temperatures, as are the replicates; sd the larger of "
+               "the replicates' RMS error and the inverse-Hessian/HAC sd with half the IRW-TV difference added in "
+               "quadrature; others " + how)
     if "band_mm" in b.names:
         # issue 20, eighth round: the band's sd is the slips' (docs/uncertainty.md)
         how += ("; band_mm: measured from the slips, sd the larger of the band's spread over added-noise copies of "
