@@ -300,6 +300,13 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
     for k in range(m):
         xs[k] = x_sub[sub_idx[k]]
     d2 = xs[2:] - 2.0 * xs[1:-1] + xs[:-2]
+    # the noise is read off the stops: a seated demand is clipped to exactly 0, and where more than half of
+    # the samples are seated the deviation of all the second differences is 0 (docs/diagnosis.md, "Twelfth
+    # round")
+    free = (xs[2:] > 0.0) & (xs[1:-1] > 0.0) & (xs[:-2] > 0.0) & (xs[2:] < stroke) & (xs[1:-1] < stroke) \
+        & (xs[:-2] < stroke)
+    if np.sum(free) >= 3:
+        d2 = d2[free]
     mad = np.median(np.abs(d2 - np.median(d2)))
     # the range that m white noise values rarely exceed: 2 sd sqrt(2 ln m) (the universal threshold of
     # Donoho and Johnstone 1994 on either side)
