@@ -288,7 +288,7 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
     exactly a band. The true stem sees the true pressures. So the stick-slip runs on this path: the
     reversals smaller than the range that the demand's noise rarely exceeds over the record,
     ``2 sd sqrt(2 ln n)`` (n samples, sd the robust second-difference sd of the demand at the
-    samples; 8.5 sd for a day at 10 s) are removed without lag
+    samples off the end stops, where it is not clipped; 8.5 sd for a day at 10 s) are removed without lag
     (:func:`monotone_path`), and the flat blocks that the isotonic fit leaves (a pause re-sticks the
     stem too) are replaced by straight lines through their centres. Samples at an end stop keep
     their value (the end stops win)."""
