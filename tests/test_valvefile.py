@@ -65,7 +65,14 @@ def _roundtrip(tmp_path, name: str, value: float, hours: float, seed: int, via_c
     # one valve trajectory: the env's and the diagnosis's valve run the same functions (physics.trajectory) on
     # the same inputs, so they agree to rounding (a stem that re-stuck elsewhere would be off by a band)
     gap = float(np.max(np.abs(x_env - x_diag)))
-    assert gap < 1e-9, (gap, d.final.params["s_w"])
+    if name == "stiction":
+        # except where the held pressures' noise reverses the demand: the diagnosis's stem runs on the demand
+        # freed of those reversals (engine.stick_demand), the env's re-sticks at each (docs/diagnosis.md,
+        # "round 12"; seed 7: 17.7 um at most, 3.2 um RMS, band 27 um): never a band apart
+        assert gap < d.final.params[p], (gap, d.final.params[p])
+        assert float(np.sqrt(np.mean((x_env - x_diag) ** 2))) < 0.25 * d.final.params[p]
+    else:
+        assert gap < 1e-9, (gap, d.final.params["s_w"])
     # and the diagnosed valve describes the run to within its noise and model error
     resid = df["x_mm"].to_numpy() - x_env
     assert float(np.sqrt(np.mean(resid**2))) < 3.0 * (d.final.params["s_w"] + d.final.params["s_e"])
