@@ -13,6 +13,7 @@ from valve_env.diagnosis.engine import monotone_path
 from valve_env.diagnosis.fitting import Model
 from valve_env.effects import ENGINE_INDEX, REGISTRY
 from valve_env.experiment import _valve_path, simulate_experiment
+from valve_env.params import ValveParams
 from valve_env.physics.trajectory import sensed_temperature
 from valve_env.valvefile import read_valve, valve_text
 
@@ -65,7 +66,17 @@ def _roundtrip(tmp_path, name: str, value: float, hours: float, seed: int, via_c
     # one valve trajectory: the env's and the diagnosis's valve run the same functions (physics.trajectory) on
     # the same inputs, so they agree to rounding (a stem that re-stuck elsewhere would be off by a band)
     gap = float(np.max(np.abs(x_env - x_diag)))
-    assert gap < 1e-9, (gap, d.final.params["s_w"])
+    if name == "stiction":
+        # except where the held pressures' noise reverses the demand: the diagnosis's stem runs on the demand
+        # freed of those reversals (engine.stick_demand), the env's re-sticks at each (docs/diagnosis.md,
+        # "round 12"; seed 7: 17.7 um at most, 3.2 um RMS, band 27 um): never a band apart
+        assert gap < d.final.params[p], (gap, d.final.params[p])
+        assert float(np.sqrt(np.mean((x_env - x_diag) ** 2))) < 0.25 * d.final.params[p]
+        # and the fit is not left on the kink that its start from the paper's values reaches (F_hmax 1.59 against
+        # the generator's 1.31; diagnose._try's second start, from the base fit: 1.25)
+        assert d.final.params["F_hmax"] == pytest.approx(ValveParams().F_hmax, rel=0.15)
+    else:
+        assert gap < 1e-9, (gap, d.final.params["s_w"])
     # and the diagnosed valve describes the run to within its noise and model error
     resid = df["x_mm"].to_numpy() - x_env
     assert float(np.sqrt(np.mean(resid**2))) < 3.0 * (d.final.params["s_w"] + d.final.params["s_e"])

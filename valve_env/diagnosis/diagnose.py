@@ -336,9 +336,11 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
             est = previous.estimator
     elif not ref_effects:
         # from the paper's values (a strong effect can pull the base fit far from the truth), and from
-        # the base fit where that is better (the extension contains the base model: never worse)
+        # the base fit where that is better (the extension contains the base model: never worse). Stiction
+        # always tries both: from the paper's values its fit can stop on a kink far above the base fit and
+        # still far below its maximum (docs/diagnosis.md, "round 12": 245 log-units on stiction seed 7)
         est = _fit(effects, valve, train)
-        if est.result_.loglik < ref_fit.loglik + 1.0:
+        if est.result_.loglik < ref_fit.loglik + 1.0 or EFFECTS[effect].variance_gain:
             alt = _fit(effects, valve, train, {**ref_fit.params, **(warm or {})})
             est = alt if alt.result_.loglik > est.result_.loglik else est
     else:

@@ -288,7 +288,7 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
     exactly a band. The true stem sees the true pressures. So the stick-slip runs on this path: the
     reversals smaller than the range that the demand's noise rarely exceeds over the record,
     ``2 sd sqrt(2 ln n)`` (n samples, sd the robust second-difference sd of the demand at the
-    samples; 8.5 sd for a day at 10 s) are removed without lag
+    samples off the end stops, where it is not clipped; 8.5 sd for a day at 10 s) are removed without lag
     (:func:`monotone_path`), and the flat blocks that the isotonic fit leaves (a pause re-sticks the
     stem too) are replaced by straight lines through their centres. Samples at an end stop keep
     their value (the end stops win)."""
@@ -300,6 +300,13 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
     for k in range(m):
         xs[k] = x_sub[sub_idx[k]]
     d2 = xs[2:] - 2.0 * xs[1:-1] + xs[:-2]
+    # the noise is read off the stops: a seated demand is clipped to exactly 0, and where more than half of
+    # the samples are seated the deviation of all the second differences is 0 (docs/diagnosis.md, "Twelfth
+    # round")
+    free = (xs[2:] > 0.0) & (xs[1:-1] > 0.0) & (xs[:-2] > 0.0) & (xs[2:] < stroke) & (xs[1:-1] < stroke) \
+        & (xs[:-2] < stroke)
+    if np.sum(free) >= 3:
+        d2 = d2[free]
     mad = np.median(np.abs(d2 - np.median(d2)))
     # the range that m white noise values rarely exceed: 2 sd sqrt(2 ln m) (the universal threshold of
     # Donoho and Johnstone 1994 on either side)
