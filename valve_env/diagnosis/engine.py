@@ -301,10 +301,10 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
         xs[k] = x_sub[sub_idx[k]]
     d2 = xs[2:] - 2.0 * xs[1:-1] + xs[:-2]
     # the noise is read off the stops: a seated demand is clipped to exactly 0, and where more than half of
-    # the samples are seated the deviation of all the second differences is 0 (docs/diagnosis.md, "Twelfth
-    # round")
-    free = (xs[2:] > 0.0) & (xs[1:-1] > 0.0) & (xs[:-2] > 0.0) & (xs[2:] < stroke) & (xs[1:-1] < stroke) \
-        & (xs[:-2] < stroke)
+    # the samples are seated the deviation of all the second differences is 0 (docs/diagnosis.md, "The
+    # stick-slip filter, round 12")
+    inside = (xs > 0.0) & (xs < stroke)
+    free = inside[2:] & inside[1:-1] & inside[:-2]
     if np.sum(free) >= 3:
         d2 = d2[free]
     mad = np.median(np.abs(d2 - np.median(d2)))
