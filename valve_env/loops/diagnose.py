@@ -194,16 +194,18 @@ def rings(cl: dict[str, Any], period_s: float) -> bool:
 
 
 def _heldout_gain(loop: LoopData, valve: str, s: Settings, seat_lin: float = -math.inf,
-                  seat: float = -math.inf, memo: FitMemo | None = None) -> float:
+                  seat: float = -math.inf, memo: FitMemo | None = None, extra_S: tuple[float, ...] = ()) -> float:
     """Held-out log-likelihood gain of ``valve`` (on its ``seat``) over the linear valve (on ``seat_lin``), summed
-    over the two halves (the fits looked up in ``memo`` first: :func:`~valve_env.loops.model.fit_valve`)."""
+    over the two halves (the fits looked up in ``memo`` first: :func:`~valve_env.loops.model.fit_valve`); ``extra_S``
+    are bands added to each half's band grid (the seat search's band, paired with the seat the halves are given:
+    docs/loops.md, "Thirteenth session: the seat search")."""
     n = loop.n
     mid = n // 2
     gain = 0.0
     s = replace(s, n_grid=10)
     for (a0, a1), (b0, b1) in (((s.k0, mid), (mid + s.k0, n)), ((mid + s.k0, n), (s.k0, mid))):
         lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seat_lin), k1=a1, k0=a0, memo=memo)
-        cand = fit_valve(loop.op, loop.pv, valve, replace(s, seat=seat), k1=a1, k0=a0, memo=memo)
+        cand = fit_valve(loop.op, loop.pv, valve, replace(s, seat=seat), k1=a1, k0=a0, extra_S=extra_S, memo=memo)
         ll_lin = refit_gain(loop.pv, lin.path(loop.op), lin.process, s, b0, b1).loglik
         ll_c = refit_gain(loop.pv, cand.path(loop.op), cand.process, s, b0, b1).loglik
         gain += ll_c - ll_lin
@@ -336,6 +338,22 @@ def _pct_or_none(seat: float) -> float | None:
 NO_SEAT = Seats(-math.inf, -math.inf, 0.0, 0.0)
 
 
+def linear_seat_kept(loop: LoopData, s: Settings, seats: Seats, unseated: ValveFit,
+                     memo: FitMemo | None = None) -> Seats:
+    """``seats`` with the linear valve's seat dropped where the decision's own likelihood does not keep it: the seat
+    search chooses it by the white-noise least squares of the LR scan (:func:`~valve_env.loops.model.scan_seats`), and
+    where the maximum-likelihood linear valve on that seat (its AR noise fitted) does not gain a parameter's BIC cost
+    (``log n`` in 2 ln L) over the linear valve without a seat (``unseated``, the first comparison's), a nonlinear
+    valve would be compared with a linear one that fits worse than the linear valve the record already has
+    (docs/loops.md, "Thirteenth session: the seated fallback's linear valve")."""
+    if not math.isfinite(seats.linear):
+        return seats
+    lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seats.linear), memo=memo)
+    if 2.0 * (lin.loglik - unseated.loglik) > math.log(lin.n):
+        return seats
+    return replace(seats, linear=-math.inf)
+
+
 @dataclass
 class Comparison:
     """The likelihood comparison of the valve candidates under one disturbance model (settings ``s``) and on given
@@ -391,7 +409,9 @@ def compare(loop: LoopData, s: Settings, alpha: float = 0.01, heldout: bool = Tr
         })
     # the better valve nonlinearity by adjusted BIC
     nonlin = min((fd for fd in findings if fd["candidate"] != "linear"), key=lambda fd: fd["delta_bic"])
-    gain = _heldout_gain(loop, nonlin["candidate"], s, seats.linear, seats.nonlinear, memo) if heldout else math.nan
+    # the halves are given the seats and the seat search's band with them (none without a seat: seats.S 0)
+    gain = (_heldout_gain(loop, nonlin["candidate"], s, seats.linear, seats.nonlinear, memo, (seats.S,)) if heldout
+            else math.nan)
     nonlin["heldout_loglik_gain"] = gain
     justified = (nonlin["p_value"] < alpha and nonlin["delta_bic"] < DELTA_BIC_MAX
                  and (not heldout or gain > -HELDOUT_LOSS_SHARE * nonlin["lr_stat_adjusted"]))
@@ -424,7 +444,8 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     cmp = compare(loop, s, alpha, heldout, bootstrap, memo=memo)
     by_likelihood, periodic = checked(cmp)
     # the valve's seat: searched only where the comparison without one does not name stiction
-    seats = NO_SEAT if by_likelihood else scan_seats(loop.op, loop.pv, s)
+    seats = NO_SEAT if by_likelihood else linear_seat_kept(loop, s, scan_seats(loop.op, loop.pv, s),
+                                                           cmp.fits["linear"], memo)
     seated = False
     if not by_likelihood and (math.isfinite(seats.linear) or math.isfinite(seats.nonlinear)):
         alt = compare(loop, s, alpha, heldout, bootstrap, seats=seats, memo=memo)
@@ -504,4 +525,4 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
 
 __all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty",
            "sampling_offset", "band_resolved", "crosses_back", "BAND_CANDIDATE", "closed_loop", "rings", "Comparison",
-           "compare", "with_periodic_load"]
+           "compare", "with_periodic_load", "linear_seat_kept"]

@@ -826,11 +826,17 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
 SEAT_QUANTILES: tuple[float, ...] = tuple(float(q) for q in np.round(np.arange(0.05, 0.951, 0.05), 3))
 
 
-#: the seat's second stage: quantile steps of the seat levels and points of the band grid, searched around the first
-#: stage's seat for the valves that rest on it (docs/loops.md, "Loops from the environment", tenth session)
-SEAT_FINE_STEP = 0.025
-SEAT_FINE_SPAN = 0.1
-SEAT_FINE_N_S = 60
+#: the seat's second stage (docs/loops.md, "Loops from the environment", tenth session, and "Thirteenth session: the
+#: seat search"): about each of the ``SEAT_FINE_TOP`` first-stage levels whose best nonlinear path fits best, seat
+#: levels in quantile steps of ``SEAT_FINE_STEP`` within ``SEAT_FINE_SPAN`` of it (the first stage's own step: the
+#: neighbourhoods reach the levels half-way to the next), crossed with bands in geometric steps of ``SEAT_FINE_RATIO``
+#: over the scan's range, scored under that level's process structure (lag and delay); the ``SEAT_FINE_KEEP`` best of
+#: each neighbourhood are scored again over every structure
+SEAT_FINE_TOP = 3
+SEAT_FINE_STEP = 0.005
+SEAT_FINE_SPAN = 0.05
+SEAT_FINE_RATIO = 1.02
+SEAT_FINE_KEEP = 4
 
 
 @dataclass(frozen=True)
@@ -838,9 +844,10 @@ class Seats:
     """The seat of each kind of valve (docs/loops.md, "Loops from the environment", tenth session), % of OP (-inf:
     no seat): the linear valve's and the nonlinear valves' (backlash and stick-slip, whose stem rests on the seat and
     breaks away from it), each the level of :data:`SEAT_QUANTILES` (or none) that the LR scan's best path of that
-    kind fits best, a level kept only where it gains more than a parameter's BIC cost (``log n``) over no seat; the
+    kind fits best, a level kept only where it gains more than a parameter's BIC cost (``log n``) over no seat (the
+    nonlinear valves' level then searched again, jointly with the band, by :func:`scan_seats`' second stage); the
     scan's LR statistics of each kind seated against unseated; and, for a seated nonlinear valve, the band of the
-    second stage's best path (``S``; 0 when there is none), whose seat is ``nonlinear``."""
+    search's best path (``S``; 0 when there is no seat), whose seat is ``nonlinear``."""
 
     linear: float
     nonlinear: float
@@ -849,20 +856,34 @@ class Seats:
     S: float = 0.0
 
 
+def _structure_rss(pv: np.ndarray, xs: np.ndarray, s: Settings, pf: ProcessFit) -> np.ndarray:
+    """:func:`_scan_rss_paths` with the process structure held at ``pf``'s lag and delay (the gain and the disturbance
+    weights still fitted for each path): the cheap score of the seat's second stage (:func:`scan_seats`)."""
+    basis, idx, val = _settings_basis(pv.size, s)
+    alist = np.empty(0) if pf.integrating else np.array([pf.a])
+    return _scan_rss(pv, xs, idx, val, basis.shape[1], alist, np.array([pf.delay]), s.k0, pf.integrating)
+
+
 def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
     """The seats of :class:`Seats`: the LR scan (:func:`scan_paths`, :func:`scan_valve`'s kernel: white-noise least
     squares, each path with its best process structure) repeated with the valve on each seat level; then, for a
-    seated nonlinear valve, a second stage on a finer grid of seat levels (quantile steps ``SEAT_FINE_STEP`` within
-    ``SEAT_FINE_SPAN`` of the first stage's) and bands (``SEAT_FINE_N_S`` points over the scan's range): a valve
-    that rests on its seat is a relay whose likelihood has narrow ridges in its band and seat."""
+    seated nonlinear valve, a second stage searching band and seat together: a valve that rests on its seat is a
+    relay whose likelihood is a narrow ridge in (band, seat), which the first stage's grid can rank below a wrong
+    level (docs/loops.md, "Thirteenth session: the seat search"). About each of the ``SEAT_FINE_TOP`` best first-stage
+    levels, seat levels ``SEAT_FINE_STEP`` apart (quantiles, within ``SEAT_FINE_SPAN``) are crossed with bands
+    ``SEAT_FINE_RATIO`` apart under that level's best path's process structure (:func:`_structure_rss`), and the
+    ``SEAT_FINE_KEEP`` best of each neighbourhood are scored again over every structure."""
     op = np.ascontiguousarray(op, dtype=float)
     pv = np.ascontiguousarray(pv, dtype=float)
     levels = [-math.inf] + [float(c) for c in np.quantile(op, SEAT_QUANTILES)]
-    lin, nonlin = [], []
+    lin, nonlin, best_path = [], [], []
     for c in levels:
-        rss = _scan_rss_paths(pv, scan_paths(op, s.substeps, c)[0], s)
+        xs, params = scan_paths(op, s.substeps, c)
+        rss = _scan_rss_paths(pv, xs, s)
+        k = int(np.argmin(rss[1:])) + 1
         lin.append(float(rss[0]))
-        nonlin.append(float(rss[1:].min()))
+        nonlin.append(float(rss[k]))
+        best_path.append((params[k], xs[k]))
     n = pv.size - s.k0
 
     def best(rss: list[float]) -> tuple[int, float]:
@@ -873,19 +894,27 @@ def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
     c_lin = levels[i_lin] if lr_lin > math.log(n) else -math.inf
     if lr_nl <= math.log(n):
         return Seats(c_lin, -math.inf, lr_lin, lr_nl)
-    q0 = SEAT_QUANTILES[i_nl - 1]
-    fine_q = np.arange(max(q0 - SEAT_FINE_SPAN, 0.0), min(q0 + SEAT_FINE_SPAN, 1.0) + 1e-9, SEAT_FINE_STEP)
     r = op_scale(op)
     lo = max(SCAN_S_FRACTIONS[0] * r, resolution(op))
-    bands = np.geomspace(lo, max(SCAN_S_FRACTIONS[1] * r, 2.0 * lo), SEAT_FINE_N_S)
-    best_rss, c_nl, S_nl = nonlin[i_nl], levels[i_nl], 0.0
-    for c in np.quantile(op, fine_q):
-        xs = np.array([valve_path(op, S, f * S, d0, s.substeps, float(c))
-                       for S in bands for f in SCAN_J_FRACTIONS for d0 in DIRECTIONS])
-        rss = _scan_rss_paths(pv, xs, s)
-        k = int(np.argmin(rss))
-        if rss[k] < best_rss:
-            best_rss, c_nl, S_nl = float(rss[k]), float(c), float(bands[k // (len(SCAN_J_FRACTIONS) * len(DIRECTIONS))])
+    hi = max(SCAN_S_FRACTIONS[1] * r, 2.0 * lo)
+    bands = np.geomspace(lo, hi, int(math.ceil(math.log(hi / lo) / math.log(SEAT_FINE_RATIO))) + 1)
+    grid = [(float(S), float(f * S), d0) for S in bands for f in SCAN_J_FRACTIONS for d0 in DIRECTIONS]
+    best_rss, c_nl, S_nl = nonlin[i_nl], levels[i_nl], best_path[i_nl][0][0]
+    tops = [int(i) for i in np.argsort(nonlin) if i > 0][:SEAT_FINE_TOP]  # the seated levels, best first
+    for i in tops:
+        pf = fit_process(pv, best_path[i][1], s)
+        q0 = SEAT_QUANTILES[i - 1]
+        cands = []
+        for q in np.arange(max(q0 - SEAT_FINE_SPAN, 0.0), min(q0 + SEAT_FINE_SPAN, 1.0) + 1e-9, SEAT_FINE_STEP):
+            c = float(np.quantile(op, q))
+            rss = _structure_rss(pv, np.array([valve_path(op, S, J, d0, s.substeps, c) for S, J, d0 in grid]), s, pf)
+            k = int(np.argmin(rss))
+            cands.append((float(rss[k]), c, grid[k]))
+        cands.sort(key=lambda t: t[0])
+        for _, c, (S, J, d0) in cands[:SEAT_FINE_KEEP]:
+            rss_full = float(_scan_rss_paths(pv, valve_path(op, S, J, d0, s.substeps, c)[None, :], s)[0])
+            if rss_full < best_rss:
+                best_rss, c_nl, S_nl = rss_full, c, S
     return Seats(c_lin, c_nl, lr_lin, n * math.log(nonlin[0] / best_rss), S_nl)
 
 
