@@ -41,11 +41,11 @@ def _diagnose_via_csv(band_mm: float, seed: int, tmp_path: Path) -> str:
 
 
 #: at the seat the sticky stem is a relay that only the seated comparison can model (docs/loops.md, "Loops from the
-#: environment", tenth session); it names seed 0 but not every seed: seeds 0-5 named 0, 1 and 4, not 2, 3 and 5
-#: (their stick-slip likelihood's narrow ridge in band and seat not reached, or below the evidence needed); issue 21
-#: stays open on it
-STICKY_NOT_SEEN = pytest.mark.xfail(strict=True, reason="issue 21: the seated comparison names seat seeds 0, 1 and 4 "
-                                    "of 0-5, not 2, 3 and 5")
+#: environment", tenth session); it names seed 0 but not every seed: seeds 0-5 named 0 and 1, not 2-5 (2 and 3: the
+#: true stem explains the outlet no better than the linear valve on its seat; 4: the held-out halves, thirteenth
+#: session; 5: below the evidence needed); issue 21 stays open on it
+STICKY_NOT_SEEN = pytest.mark.xfail(strict=True, reason="issue 21: the seated comparison names seat seeds 0 and 1 "
+                                    "of 0-5, not 2-5")
 
 
 def test_env_loop_smooth_is_not_stiction(tmp_path: Path) -> None:

@@ -1,5 +1,5 @@
-"""The seat search and the seated fallback's linear valve (docs/loops.md, "Thirteenth session: the seat search" and
-"Thirteenth session: the seated fallback's linear valve"): a sticky stem resting on its seat is a relay whose likelihood
+"""The seat search and the seated fallback's linear valve (docs/loops.md, "Thirteenth session: the seat search ... and
+the seated fallback's linear valve"): a sticky stem resting on its seat is a relay whose likelihood
 is a narrow ridge in (band, seat), searched jointly about the first stage's best levels; and a nonlinear valve on the
 fallback is compared with the linear valve on a seat only where the maximum-likelihood fit keeps that seat."""
 

@@ -30,8 +30,9 @@ simulated smooth loops' load drift; docs/loops.md, "Decision").
 
 **The valve's seat** (docs/loops.md, "Loops from the environment", tenth session): where the comparison above does
 not name stiction and the record holds a seat (:func:`valve_env.loops.model.scan_seats`), the same comparison runs
-again with each kind of valve on its seat (the stick-slip's lower end stop) and decides, naming only a band the record
-resolves (:func:`band_resolved`: at least one sample's OP move, and crossed back by the fitted valve).
+again with each kind of valve on its seat (the stick-slip's lower end stop; the linear valve's seat kept only where its
+maximum-likelihood fit keeps it, :func:`linear_seat_kept`) and decides, naming only a band the record resolves
+(:func:`band_resolved`: at least one sample's OP move, and crossed back by the fitted valve).
 
 Nothing else names it. The OP-PV cross-correlation's shape (:func:`valve_env.loops.detectors.horch` on
 the same record, with the PV's increments when the fitted process integrates) is reported beside the
@@ -345,7 +346,7 @@ def linear_seat_kept(loop: LoopData, s: Settings, seats: Seats, unseated: ValveF
     where the maximum-likelihood linear valve on that seat (its AR noise fitted) does not gain a parameter's BIC cost
     (``log n`` in 2 ln L) over the linear valve without a seat (``unseated``, the first comparison's), a nonlinear
     valve would be compared with a linear one that fits worse than the linear valve the record already has
-    (docs/loops.md, "Thirteenth session: the seated fallback's linear valve")."""
+    (docs/loops.md, "Thirteenth session: the seat search ... and the seated fallback's linear valve")."""
     if not math.isfinite(seats.linear):
         return seats
     lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seats.linear), memo=memo)
