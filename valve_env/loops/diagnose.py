@@ -20,7 +20,10 @@ nonlinearity is named ``stiction`` only when all of these hold:
    load at the oscillation's period (the periodogram peak near the oscillation test's period; the noise order
    chosen again): an external periodic load is the other explanation of an oscillation, and it is given to the
    linear valve and the nonlinear ones alike, so the comparison is between valves, not disturbances
-   (:func:`with_periodic_load`; docs/loops.md, "Tenth session: external oscillation").
+   (:func:`with_periodic_load`; docs/loops.md, "Tenth session: external oscillation"). Not where the record rules an
+   external load out: an oscillation the OP explains through the linear process, which the linear loop closed by the
+   identified controller damps (:func:`oscillation_cause`), is the loop's own limit cycle, and a sinusoid at its
+   period only absorbs its fundamental (docs/loops.md, "Thirteenth session: the loop's own limit cycle").
 
 A **parametric-bootstrap LR test** (the scan's statistic against 19 records simulated from the fitted
 linear loop, :func:`bootstrap_test`; its replicates only with ``bootstrap=True``) is reported
