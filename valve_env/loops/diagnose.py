@@ -20,7 +20,10 @@ nonlinearity is named ``stiction`` only when all of these hold:
    load at the oscillation's period (the periodogram peak near the oscillation test's period; the noise order
    chosen again): an external periodic load is the other explanation of an oscillation, and it is given to the
    linear valve and the nonlinear ones alike, so the comparison is between valves, not disturbances
-   (:func:`with_periodic_load`; docs/loops.md, "Tenth session: external oscillation").
+   (:func:`with_periodic_load`; docs/loops.md, "Tenth session: external oscillation"). Not where the record rules an
+   external load out: an oscillation the OP explains through the linear process, which the linear loop closed by the
+   identified controller damps (:func:`oscillation_cause`), is the loop's own limit cycle, and a sinusoid at its
+   period only absorbs its fundamental (docs/loops.md, "Thirteenth session: the loop's own limit cycle").
 
 A **parametric-bootstrap LR test** (the scan's statistic against 19 records simulated from the fitted
 linear loop, :func:`bootstrap_test`; its replicates only with ``bootstrap=True``) is reported
@@ -192,6 +195,22 @@ def rings(cl: dict[str, Any], period_s: float) -> bool:
     case."""
     return any(m["decay_per_cycle"] >= RING_DECAY_MIN and period_s / RING_PERIOD_FACTOR <= m["period_s"]
                <= period_s * RING_PERIOD_FACTOR for m in cl["modes"])
+
+
+def oscillation_cause(loop: LoopData, lin: ValveFit, period_s: float, k0: int) -> tuple[str, float, dict[str, Any]]:
+    """The cause of an oscillation that is not named stiction (docs/loops.md, "Oscillation causes"), from the linear
+    valve's fit ``lin``: ``external_oscillation`` when the linear loop's simulation from the OP does not reproduce
+    the PV (R^2 <= 0.5), ``aggressive_tuning`` when the controller is not identified from the record or the identified
+    loop rings at ``period_s`` (:func:`rings`), otherwise ``nonlinear_oscillation``. Returns the cause, the R^2 and
+    :func:`closed_loop`'s result."""
+    sim_lin = simulate(lin.path(loop.op), lin.process)
+    r2 = 1.0 - float(np.var(loop.pv[k0:] - sim_lin[k0:]) / max(np.var(loop.pv[k0:]), 1e-300))
+    cl = closed_loop(loop, lin.process)
+    if r2 <= 0.5:  # OP does not explain the PV oscillation: it comes from outside the loop
+        return "external_oscillation", r2, cl
+    if cl["controller_fit_r2"] < CONTROLLER_FIT_R2_MIN or rings(cl, period_s):
+        return "aggressive_tuning", r2, cl
+    return "nonlinear_oscillation", r2, cl  # inside the loop, but the linear loop damps it: a nonlinearity sustains it
 
 
 def _heldout_gain(loop: LoopData, valve: str, s: Settings, seat_lin: float = -math.inf,
@@ -435,9 +454,14 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     memo: FitMemo = {}  # the record's process fits, shared by its comparisons (the same fits, each computed once)
 
     def checked(c: Comparison) -> tuple[bool, Comparison | None]:
-        """Whether ``c`` names stiction, with condition 4 (the periodic load, on the same seats) where it applies."""
+        """Whether ``c`` names stiction, with condition 4 (the periodic load, on the same seats) where it applies: not
+        where the record itself rules an external load out, an oscillation the OP explains through the linear process
+        and the linear loop closed by the identified controller damps (:func:`oscillation_cause`'s
+        ``nonlinear_oscillation``; docs/loops.md, "Thirteenth session: the loop's own limit cycle")."""
         if not (periodic_load and c.justified and osc["oscillating"] and not math.isfinite(s.load_period_s)):
             return c.justified, None
+        if oscillation_cause(loop, c.fits["linear"], osc["period_s"], s.k0)[0] == "nonlinear_oscillation":
+            return True, None
         per = compare(loop, with_periodic_load(loop, s, osc["period_s"], settings is None), alpha, heldout,
                       seats=c.seats, memo=memo)
         return per.justified, per
@@ -464,8 +488,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     # reported beside the decision, not part of it: Horch's CCF test on the same loop (PV increments for an
     # integrating process)
     shape = horch(loop, integrating=lin.process.integrating)
-    sim_lin = simulate(lin.path(loop.op), lin.process)
-    r2 = 1.0 - float(np.var(loop.pv[s.k0:] - sim_lin[s.k0:]) / max(np.var(loop.pv[s.k0:]), 1e-300))
+    osc_cause, r2, cl = oscillation_cause(loop, lin, osc["period_s"] or math.inf, s.k0)
     result: dict[str, Any] = {"cause": "none"}
     band_fit: ValveFit | None = None
     if by_likelihood:  # the decision is the likelihood comparison alone (docs/loops.md)
@@ -487,14 +510,8 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "valve_substeps": fit.substeps,
             "seat_pct": _pct_or_none(fit.seat),
         }
-    cl = closed_loop(loop, lin.process)
     if not by_likelihood and osc["oscillating"]:
-        if r2 <= 0.5:  # OP does not explain the PV oscillation: it comes from outside the loop
-            result["cause"] = "external_oscillation"
-        elif cl["controller_fit_r2"] < CONTROLLER_FIT_R2_MIN or rings(cl, osc["period_s"]):
-            result["cause"] = "aggressive_tuning"
-        else:  # inside the loop, but the linear loop damps it: a nonlinearity sustains it (docs/loops.md)
-            result["cause"] = "nonlinear_oscillation"
+        result["cause"] = osc_cause
     result["findings"] = findings
     result["decision"] = {
         "alpha": alpha,
@@ -516,7 +533,10 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "amplitude": float(math.sqrt(2.0) * np.std(load_sinusoid(periodic.fits["linear"].process, periodic.s))),
             "justified": periodic.justified, "best_nonlinear": pn["candidate"], "delta_bic": pn["delta_bic"],
             "p_value": pn["p_value"], "heldout_loglik_gain": pn["heldout_loglik_gain"], "neff_factor": periodic.neff}
-    result["oscillation"] = {**osc, "linear_sim_r2": r2, "closed_loop": cl}
+    # what the linear loop says of the oscillation (oscillation_cause), also where stiction is named: its
+    # nonlinear_oscillation waives condition 4 (docs/loops.md, "Thirteenth session")
+    result["oscillation"] = {**osc, "linear_sim_r2": r2, "closed_loop": cl,
+                             "linear_loop_cause": osc_cause if osc["oscillating"] else None}
     result["loop"] = {"tag": loop.tag, "source": loop.source, "n_samples": loop.n, "dt_s": loop.dt,
                       "op_range_pct": [float(loop.op.min()), float(loop.op.max())],
                       "process": lin.process.describe(s.dt)}
@@ -526,4 +546,4 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
 
 __all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty",
            "sampling_offset", "band_resolved", "crosses_back", "BAND_CANDIDATE", "closed_loop", "rings", "Comparison",
-           "compare", "with_periodic_load", "linear_seat_kept"]
+           "compare", "with_periodic_load", "linear_seat_kept", "oscillation_cause"]
