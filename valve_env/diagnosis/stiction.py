@@ -189,4 +189,5 @@ def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int
                      for _ in range(draws)])
 
 
-__all__ = ["MIN_JUMPS", "band_sampling", "band_spread", "jump_band", "noise_sd", "resting_noise_sd", "slips", "slips_sd"]
+__all__ = ["MIN_JUMPS", "band_sampling", "band_spread", "jump_band", "noise_sd", "resting_noise_sd", "slips",
+           "slips_sd"]
