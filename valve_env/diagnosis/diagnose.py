@@ -33,7 +33,9 @@ automatic:
    the training opening: at least two slips whose median size is the fitted band within 50 %
    (:func:`slips_show_band`). Where the slips do not show the likelihood's band, stiction is tested
    again with the band held at the slips' median, and named with it only if that is significant and
-   the held-out opening's slips show that band too (docs/diagnosis.md, "Round 7"). A stiction finding
+   the held-out opening's slips show that band too (docs/diagnosis.md, "Round 7"), or the whole record's
+   slips, at least four, do (:func:`record_shows_band`; they also stand in for the training part's two slips
+   where it holds one: "The stick-slip filter, round 13"). A stiction finding
    that would be named must also pass a simulated null (:func:`stiction_null`: the reference model's world
    with the run's inputs, the temperatures' pre-processing error included; docs/diagnosis.md, "The
    stick-slip filter, round 9"). Where
