@@ -374,7 +374,8 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         assert g.training_slips is not None
         g.training_slips.update(band_from="slips", held_out_show_band=held, record_show_band=record,
                                 likelihood_band_mm=float(f.fit.params["band_mm"]), likelihood_lr=float(f.lr_stat))
-        g.significant = g.p_value < alpha and g.delta_bic < 0 and (g.training_slips["show_band"] or record)
+        if record and not g.training_slips["show_band"]:
+            g.significant = g.p_value < alpha and g.delta_bic < 0
         g.validated = g.validated and confirmed
         if g.significant and confirmed:
             return _null_guarded(g, ref_fit, train, valve)
