@@ -241,3 +241,44 @@ def test_null_guard_stops_a_false_stiction_finding(monkeypatch: pytest.MonkeyPat
         assert "null_guard" in f.to_json()
     monkeypatch.setattr(dg, "NULL_GUARD", False)
     assert diagnose(df, effects=["stiction"], bootstrap_B=0).cause == "none"
+
+
+def _staircase(jumps: int, band: float, rng: np.random.Generator, base: float = 0.3) -> np.ndarray:
+    """An opening that rests 30 samples, then slips by ``band``, ``jumps`` times (white noise of 0.5 um)."""
+    levels = base + band * np.repeat(np.arange(jumps + 1), 30)
+    return levels + 5e-4 * rng.standard_normal(levels.size)
+
+
+def test_record_shows_band_pools_the_parts_and_needs_four_slips() -> None:
+    """Round 13 (docs/diagnosis.md): the whole record's slips confirm a band where the training and held-out
+    parts pooled hold at least stiction.MIN_JUMPS slips whose median is the band within 50 %."""
+    from valve_env.diagnosis.diagnose import record_shows_band, slips_show_band
+    from valve_env.diagnosis.stiction import MIN_JUMPS
+    from valve_env.params import ValveParams
+
+    rng = np.random.default_rng(5)
+    stroke = float(ValveParams().stroke)
+    band = 0.02
+    one, three = _staircase(1, band, rng), _staircase(3, band, rng)
+    assert MIN_JUMPS == 4
+    assert not slips_show_band(one, stroke, band)  # one slip in the training part: too few on its own
+    assert record_shows_band((one, three), stroke, band)  # four slips pooled
+    assert not record_shows_band((one, _staircase(2, band, rng)), stroke, band)  # three pooled
+    assert not record_shows_band((one, three), stroke, 2.5 * band)  # the slips do not measure that band
+
+
+def test_record_slips_name_a_stiction_run_the_held_out_quarter_misses() -> None:
+    """Round 13 (docs/diagnosis.md): a stiction run of development seed 20270529 (run 58: band 0.0158 mm, 30 s,
+    14.5 h) whose likelihood band (9 um) the two training slips (median 14.2 um) do not show; with the band held
+    at theirs stiction is significant (LR 241), but the held-out quarter's four slips (median 21.5 um) miss it by
+    52 %, and round 7's confirmation left the run `none`. The six slips of the record (median 17.7 um) measure it."""
+    from valve_env.experiment import random_cases, simulate_case
+
+    df = simulate_case(random_cases(60, 20270529)[58])
+    d = diagnose(df, effects=["stiction"], bootstrap_B=0)
+    f = d.findings[0]
+    assert f.training_slips is not None
+    assert f.training_slips["band_from"] == "slips" and not f.training_slips["held_out_show_band"], d.summary()
+    assert f.training_slips["record_show_band"]
+    assert d.cause == "stiction", d.summary()
+    assert abs(f.fit.params["band_mm"] / 0.0158 - 1.0) < 0.25

@@ -205,8 +205,10 @@ def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
     monkeypatch.setattr(dg, "_finding", fake_finding)
     monkeypatch.setattr(dg, "NULL_GUARD", False)  # round 9's guard is tested in test_diagnose.py
     monkeypatch.setattr(dg, "slips_show_band", lambda x, stroke, band: held_out_shows_it and band == 0.033)
+    monkeypatch.setattr(dg, "record_shows_band", lambda parts, stroke, band: False)  # round 13's: test_diagnose.py
     valve = type("V", (), {"stroke": 2.0})()
-    f = dg._try("stiction", (), Fit(0.0, 0.0), None, Data(), (0, 4), valve, 0.001, (0.0, 0.0, 0.0), None, 2.0, 1.0)
+    f = dg._try("stiction", (), Fit(0.0, 0.0), Data(), Data(), (0, 4), valve, 0.001, (0.0, 0.0, 0.0), None, 2.0,
+                1.0)
     assert calls[-1]["fixed"] == {"band_mm": 0.033} and calls[-1]["start"]["band_mm"] == 0.033
     if significant_at_slips_band and held_out_shows_it:
         assert f.estimator.result_.params["band_mm"] == 0.033 and f.significant and f.validated

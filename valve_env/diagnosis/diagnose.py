@@ -33,7 +33,9 @@ automatic:
    the training opening: at least two slips whose median size is the fitted band within 50 %
    (:func:`slips_show_band`). Where the slips do not show the likelihood's band, stiction is tested
    again with the band held at the slips' median, and named with it only if that is significant and
-   the held-out opening's slips show that band too (docs/diagnosis.md, "Round 7"). A stiction finding
+   the held-out opening's slips show that band too (docs/diagnosis.md, "Round 7"), or the whole record's
+   slips, at least four, do (:func:`record_shows_band`; they also stand in for the training part's two slips
+   where it holds one: "The stick-slip filter, round 13"). A stiction finding
    that would be named must also pass a simulated null (:func:`stiction_null`: the reference model's world
    with the run's inputs, the temperatures' pre-processing error included; docs/diagnosis.md, "The
    stick-slip filter, round 9"). Where
@@ -360,14 +362,24 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         g = _finding(effect, _fit(effects, valve, train, {**est.result_.params, "band_mm": band},
                                   fixed={"band_mm": band}),
                      ref_effects, ref_fit, train, valid, vr, valve, alpha, ref_val, min_gain, min_size)
-        held = slips_show_band(valid.x[vr[0]:vr[1]], float(valve.stroke), band)
+        held_x = valid.x[vr[0]:vr[1]]
+        held = slips_show_band(held_x, float(valve.stroke), band)
+        # round 13 (docs/diagnosis.md, "The stick-slip filter, round 13"): at 20-30 s the held-out quarter
+        # holds few slips, and two of them may miss a band that the record's slips measure. Where the slips
+        # of the whole record (training and held-out pooled) are enough to measure a band on their own
+        # (stiction.MIN_JUMPS, as the fit does) and measure this one, they confirm it, and they stand in
+        # for the training part's two slips where that part holds only one
+        record = record_shows_band((train.x, held_x), float(valve.stroke), band)
+        confirmed = held or record
         assert g.training_slips is not None
-        g.training_slips.update(band_from="slips", held_out_show_band=held,
+        g.training_slips.update(band_from="slips", held_out_show_band=held, record_show_band=record,
                                 likelihood_band_mm=float(f.fit.params["band_mm"]), likelihood_lr=float(f.lr_stat))
-        g.validated = g.validated and held
-        if g.significant and held:
+        if record and not g.training_slips["show_band"]:
+            g.significant = g.p_value < alpha and g.delta_bic < 0
+        g.validated = g.validated and confirmed
+        if g.significant and confirmed:
             return _null_guarded(g, ref_fit, train, valve)
-        seen.update(slips_band_lr=float(g.lr_stat), held_out_show_band=held)
+        seen.update(slips_band_lr=float(g.lr_stat), held_out_show_band=held, record_show_band=record)
     return _null_guarded(f, ref_fit, train, valve)
 
 
@@ -523,6 +535,18 @@ def slips_show_band(x: np.ndarray, stroke: float, band: float, min_slips: int = 
     on every named stiction run of the development seeds the median slip is 0.77-1.13 band
     (docs/diagnosis.md, "The stick-slip filter, round 6")."""
     return band_shown(*slip_sizes(x, stroke), band, min_slips, tol)
+
+
+def record_shows_band(parts: tuple[np.ndarray, ...], stroke: float, band: float, tol: float = 0.5) -> bool:
+    """Whether the slips of a whole record measure ``band``: the slips of its ``parts`` (the training and the
+    held-out opening, each searched apart by :func:`valve_env.diagnosis.stiction.slips`) pooled, at least
+    :data:`valve_env.diagnosis.stiction.MIN_JUMPS` of them (the count from which the fit takes the band from the
+    slips alone, :func:`valve_env.diagnosis.stiction.jump_band`), whose median lies within ``tol`` (relative) of
+    ``band`` (docs/diagnosis.md, "The stick-slip filter, round 13")."""
+    from valve_env.diagnosis.stiction import MIN_JUMPS, slips
+
+    sz = np.concatenate([slips(np.asarray(x, dtype=float), stroke) for x in parts])
+    return band_shown(int(sz.size), float(np.median(sz)) if sz.size else None, band, MIN_JUMPS, tol)
 
 
 def band_shown(n_slips: int, median_mm: float | None, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:

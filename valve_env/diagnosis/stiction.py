@@ -97,7 +97,11 @@ def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0
     return np.array(out)
 
 
-def jump_band(x: np.ndarray, stroke: float, s_w: float | None = None, min_jumps: int = 4,
+#: the fewest slips that measure the band on their own (:func:`jump_band`; fewer leave the band to the likelihood)
+MIN_JUMPS = 4
+
+
+def jump_band(x: np.ndarray, stroke: float, s_w: float | None = None, min_jumps: int = MIN_JUMPS,
               **options: float) -> tuple[float, int]:
     """Band (mm) from the slips of the measured opening (the median of :func:`slips`, which takes
     ``options``); (nan, n) with fewer than ``min_jumps`` slips."""
@@ -185,4 +189,5 @@ def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int
                      for _ in range(draws)])
 
 
-__all__ = ["band_sampling", "band_spread", "jump_band", "noise_sd", "resting_noise_sd", "slips", "slips_sd"]
+__all__ = ["MIN_JUMPS", "band_sampling", "band_spread", "jump_band", "noise_sd", "resting_noise_sd", "slips",
+           "slips_sd"]
