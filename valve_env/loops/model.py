@@ -803,11 +803,17 @@ def _settings_basis(n: int, s: Settings) -> tuple[np.ndarray, np.ndarray, np.nda
     return _cached_basis(n, float(s.dt), float(s.disturbance_knot_s), float(s.load_period_s))
 
 
-def _scan_rss_paths(pv: np.ndarray, xs: np.ndarray, s: Settings) -> np.ndarray:
+def _scan_rss_paths(pv: np.ndarray, xs: np.ndarray, s: Settings, structure: ProcessFit | None = None) -> np.ndarray:
     """The scan's residual sum of squares of ``pv`` behind each valve path of ``xs`` (each with its best process
-    structure, the disturbance basis of ``s``, its periodic load included)."""
+    structure, the disturbance basis of ``s``, its periodic load included); with ``structure``, the process's lag and
+    delay held at that fit's (the gain and the disturbance weights still fitted for each path: the cheap score of the
+    seat's second stage, :func:`scan_seats`)."""
     basis, idx, val = _settings_basis(pv.size, s)
-    return _scan_rss(pv, xs, idx, val, basis.shape[1], s.alist(), s.delays(), s.k0, s.allow_integrating)
+    if structure is None:
+        return _scan_rss(pv, xs, idx, val, basis.shape[1], s.alist(), s.delays(), s.k0, s.allow_integrating)
+    alist = np.empty(0) if structure.integrating else np.array([structure.a])
+    return _scan_rss(pv, xs, idx, val, basis.shape[1], alist, np.array([structure.delay]), s.k0,
+                     structure.integrating)
 
 
 def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float, float]]], s: Settings) -> Scan:
@@ -856,14 +862,6 @@ class Seats:
     S: float = 0.0
 
 
-def _structure_rss(pv: np.ndarray, xs: np.ndarray, s: Settings, pf: ProcessFit) -> np.ndarray:
-    """:func:`_scan_rss_paths` with the process structure held at ``pf``'s lag and delay (the gain and the disturbance
-    weights still fitted for each path): the cheap score of the seat's second stage (:func:`scan_seats`)."""
-    basis, idx, val = _settings_basis(pv.size, s)
-    alist = np.empty(0) if pf.integrating else np.array([pf.a])
-    return _scan_rss(pv, xs, idx, val, basis.shape[1], alist, np.array([pf.delay]), s.k0, pf.integrating)
-
-
 def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
     """The seats of :class:`Seats`: the LR scan (:func:`scan_paths`, :func:`scan_valve`'s kernel: white-noise least
     squares, each path with its best process structure) repeated with the valve on each seat level; then, for a
@@ -871,8 +869,8 @@ def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
     relay whose likelihood is a narrow ridge in (band, seat), which the first stage's grid can rank below a wrong
     level (docs/loops.md, "Thirteenth session: the seat search"). About each of the ``SEAT_FINE_TOP`` best first-stage
     levels, seat levels ``SEAT_FINE_STEP`` apart (quantiles, within ``SEAT_FINE_SPAN``) are crossed with bands
-    ``SEAT_FINE_RATIO`` apart under that level's best path's process structure (:func:`_structure_rss`), and the
-    ``SEAT_FINE_KEEP`` best of each neighbourhood are scored again over every structure."""
+    ``SEAT_FINE_RATIO`` apart under that level's best path's process structure (:func:`_scan_rss_paths`'
+    ``structure``), and the ``SEAT_FINE_KEEP`` best of each neighbourhood are scored again over every structure."""
     op = np.ascontiguousarray(op, dtype=float)
     pv = np.ascontiguousarray(pv, dtype=float)
     levels = [-math.inf] + [float(c) for c in np.quantile(op, SEAT_QUANTILES)]
@@ -907,7 +905,7 @@ def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
         cands = []
         for q in np.arange(max(q0 - SEAT_FINE_SPAN, 0.0), min(q0 + SEAT_FINE_SPAN, 1.0) + 1e-9, SEAT_FINE_STEP):
             c = float(np.quantile(op, q))
-            rss = _structure_rss(pv, np.array([valve_path(op, S, J, d0, s.substeps, c) for S, J, d0 in grid]), s, pf)
+            rss = _scan_rss_paths(pv, np.array([valve_path(op, S, J, d0, s.substeps, c) for S, J, d0 in grid]), s, pf)
             k = int(np.argmin(rss))
             cands.append((float(rss[k]), c, grid[k]))
         cands.sort(key=lambda t: t[0])
