@@ -35,7 +35,8 @@ simulated smooth loops' load drift; docs/loops.md, "Decision").
 not name stiction and the record holds a seat (:func:`valve_env.loops.model.scan_seats`), the same comparison runs
 again with each kind of valve on its seat (the stick-slip's lower end stop; the linear valve's seat kept only where its
 maximum-likelihood fit keeps it, :func:`linear_seat_kept`) and decides, naming only a band the record resolves
-(:func:`band_resolved`: at least one sample's OP move, and crossed back by the fitted valve).
+(:func:`band_resolved`: at least one sample's OP move, and crossed back by the fitted valve), crossed back within
+each half of the held-out check (:func:`crosses_back_in_halves`).
 
 Nothing else names it. The OP-PV cross-correlation's shape (:func:`valve_env.loops.detectors.horch` on
 the same record, with the PV's increments when the fitted process integrates) is reported beside the
@@ -213,17 +214,23 @@ def oscillation_cause(loop: LoopData, lin: ValveFit, period_s: float, k0: int) -
     return "nonlinear_oscillation", r2, cl  # inside the loop, but the linear loop damps it: a nonlinearity sustains it
 
 
+def heldout_halves(n: int, k0: int) -> tuple[tuple[int, int], tuple[int, int]]:
+    """The two halves of the held-out check (condition 3 of the module docstring), as sample ranges ``[a, b)`` of a
+    record of ``n`` samples: each starts ``k0`` samples (the fits' warm-up) after its cut."""
+    mid = n // 2
+    return (k0, mid), (mid + k0, n)
+
+
 def _heldout_gain(loop: LoopData, valve: str, s: Settings, seat_lin: float = -math.inf,
                   seat: float = -math.inf, memo: FitMemo | None = None, extra_S: tuple[float, ...] = ()) -> float:
     """Held-out log-likelihood gain of ``valve`` (on its ``seat``) over the linear valve (on ``seat_lin``), summed
     over the two halves (the fits looked up in ``memo`` first: :func:`~valve_env.loops.model.fit_valve`); ``extra_S``
     are bands added to each half's band grid (the seat search's band, paired with the seat the halves are given:
     docs/loops.md, "Thirteenth session: the seat search")."""
-    n = loop.n
-    mid = n // 2
+    first, second = heldout_halves(loop.n, s.k0)
     gain = 0.0
     s = replace(s, n_grid=10)
-    for (a0, a1), (b0, b1) in (((s.k0, mid), (mid + s.k0, n)), ((mid + s.k0, n), (s.k0, mid))):
+    for (a0, a1), (b0, b1) in ((first, second), (second, first)):
         lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seat_lin), k1=a1, k0=a0, memo=memo)
         cand = fit_valve(loop.op, loop.pv, valve, replace(s, seat=seat), k1=a1, k0=a0, extra_S=extra_S, memo=memo)
         ll_lin = refit_gain(loop.pv, lin.path(loop.op), lin.process, s, b0, b1).loglik
@@ -259,6 +266,15 @@ def band_resolved(fit: ValveFit, op: np.ndarray) -> bool:
     max - min, is never crossed back, and every such band gives the same path but for the resting offset
     ``(S - J) / 2``, which the process's offset absorbs."""
     return bool(fit.S >= sampling_offset(op) and crosses_back(fit.path(op)))
+
+
+def crosses_back_in_halves(fit: ValveFit, loop: LoopData, k0: int) -> bool:
+    """Whether the fitted valve crosses its band back (:func:`crosses_back`) within each half of the held-out check
+    (:func:`heldout_halves`; the path is the whole record's). A half in which the valve never reverses holds no
+    evidence of the band, so the held-out check on it tests the valve only on the other half (docs/loops.md,
+    "Fourteenth session: the seated fallback's halves")."""
+    x = fit.path(loop.op)
+    return all(crosses_back(x[a:b]) for a, b in heldout_halves(loop.n, k0))
 
 
 def band_uncertainty(fit: ValveFit, factor: float, offset: float = 0.0,
@@ -477,8 +493,11 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         # the seated fallback names only a band the record resolves (band_resolved): not one below one sample's OP
         # move (the flow loops' smooth twins 16612 and 16616 were named at 0.06-0.07 % of OP), nor one its valve never
         # crosses back (smooth seat seeds 5 and 8: two slips upwards in 4 h, bands 5.6 and 7.3 % of OP; twelfth
-        # session)
-        if alt.justified and band_resolved(alt.fits[BAND_CANDIDATE], loop.op):
+        # session), nor one it does not cross back within each of the held-out check's halves (smooth seat seeds 364 and
+        # 408: one and two reversals, all in the second half; fourteenth session)
+        band_fit_alt = alt.fits[BAND_CANDIDATE]
+        if (alt.justified and band_resolved(band_fit_alt, loop.op)
+                and crosses_back_in_halves(band_fit_alt, loop, s.k0)):
             alt_named, alt_periodic = checked(alt)
             if alt_named:
                 cmp, by_likelihood, periodic, seated = alt, True, alt_periodic, True
@@ -546,4 +565,5 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
 
 __all__ = ["CAUSES", "Diagnosis", "diagnose", "neff_factor", "oscillation", "band_uncertainty",
            "sampling_offset", "band_resolved", "crosses_back", "BAND_CANDIDATE", "closed_loop", "rings", "Comparison",
-           "compare", "with_periodic_load", "linear_seat_kept", "oscillation_cause"]
+           "compare", "with_periodic_load", "linear_seat_kept", "oscillation_cause", "heldout_halves",
+           "crosses_back_in_halves"]
