@@ -2,11 +2,14 @@
 environment").
 
     python benchmarks/env_loop_study.py --env-id ThermoValveStickyCirculation-v0 --seeds 100-111 --kp 5 --ti 1500
+    python benchmarks/env_loop_study.py --seeds 0-11 --hours 24
 
 For each seed: a record with a 0.1 mm stem band and one with a smooth stem (``record_env_loop``), each diagnosed
 (``valve_env.loops.diagnose``); prints one line per record (the cause, the band when named, the seat the
-nonlinear valves were fitted on), the counts named stiction and every cause's count. ``--kp``/``--ti`` override
-the PI's stored gains (both or neither)."""
+nonlinear valves were fitted on, the better nonlinear valve's band, adjusted delta BIC and held-out gain, the
+residual's n_eff / n, the CPU seconds of the diagnosis alone and of the whole record), the counts named
+stiction and every cause's count. ``--kp``/``--ti`` override the PI's stored gains (both or neither); ``--hours``
+and ``--warmup-h`` are the record's length and the warm-up before it (``record_env_loop``'s defaults)."""
 from __future__ import annotations
 
 import argparse
@@ -16,20 +19,25 @@ from collections import Counter
 
 from valve_env.cli import int_list
 from valve_env.loops.diagnose import diagnose
-from valve_env.loops.envloop import ENV_ID, record_env_loop
+from valve_env.loops.envloop import ENV_ID, RECORD_H, WARMUP_H, record_env_loop
 
 STICKY_MM = 0.1
 
 
 def parse_env_args(description: str, argv: list[str] | None) -> tuple[argparse.Namespace, list[int]]:
     """The env-loop studies' command line (this script and loop_drift_study.py): ``--env-id``, ``--seeds``,
-    ``--kp``/``--ti`` (both or neither); returns the arguments and the seeds."""
+    ``--kp``/``--ti`` (both or neither), ``--hours`` (> 0)/``--warmup-h`` (>= 0); returns the arguments and the
+    seeds."""
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--env-id", default=ENV_ID)
     ap.add_argument("--seeds", default="0-5", help="a range A-B or a comma list")
     ap.add_argument("--kp", type=float, default=None, help="PI gain, K of setting per K")
     ap.add_argument("--ti", type=float, default=None, help="PI integral time, s")
+    ap.add_argument("--hours", type=float, default=RECORD_H, help="record length, h (30 s samples)")
+    ap.add_argument("--warmup-h", type=float, default=WARMUP_H, help="warm-up before the record, h")
     a = ap.parse_args(argv)
+    if not (a.hours > 0.0 and a.warmup_h >= 0.0):
+        ap.error(f"--hours must be > 0 and --warmup-h >= 0, got {a.hours:g} and {a.warmup_h:g}")
     if (a.kp is None) != (a.ti is None):
         ap.error("give both --kp and --ti, or neither")
     try:
@@ -44,18 +52,28 @@ def main(argv: list[str] | None = None) -> int:
     causes: dict[float, Counter[str]] = {STICKY_MM: Counter(), 0.0: Counter()}
     for seed in seeds:
         for band in (STICKY_MM, 0.0):
-            t0 = time.perf_counter()
-            res = diagnose(record_env_loop(band, seed=seed, env_id=a.env_id, Kp=a.kp, Ti_s=a.ti)).result
+            t0 = time.process_time()
+            loop = record_env_loop(band, seed=seed, hours=a.hours, warmup_h=a.warmup_h, env_id=a.env_id, Kp=a.kp,
+                                   Ti_s=a.ti)
+            t1 = time.process_time()
+            res = diagnose(loop).result
+            t2 = time.process_time()
             cause = str(res["cause"])
             named[band] += cause == "stiction"
             causes[band][cause] += 1
-            seat = res["decision"]["seat"]["nonlinear_pct"]
+            dec = res["decision"]
+            seat = dec["seat"]["nonlinear_pct"]
+            best = next(f for f in res["findings"] if f["candidate"] == dec["best_nonlinear"])
             band_txt = f", band {res['stiction']['band_pct']:.2f} % of OP" if cause == "stiction" else ""
             print(f"seed {seed} band {band:g} mm: {cause}{band_txt} (seat of the nonlinear valves "
-                  f"{'none' if seat is None else format(seat, '.2f') + ' %'}; {time.perf_counter() - t0:.1f} s)",
-                  flush=True)
+                  f"{'none' if seat is None else format(seat, '.2f') + ' %'}; best {best['candidate']} S "
+                  f"{best['S_pct']:.2f} %, delta BIC {best['delta_bic']:.1f}, held-out gain "
+                  f"{dec['heldout_loglik_gain']:.1f}, n_eff/n {dec['neff_factor']:.2f}"
+                  f"{', periodic load ' + str(dec['periodic_load']['justified']) if 'periodic_load' in dec else ''}; "
+                  f"CPU {t2 - t1:.1f} s diagnosis, {t2 - t0:.1f} s in all)", flush=True)
     n = len(seeds)
-    print(f"{a.env_id}, PI {'stored' if a.kp is None else f'Kp {a.kp:g}, Ti {a.ti:g} s'}: sticky named stiction "
+    print(f"{a.env_id}, {a.hours:g} h records after {a.warmup_h:g} h, PI "
+          f"{'stored' if a.kp is None else f'Kp {a.kp:g}, Ti {a.ti:g} s'}: sticky named stiction "
           f"{named[STICKY_MM]}/{n}, smooth named stiction {named[0.0]}/{n}")
     for band, label in ((STICKY_MM, "sticky"), (0.0, "smooth")):
         print(f"{label} causes: " + ", ".join(f"{c} {k}" for c, k in causes[band].most_common()))

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.diagnosis.studies import load_study
 from valve_env.loops.diagnose import Diagnosis, diagnose
 from valve_env.loops.envloop import record_env_loop
 from valve_env.loops.io import check_loop, read_loop
@@ -27,6 +28,25 @@ def test_env_loop_record_is_a_valid_loop_csv() -> None:
         assert check_loop(cols, min_samples=100).n == loop.n
     # the sticky stem changes the loop's behaviour
     assert not np.allclose(smooth.op, sticky.op)
+
+
+def test_env_loop_day_long_record() -> None:
+    """A day at 30 s is 2880 samples from 0 s, the warm-up cut off; a record of no length is refused by name."""
+    day = record_env_loop(0.0, seed=0, hours=24.0, warmup_h=1.0)
+    assert day.n == 2880 and day.dt == 30.0 and day.time_s[0] == 0.0
+    with pytest.raises(ValueError, match="hours must be > 0"):
+        record_env_loop(0.0, seed=0, hours=0.0)
+
+
+def test_env_loop_study_hours_reach_the_record(capsys: pytest.CaptureFixture[str]) -> None:
+    """``benchmarks/env_loop_study.py --hours/--warmup-h`` set the record's length (its summary line names them);
+    a record of no length is one argparse error."""
+    study = load_study("env_loop_study")
+    a, seeds = study.parse_env_args("t", ["--seeds", "3,4", "--hours", "24", "--warmup-h", "2"])
+    assert (a.hours, a.warmup_h, seeds) == (24.0, 2.0, [3, 4])
+    with pytest.raises(SystemExit):
+        study.parse_env_args("t", ["--hours", "0"])
+    assert "--hours must be > 0" in capsys.readouterr().err
 
 
 def _diagnosis_via_csv(band_mm: float, seed: int, tmp_path: Path) -> Diagnosis:

@@ -19,9 +19,12 @@ from valve_env.controllers.baselines import PIController
 from valve_env.loops.io import LoopData
 
 ENV_ID = "ThermoValveStickyValve-v0"
+#: the record's length and the warm-up before it, h (docs/loops.md, "Loops from the environment")
+RECORD_H = 4.0
+WARMUP_H = 3.0
 
 
-def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, warmup_h: float = 3.0,
+def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = RECORD_H, warmup_h: float = WARMUP_H,
                     noise_K: float = 0.01, env_id: str = ENV_ID, filter_s: float = 0.0,
                     Kp: float | None = None, Ti_s: float | None = None) -> LoopData:
     """Run the PI for ``warmup_h + hours`` on ``env_id`` (30 s steps) with the stem's stick band
@@ -30,6 +33,8 @@ def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, wa
     white noise of ``noise_K`` per sample (docs/loops.md, "Loops from the environment", on the choice);
     ``filter_s`` is the PI's first-order measurement filter (the historian records the unfiltered PV);
     ``Kp`` (K of setting per K) and ``Ti_s`` override the PI's stored gains for ``env_id``."""
+    if not (hours > 0.0 and warmup_h >= 0.0):  # also rejects NaN
+        raise ValueError(f"record_env_loop: hours must be > 0 and warmup_h >= 0, got {hours!r} and {warmup_h!r}")
     total = hours + warmup_h
     kw: dict = {"horizon_h": total, "max_episode_steps": int(round(total * 120)), "sensors": {"noise_K": noise_K},
                 "valve": {"effects": {"stiction": {"band_mm": float(band_mm or 0.0)}}}}
@@ -64,4 +69,4 @@ def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = 4.0, wa
                     source=env_id)
 
 
-__all__ = ["record_env_loop", "ENV_ID"]
+__all__ = ["record_env_loop", "ENV_ID", "RECORD_H", "WARMUP_H"]
