@@ -267,6 +267,33 @@ def test_record_shows_band_pools_the_parts_and_needs_four_slips() -> None:
     assert not record_shows_band((one, three), stroke, 2.5 * band)  # the slips do not measure that band
 
 
+def test_stiction_fit_carries_on_past_a_kink_where_the_line_search_fails() -> None:
+    """Round 14 (docs/diagnosis.md): on a stiction run of development seed 20270705 (run 28: band 0.0311 mm,
+    20 s, 22.9 h) the fit from the base fit with the band held at the slips' median (0.0291 mm) stopped at its
+    start: L-BFGS-B's line search failed at a kink of the stick-slip filter's likelihood (``ABNORMAL``), LR 255
+    and a held-out gain of +0.01, so stiction was not validated; a fit at a band 3 % larger reached LR 355.
+    Nelder-Mead from where L-BFGS-B stopped carries the fit on."""
+    from valve_env.diagnosis.diagnose import _fit, _held_out, check_run, prepare
+    from valve_env.experiment import random_cases, simulate_case
+    from valve_env.params import ValveParams
+
+    full = prepare(check_run(simulate_case(random_cases(60, 20270705)[28]), "r"), "r")
+    valve = ValveParams()
+    n = len(full)
+    nt = int(round(0.75 * n))
+    train = full.slice(0, nt)
+    base_est = _fit((), valve, train)
+    base = base_est.result_
+    band = 0.029143793865125334  # the training slips' median (stiction.jump_band)
+    est = _fit(("stiction",), valve, train, {**base.params, "band_mm": band}, fixed={"band_mm": band})
+    lr = 2.0 * (est.result_.loglik - base.loglik)
+    gain = _held_out(est.backend_, full, est.result_.params, nt, n)[1] - _held_out(
+        base_est.backend_, full, base.params, nt, n)[1]
+    assert lr > 300.0, lr
+    assert gain > 2.0, gain  # the held-out log-likelihood now validates it (min_validation_gain)
+    assert abs(est.result_.params["sigma"] / base.params["sigma"] - 1.0) > 0.01  # it left its start
+
+
 def test_record_slips_name_a_stiction_run_the_held_out_quarter_misses() -> None:
     """Round 13 (docs/diagnosis.md): a stiction run of development seed 20270529 (run 58: band 0.0158 mm, 30 s,
     14.5 h) whose likelihood band (9 um) the two training slips (median 14.2 um) do not show; with the band held

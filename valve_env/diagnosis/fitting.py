@@ -96,6 +96,11 @@ class FitResult:
         return {q.name: self.params[q.name] for q in BASE_PARAMS}
 
 
+#: Nelder-Mead's evaluations per free parameter where L-BFGS-B's line search failed at a kink of the
+#: likelihood (:meth:`Model._past_kink`)
+KINK_FEVALS = 60
+
+
 #: whether Model.fit profiles stiction's band by the likelihood after the fit at the slips' band (off: on a
 #: generated 27.8 h run at 5 s it moved a band of 0.0312 mm, measured 0.0309, to 0.0158)
 PROFILE_BAND = False
@@ -326,7 +331,42 @@ class Model:
             fit = again if again.loglik > fit.loglik else fit
             if not improved:
                 break
-        return fit
+        return self._past_kink(data, fit, fixed, maxiter)
+
+    def _past_kink(self, data: RunData, fit: FitResult, fixed: dict[str, float], maxiter: int) -> FitResult:
+        """``fit`` carried on where L-BFGS-B stopped because its line search failed (``converged`` false,
+        ``ABNORMAL``): the likelihood of the stick-slip filter has kinks (a slip moves by a sample as a
+        parameter crosses a value), along which a finite-difference gradient points downhill in no direction
+        that the line search can use, and restarting L-BFGS-B from there fails the same way. Nelder-Mead
+        (``scipy.optimize.minimize``, no gradient; ``KINK_FEVALS`` evaluations per free parameter) from that
+        point, then L-BFGS-B again; the better fit is kept (docs/diagnosis.md, "The stick-slip filter, round
+        14": on 20270705 run 28 the stiction fit from the base fit stopped at its start, LR 255 and a held-out
+        gain of +0.01, and Nelder-Mead carried it to LR 357)."""
+        if fit.converged or "ABNORMAL" not in fit.message:
+            return fit
+        free = [i for i, n in enumerate(self.names) if n not in fixed]
+        z_all = self.to_work({**fit.params, **fixed})
+        bounds = self.work_bounds()
+        lo = np.array([bounds[i][0] for i in free])
+        hi = np.array([bounds[i][1] for i in free])
+
+        def nll(zf: np.ndarray) -> float:
+            z = z_all.copy()
+            z[free] = np.clip(zf, lo, hi)
+            ll = self.loglik(data, self.from_work(z))
+            return -ll if math.isfinite(ll) else 1e300
+
+        res = minimize(nll, z_all[free], method="Nelder-Mead",
+                       options={"maxfev": KINK_FEVALS * len(free), "xatol": 1e-4, "fatol": 0.01})
+        if -float(res.fun) <= fit.loglik + 0.05:
+            return fit
+        z = z_all.copy()
+        z[free] = np.clip(res.x, lo, hi)
+        moved = self.from_work(z)
+        again = self._fit_smooth(data, moved, fixed, maxiter, False)
+        if again.loglik >= -float(res.fun):
+            return again
+        return self._result(data, moved, again.std, -float(res.fun), len(free), False, "Nelder-Mead past a kink")
 
     def profile_1d(self, data: RunData, values: dict[str, float], name: str, centre: float,
                    lo: float = 0.4, hi: float = 2.5, n: int = 25) -> tuple[float, float]:
