@@ -192,7 +192,7 @@ def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
         calls.append({"start": start, "fixed": fixed})
         return Est(fixed["band_mm"] if fixed else 0.012, 100.0)
 
-    def fake_finding(effect, est, *args):  # type: ignore[no-untyped-def]
+    def fake_finding(effect, est, *args, slips_stand_in=False):  # type: ignore[no-untyped-def]
         band = est.result_.params["band_mm"]
         shown = dg.band_shown(2, 0.033, band)
         f = dg.Finding.__new__(dg.Finding)

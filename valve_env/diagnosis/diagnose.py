@@ -359,9 +359,6 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         # training slips are too few to measure a band on their own (that fit needs four), so the held-out
         # opening's slips must show it too (one null run of the development seeds, 31/21, was named without)
         band = float(seen["median_mm"])
-        g = _finding(effect, _fit(effects, valve, train, {**est.result_.params, "band_mm": band},
-                                  fixed={"band_mm": band}),
-                     ref_effects, ref_fit, train, valid, vr, valve, alpha, ref_val, min_gain, min_size)
         held_x = valid.x[vr[0]:vr[1]]
         held = slips_show_band(held_x, float(valve.stroke), band)
         # round 13 (docs/diagnosis.md, "The stick-slip filter, round 13"): at 20-30 s the held-out quarter
@@ -371,11 +368,13 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         # for the training part's two slips where that part holds only one
         record = record_shows_band((train.x, held_x), float(valve.stroke), band)
         confirmed = held or record
+        g = _finding(effect, _fit(effects, valve, train, {**est.result_.params, "band_mm": band},
+                                  fixed={"band_mm": band}),
+                     ref_effects, ref_fit, train, valid, vr, valve, alpha, ref_val, min_gain, min_size,
+                     slips_stand_in=record)
         assert g.training_slips is not None
         g.training_slips.update(band_from="slips", held_out_show_band=held, record_show_band=record,
                                 likelihood_band_mm=float(f.fit.params["band_mm"]), likelihood_lr=float(f.lr_stat))
-        if record and not g.training_slips["show_band"]:
-            g.significant = g.p_value < alpha and g.delta_bic < 0
         g.validated = g.validated and confirmed
         if g.significant and confirmed:
             return _null_guarded(g, ref_fit, train, valve)
@@ -403,9 +402,12 @@ SLIP_BAND_TEST = True
 
 def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref_fit: FitResult, train: RunData,
              valid: RunData, vr: tuple[int, int], valve: ValveParams, alpha: float,
-             ref_val: tuple[float, float, float], min_gain: float, min_size: float) -> Finding:
+             ref_val: tuple[float, float, float], min_gain: float, min_size: float,
+             slips_stand_in: bool = False) -> Finding:
     """The candidate ``effect``'s finding from its fit ``est``: the LR test, the held-out measures, relevance,
-    and (stiction) the training slips' check."""
+    and (stiction) the training slips' check; ``slips_stand_in``: the whole record's slips show the band
+    (:func:`record_shows_band`) and stand in for the training slips' check (docs/diagnosis.md, "The
+    stick-slip filter, round 13")."""
     model, fit = est.backend_, est.result_
     lr = max(2.0 * (fit.loglik - ref_fit.loglik), 0.0)
     k = len(EFFECTS[effect].parameters)
@@ -428,7 +430,7 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
         n_sl, med = slip_sizes(train.x, float(valve.stroke))
         shown = band_shown(n_sl, med, float(fit.params["band_mm"]))  # the slips found once, for both
         f.training_slips = {"n": n_sl, "median_mm": med, "show_band": shown}
-        f.significant = f.significant and shown
+        f.significant = f.significant and (shown or slips_stand_in)
     f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
     if EFFECTS[effect].variance_gain:
         # stiction acts in events (the slips, once per reversal of the demand under the (S, J) model: 6 in
