@@ -344,25 +344,12 @@ class Model:
         gain of +0.01, and Nelder-Mead carried it to LR 357)."""
         if fit.converged or "ABNORMAL" not in fit.message:
             return fit
-        free = [i for i, n in enumerate(self.names) if n not in fixed]
-        z_all = self.to_work({**fit.params, **fixed})
-        bounds = self.work_bounds()
-        lo = np.array([bounds[i][0] for i in free])
-        hi = np.array([bounds[i][1] for i in free])
-
-        def nll(zf: np.ndarray) -> float:
-            z = z_all.copy()
-            z[free] = np.clip(zf, lo, hi)
-            ll = self.loglik(data, self.from_work(z))
-            return -ll if math.isfinite(ll) else 1e300
-
-        res = minimize(nll, z_all[free], method="Nelder-Mead",
+        free, z0, _, at, nll = self._objective(data, fit.params, fixed, clip=True)
+        res = minimize(nll, z0, method="Nelder-Mead",
                        options={"maxfev": KINK_FEVALS * len(free), "xatol": 1e-4, "fatol": 0.01})
         if -float(res.fun) <= fit.loglik + 0.05:
             return fit
-        z = z_all.copy()
-        z[free] = np.clip(res.x, lo, hi)
-        moved = self.from_work(z)
+        moved = at(res.x)
         again = self._fit_smooth(data, moved, fixed, maxiter, False)
         if again.loglik >= -float(res.fun):
             return again
@@ -481,32 +468,43 @@ class Model:
                 best, best_ll = {k: vals[k] for k in (p.name, "p_bset") if k in vals and k not in fixed}, ll
         return best
 
-    def _fit_smooth(self, data: RunData, start: dict[str, float], fixed: dict[str, float], maxiter: int,
-                    with_std: bool) -> FitResult:
+    def _objective(self, data: RunData, start: dict[str, float], fixed: dict[str, float], clip: bool = False
+                   ) -> tuple[list[int], np.ndarray, list[tuple[float, float]],
+                              Callable[[np.ndarray], dict[str, float]], Callable[[np.ndarray], float]]:
+        """The fits' objective over the working scale of the parameters not in ``fixed``: their indices, their
+        start (from ``start``), their bounds, the values at a working point (the fixed ones held; ``clip``: the
+        point clipped into the bounds, for a method without bounds) and the negative log-likelihood there
+        (1e300 where it is not finite)."""
         free = [i for i, n in enumerate(self.names) if n not in fixed]
         z_all = self.to_work({**start, **fixed})
-        bounds = self.work_bounds()
+        work_bounds = self.work_bounds()
+        bounds = [work_bounds[i] for i in free]
+        lo = np.array([b[0] for b in bounds])
+        hi = np.array([b[1] for b in bounds])
+
+        def at(zf: np.ndarray) -> dict[str, float]:
+            z = z_all.copy()
+            z[free] = np.clip(zf, lo, hi) if clip else zf
+            return self.from_work(z)
 
         def nll(zf: np.ndarray) -> float:
-            z = z_all.copy()
-            z[free] = zf
-            vals = self.from_work(z)
-            ll = self.loglik(data, vals)
+            ll = self.loglik(data, at(zf))
             return -ll if math.isfinite(ll) else 1e300
 
-        res = minimize(nll, z_all[free], method="L-BFGS-B", bounds=[bounds[i] for i in free],
+        return free, z_all[free], bounds, at, nll
+
+    def _fit_smooth(self, data: RunData, start: dict[str, float], fixed: dict[str, float], maxiter: int,
+                    with_std: bool) -> FitResult:
+        free, z0, bounds, at, nll = self._objective(data, start, fixed)
+        res = minimize(nll, z0, method="L-BFGS-B", bounds=bounds,
                        options={"maxiter": maxiter, "ftol": 1e-8, "gtol": 1e-5, "eps": 1e-7})
-        z = z_all.copy()
-        z[free] = res.x
-        vals = self.from_work(z)
+        vals = at(res.x)
         std = {n: float("nan") for n in self.names}
         if with_std:
             names = [self.names[i] for i in free]
 
             def contrib(zf: np.ndarray) -> np.ndarray:
-                zz = z_all.copy()
-                zz[free] = zf
-                nu, S = self.prediction_errors(data, self.from_work(zz))
+                nu, S = self.prediction_errors(data, at(zf))
                 return -0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S)
 
             std.update(self._std(nll, contrib, res.x, names, vals, free))
