@@ -309,3 +309,32 @@ def test_record_slips_name_a_stiction_run_the_held_out_quarter_misses() -> None:
     assert f.training_slips["record_show_band"]
     assert d.cause == "stiction", d.summary()
     assert abs(f.fit.params["band_mm"] / 0.0158 - 1.0) < 0.25
+
+
+@pytest.mark.parametrize("base_improves", [False, True])
+def test_the_first_steps_null_guard_runs_once_on_the_step_that_is_kept(monkeypatch: pytest.MonkeyPatch,
+                                                                         base_improves: bool) -> None:
+    """The first step's findings are tried again where a candidate's fit shows a better base fit; the null guard
+    (19 simulated copies, smoothed like a measured run) is applied only to the step that is kept, once per
+    stiction finding that would be named, against the base fit the step was tested on (docs/diagnosis.md,
+    "Speed")."""
+    from valve_env.diagnosis import diagnose as dg
+
+    calls: list[float] = []
+    real_null = dg.stiction_null
+
+    def counted(ref_fit, stick_fit, train, valve, **kw):  # type: ignore[no-untyped-def]
+        calls.append(ref_fit.loglik)
+        return real_null(ref_fit, stick_fit, train, valve, **kw)
+
+    monkeypatch.setattr(dg, "stiction_null", counted)
+    if base_improves:  # the retry path, with the base fit as the "better" one
+        monkeypatch.setattr(dg, "_better_base", lambda model, train, base, step: base)
+    else:
+        monkeypatch.setattr(dg, "_better_base", lambda model, train, base, step: None)
+    df = simulate_experiment(seed=3, duration_h=8.0, dt_s=10.0, effects={"stiction": {"band_mm": 0.03}})
+    d = diagnose(df, effects=["stiction"], bootstrap_B=0)
+    f = d.steps[0][0]
+    assert d.cause == "stiction" and f.accepted, d.summary()
+    assert len(calls) == 1 and calls[0] == d.base.loglik
+    assert f.null_guard is not None and f.null_guard["passed"]

@@ -44,3 +44,59 @@ def test_a_drift_scan_turns_about_the_record_middle_and_the_fit_keeps_the_better
     paths = [m._fit_path(d, {**vals}, {}, True, 300, turn) for turn in (False, True)]
     assert fit.loglik == pytest.approx(max(q.loglik for q in paths), abs=1e-6)
     assert abs(fit.params["rate_MPa_per_h"] / -6e-5 - 1.0) < 0.25, fit.params
+
+
+def _fresh_loglik(d, effects: tuple[str, ...], values: dict[str, float]) -> float:  # type: ignore[no-untyped-def]
+    """The likelihood from a model that has kept no valve path."""
+    return Model(effects).loglik(d, values)
+
+
+def test_a_kept_valve_path_gives_the_likelihood_of_a_fresh_simulation() -> None:
+    """Model._valve_path (docs/diagnosis.md, "Speed"): a finite-difference step in a noise parameter or in
+    stiction's band reuses the valve path, a step in a valve parameter or an effect that shapes the demand
+    simulates anew, and every likelihood equals, to the last bit, that of a model simulating from scratch."""
+    df = simulate_experiment(seed=5, duration_h=4.0, dt_s=10.0, effects={"stiction": {"band_mm": 0.02}})
+    d = prepare(check_run(df))
+    m = Model(("stiction",))
+    vals = {**m.default_start(d), "band_mm": 0.02}
+    m._paths.clear()  # the start's scan of p_bset has filled it
+    steps = [{}, {"s_w": vals["s_w"] * 1.1}, {"tau_e": 400.0}, {"band_mm": 0.03}, {"s_e": 0.02}]
+    for s in steps:
+        assert m.loglik(d, {**vals, **s}) == _fresh_loglik(d, ("stiction",), {**vals, **s})
+    assert len(m._paths) == 1  # the noise and band steps ran the filter on the one path
+    for s in ({"sigma": vals["sigma"] * 1.01}, {"F_hmax": vals["F_hmax"] * 0.9}):
+        assert m.loglik(d, {**vals, **s}) == _fresh_loglik(d, ("stiction",), {**vals, **s})
+    assert len(m._paths) == 3
+    lag = Model(("sensor_lag",))
+    lv = {**lag.default_start(d), "tau_s": 30.0}
+    lag._paths.clear()
+    assert lag.loglik(d, lv) == _fresh_loglik(d, ("sensor_lag",), lv)
+    assert lag.loglik(d, {**lv, "tau_s": 60.0}) == _fresh_loglik(d, ("sensor_lag",), {**lv, "tau_s": 60.0})
+    assert len(lag._paths) == 2  # the lag shapes the demand: a path each
+    for i in range(12):  # the oldest paths make room
+        m.loglik(d, {**vals, "sigma": vals["sigma"] * (1.0 + 0.01 * i)})
+    assert len(m._paths) == 8
+
+
+def test_a_changed_run_is_a_new_run_and_simulate_hands_out_copies() -> None:
+    """A prepared run is frozen, so a kept path can only belong to the run it was simulated from: a run with
+    other temperatures is another object, and its likelihood is its own. ``simulate`` returns copies: writing
+    into them leaves the kept path as it was."""
+    import dataclasses
+
+    df = simulate_experiment(seed=6, duration_h=3.0, dt_s=10.0)
+    d = prepare(check_run(df))
+    m = Model(())
+    vals = m.default_start(d)
+    ll = m.loglik(d, vals)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        d.T = d.T + 1.0  # type: ignore[misc]
+    warmer = dataclasses.replace(d, T=d.T + 0.5, M=d.M + 0.5)
+    assert m.loglik(warmer, vals) == _fresh_loglik(warmer, (), vals) != ll
+    x, _, _ = m.simulate(d, vals)
+    x[:] = -1.0
+    assert m.loglik(d, vals) == ll
+    assert m.simulate(d, vals)[0][0] != -1.0
+    import pickle
+
+    assert pickle.loads(pickle.dumps(m))._paths == {}  # a copied model starts without kept paths

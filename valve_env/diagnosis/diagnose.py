@@ -329,7 +329,11 @@ def _fit(effects: tuple[str, ...], valve: ValveParams, train: RunData,
 def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: RunData, valid: RunData,
          vr: tuple[int, int], valve: ValveParams, alpha: float, ref_val: tuple[float, float, float],
          warm: dict[str, float] | None, min_gain: float, min_size: float,
-         previous: Finding | None = None) -> Finding:
+         previous: Finding | None = None, guard: bool = True) -> Finding:
+    """The candidate ``effect`` fitted and tested against the reference (:func:`_finding`, round 7's slips' band
+    where it applies); ``guard``: stiction's simulated null guard applied to the finding (:func:`_null_guarded`).
+    :func:`diagnose` holds it off in the first step, whose findings are tried again where the base fit improves,
+    and applies it to the step it keeps: the guard decides nothing before that (docs/diagnosis.md, "Speed")."""
     effects = tuple(e for e in EFFECTS if e in (*ref_effects, effect))  # canonical order
     if previous is not None:
         # a second round after the base fit improved: continue from the previous fit of this candidate
@@ -377,9 +381,9 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
                                 likelihood_band_mm=float(f.fit.params["band_mm"]), likelihood_lr=float(f.lr_stat))
         g.validated = g.validated and confirmed
         if g.significant and confirmed:
-            return _null_guarded(g, ref_fit, train, valve)
+            return _null_guarded(g, ref_fit, train, valve) if guard else g
         seen.update(slips_band_lr=float(g.lr_stat), held_out_show_band=held, record_show_band=record)
-    return _null_guarded(f, ref_fit, train, valve)
+    return _null_guarded(f, ref_fit, train, valve) if guard else f
 
 
 def _null_guarded(f: Finding, ref_fit: FitResult, train: RunData, valve: ValveParams) -> Finding:
@@ -692,8 +696,9 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         step = []
         for e in remaining:
             warm = single[e].effect_params if e in single else None
+            # the first step's null guard waits for the base fit to settle (below)
             step.append(_try(e, ref_effects, ref_fit, train, valid, vr, valve, alpha, ref_val, warm,
-                             min_validation_gain, min_effect_size))
+                             min_validation_gain, min_effect_size, guard=bool(selected)))
             tick(f"+{e}")
         if not selected:
             # every extension contains the base model: with its effect switched off, a candidate's fit is
@@ -706,6 +711,8 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 ref_fit, ref_val = base, base_val
                 step = [_try(f.effect, (), base, train, valid, vr, valve, alpha, base_val,
                              f.fit.effect_params, min_validation_gain, min_effect_size, f) for f in step]
+            else:
+                step = [_null_guarded(f, ref_fit, train, valve) for f in step]
         step.sort(key=rank_key)
         steps.append(step)
         if not selected:

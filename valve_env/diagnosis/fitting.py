@@ -26,6 +26,7 @@ style front is ``ValveEstimator(effects, likelihood="output_error")``
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -101,6 +102,13 @@ class FitResult:
 KINK_FEVALS = 60
 
 
+#: valve paths (:func:`~valve_env.diagnosis.engine.simulate_valve`'s output) that a :class:`Model` keeps, the
+#: most recently used first out (:meth:`Model._valve_path`). A finite-difference gradient moves one parameter at a
+#: time, and the three noise parameters and stiction's band leave the path as it is: with the base point and
+#: the valve parameters' steps kept, those evaluations run only the filter (docs/diagnosis.md, "Speed")
+PATH_CACHE = 8
+
+
 #: whether Model.fit profiles stiction's band by the likelihood after the fit at the slips' band (off: on a
 #: generated 27.8 h run at 5 s it moved a band of 0.0312 mm, measured 0.0309, to 0.0158)
 PROFILE_BAND = False
@@ -131,6 +139,12 @@ class Model:
         self.landing_sd = LANDING_SD
         #: after the fit with the band measured from the slips, profile it by the likelihood (see fit)
         self.profile_band = PROFILE_BAND
+        self._paths: OrderedDict[tuple[int, bytes, bytes, float, bool], tuple[RunData, tuple[np.ndarray, ...]]] = (
+            OrderedDict())
+
+    def __getstate__(self) -> dict[str, object]:
+        # the kept valve paths hold runs and their simulations: a copied or pickled model starts without them
+        return {**self.__dict__, "_paths": OrderedDict()}
 
     # --- the work (optimiser) scale: the transforms of valve_env.estimation.model ----------
     def to_work(self, values: dict[str, float]) -> np.ndarray:
@@ -166,6 +180,28 @@ class Model:
     def _stuck(self, values: dict[str, float]) -> bool:
         return "stiction" in self.effects and values.get("band_mm", 0.0) > 0.0
 
+    def _valve_path(self, data: RunData, vp: np.ndarray, e: np.ndarray, delta: float,
+                    want_sub: bool) -> tuple[np.ndarray, ...]:
+        """:func:`~valve_env.diagnosis.engine.simulate_valve` of ``data``, kept for the last :data:`PATH_CACHE`
+        distinct inputs. The path depends on the run's time, temperatures and pressures, the valve vector, the
+        effects that shape the demand (the bulb lag, the medium's weight, the drift: not the band or the slip,
+        which act after it), the reversal threshold and whether the sub-step path is wanted; a run is one object
+        (:class:`RunData` is frozen), held by its entry so that its identity cannot be reused. Callers only read
+        the arrays; :meth:`simulate` hands out copies."""
+        shape = e.copy()
+        shape[ENGINE_INDEX["band_mm"]] = 0.0
+        shape[ENGINE_INDEX["jump_mm"]] = 0.0
+        key = (id(data), vp.tobytes(), shape.tobytes(), float(delta), bool(want_sub))
+        hit = self._paths.get(key)
+        if hit is not None and hit[0] is data:
+            self._paths.move_to_end(key)
+            return hit[1]
+        out = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s, delta, want_sub)
+        self._paths[key] = (data, out)
+        if len(self._paths) > PATH_CACHE:
+            self._paths.popitem(last=False)
+        return out
+
     def simulate(self, data: RunData, values: dict[str, float],
                  slip: float = -1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Open-loop simulation: (opening mm, gas temperature degC, friction force N) at the samples. With
@@ -173,12 +209,11 @@ class Model:
         stem, :func:`~valve_env.diagnosis.engine.stick_simulate_sj`), else the whole band (J = S)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
-        x, Tg, F, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s,
-                                              self.delta(data, values), stuck)
+        x, Tg, F, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), stuck)
         if stuck:
             band = values["band_mm"]
             x = stick_simulate_sj(x_sub, idx, band, slip if 0.0 < slip < band else band, float(vp[I_STROKE]))
-        return x, Tg, F
+        return x.copy(), Tg.copy(), F.copy()
 
     def _filter(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None,
                 slip: float = -1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
@@ -186,8 +221,7 @@ class Model:
         ``slip`` is the stick-slip filter's (:func:`~valve_env.diagnosis.engine.stick_loglik`; negative: J = S)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
-        x, _, _, x_sub, idx = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s,
-                                             self.delta(data, values), stuck)
+        x, _, _, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), stuck)
         if mask is None:
             mask = np.ones(len(data), dtype=np.bool_)
         if stuck:

@@ -20,10 +20,12 @@ import pandas as pd
 from valve_env.estimation.temperature import smooth_temperature
 
 
-@dataclass
+@dataclass(frozen=True)
 class RunData:
     """A measured run prepared for the output-error likelihood: raw channels and latent (smoothed)
-    temperatures with their rates and noise sd."""
+    temperatures with their rates and noise sd. Frozen: a changed run is a new one
+    (``dataclasses.replace``), so that the likelihood may keep a run's valve paths by its identity
+    (:meth:`valve_env.diagnosis.fitting.Model._valve_path`); its arrays are not to be written in place."""
 
     t: np.ndarray
     T_raw: np.ndarray
