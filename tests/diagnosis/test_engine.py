@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -19,10 +21,9 @@ def run():  # type: ignore[no-untyped-def]
 def _data(df, truth: bool = False) -> RunData:  # type: ignore[no-untyped-def]
     d = RunData.from_arrays(df["time_s"].to_numpy(), df["T_tank_C"].to_numpy(), df["T_med_C"].to_numpy(),
                             df["x_mm"].to_numpy(), df["dp_mbar"].to_numpy(), df["ps_bar"].to_numpy())
-    if truth:
-        d.T = df["true_T_tank_C"].to_numpy().copy()
-        d.M = df["true_T_med_C"].to_numpy().copy()
-        d.s_T = d.s_M = 1e-4
+    if truth:  # a run is frozen: the true temperatures make another one
+        d = dataclasses.replace(d, T=df["true_T_tank_C"].to_numpy().copy(), M=df["true_T_med_C"].to_numpy().copy(),
+                                s_T=1e-4, s_M=1e-4)
     return d
 
 
