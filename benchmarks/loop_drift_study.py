@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         for band in (STICKY_MM, 0.0):
             t0 = time.perf_counter()
             loop = record_env_loop(band, seed=seed, hours=a.hours, warmup_h=a.warmup_h, env_id=a.env_id, Kp=a.kp,
-                                   Ti_s=a.ti)
+                                   Ti_s=a.ti, F_hmax=a.f_hmax)
             d = diagnose(loop)
             s = d.settings
             fit = d.fits["stiction"]

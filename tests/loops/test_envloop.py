@@ -49,6 +49,21 @@ def test_env_loop_study_hours_reach_the_record(capsys: pytest.CaptureFixture[str
     assert "--hours must be > 0" in capsys.readouterr().err
 
 
+def test_env_loop_takes_the_valves_friction() -> None:
+    """``F_hmax`` sets the valve's Dahl friction on the recorded stem (the smooth stem's own hysteresis band,
+    docs/loops.md "Fifteenth session"); an out-of-range value is refused in one line naming the field, and the
+    studies' ``--f-hmax`` reaches it."""
+    paper = record_env_loop(0.0, seed=0, hours=1.0, warmup_h=2.5)
+    light = record_env_loop(0.0, seed=0, hours=1.0, warmup_h=2.5, F_hmax=0.01)
+    assert light.n == paper.n and not np.allclose(light.op, paper.op)
+    from valve_env.params import ConfigError
+
+    with pytest.raises(ConfigError, match="valve.F_hmax must be in"):
+        record_env_loop(0.0, seed=0, hours=0.5, warmup_h=0.5, F_hmax=-1.0)
+    a, _ = load_study("env_loop_study").parse_env_args("t", ["--f-hmax", "0.01"])
+    assert a.f_hmax == 0.01
+
+
 def _diagnosis_via_csv(band_mm: float, seed: int, tmp_path: Path) -> Diagnosis:
     loop = record_env_loop(band_mm, seed=seed)
     path = tmp_path / f"env-{band_mm:g}-{seed}.csv"

@@ -26,18 +26,22 @@ WARMUP_H = 3.0
 
 def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = RECORD_H, warmup_h: float = WARMUP_H,
                     noise_K: float = 0.01, env_id: str = ENV_ID, filter_s: float = 0.0,
-                    Kp: float | None = None, Ti_s: float | None = None) -> LoopData:
+                    Kp: float | None = None, Ti_s: float | None = None, F_hmax: float | None = None) -> LoopData:
     """Run the PI for ``warmup_h + hours`` on ``env_id`` (30 s steps) with the stem's stick band
     ``band_mm`` (0 or None: a smooth stem) and return the record of the last ``hours`` (the warm-up
     holds the tank's start-up heating, when the loop is saturated). The temperature sensors carry
     white noise of ``noise_K`` per sample (docs/loops.md, "Loops from the environment", on the choice);
     ``filter_s`` is the PI's first-order measurement filter (the historian records the unfiltered PV);
-    ``Kp`` (K of setting per K) and ``Ti_s`` override the PI's stored gains for ``env_id``."""
+    ``Kp`` (K of setting per K) and ``Ti_s`` override the PI's stored gains for ``env_id``; ``F_hmax`` (N) the
+    valve's Dahl friction (default: the paper's 1.31 N, whose hysteresis loop is 0.8 K of setting wide, 2 % of OP:
+    wider than the 0.1 mm stick band's 0.6 K; docs/loops.md, "Fifteenth session: the smooth stem's own band")."""
     if not (hours > 0.0 and warmup_h >= 0.0):  # also rejects NaN
         raise ValueError(f"record_env_loop: hours must be > 0 and warmup_h >= 0, got {hours!r} and {warmup_h!r}")
     total = hours + warmup_h
     kw: dict = {"horizon_h": total, "max_episode_steps": int(round(total * 120)), "sensors": {"noise_K": noise_K},
                 "valve": {"effects": {"stiction": {"band_mm": float(band_mm or 0.0)}}}}
+    if F_hmax is not None:
+        kw["valve"]["F_hmax"] = float(F_hmax)
     env = gym.make(env_id, **kw)
     space = env.action_space
     assert isinstance(space, gym.spaces.Box)
