@@ -338,3 +338,5 @@ def test_the_first_steps_null_guard_runs_once_on_the_step_that_is_kept(monkeypat
     assert d.cause == "stiction" and f.accepted, d.summary()
     assert len(calls) == 1 and calls[0] == d.base.loglik
     assert f.null_guard is not None and f.null_guard["passed"]
+    # the diagnosis keeps its models, not their valve paths (Model.forget_paths)
+    assert all(not g.estimator.backend_._paths for st in d.steps for g in st)

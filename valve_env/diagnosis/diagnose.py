@@ -743,6 +743,8 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
     final_val = ref_val[0]
     diagnostics = residual_diagnostics(base_model, train, base)
     tick("diagnostics")
+    for m in {id(m): m for m in [base_model, *(f.estimator.backend_ for st in steps for f in st)]}.values():
+        m.forget_paths()  # the diagnosis keeps its models, not their valve paths
     settings = {"validation": mode, "alpha": alpha, "holdout": holdout if validate is None else None,
                 "candidates": list(cands), "min_validation_gain": min_validation_gain,
                 "min_effect_size_noise_sd": min_effect_size,

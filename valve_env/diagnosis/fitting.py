@@ -142,6 +142,11 @@ class Model:
         self._paths: OrderedDict[tuple[int, bytes, bytes, float, bool], tuple[RunData, tuple[np.ndarray, ...]]] = (
             OrderedDict())
 
+    def forget_paths(self) -> None:
+        """Drop the kept valve paths (:meth:`_valve_path`, about 0.5 MB each for 24 h at 10 s): a fitted model kept
+        beside its result (an estimator's ``backend_``, a diagnosis's findings) need not hold them."""
+        self._paths.clear()
+
     def __getstate__(self) -> dict[str, object]:
         # the kept valve paths hold runs and their simulations: a copied or pickled model starts without them
         return {**self.__dict__, "_paths": OrderedDict()}

@@ -99,6 +99,7 @@ class ValveEstimator(Estimator):
             names = ["sigma", "F_hmax", "p_bset"]
         b = bootstrap(self.backend_, self.data_, self.result_, B=B, seed=seed, names=names)
         self.std_from_ = apply_bootstrap(self.backend_, self.data_, self.result_, b)
+        self.backend_.forget_paths()
         self.bootstrap_ = b
         self._estimates_from_result()
         return self
@@ -131,6 +132,7 @@ class ValveEstimator(Estimator):
 
         model = Model(tuple(self.effects), self.valve)
         res = model.fit(run, start=self.start or None, fixed=self.fixed or None, **self.options)
+        model.forget_paths()  # the fit's kept valve paths are not the estimator's to hold
         self.backend_ = model
         self.result_ = res
         self.data_ = run
