@@ -198,7 +198,7 @@ class Model:
         shape[ENGINE_INDEX["jump_mm"]] = 0.0
         key = (id(data), vp.tobytes(), shape.tobytes(), float(delta), bool(want_sub))
         hit = self._paths.get(key)
-        if hit is not None and hit[0] is data:
+        if hit is not None:  # its entry holds the run, so no other live run has its identity
             self._paths.move_to_end(key)
             return hit[1]
         out = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s, delta, want_sub)
@@ -215,10 +215,12 @@ class Model:
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
         x, Tg, F, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), stuck)
-        if stuck:
+        if stuck:  # a new array: the stem's stick-slip on the kept demand
             band = values["band_mm"]
             x = stick_simulate_sj(x_sub, idx, band, slip if 0.0 < slip < band else band, float(vp[I_STROKE]))
-        return x.copy(), Tg.copy(), F.copy()
+        else:
+            x = x.copy()
+        return x, Tg.copy(), F.copy()
 
     def _filter(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None,
                 slip: float = -1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
