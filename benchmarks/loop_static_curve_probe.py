@@ -16,28 +16,26 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 
 import numpy as np
 
 from valve_env.loops.diagnose import diagnose
 from valve_env.loops.envloop import record_env_loop
 from valve_env.loops.io import LoopData
-from valve_env.loops.model import Settings, ValveFit, _filtered, _oe_fit, concentrated_loglik
+from valve_env.loops.model import Settings, ValveFit, _filtered, refit_gain
 
 
 def loglik(loop: LoopData, fit: ValveFit, s: Settings, static_curve: bool) -> float:
-    """The concentrated log-likelihood of ``fit`` at its process structure, with or without the static curve."""
-    x = np.ascontiguousarray(fit.path(loop.op), dtype=float)
+    """The log-likelihood of ``fit`` refitted at its process structure (``model.refit_gain``: gain, disturbance and
+    noise), with or without the static curve as one more column of the disturbance basis."""
+    x = fit.path(loop.op)
     pf = fit.process
-    w = _filtered(x, pf.a, pf.delay, pf.integrating)
-    basis = pf.basis
     if static_curve:
         xc = x - x.mean()
-        w2 = _filtered(np.ascontiguousarray(xc * xc), pf.a, pf.delay, pf.integrating)
-        basis = np.column_stack([basis, w2 / max(float(np.std(w2)), 1e-12)])
-    rss, *_ = _oe_fit(np.ascontiguousarray(loop.pv, dtype=float), w, np.ascontiguousarray(basis), s.k0, loop.n,
-                      s.noise_order, s.n_iter)
-    return concentrated_loglik(rss, loop.n - s.k0)
+        w2 = _filtered(np.ascontiguousarray(xc * xc), pf.a, pf.delay, pf.integrating)  # through the process's filter
+        pf = replace(pf, basis=np.column_stack([pf.basis, w2 / max(float(np.std(w2)), 1e-12)]))
+    return refit_gain(loop.pv, x, pf, s, s.k0, loop.n).loglik
 
 
 def main(argv: list[str] | None = None) -> int:
