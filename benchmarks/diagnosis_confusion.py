@@ -47,7 +47,14 @@ RANGES: dict[str, Any] = {
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
     from valve_env.diagnosis.diagnose import diagnose
 
+    conv = case.get("convention", "")
+    if conv == "irregular":  # jittered sample times (20 % of the interval) and 5 % of the rows missing
+        case = {**case, "jitter": 0.2}
     df = simulate_case(case)
+    if conv:
+        from valve_env.studies.conventions import apply_convention
+
+        df = apply_convention(df, "dropped_5" if conv == "irregular" else conv, np.random.default_rng(case["seed"]))
     t0 = time.perf_counter()
     d = diagnose(df, bootstrap_B=int(case.get("bootstrap_B", 16)))
     out = dict(case)
@@ -181,7 +188,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--classes", default="",
                     help="comma-separated truths to draw (default: all, in turn); e.g. 'none' for the null "
                     "distribution of the statistics")
+    ap.add_argument("--convention", default="",
+                    help="record every run under this convention of measured data (valve_env.studies.conventions, "
+                    "e.g. quantised_0.1, stepped_medium, dt_60; or 'irregular': jitter 0.2 and 5 %% of the rows "
+                    "dropped)")
     a = ap.parse_args(argv)
+    from valve_env.studies.conventions import CONVENTIONS
+
+    if a.convention and a.convention not in (*CONVENTIONS, "irregular"):
+        ap.error(f"unknown convention {a.convention!r} (choose from irregular, {', '.join(CONVENTIONS)})")
     classes = tuple(c for c in a.classes.split(",") if c) or CLASSES
     unknown = [c for c in classes if c not in CLASSES]
     if unknown:
@@ -196,6 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     cases = random_cases(a.runs, a.seed, classes=classes)
     for c in cases:
         c["bootstrap_B"] = a.bootstrap
+        c["convention"] = a.convention
     t0 = time.perf_counter()
     results = run_study(cases, a.workers)
     c = confusion(results)
@@ -204,6 +220,8 @@ def main(argv: list[str] | None = None) -> int:
         cmd += f" --bootstrap {a.bootstrap}"
     if a.classes:
         cmd += f" --classes {a.classes}"
+    if a.convention:
+        cmd += f" --convention {a.convention}"
     md = markdown(c, cmd, results)
     print(md)
     print(f"total {time.perf_counter() - t0:.0f} s")

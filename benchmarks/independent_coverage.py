@@ -77,8 +77,17 @@ EFFECT_PARAM = {"sensor_lag": "tau_s", "medium_temperature": "beta", "stiction":
 def _simulate(case: dict[str, Any]) -> tuple[pd.DataFrame, dict[str, float], dict[str, dict[str, float]]]:
     """The run of a case and its truth (base parameters, effects)."""
     rng = np.random.default_rng([case["seed"], case["i"]])
+    conv = tuple(c for c in case.get("conventions", ()) if c != "irregular")
+    medium = case.get("medium") or "smooth"
     run = draw_run(rng, case["effect"], T_noise_C=case.get("T_noise_C"),
-                   stiction_variant=case.get("variant") or "reset")
+                   stiction_variant=case.get("variant") or "reset", medium=medium,
+                   conventions=conv if case["generator"] == "independent" else ())
+    if "irregular" in case.get("conventions", ()):  # jittered times and 5 % of the rows missing
+        from dataclasses import replace
+
+        run = replace(run, jitter=0.2, conventions=(*run.conventions, "dropped_5")
+                      if case["generator"] == "independent" else run.conventions)
+        conv = (*conv, "dropped_5")
     truth = {"sigma": run.valve.sigma, "F_hmax": run.valve.F_hmax, "p_bset": run.valve.p_bset}
     if case["generator"] == "independent":
         df = simulate_independent(run)
@@ -88,7 +97,13 @@ def _simulate(case: dict[str, Any]) -> tuple[pd.DataFrame, dict[str, float], dic
         df = simulate_experiment(seed=run.seed, duration_h=run.duration_h, dt_s=run.dt_s,
                                  effects={k: dict(v) for k, v in run.effects.items()} or None,
                                  T_noise_C=run.T_noise_C, q_noise_rel=0.015, dp_noise_rel=0.015,
-                                 ps_noise_rel=0.015)
+                                 ps_noise_rel=0.015, jitter=run.jitter)
+        if conv:
+            from valve_env.studies.conventions import apply_convention
+
+            crng = np.random.default_rng([run.seed, 37])
+            for name in conv:
+                df = apply_convention(df, name, crng, keep_truth=True)
     case.update({"run_seed": run.seed, "duration_h": run.duration_h, "dt_s": run.dt_s, "T_noise_C": run.T_noise_C})
     return df, truth, {k: dict(v) for k, v in run.effects.items()}
 
@@ -502,6 +517,11 @@ def main(argv: list[str] | None = None) -> int:
                     "Hessian and sandwich beside it")
     ap.add_argument("--T-noise", type=float, default=0.01,
                     help="base: temperature noise sd, degC (negative: drawn per run from U(0.001, 0.02))")
+    ap.add_argument("--convention", default="",
+                    help="record every run under these conventions of measured data (comma-separated names of "
+                    "valve_env.studies.conventions, or 'irregular': jitter 0.2 and 5 %% of the rows dropped)")
+    ap.add_argument("--medium", default="smooth", choices=("smooth", "steps", "constant"),
+                    help="the medium temperature's programme (independent simulator; steps: a thermostat)")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     if args.summarise:
@@ -515,6 +535,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     cs = cases(args.study, args.generator, args.runs, args.eiv_B, seed, args.shipped_only,
                None if args.T_noise < 0 else args.T_noise)
+    for c in cs:
+        c["conventions"] = tuple(x for x in args.convention.split(",") if x)
+        c["medium"] = args.medium
     if args.only:
         cs = [c for c in cs if c["effect"] in args.only.split(",")]
     fn = run_base if args.study == "base" else run_effects

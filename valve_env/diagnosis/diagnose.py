@@ -64,10 +64,11 @@ from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
 from valve_env.diagnosis.effects import EFFECTS, check_effects
 from valve_env.diagnosis.fitting import FitResult, Model, RunData
 from valve_env.estimation.estimator import ValveEstimator
+from valve_env.estimation.preprocess import preprocess_run
 from valve_env.params import ValveParams
 
 MIN_SAMPLES = 200
-MIN_DURATION_S = 2.0 * 3600.0
+MIN_DURATION_S = 1.9 * 3600.0  # a 2 h record, less a few samples lost at its ends
 MIN_T_RANGE_K = 1.0
 MIN_X_RANGE_MM = 0.05
 
@@ -97,10 +98,11 @@ def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
     """Validate a run (:func:`valve_env.data_io.validate_run`, the one validation path) and the
     diagnosis's needs; returns the numeric columns (x_mm derived where absent)."""
     try:
-        checked = validate_run(df, source=name)
+        checked, notes = preprocess_run(validate_run(df, source=name), source=name)
     except DataError as exc:
         raise DiagnosisError(_one_line(str(exc))) from None
     out = checked[[*REQUIRED, "x_mm"]].copy()
+    out.attrs["preprocessing"] = notes
     t = out["time_s"].to_numpy()
     if len(t) < MIN_SAMPLES:
         raise DiagnosisError(f"{name}: too short a record: {len(t)} samples (the diagnosis needs at least "
@@ -115,7 +117,9 @@ def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
     if np.ptp(out["x_mm"].to_numpy()) < MIN_X_RANGE_MM:
         raise DiagnosisError(f"{name}: the valve opening hardly moves (range {np.ptp(out['x_mm']):.3g} mm): "
                              "nothing to identify")
-    return out.reset_index(drop=True)
+    out = out.reset_index(drop=True)
+    out.attrs["preprocessing"] = notes
+    return out
 
 
 def prepare(df: pd.DataFrame, name: str = "run") -> RunData:
@@ -226,6 +230,8 @@ class Diagnosis:
     seconds: float = 0.0
     notes: list[str] = field(default_factory=list)
     valve: ValveParams = field(default_factory=ValveParams)
+    #: what the pre-processing found and did, per run (:func:`valve_env.estimation.preprocess.preprocess_run`)
+    preprocessing: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         b = self.base
@@ -271,6 +277,7 @@ class Diagnosis:
             "settings": self.settings,
             "seconds": self.seconds,
             "notes": self.notes,
+            "preprocessing": self.preprocessing,
         }
 
     def summary(self) -> str:
@@ -660,6 +667,16 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
     valve = valve if valve is not None else ValveParams()
     cands = check_effects(list(effects) if effects else list(EFFECTS))
     run = check_run(df, name)
+    notes: list[str] = []
+    m_range = float(np.ptp(run["T_med_C"].to_numpy()))
+    if "medium_temperature" in cands and m_range < MIN_T_RANGE_K:
+        why = (f"T_med_C is held (range {m_range:.3g} K < {MIN_T_RANGE_K:g} K): with a constant medium temperature, "
+               "medium_temperature's beta only rescales the tank temperature's gain and shifts the set point, "
+               "which the record cannot tell from a calibration error")
+        if len(cands) == 1:
+            raise DiagnosisError(f"{name}: {why}; it cannot identify medium_temperature")
+        cands = [c for c in cands if c != "medium_temperature"]
+        notes.append(f"medium_temperature not tried: {why}")
     if validate is not None:
         vdf = check_run(validate, "validation run")
         train = prepare(run, name)
@@ -751,7 +768,10 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "bootstrap_replicates": bootstrap_B,
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
-    return Diagnosis(
+    pre = {"run": list(run.attrs.get("preprocessing", []))}
+    if validate is not None:
+        pre["validation run"] = list(vdf.attrs.get("preprocessing", []))
+    return Diagnosis(preprocessing=pre, notes=notes,
         cause=selected[0] if selected else "none", selected=selected, base=base, findings=findings, steps=steps,
         final=final, diagnostics=diagnostics, settings=settings, train=train, valid=valid, valid_range=vr,
         base_valid_rms=base_val[0], final_valid_rms=final_val, seconds=time.perf_counter() - t0, valve=valve,

@@ -195,6 +195,16 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
           f"{g['validation_rms_after_mm'] * 1e3:.2f} um ({g['validation_rms_reduction']:.0%} less); simulation RMS "
           f"on the fitting data {g['rms_before_mm'] * 1e3:.2f} -> {g['rms_after_mm'] * 1e3:.2f} um.", ""]
 
+    pre = {k: v for k, v in (d.preprocessing or {}).items() if v}
+    if pre:
+        from valve_env.estimation.preprocess import describe
+
+        L += ["## Pre-processing: the record as measured", ""]
+        for which, notes in pre.items():
+            L += [f"- {which}: {line}" for line in describe(notes)]
+        L += [""]
+    if d.notes:
+        L += ["## Notes", ""] + [f"- {n}" for n in d.notes] + [""]
     L += ["## 1. What the calibrated model gets wrong", ""]
     L += [f"- Simulation RMS {diag['rms_mm'] * 1e3:.2f} um against a measurement noise of "
           f"{diag['noise_sd_mm'] * 1e3:.2f} um; slowly varying model error {diag['model_error_sd_mm'] * 1e3:.2f} um "

@@ -83,8 +83,10 @@ def run_fit(args: argparse.Namespace) -> int:
     if report_dir is not None:
         names = [*REPORT_FILES, *(["validation.png"] if args.validate else [])]
         outs.add_in_dir(report_dir, names, "--report")
-    data = load_run(args.run)
-    validation = load_run(args.validate) if args.validate else None
+    from valve_env.estimation.preprocess import preprocess_run
+
+    data, pre = preprocess_run(load_run(args.run), source=str(args.run))
+    validation = preprocess_run(load_run(args.validate), source=str(args.validate))[0] if args.validate else None
     from valve_env.estimation.report import eiv_summary, fit_run, fit_summary, write_report
 
     bar = progress_bar(3 if report_dir is not None else 2, desc="fit", unit="step")
@@ -105,6 +107,7 @@ def run_fit(args: argparse.Namespace) -> int:
                 summary["std_method"] = ("inverse Hessian (ML, --ml): not calibrated under temperature noise "
                                          "(2-sd coverage of sigma 7 % on the independent simulator, "
                                          "docs/uncertainty.md)")
+            summary["preprocessing"] = pre
             bar.update(1)
             if report_dir is not None:
                 write_report(est, data, outs.stage_dir(report_dir), summary, validation, name=Path(args.run).stem)

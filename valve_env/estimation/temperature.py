@@ -20,6 +20,7 @@ docs/estimation.md, "Temperature pre-processing"):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -123,12 +124,107 @@ def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - c
 
 
 def noise_sd(y: np.ndarray) -> float:
-    """Robust white-noise sd of a smooth signal plus noise: MAD of second differences / sqrt(6)."""
+    """Robust white-noise sd of a smooth signal plus noise: MAD of second differences / sqrt(6).
+
+    Exactly 0 for a channel that holds its value in more than half of its samples (a quantised,
+    stepped or noiseless channel): use :func:`channel_noise` for the noise level a likelihood needs."""
     y = np.asarray(y, dtype=float)
     if len(y) < 4:
         return 0.0
     d2 = np.diff(y, 2)
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+#: The finest temperature resolution a measured channel is taken to have where the data shows none
+#: (a noiseless channel in full floating point), degC: a lab PT100 read to 0.001 K. Its
+#: quantisation sd, RESOLUTION_FLOOR_C / sqrt(12), is the least noise sd any channel is given
+#: (docs/reference.md, section 2: noiseless channels are valid runs).
+RESOLUTION_FLOOR_C = 1.0e-3
+
+
+def _on_grid(y: np.ndarray, step: float, tol: float, share: float) -> bool:
+    z = (y - y[0]) / step
+    return float(np.mean(np.abs(z - np.round(z)) <= tol)) >= share
+
+
+def quantum(y: np.ndarray, tol: float = 0.02, share: float = 0.99) -> float | None:
+    """The quantisation step of a channel, or None where it is not quantised.
+
+    Two candidates: the smallest change between consecutive samples (ignoring changes below 1e-9 of
+    the channel's magnitude, which are float rounding), and the coarsest decimal resolution (1 to
+    1e-4) its values are written at. A candidate holds where at least ``share`` of the values lie
+    within ``tol`` steps of its grid; the quantum is the larger that holds (a 0.05 K converter is
+    0.05, not 0.01; a channel stored on change with a dead band at 0.01 K resolution is 0.01). A
+    channel in full floating point (white noise on a smooth signal) has neither."""
+    y = np.asarray(y, dtype=float)
+    if y.size < 4:
+        return None
+    d = np.abs(np.diff(y))
+    eps = 1e-9 * max(1.0, float(np.max(np.abs(y))))
+    d = d[d > eps]
+    if d.size < 3:
+        return None
+    found = []
+    q = float(np.min(d))
+    if _on_grid(y, q, tol, share):
+        found.append(q)
+    for k in range(5):
+        step = 10.0**-k
+        if step < q * 0.999 and found:
+            break
+        if _on_grid(y, step, 1e-9 * max(1.0, float(np.max(np.abs(y)))) / step, 1.0):
+            found.append(step)
+            break
+    return float(f"{max(found):.10g}") if found else None
+
+
+@dataclass(frozen=True)
+class ChannelNoise:
+    """The measurement-noise level of one temperature channel and how it was found.
+
+    ``sd`` (degC) is what a likelihood uses: the robust second-difference sd (:func:`noise_sd`,
+    ``method="mad"``) where the channel is noisy, else the sd of its quantisation, q / sqrt(12)
+    (``"quantisation"``), else :data:`RESOLUTION_FLOOR_C` / sqrt(12) (``"resolution_floor"``).
+    Never 0 or NaN. ``held_fraction``: the share of consecutive samples that are equal (a channel
+    held by a thermostat or stored on change holds most of them)."""
+
+    sd: float
+    method: str
+    quantum: float | None
+    held_fraction: float
+    mad_sd: float
+
+    def describe(self, channel: str) -> dict[str, object]:
+        """A JSON-ready note: the channel, its noise sd and why (docs/reference.md, section 2)."""
+        if self.method == "mad":
+            why = "the robust sd of its second differences"
+        elif self.method == "quantisation":
+            why = f"its quantisation step {self.quantum:g} K (q / sqrt(12)); the noise is below it"
+        else:
+            why = f"the sensor resolution floor {RESOLUTION_FLOOR_C:g} K (q / sqrt(12)): the channel shows no noise"
+        return {"channel": channel, "noise_sd_C": self.sd, "method": self.method, "quantum_C": self.quantum,
+                "held_fraction": round(self.held_fraction, 4), "why": why}
+
+
+def _floor_sd(noise: ChannelNoise) -> float:
+    return (noise.quantum if noise.quantum is not None else RESOLUTION_FLOOR_C) / math.sqrt(12.0)
+
+
+def channel_noise(y: np.ndarray) -> ChannelNoise:
+    """The noise level of a temperature channel of any measurement convention (see :class:`ChannelNoise`).
+
+    The floor is the quantisation sd of the channel's step (or of :data:`RESOLUTION_FLOOR_C`): a
+    noisy channel whose robust sd is above it keeps that sd; a held, stepped, quantised or
+    noiseless one, whose second differences are mostly 0, gets the floor."""
+    y = np.asarray(y, dtype=float)
+    mad = noise_sd(y)
+    q = quantum(y)
+    held = float(np.mean(np.diff(y) == 0.0)) if y.size > 1 else 1.0
+    floor = (q if q is not None else RESOLUTION_FLOOR_C) / math.sqrt(12.0)
+    if math.isfinite(mad) and mad > floor:
+        return ChannelNoise(mad, "mad", q, held, mad)
+    return ChannelNoise(floor, "quantisation" if q is not None else "resolution_floor", q, held,
+                        mad if math.isfinite(mad) else 0.0)
 
 
 def relaxed_tv(y: np.ndarray, lam: float) -> np.ndarray:
@@ -177,15 +273,13 @@ def denoise_temperature(y: np.ndarray, t: np.ndarray, tv_factor: float = 4.5,
                         denoiser: str = "relaxed") -> tuple[np.ndarray, np.ndarray]:
     """Denoised temperature (:func:`relaxed_tv`, or plain :func:`tv_denoise` with
     ``denoiser="tv"``, with lam = tv_factor x :func:`noise_sd`) and its rate over the following
-    interval (K/s; 0 at the end)."""
+    interval (K/s; 0 at the end). The noise level is :func:`channel_noise`'s, so a held or quantised
+    channel is denoised at its quantisation level."""
     if denoiser not in DENOISERS:
         raise ValueError(f"unknown denoiser {denoiser!r}; use one of {DENOISERS}")
     y = np.ascontiguousarray(y, dtype=float)
-    lam = tv_factor * noise_sd(y)
-    if lam <= 0:
-        ys = y.copy()
-    else:
-        ys = relaxed_tv(y, lam) if denoiser == "relaxed" else tv_denoise(y, lam)
+    lam = tv_factor * channel_noise(y).sd
+    ys = relaxed_tv(y, lam) if denoiser == "relaxed" else tv_denoise(y, lam)
     v = np.zeros_like(ys)
     if len(ys) > 1:
         v[:-1] = np.diff(ys) / np.diff(np.asarray(t, dtype=float))
@@ -341,8 +435,11 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, nu: float = STUDENT_NU, max
     at the weights ``E[lambda_k] = (nu + 2) / (nu + e_k / q)``, where ``e_k`` includes the posterior
     covariance of the interval's process noise (:func:`_irw_pass`), then the closed-form M-step
     ``q = sum_k E[lambda_k] e_k / (2 (n - 1))``, ``r = mean_k E[(y_k - level_k)^2]``, until r moves by
-    less than ``tol`` (relative) and the level by less than ``tol`` noise sd. It starts at the robust
-    noise level (:func:`noise_sd`) with q the Gaussian maximum likelihood at that r.
+    less than ``tol`` (relative) and the level by less than ``tol`` noise sd. It starts at the
+    channel's noise level (:func:`channel_noise`) with q the Gaussian maximum likelihood at that r,
+    and r never falls below the channel's resolution floor (the variance q^2 / 12 of its quantisation
+    step, or of :data:`RESOLUTION_FLOOR_C`): a held or noiseless channel would otherwise drive r
+    to 0 and the filter's gains to a division by zero.
 
     The former smoother (iteratively reweighted Gaussian passes with ``q`` and ``r`` re-estimated by
     Nelder-Mead at weights without a prior) drove r to 0 on a quarter of the channels of the
@@ -358,9 +455,9 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, nu: float = STUDENT_NU, max
         raise ValueError(f"smooth_temperature needs at least 4 samples, got {n}")
     if not (nu > 0 and max_iter >= 1 and tol > 0):
         raise ValueError(f"smooth_temperature: nu, max_iter and tol must be positive (got {nu}, {max_iter}, {tol})")
-    r = noise_sd(y) ** 2
-    if not r > 0.0:  # more than half the second differences equal (a quantised or flat channel)
-        r = max(float(np.var(np.diff(y, 2))) / 6.0, 1e-14)
+    noise = channel_noise(y)
+    r = noise.sd**2
+    r_floor = _floor_sd(noise) ** 2
     w = np.ones(n)
     lq = minimize_scalar(lambda z: -_irw_pass(t, y, math.exp(z), r, False, w)[0], bounds=(-40.0, 0.0),
                          method="bounded", options={"xatol": 1e-2}).x
@@ -370,7 +467,7 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, nu: float = STUDENT_NU, max
         _, level, _, e, res = _irw_pass(t, y, q, r, True, w)
         lam = (nu + 2.0) / (nu + e[1:] / q)
         q_new = max(float(np.sum(lam * e[1:])) / (2.0 * (n - 1)), 1e-300)
-        r_new = max(res / n, 1e-300)
+        r_new = max(res / n, r_floor)
         w[1:] = 1.0 / lam
         done = (level_prev is not None and abs(math.log(r_new / r)) < tol
                 and float(np.max(np.abs(level - level_prev))) < tol * math.sqrt(r_new))
@@ -381,5 +478,5 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, nu: float = STUDENT_NU, max
     return level, rate, math.sqrt(r), math.sqrt(q)
 
 
-__all__ = ["smooth_temperature", "STUDENT_NU", "denoise_temperature", "DENOISERS", "relaxed_tv", "tv_denoise",
-           "noise_sd"]
+__all__ = ["ChannelNoise", "RESOLUTION_FLOOR_C", "channel_noise", "quantum", "smooth_temperature", "STUDENT_NU",
+           "denoise_temperature", "DENOISERS", "relaxed_tv", "tv_denoise", "noise_sd"]

@@ -40,6 +40,12 @@ study on its runs tests the estimators against data they were not built around
     a massless stem this is equivalent to an (S, J) valve with
     J = (1 - r) / (1 + r) S; it is written from the force law, on its own.)
 
+Conventions of measured data (docs/reference.md, section 2): ``medium`` ``"steps"`` holds the medium
+temperature on plateaus changed by a thermostat in sharp steps, ``"constant"`` holds it at 60 degC;
+``conventions`` names measurement conventions of :mod:`valve_env.studies.conventions` (quantised,
+stepped, noiseless, held, dropped rows, a gap, a longer interval, spikes, extra columns), applied in
+order to the simulated record (truth columns kept). ``jitter`` jitters the sample times.
+
 Noise: temperature channels ``T_noise_C`` (0.001-0.02 degC in the studies),
 flow and pressures relative ``rel_noise`` (paper Table 1: 1.5 %), the opening
 ``x_noise_mm`` (the paper's residual sd, 2.4e-3 mm). Everything is seeded.
@@ -71,6 +77,9 @@ EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
     "setpoint_drift": ("rate_MPa_per_h",),
 }
 STICTION_VARIANTS: tuple[str, ...] = ("reset", "sj", "force")
+#: the medium temperature's programme: smooth tanh transitions (the default), a thermostat's sharp
+#: steps between held plateaus, or one constant level
+MEDIUM_PROGRAMMES: tuple[str, ...] = ("smooth", "steps", "constant")
 COLUMNS: tuple[str, ...] = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar", "x_mm")
 
 
@@ -96,6 +105,8 @@ class IndependentRun:
     sj_jump: float = 1.0
     force_ratio: float = 0.5
     valve: ValveParams = field(default_factory=ValveParams)
+    medium: str = "smooth"
+    conventions: tuple[str, ...] = ()
 
     def check(self) -> None:
         for name in ("duration_h", "dt_s"):
@@ -112,6 +123,13 @@ class IndependentRun:
             raise ConfigError(f"stiction_variant must be one of {STICTION_VARIANTS}, got {self.stiction_variant!r}")
         if not 0.0 <= self.sj_jump <= 1.0:
             raise ConfigError(f"sj_jump must be in [0, 1], got {self.sj_jump!r}")
+        if self.medium not in MEDIUM_PROGRAMMES:
+            raise ConfigError(f"medium must be one of {MEDIUM_PROGRAMMES}, got {self.medium!r}")
+        from valve_env.studies.conventions import CONVENTIONS
+
+        unknown = [c for c in self.conventions if c not in CONVENTIONS]
+        if unknown:
+            raise ConfigError(f"unknown convention {unknown[0]!r}; known: {sorted(CONVENTIONS)}")
         if not 0.0 <= self.force_ratio < 1.0:
             raise ConfigError(f"force_ratio must be in [0, 1), got {self.force_ratio!r}")
         for name, pars in self.effects.items():
@@ -278,6 +296,10 @@ def simulate_independent(run: IndependentRun) -> pd.DataFrame:
     T_sp = setpoint_C(vp)
     tank = _programme(rng, t_end, T_sp - 12.0, T_sp + 3.5, (25.0, 100.0), (2.0, 15.0), True)
     med = _programme(rng, t_end, 45.0, 75.0, (15.0, 70.0), (1.0, 8.0), False)
+    if run.medium == "steps":  # a thermostat: the same plateaus, each change within about 20 s
+        med = TanhProgramme(med.level0, med.t_i, med.a_i, np.full_like(med.w_i, 10.0))
+    elif run.medium == "constant":
+        med = TanhProgramme(60.0, np.zeros(0), np.zeros(0), np.ones(0))
     eff = {k: dict(v) for k, v in run.effects.items()}
     beta = eff.get("medium_temperature", {}).get("beta", 0.0)
     tau = eff.get("sensor_lag", {}).get("tau_s", 0.0)
@@ -363,14 +385,23 @@ def simulate_independent(run: IndependentRun) -> pd.DataFrame:
         "true_x_demand_mm": xd_s,
         "true_x_mm": x_true,
     })
-    df.attrs.update({"simulator": "valve_env.studies.independent", "seed": run.seed, "effects": eff,
-                     "stiction_variant": run.stiction_variant if band > 0 else None,
-                     "truth": {"sigma": vp.sigma, "F_hmax": vp.F_hmax, "p_bset": vp.p_bset}})
+    attrs = {"simulator": "valve_env.studies.independent", "seed": run.seed, "effects": eff,
+             "stiction_variant": run.stiction_variant if band > 0 else None,
+             "truth": {"sigma": vp.sigma, "F_hmax": vp.F_hmax, "p_bset": vp.p_bset},
+             "medium": run.medium, "conventions": list(run.conventions)}
+    if run.conventions:  # recorded the way measured data are (valve_env.studies.conventions), truth kept
+        from valve_env.studies.conventions import apply_convention
+
+        crng = np.random.default_rng([run.seed, 37])
+        for name in run.conventions:
+            df = apply_convention(df, name, crng, keep_truth=True)
+    df.attrs.update(attrs)
     return df
 
 
 def draw_run(rng: np.random.Generator, effect: str = "none", *, T_noise_C: float | None = None,
-             stiction_variant: str = "reset", valve: ValveParams | None = None) -> IndependentRun:
+             stiction_variant: str = "reset", valve: ValveParams | None = None, medium: str = "smooth",
+             conventions: tuple[str, ...] = ()) -> IndependentRun:
     """A randomised study run: 14-24 h at 5-15 s, temperature noise U(0.001, 0.02) degC unless given,
     the effect's size drawn from its own range (docs/uncertainty.md), a fresh run seed."""
     eff: dict[str, dict[str, float]] = {}
@@ -390,7 +421,7 @@ def draw_run(rng: np.random.Generator, effect: str = "none", *, T_noise_C: float
         dt_s=float(rng.integers(5, 16)),
         T_noise_C=float(rng.uniform(0.001, 0.02)) if T_noise_C is None else float(T_noise_C),
         effects=eff, stiction_variant=stiction_variant,
-        valve=valve if valve is not None else ValveParams(),
+        valve=valve if valve is not None else ValveParams(), medium=medium, conventions=tuple(conventions),
     )
 
 
@@ -401,4 +432,4 @@ def truth_of(df: pd.DataFrame) -> dict[str, Any]:
 
 __all__ = ["IndependentRun", "simulate_independent", "draw_run", "truth_of", "demanded_opening_mm",
            "vapour_pressure_MPa", "flow_from_opening", "setpoint_C", "stick_reset", "stick_sj", "stick_force",
-           "TanhProgramme", "STICTION_VARIANTS", "EFFECT_PARAMS", "COLUMNS"]
+           "TanhProgramme", "STICTION_VARIANTS", "EFFECT_PARAMS", "COLUMNS", "MEDIUM_PROGRAMMES"]

@@ -1,0 +1,213 @@
+"""The conventions of measured data, applied to a simulated run (docs/reference.md, section 2).
+
+Real measurement channels are quantised, held constant or stored on change, sampled with jitter,
+lose rows, carry spikes and arrive with extra columns in any order. The identification must take
+all of them; this module turns a run of either simulator (:mod:`valve_env.experiment`,
+:mod:`valve_env.studies.independent`) into such a run, so that tests and studies can feed it
+data whose conventions it was not built around.
+
+    df = simulate_experiment(seed=3, duration_h=4)
+    foreign = apply_convention(df, "stepped_medium", rng=np.random.default_rng(3))
+
+Each :class:`Convention` is a measurement transform: it changes how the truth was recorded, not
+the truth. Where it needs the truth (a noiseless or stepped channel is the true signal recorded
+without noise) it takes the simulator's ``true_*`` columns. The truth columns are dropped from
+the result unless ``keep_truth``.
+
+:data:`CONVENTIONS` lists them by name; ``tests/studies/test_foreign_data.py`` (the foreign-data
+corpus) and ``benchmarks/foreign_data.py`` (confusion and coverage on each) run on them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+TEMPERATURES: tuple[str, ...] = ("T_tank_C", "T_med_C")
+
+
+def _truth(df: pd.DataFrame, col: str) -> np.ndarray:
+    """The true signal behind a measured column (the simulators' ``true_*`` columns); dp and ps are
+    constant in both simulators, so their truth is the median of the measured channel."""
+    tc = f"true_{col}"
+    if tc in df.columns:
+        return df[tc].to_numpy(dtype=float)
+    if col in ("dp_mbar", "ps_bar"):
+        return np.full(len(df), float(np.median(df[col].to_numpy(dtype=float))))
+    raise KeyError(f"the run has no {tc} column: a noiseless {col} needs the simulator's truth")
+
+
+def quantise(df: pd.DataFrame, step: float, columns: tuple[str, ...] = TEMPERATURES) -> pd.DataFrame:
+    """Each column rounded to a multiple of ``step`` (a sensor or logger resolution)."""
+    out = df.copy()
+    for c in columns:
+        out[c] = np.round(out[c].to_numpy(dtype=float) / step) * step
+    return out
+
+
+def store_on_change(y: np.ndarray, deadband: float) -> np.ndarray:
+    """A historian's dead-band compression, held between stored values: a sample is stored where it
+    differs from the last stored value by more than ``deadband``; the record holds the last stored
+    value in between."""
+    out = np.empty_like(y)
+    last = y[0]
+    for i, v in enumerate(y):
+        if abs(v - last) > deadband:
+            last = v
+        out[i] = last
+    return out
+
+
+def stepped(df: pd.DataFrame, column: str, deadband: float, resolution: float = 0.01) -> pd.DataFrame:
+    """``column`` recorded without noise and stored on change (``deadband``, K), at ``resolution``:
+    a rig that holds the medium temperature by thermostat and logs its set value, or a historian's
+    compression of a noiseless channel. Most consecutive samples are then identical."""
+    out = df.copy()
+    held = store_on_change(_truth(df, column), deadband)
+    out[column] = np.round(held / resolution) * resolution
+    return out
+
+
+def noiseless(df: pd.DataFrame, columns: tuple[str, ...]) -> pd.DataFrame:
+    """Each column replaced by its true signal (a channel recorded without noise, in full precision)."""
+    out = df.copy()
+    for c in columns:
+        out[c] = _truth(df, c)
+    return out
+
+
+def held_constant(df: pd.DataFrame, column: str) -> pd.DataFrame:
+    """``column`` exactly constant (its median): a rig that holds an input fixed and logs its set value.
+
+    Only for a channel whose truth is constant (dp_mbar, ps_bar in both simulators): holding a
+    channel that moved would record a false input."""
+    truth = _truth(df, column)
+    if float(np.ptp(truth)) > 1e-9 * max(1.0, float(np.max(np.abs(truth)))):
+        raise ValueError(f"{column} moves in this run: holding it constant would record a false input")
+    out = df.copy()
+    out[column] = float(truth[0])
+    return out
+
+
+def drop_rows(df: pd.DataFrame, fraction: float, rng: np.random.Generator) -> pd.DataFrame:
+    """``fraction`` of the rows (never the first or the last) removed at random."""
+    n = len(df)
+    k = int(round(fraction * n))
+    drop = rng.choice(np.arange(1, n - 1), size=min(k, n - 2), replace=False)
+    return df.drop(index=df.index[drop]).reset_index(drop=True)
+
+
+def gap(df: pd.DataFrame, hours: float, rng: np.random.Generator) -> pd.DataFrame:
+    """One gap of ``hours`` (the rows inside it removed), placed at random in the middle 60 % of the record
+    (a logger that stopped for a while)."""
+    t = df["time_s"].to_numpy(dtype=float)
+    span = t[-1] - t[0]
+    width = hours * 3600.0
+    start = t[0] + float(rng.uniform(0.2, 0.8)) * span - 0.5 * width
+    keep = (t < start) | (t > start + width)
+    return df[keep].reset_index(drop=True)
+
+
+def resample(df: pd.DataFrame, dt_s: float) -> pd.DataFrame:
+    """Every k-th row kept, k = round(dt_s / the run's interval): a logger at a longer interval."""
+    t = df["time_s"].to_numpy(dtype=float)
+    k = max(1, int(round(dt_s / float(np.median(np.diff(t))))))
+    return df.iloc[::k].reset_index(drop=True)
+
+
+def truncate(df: pd.DataFrame, hours: float) -> pd.DataFrame:
+    """The first ``hours`` of the record."""
+    t = df["time_s"].to_numpy(dtype=float)
+    return df[t <= t[0] + hours * 3600.0].reset_index(drop=True)
+
+
+def spikes(df: pd.DataFrame, count: int, rng: np.random.Generator, column: str = "T_tank_C",
+           size: float = 3.0) -> pd.DataFrame:
+    """``count`` isolated one-sample spikes of +-``size`` (the column's unit) at random rows away from the
+    ends (an electrical glitch). ``df.attrs["spike_rows"]`` lists their positions (0-based)."""
+    out = df.copy()
+    n = len(out)
+    rows = np.sort(rng.choice(np.arange(5, n - 5), size=count, replace=False))
+    y = out[column].to_numpy(dtype=float).copy()
+    y[rows] += size * rng.choice([-1.0, 1.0], size=count)
+    out[column] = y
+    out.attrs["spike_rows"] = [int(r) for r in rows]
+    return out
+
+
+def extra_columns(df: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
+    """Extra columns a logger adds (a timestamp string, a status flag, another sensor) and the columns
+    in a random order."""
+    out = df.copy()
+    n = len(out)
+    out["timestamp"] = pd.Timestamp("2026-01-05 06:00:00") + pd.to_timedelta(out["time_s"], unit="s")
+    out["status"] = np.where(rng.random(n) < 0.01, "WARN", "OK")
+    out["T_return_C"] = np.round(40.0 + rng.normal(0.0, 0.3, n), 2)
+    cols = list(out.columns)
+    rng.shuffle(cols)
+    return out[cols]
+
+
+@dataclass(frozen=True)
+class Convention:
+    """A named measurement convention: ``apply(df, rng)`` returns the run as such a record.
+
+    ``loses_information``: the record holds less evidence than the original (a shorter or sparser
+    one, or a tank temperature quantised to 0.1 K, which is as large as a 6 h set-point drift's
+    whole effect and leaves the smoothed temperature 4-7 times further from the truth than 0.01 K
+    noise does), so a cause named on the original may fall back to ``none`` on it; never to another
+    effect."""
+
+    name: str
+    description: str
+    apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
+    loses_information: bool = False
+
+
+CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
+    Convention("quantised_0.1", "both temperature channels quantised to 0.1 K",
+               lambda df, rng: quantise(df, 0.1), loses_information=True),
+    Convention("quantised_0.01", "both temperature channels quantised to 0.01 K",
+               lambda df, rng: quantise(df, 0.01)),
+    Convention("quantised_tank_0.1", "only T_tank_C quantised to 0.1 K",
+               lambda df, rng: quantise(df, 0.1, ("T_tank_C",)), loses_information=True),
+    Convention("stepped_medium", "T_med_C noiseless and stored on change (0.1 K dead band, 0.01 K resolution)",
+               lambda df, rng: stepped(df, "T_med_C", 0.1)),
+    Convention("noiseless_temperatures", "both temperature channels without noise, full precision",
+               lambda df, rng: noiseless(df, TEMPERATURES)),
+    Convention("dp_constant", "dp_mbar and ps_bar held exactly constant (a rig's set values)",
+               lambda df, rng: held_constant(held_constant(df, "dp_mbar"), "ps_bar")),
+    Convention("dropped_5", "5 % of the rows missing at random",
+               lambda df, rng: drop_rows(df, 0.05, rng)),
+    Convention("dropped_10", "10 % of the rows missing at random",
+               lambda df, rng: drop_rows(df, 0.10, rng), loses_information=True),
+    Convention("gap_1h", "one gap of an hour",
+               lambda df, rng: gap(df, 1.0, rng), loses_information=True),
+    Convention("dt_60", "one row a minute (a 60 s logger)",
+               lambda df, rng: resample(df, 60.0), loses_information=True),
+    Convention("spikes", "three isolated 3 K spikes on T_tank_C",
+               lambda df, rng: spikes(df, 3, rng)),
+    Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
+               lambda df, rng: extra_columns(df, rng)),
+)}
+
+
+def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | None = None,
+                     keep_truth: bool = False) -> pd.DataFrame:
+    """The run ``df`` recorded under convention ``name`` (:data:`CONVENTIONS`), truth columns dropped
+    unless ``keep_truth``."""
+    if name not in CONVENTIONS:
+        raise ValueError(f"unknown convention {name!r}; known: {sorted(CONVENTIONS)}")
+    out = CONVENTIONS[name].apply(df, rng if rng is not None else np.random.default_rng(0))
+    if not keep_truth:
+        attrs = dict(out.attrs)
+        out = out[[c for c in out.columns if not str(c).startswith("true_")]]
+        out.attrs.update(attrs)
+    return out
+
+
+__all__ = ["CONVENTIONS", "Convention", "apply_convention", "drop_rows", "extra_columns", "gap", "held_constant",
+           "noiseless", "quantise", "resample", "spikes", "stepped", "store_on_change", "truncate"]

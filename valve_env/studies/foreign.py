@@ -1,0 +1,177 @@
+"""The foreign-data corpus: generated runs recorded under the conventions of measured data.
+
+Each case is a run of the project's generator (:func:`valve_env.experiment.simulate_experiment`)
+with one effect hidden (or none), recorded under one convention: a measurement convention of
+:mod:`valve_env.studies.conventions` (quantised, stepped, noiseless, held, dropped rows, a gap,
+a longer interval, spikes, extra columns), or a generation convention of :data:`GENERATIONS`
+(jittered sampling, a 1 s or 60 s logger, a 2 h or 7 day record, a medium temperature held constant
+or by a thermostat in noiseless steps). The case is written as a CSV file and read back the way a
+user's file is (:func:`valve_env.diagnosis.diagnose.read_run`), then diagnosed.
+
+The outcome is judged against the same run without the convention (:func:`acceptable`): the same
+cause; or ``none`` where the convention leaves less evidence (:attr:`Convention.loses_information`);
+or a one-line refusal where refusal is the right answer (:data:`MAY_REFUSE`). Anything else raised
+is a failure. The default test suite runs :func:`corpus_cases` ``("default")`` (35 transformed
+runs), the slow suite ``("full")`` (over 200); ``benchmarks/foreign_data.py`` prints the table.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from valve_env.studies.conventions import CONVENTIONS, apply_convention, noiseless
+
+#: the classes: none, then each named effect, with a size every 6 h, 10 s original names
+EFFECT_OF: dict[str, dict[str, dict[str, float]]] = {
+    "none": {},
+    "sensor_lag": {"sensor_lag": {"tau_s": 90.0}},
+    "medium_temperature": {"medium_temperature": {"beta": 0.15}},
+    "stiction": {"stiction": {"band_mm": 0.06}},
+    "setpoint_drift": {"setpoint_drift": {"rate_MPa_per_h": 6e-5}},
+}
+CLASSES: tuple[str, ...] = tuple(EFFECT_OF)
+
+
+@dataclass(frozen=True)
+class Generation:
+    """A convention of the experiment itself: keyword options of the generator (and, for a thermostat,
+    the medium temperature recorded without noise)."""
+
+    name: str
+    description: str
+    options: dict[str, Any] = field(default_factory=dict)
+    loses_information: bool = False
+    noiseless_medium: bool = False
+
+
+GENERATIONS: dict[str, Generation] = {g.name: g for g in (
+    Generation("jitter_20", "sample times jittered by up to 20 % of the interval", {"jitter": 0.2}),
+    Generation("dt_1", "a 1 s logger (2 h record)", {"dt_s": 1.0, "duration_h": 2.0}, loses_information=True),
+    Generation("dt_60_gen", "a 60 s logger (24 h record)", {"dt_s": 60.0, "duration_h": 24.0}),
+    Generation("record_2h", "a 2 h record", {"duration_h": 2.0}, loses_information=True),
+    Generation("record_7d", "a 7 day record at 60 s", {"duration_h": 168.0, "dt_s": 60.0}),
+    Generation("medium_constant", "the medium temperature held constant (60 degC) by the rig",
+               {"T_med_low_C": 60.0, "T_med_high_C": 60.0}),
+    Generation("medium_thermostat", "the medium temperature held by a thermostat: noiseless steps",
+               {"tau_med_min_min": 0.02, "tau_med_max_min": 0.02}, noiseless_medium=True),
+)}
+
+#: (class, convention) pairs where a one-line refusal (or, for a parameter the record cannot identify,
+#: another answer than the effect) is the right outcome: with the medium temperature held constant
+#: medium_temperature cannot be told from a calibration error, so the diagnosis does not try it.
+MAY_REFUSE: dict[tuple[str, str], str] = {
+    ("medium_temperature", "medium_constant"): "a constant medium temperature cannot identify beta",
+}
+
+#: the default suite's conventions per class (each convention on two or three classes)
+_DEFAULT_PLAN: dict[str, tuple[str, ...]] = {
+    "none": ("quantised_0.1", "stepped_medium", "dropped_10", "spikes", "extra_columns", "medium_thermostat",
+             "jitter_20"),
+    "sensor_lag": ("quantised_0.01", "noiseless_temperatures", "gap_1h", "dt_60", "spikes", "medium_constant",
+                   "record_2h"),
+    "medium_temperature": ("quantised_tank_0.1", "stepped_medium", "dp_constant", "dropped_5", "medium_thermostat",
+                           "medium_constant", "extra_columns"),
+    "stiction": ("quantised_0.1", "stepped_medium", "dropped_5", "gap_1h", "dt_60", "jitter_20",
+                 "noiseless_temperatures"),
+    "setpoint_drift": ("quantised_0.01", "dp_constant", "dropped_10", "spikes", "medium_thermostat", "dt_60_gen",
+                       "quantised_tank_0.1"),
+}
+#: the run seeds of the default suite (one per class) and of the full corpus (three per class)
+DEFAULT_SEEDS: tuple[int, ...] = (102,)
+FULL_SEEDS: tuple[int, ...] = (102, 211, 307)
+BASE_RUN: dict[str, float] = {"duration_h": 6.0, "dt_s": 10.0}
+
+
+def corpus_cases(size: str = "default", seeds: tuple[int, ...] | None = None) -> list[dict[str, Any]]:
+    """The corpus's cases: ``"default"`` (35: every convention on two or three classes) or ``"full"``
+    (every convention on every class, for each of :data:`FULL_SEEDS`)."""
+    if size not in ("default", "full"):
+        raise ValueError(f"size must be 'default' or 'full', got {size!r}")
+    every = (*CONVENTIONS, *GENERATIONS)
+    seeds = seeds if seeds is not None else (DEFAULT_SEEDS if size == "default" else FULL_SEEDS)
+    cases = []
+    for seed in seeds:
+        for cls in CLASSES:
+            for conv in (_DEFAULT_PLAN[cls] if size == "default" else every):
+                cases.append({"class": cls, "seed": seed, "convention": conv})
+    return cases
+
+
+def simulate(case: dict[str, Any]) -> pd.DataFrame:
+    """The run of a case, recorded under its convention (``""``: the original), truth columns dropped."""
+    from valve_env.experiment import simulate_experiment
+
+    conv = case.get("convention", "")
+    gen = GENERATIONS.get(conv)
+    kw: dict[str, Any] = {**BASE_RUN, **(gen.options if gen else {})}
+    df = simulate_experiment(seed=int(case["seed"]), effects=EFFECT_OF[case["class"]] or None, **kw)
+    if gen is not None and gen.noiseless_medium:
+        df = noiseless(df, ("T_med_C",))
+        df["T_med_C"] = np.round(df["T_med_C"].to_numpy() / 0.01) * 0.01
+    rng = np.random.default_rng(int(case["seed"]) + 7)
+    if conv in CONVENTIONS:
+        return apply_convention(df, conv, rng)
+    if conv not in ("", *GENERATIONS):
+        raise ValueError(f"unknown convention {conv!r}")
+    return df[[c for c in df.columns if not str(c).startswith("true_")]]
+
+
+def run_case(case: dict[str, Any], bootstrap_B: int = 0) -> dict[str, Any]:
+    """Simulate, write, read back and diagnose one case. Returns the case with ``outcome`` (``"cause"`` or
+    ``"refused"``), ``cause``, ``message`` (a refusal's one line) and ``seconds`` (CPU). A refusal is a
+    :class:`~valve_env.data_io.DataError` (one line); anything else raised propagates: that is a failure."""
+    from valve_env.data_io import DataError
+    from valve_env.diagnosis.diagnose import diagnose, read_run
+
+    df = simulate(case)
+    t0 = time.process_time()
+    out = dict(case)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "run.csv"
+        df.to_csv(path, index=False)
+        try:
+            run = read_run(path)
+            d = diagnose(run, name=str(path), bootstrap_B=bootstrap_B)
+        except DataError as exc:
+            out.update(outcome="refused", cause=None, message=str(exc).replace(str(path), "RUN.csv"))
+        else:
+            f = d.findings[0] if d.findings else None
+            finite = f is None or all(np.isfinite(v) for v in f.fit.params.values())
+            out.update(outcome="cause", cause=d.cause, message="", finite=bool(finite),
+                       preprocessing=[n["what"] for n in d.preprocessing.get("run", [])])
+    out["seconds"] = time.process_time() - t0
+    out["rows"] = len(df)
+    return out
+
+
+def acceptable(result: dict[str, Any], original_cause: str) -> tuple[bool, str]:
+    """Whether a case's outcome is right, against the cause named on the original run, and why."""
+    conv = result["convention"]
+    key = (result["class"], conv)
+    loses = (CONVENTIONS[conv].loses_information if conv in CONVENTIONS
+             else GENERATIONS[conv].loses_information if conv in GENERATIONS else False)
+    if result["outcome"] == "refused":
+        if key in MAY_REFUSE:
+            return True, f"refused, as it should be: {MAY_REFUSE[key]}"
+        if loses and "too short" in result["message"]:
+            return True, "refused: too short a record"
+        return False, f"refused without reason: {result['message']}"
+    cause = result["cause"]
+    if key in MAY_REFUSE:
+        return cause != result["class"], f"{cause} (the record cannot identify {result['class']})"
+    if cause == original_cause:
+        return True, f"{cause}, as on the original"
+    if loses and cause == "none":
+        return True, "none: the convention leaves less evidence"
+    return False, f"{cause} where the original named {original_cause}"
+
+
+__all__ = ["CLASSES", "EFFECT_OF", "GENERATIONS", "Generation", "MAY_REFUSE", "acceptable", "corpus_cases",
+           "run_case", "simulate", "DEFAULT_SEEDS", "FULL_SEEDS"]
