@@ -1,4 +1,4 @@
-"""Screening a district-heating task variant (docs/tasks.md, "Fifth round"): the oracle bills as the env
+"""Screening a district-heating task variant (`benchmarks/controllers_bench.py --env-kwargs`): the oracle bills as the env
 it controls does (a ``tariff=`` override included), and ``controllers_bench.py --env-kwargs`` rejects bad
 input in one line."""
 
