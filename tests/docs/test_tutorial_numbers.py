@@ -19,7 +19,10 @@ T = np.concatenate([np.linspace(56.5, 59.0, N), np.linspace(59.0, 56.5, N)[1:], 
 GAIN = valve.gain_mm_per_K(58.0, 100.0, ValveParams().to_array())
 
 
-def loop(params: ValveParams = ValveParams(), S: float = 0.0, J: float | None = None) -> np.ndarray:
+PAPER = ValveParams()
+
+
+def loop(params: ValveParams = PAPER, S: float = 0.0, J: float | None = None) -> np.ndarray:
     vp = params.to_array()
     p_set = valve.setpoint_pressure(60.0, vp)
     F, demand = 0.0, np.empty_like(T)
