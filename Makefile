@@ -4,6 +4,7 @@
 #   make test                 core + RL + test tools, then the default test suite
 #   make test-slow            the long statistical studies and full training (marked slow)
 #   make test-latest          the default suite against the newest versions pyproject.toml allows
+#   make tutorials            re-run docs/tutorials/*.ipynb and save them with their outputs (figures inline)
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -11,7 +12,7 @@ PIP := $(PY) -m pip
 CONSTRAINTS ?= constraints.txt
 OUT ?= out
 
-.PHONY: venv install-core install demo test test-slow test-latest lint typecheck bench evaluate constraints clean
+.PHONY: venv install-core install demo test test-slow test-latest tutorials lint typecheck bench evaluate constraints clean
 
 $(PY):
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "make: thermovalve needs Python >= 3.11 (constraints.txt pins versions that do); set PYTHON=/path/to/python3.11")'
@@ -36,6 +37,10 @@ test: install
 
 test-slow: install
 	$(PY) -m pytest -n 2 -q -m slow
+
+# the tests execute the tutorials (tests/docs/test_notebooks.py, with nbmake); this saves them with their outputs
+tutorials: install
+	$(VENV)/bin/jupyter nbconvert --to notebook --execute --inplace docs/tutorials/*.ipynb
 
 # the newest versions pyproject.toml allows (torch stays at the CPU build)
 test-latest: venv

@@ -68,8 +68,8 @@ def _roundtrip(tmp_path, name: str, value: float, hours: float, seed: int, via_c
     gap = float(np.max(np.abs(x_env - x_diag)))
     if name == "stiction":
         # except where the held pressures' noise reverses the demand: the diagnosis's stem runs on the demand
-        # freed of those reversals (engine.stick_demand), the env's re-sticks at each (docs/diagnosis.md,
-        # "round 12"; seed 7: 17.7 um at most, 3.2 um RMS, band 27 um): never a band apart
+        # freed of those reversals (engine.stick_demand), the env's re-sticks at each (seed 7: 17.7 um at
+        # most, 3.2 um RMS, band 27 um): never a band apart
         assert gap < d.final.params[p], (gap, d.final.params[p])
         assert float(np.sqrt(np.mean((x_env - x_diag) ** 2))) < 0.25 * d.final.params[p]
         # and the fit is not left on the kink that its start from the paper's values reaches (F_hmax 1.59 against

@@ -1,4 +1,4 @@
-"""Issue 19: observation aids, the draw feedforward of the residual, the benchmark tasks'
+"""The agents on the benchmark tasks: observation aids, the draw feedforward of the residual, the benchmark tasks'
 shipped agents (scored by ``thermovalve evaluate``) and the task leaderboard."""
 
 from __future__ import annotations

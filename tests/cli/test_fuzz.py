@@ -1,4 +1,4 @@
-"""CLI fuzz: every bad input of issue 16 (and more) gives exit status 2, exactly one line on
+"""CLI fuzz: every bad input the CLI audit found (and more) gives exit status 2, exactly one line on
 stderr naming the problem, the input byte-for-byte unchanged and an existing output untouched.
 
 Validation cases pass ``--force`` with an existing output, so the test also shows that a

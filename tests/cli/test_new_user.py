@@ -13,7 +13,7 @@ from valve_env.outputs import OutputError, OutputSet
 
 
 def test_outputs_under_out_create_the_missing_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """README: ``thermovalve evaluate ... --json out/eval.json`` in a fresh checkout (no out/ yet)."""
+    """README: ``thermovalve evaluate ... --json out/sticky.json`` in a fresh checkout (no out/ yet)."""
     monkeypatch.chdir(tmp_path)
     with OutputSet() as outs:
         outs.write_text(outs.add("out/sub/a.json"), "{}\n")

@@ -1,4 +1,4 @@
-"""Issue 3 acceptance: on the default scenario the tuned PI beats the
+"""The baselines' acceptance: on the default scenario the tuned PI beats the
 self-acting valve on rmse_K and tdis_Kh over 10 seeds; pi_compensated is
 measured against pi and reported (docs/baselines.md), not asserted to win."""
 

@@ -1,35 +1,51 @@
-"""The tutorials in docs/tutorials execute from top to bottom (nbclient), with short episodes."""
+"""The tutorials in docs/tutorials: executed from top to bottom by nbmake (the runner of ``pytest --nbmake``),
+each with its figures inline, committed with its outputs, on the public API only."""
 
 from __future__ import annotations
 
+import json
+import re
 from pathlib import Path
 
 import pytest
 
-nbformat = pytest.importorskip("nbformat", reason="the dev extra installs nbformat and nbclient")
-nbclient = pytest.importorskip("nbclient", reason="the dev extra installs nbformat and nbclient")
+pytest.importorskip("nbmake", reason="the dev extra installs nbmake (make test)")
+from nbmake.nb_run import NotebookRun  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-NOTEBOOKS = sorted((ROOT / "docs" / "tutorials").glob("*.ipynb"))
+TUTORIALS = ROOT / "docs" / "tutorials"
+NOTEBOOKS = sorted(TUTORIALS.glob("*.ipynb"))
 
 
-def _text(nb: object) -> str:
-    out = []
-    for cell in nb.cells:  # type: ignore[attr-defined]
-        for o in cell.get("outputs", []):
-            out.append(o.get("text", "") or str(o.get("data", {}).get("text/plain", "")))
-    return "\n".join(out)
+def _images(nb: dict) -> int:
+    return sum("image/png" in o.get("data", {}) for c in nb["cells"] for o in c.get("outputs", []))
 
 
-def test_there_are_two_tutorials() -> None:
-    assert [p.name[:3] for p in NOTEBOOKS] == ["01_", "02_"]
+def _code(nb: dict) -> str:
+    return "\n".join("".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code")
+
+
+def test_the_teaching_path() -> None:
+    assert [p.name for p in NOTEBOOKS] == [
+        "01_valve_and_hysteresis.ipynb", "02_pi_on_a_sticky_valve.ipynb", "03_benchmark_your_controller.ipynb"]
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
-def test_notebook_executes(path: Path) -> None:
-    nb = nbformat.read(path, as_version=4)
-    nbclient.NotebookClient(nb, timeout=300, kernel_name="python3",
-                            resources={"metadata": {"path": str(ROOT)}}).execute()
-    text = _text(nb)
-    assert "Traceback" not in text
-    assert "iae_Kh" in text  # every tutorial prints KPIs it computed
+def test_committed_with_inline_figures_on_the_public_api(path: Path) -> None:
+    nb = json.loads(path.read_text())
+    code = _code(nb)
+    assert code.lstrip().startswith("%matplotlib inline"), "the first cell selects the inline backend"
+    assert "matplotlib.use(" not in code, "a forced backend (Agg) shows no figures"
+    # public API only: no underscore names imported or called from the package
+    assert not re.search(r"import\s+_|\._[a-z]\w*\(|from valve_env\S* import [^\n]*\b_[a-z]", code)
+    # committed with outputs: every code cell ran, and the figures are in the file
+    counts = [c.get("execution_count") for c in nb["cells"] if c["cell_type"] == "code"]
+    assert counts == list(range(1, len(counts) + 1)), "not committed as run from top to bottom"
+    assert _images(nb) >= 1
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_executes_with_figures(path: Path) -> None:
+    res = NotebookRun(path, default_timeout=300).execute()
+    assert res.error is None, res.error and res.error.summary
+    assert _images(res.nb) >= 1, "the executed notebook shows no figure"

@@ -1,6 +1,5 @@
-"""Screening a district-heating task variant (docs/tasks.md, "Fifth round"): the oracle bills as the env
-it controls does (a ``tariff=`` override included), and ``controllers_bench.py --env-kwargs`` rejects bad
-input in one line."""
+"""Screening a district-heating task variant: the oracle bills as the env it controls does (a ``tariff=``
+override included), and ``controllers_bench.py --env-kwargs`` rejects bad input in one line."""
 
 from __future__ import annotations
 
