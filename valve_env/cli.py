@@ -185,13 +185,40 @@ def add_force(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
 
 
+class _StageLines:
+    """Progress where stderr is not a terminal (a log, a pipe, CI): one line per finished stage,
+    ``diagnose: 3/12 sensor_lag (14 s)``, so a long command is never silent."""
+
+    def __init__(self, total: int, desc: str) -> None:
+        import time
+
+        self.total, self.desc, self.n, self.post, self.t0 = total, desc, 0, "", time.perf_counter()
+
+    def set_postfix_str(self, s: str) -> None:
+        self.post = s
+
+    def update(self, n: int = 1) -> None:
+        import time
+
+        self.n += n
+        what = f" {self.post}" if self.post else ""
+        print(f"{self.desc}: {self.n}/{self.total}{what} ({time.perf_counter() - self.t0:.0f} s)", file=sys.stderr,
+              flush=True)
+
+    def close(self) -> None:
+        pass
+
+
 def progress_bar(total: int, desc: str = "", unit: str = "it") -> Any:
-    """A tqdm bar on stderr (``.update(n)``, ``.set_postfix_str(s)``, ``.close()``); off when
-    THERMOVALVE_NO_PROGRESS is set, and when stderr is not a terminal (tqdm's ``disable=None``)."""
+    """Progress on stderr (``.update(n)``, ``.set_postfix_str(s)``, ``.close()``): a tqdm bar on a
+    terminal, one line per finished stage otherwise; off when THERMOVALVE_NO_PROGRESS is set."""
     from tqdm.auto import tqdm
 
-    disable = bool(os.environ.get("THERMOVALVE_NO_PROGRESS")) or None
-    return tqdm(total=total, desc=desc, unit=unit, disable=disable, file=sys.stderr, leave=False)
+    if os.environ.get("THERMOVALVE_NO_PROGRESS"):
+        return tqdm(total=total, disable=True)
+    if not sys.stderr.isatty():
+        return _StageLines(total, desc)
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False)
 
 
 # --------------------------------------------------------------------------- parser
