@@ -6,7 +6,7 @@ Built-in baselines (see docs/baselines.md):
 * ``self_acting``: the valve alone at a fixed setting (today's practice);
 * ``pi``: a discrete PI on the outlet temperature with anti-windup and a
   bumpless start, SIMC-tuned on a simulator step test
-  (:mod:`valve_env.controllers.tuning`, gains in ``configs/controllers.yaml``);
+  (:mod:`valve_env.controllers.tuning`, gains in ``valve_env/data/controllers.yaml``);
 * ``pi_compensated``: the PI plus an inverse-model Dahl hysteresis compensator;
 * ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``,
   ``pi_integral_band``: stiction compensators from the literature on the PI's setting, and

@@ -162,7 +162,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Arguments
 
     ``gym.make("ThermoValve-v0", config=None, render_mode=None, **overrides)``:
-    ``config`` a YAML path (configs/*.yaml), a mapping or an EnvConfig;
+    ``config`` a YAML path, a packaged scenario's name (valve_env/data/scenarios), a mapping or an EnvConfig;
     overrides name a section (``valve={"F_hmax": 2.0}``, ``tank=...``,
     ``bulb=...``, ``scenario=...``, ``control=...``, ``sensors=...``) or a
     single scenario or control field (``tapping_profile="L"``,
