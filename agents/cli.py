@@ -1,6 +1,6 @@
 """``thermovalve train``, ``thermovalve leaderboard``, ``thermovalve sweep``, ``thermovalve benchmark``,
 ``thermovalve task-leaderboard`` and ``thermovalve curves``
-(registered in valve_env.cli's SUBCOMMAND_MODULES)."""
+(registered with the core through the ``thermovalve.cli`` entry point in pyproject.toml, valve_env.plugins)."""
 
 from __future__ import annotations
 
