@@ -48,7 +48,6 @@ import numpy as np
 import yaml
 from scipy.optimize import least_squares
 
-import valve_env  # noqa: F401  (registers the environments)
 from valve_env.data import data_file
 
 GAINS_PATH: Traversable = data_file("controllers.yaml")

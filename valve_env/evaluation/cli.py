@@ -130,12 +130,12 @@ def _scenario_kwargs(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> di
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    import valve_env
     from valve_env.evaluation.evaluator import OUTPUT_FILES, markdown_table
     from valve_env.outputs import OutputSet
+    from valve_env.registry import ALL_ENV_MODES
 
-    if args.env not in valve_env.ALL_ENV_IDS:
-        raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
+    if args.env not in ALL_ENV_MODES:
+        raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(ALL_ENV_MODES)}")
     check_episodes(args.episodes)
     if args.seed < 0:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
