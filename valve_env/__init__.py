@@ -27,8 +27,8 @@ os.environ.setdefault("GOMP_SPINCOUNT", "30000")
 from gymnasium.envs.registration import register, registry  # noqa: E402
 
 from valve_env.config import ControlParams, EnvConfig, SensorParams, make_config  # noqa: E402
+from valve_env.env_registry import ALL_ENV_MODES, ENV_MODES, register_env  # noqa: E402
 from valve_env.params import BulbParams, ConfigError, TankParams, ValveParams  # noqa: E402
-from valve_env.registry import ALL_ENV_MODES, ENV_MODES, register_env  # noqa: E402
 from valve_env.scenario import ScenarioParams  # noqa: E402
 
 __version__ = "0.1.0"
@@ -55,7 +55,7 @@ from valve_env.tasks import CURRENT_TASK_IDS, TASK_IDS, TASKS, register_tasks, t
 
 register_tasks(MAX_EPISODE_STEPS)
 # every registered id (the original three, then the tasks) -> what the agent sets and its EnvConfig, for the
-# layers below this one (valve_env.registry: ALL_ENV_MODES)
+# layers below this one (valve_env.env_registry: ALL_ENV_MODES)
 for _id, _task in TASKS.items():
     register_env(_id, _task.mode, make_config if _task.is_original else functools.partial(task_config, _id))
 ALL_ENV_IDS: tuple[str, ...] = tuple(ALL_ENV_MODES)

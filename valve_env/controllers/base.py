@@ -28,8 +28,8 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from valve_env.env_registry import ALL_ENV_MODES, ENV_MODES
 from valve_env.envs.thermovalve import OBS_NAMES
-from valve_env.registry import ALL_ENV_MODES, ENV_MODES
 
 OBS_DIM = len(OBS_NAMES)
 I_T_OUT = OBS_NAMES.index("T_out_C")

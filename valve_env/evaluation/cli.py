@@ -130,9 +130,9 @@ def _scenario_kwargs(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> di
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    from valve_env.env_registry import ALL_ENV_MODES
     from valve_env.evaluation.evaluator import OUTPUT_FILES, markdown_table
     from valve_env.outputs import OutputSet
-    from valve_env.registry import ALL_ENV_MODES
 
     if args.env not in ALL_ENV_MODES:
         raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(ALL_ENV_MODES)}")

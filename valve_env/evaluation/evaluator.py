@@ -33,8 +33,8 @@ from gymnasium.vector import SyncVectorEnv
 from gymnasium.wrappers import RecordEpisodeStatistics
 
 from valve_env.controllers import PredictPolicy, make_controller
-from valve_env.registry import ALL_ENV_MODES
-from valve_env.registry import env_config as registered_env_config
+from valve_env.env_registry import ALL_ENV_MODES
+from valve_env.env_registry import env_config as registered_env_config
 from valve_env.simulator import KPI_NAMES
 
 DEFAULT_CONTROLLERS: tuple[str, ...] = ("self_acting", "pi", "pi_compensated")
