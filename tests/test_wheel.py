@@ -8,9 +8,9 @@ packaged scenario), ``experiment``, ``fit`` and ``diagnose`` on the generated ru
 the installed package, not the repository, is what runs; that the packaged configs load (the PI's gains,
 the scenario); and that a trained agent's name says which extra to install.
 
-Cost: 115-130 s on the project's 2-core machine shared with other work (build 3 s, the install 15-17 s
-from pip's cache with ``--no-compile``, the commands with an empty numba cache the rest: demo 28 s,
-diagnose 29 s, fit 18 s): over the default suite's budget of about 2 minutes a test, so it is marked
+Cost: 113-130 s on the project's 2-core machine shared with other work (build 3 s, the install 15-17 s
+from pip's cache with ``--no-compile``, the commands with an empty numba cache the rest: demo 19-28 s,
+diagnose 28-29 s, fit 18-23 s): over the default suite's budget of about 2 minutes a test, so it is marked
 ``slow`` and runs with ``make test-slow`` (or ``pytest -m slow tests/test_wheel.py``).
 """
 
