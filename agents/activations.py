@@ -9,7 +9,7 @@ backward; largest absolute difference from float64 ``tanh`` 1.8e-7 over
 [-20, 20], against 6e-8 for torch's) and its backward as torch's
 ``tanh_backward(g, y) = g (1 - y^2)``. It is an ``nn.Tanh`` (isinstance
 holds; SB3's orthogonal initialisation gains are unchanged), and
-``activation_fn: tanh`` in configs/<algo>.yml builds it (agents.train).
+``activation_fn: tanh`` in agents/configs/<algo>.yml builds it (agents.train).
 Models saved with it need ``agents`` importable to load, as every zoo agent
 already does.
 """

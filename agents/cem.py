@@ -1,6 +1,6 @@
 """Policy search by the cross-entropy method on the native batched env (``optimizer: cem``).
 
-A config block with ``optimizer: cem`` (configs/ppo.yml) makes ``thermovalve train --algo ppo``
+A config block with ``optimizer: cem`` (agents/configs/ppo.yml) makes ``thermovalve train --algo ppo``
 optimise the policy's *action head* directly, instead of PPO's gradient updates: the policy is
 SB3's PPO ``MlpPolicy`` with ``net_arch: {pi: [], vf: [...]}``, so its deterministic action is
 linear in the training stack's features (scaled observation, observation aids, frame history)

@@ -1,6 +1,6 @@
 """``thermovalve train``, ``thermovalve leaderboard``, ``thermovalve sweep``, ``thermovalve benchmark``,
 ``thermovalve task-leaderboard`` and ``thermovalve curves``
-(registered in valve_env.cli's SUBCOMMAND_MODULES)."""
+(registered with the core through the ``thermovalve.cli`` entry point in pyproject.toml, valve_env.plugins)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ def register(subparsers: Any) -> None:
     from agents import benchmark, curves, leaderboard, sweep, task_leaderboard, train
 
     for name, mod, help_text in (
-        ("train", train, "train a stable-baselines3 agent (configs/<algo>.yml); --ship copies it into agents/zoo"),
+        ("train", train,
+         "train a stable-baselines3 agent (agents/configs/<algo>.yml); --ship copies it into agents/zoo"),
         ("leaderboard", leaderboard, "score shipped agents and baselines on seen and unseen scenarios"),
         ("sweep", sweep, "a sweep of algos x seeds x scenarios on a Dask cluster (resumable)"),
         ("benchmark", benchmark, "every controller on every task over held-out seeds, normalised scores (Dask)"),

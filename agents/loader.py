@@ -1,6 +1,7 @@
 """Load a trained agent as a controller that takes RAW env observations.
 
-``load_agent("ppo", "ThermoValve-v0")`` reads ``agents/zoo/ThermoValve-v0/ppo.zip``
+``load_agent("ppo", "ThermoValve-v0")`` (``make_controller("ppo")`` through the
+``thermovalve.controllers`` entry point, :mod:`valve_env.plugins`) reads ``agents/zoo/ThermoValve-v0/ppo.zip``
 with ``ppo.yml`` (the resolved training config) and ``ppo_obs_norm.json``
 (VecNormalize's observation statistics) beside it, and returns an
 :class:`AgentController` with SB3's interface::
@@ -30,6 +31,11 @@ import yaml
 from agents.train import ZOO_DIR, algo_class
 from agents.wrappers import ObsFeatures, ResidualCore, push_history
 from valve_env.envs.thermovalve import OBS_NAMES
+from valve_env.plugins import NotProvided
+
+
+class NoShippedAgent(NotProvided, ValueError):
+    """No agent of that name in the zoo for that env id: ``make_controller`` asks its next loader."""
 
 
 class AgentController:
@@ -210,7 +216,7 @@ def load_agent(
     model_path, config_path, norm_path = agent_files(name, env_id, zoo)
     if not model_path.is_file() or not config_path.is_file():
         have = available_agents(env_id, zoo)
-        raise ValueError(
+        raise NoShippedAgent(
             f"no shipped agent {name!r} for {env_id!r} (looked for {model_path}); "
             f"available: {', '.join(have) if have else 'none'}"
         )

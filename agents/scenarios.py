@@ -1,5 +1,5 @@
 """Named evaluation (and sweep) scenarios: the one registry lives in the core,
-:mod:`valve_env.evaluation.scenarios` (also behind ``configs/scenarios/*.yaml``); this module
+:mod:`valve_env.evaluation.scenarios` (also behind ``valve_env/data/scenarios/*.yaml``); this module
 re-exports it for the agents' code."""
 
 from valve_env.evaluation.scenarios import (

@@ -25,7 +25,7 @@ sweep (no ``grid.json``) is refused unless ``--force``. ``<out>/summary.csv`` an
 ``summary.md`` collect the results after every run.
 
 Hyperparameter grids (``--grid FILE``, docs/agents.md "Sweeps on Dask"): a YAML file keyed
-by env id, like configs/<algo>.yml; each env's block has ``grid:`` (a config key, dotted as in
+by env id, like agents/configs/<algo>.yml; each env's block has ``grid:`` (a config key, dotted as in
 ``--set``, to a list of values: the cells are the product of the lists), optionally ``set:``
 (key: value overrides for every cell of that env) and ``timesteps:``. Every grid point runs
 once per seed; its cells' directories hold the resolved ``config.yml`` and a ``command.txt``

@@ -361,7 +361,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import valve_env
     from agents.loader import available_agents
-    from agents.train import REPO_ROOT
     from valve_env.outputs import OutputError, OutputSet
 
     try:
@@ -378,7 +377,7 @@ def run(args: argparse.Namespace) -> int:
         cache_files(cache)  # a file that is not a benchmark's episodes.csv is refused before any episode
         outs = OutputSet(force=args.force)
         # --docs: the tracked files (each replaced only with --force); else a directory of its own
-        out = REPO_ROOT / "docs" if args.docs else outs.add_dir(args.out)
+        out = Path("docs") if args.docs else outs.add_dir(args.out)
         paths = {n: outs.add(out / n) for n in ("task_leaderboard.md", "task_leaderboard.json", "task_episodes.csv")}
         figdir = out / "figures"
         if not args.docs:

@@ -3,7 +3,7 @@
     python -m agents.train --algo ppo --env ThermoValve-v0 --seed 0 [--timesteps N] [--out runs/...]
     thermovalve train --algo ppo --env ThermoValve-v0 --seed 0 --ship     # retrain + ship into agents/zoo
 
-Hyperparameters come from ``configs/<algo>.yml`` (rl-baselines3-zoo style,
+Hyperparameters come from ``agents/configs/<algo>.yml`` (rl-baselines3-zoo style,
 keyed by env id). Every run directory holds: ``config.yml`` (the resolved
 config), ``command.txt``, ``run.json`` (seed, versions, wall time),
 ``monitor/`` (SB3 Monitor CSVs with the episode KPIs), ``tb/`` (TensorBoard),
@@ -23,27 +23,31 @@ import shutil
 import sys
 import time
 from collections.abc import Mapping, Sequence
+from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
-#: the algorithms with a tuned config in configs/<algo>.yml (a2c has none, so it is not offered)
+#: the algorithms with a tuned config in agents/configs/<algo>.yml (a2c has none, so it is not offered)
 ALGOS: tuple[str, ...] = ("ppo", "sac", "td3")
-#: the VecEnv kinds of agents.wrappers.make_vec_env (``vec_env`` in configs/<algo>.yml, ``--vec``)
+#: the VecEnv kinds of agents.wrappers.make_vec_env (``vec_env`` in agents/configs/<algo>.yml, ``--vec``)
 VEC_KINDS: tuple[str, ...] = ("native", "dummy", "subproc")
-REPO_ROOT = Path(__file__).resolve().parent.parent
-CONFIG_DIR = REPO_ROOT / "configs"
-ZOO_DIR = Path(__file__).resolve().parent / "zoo"
-DEFAULT_RUNS = REPO_ROOT / "out" / "runs"
+#: the packaged hyperparameter files (agents/configs/<algo>.yml), read through importlib.resources
+CONFIG_DIR: Traversable = resources.files("agents") / "configs"
+#: the shipped agents: a directory of the installed package (``train --ship`` writes there)
+ZOO_DIR = Path(str(resources.files("agents") / "zoo"))
+#: training runs go under out/ of the working directory (docs/cli.md, "Outputs")
+DEFAULT_RUNS = Path("out") / "runs"
 
 
 # --------------------------------------------------------------------------- config
 def load_algo_config(algo: str, env_id: str, config_dir: str | Path | None = None) -> dict[str, Any]:
-    """The hyperparameter block for ``env_id`` in ``configs/<algo>.yml``."""
+    """The hyperparameter block for ``env_id`` in ``agents/configs/<algo>.yml``."""
     algo = algo.lower()
-    path = Path(config_dir or CONFIG_DIR) / f"{algo}.yml"
+    path = (Path(config_dir) if config_dir else CONFIG_DIR) / f"{algo}.yml"
     if not path.is_file():
         raise FileNotFoundError(f"no hyperparameter file {path} for algo {algo!r}")
     data = yaml.safe_load(path.read_text()) or {}
@@ -404,7 +408,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="training seed (>= 0)")
     p.add_argument("--timesteps", type=int, default=None, help="override n_timesteps of the config")
     p.add_argument("--out", default=None, help="run directory (default out/runs/<env>/<algo>_s<seed>_<time>)")
-    p.add_argument("--config-dir", default=None, help="directory of <algo>.yml files (default configs/)")
+    p.add_argument("--config-dir", default=None,
+                   help="directory of <algo>.yml files (default: the packaged agents/configs/)")
     p.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
         help="override a config entry, e.g. --set hyperparams.learning_rate=1e-4 (repeatable)",

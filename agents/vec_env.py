@@ -245,7 +245,7 @@ class ThermoValveVecEnv(VecEnv):
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
         """The native env has no wrappers; its built-in sensor noise and dead time
         count as ``SensorNoise``/``ObservationDelay`` where the config enables them."""
-        from valve_env.wrappers import ObservationDelay, SensorNoise
+        from valve_env.envs.wrappers import ObservationDelay, SensorNoise
 
         sens = self.cfg.sensors
         wrapped = (wrapper_class is SensorNoise and (sens.noise_K > 0 or sens.flow_noise_rel > 0)) or (

@@ -9,6 +9,7 @@ versions included; CURRENT_TASK_IDS, which ``thermovalve tasks`` lists).
 
 from __future__ import annotations
 
+import functools
 import os
 
 # The batched env runs on numba's threads (OpenMP, GNU libgomp). With
@@ -26,17 +27,12 @@ os.environ.setdefault("GOMP_SPINCOUNT", "30000")
 from gymnasium.envs.registration import register, registry  # noqa: E402
 
 from valve_env.config import ControlParams, EnvConfig, SensorParams, make_config  # noqa: E402
+from valve_env.env_registry import ALL_ENV_MODES, ENV_MODES, register_env  # noqa: E402
 from valve_env.params import BulbParams, ConfigError, TankParams, ValveParams  # noqa: E402
 from valve_env.scenario import ScenarioParams  # noqa: E402
 
 __version__ = "0.1.0"
 
-#: env id -> what the agent sets ("setting", "pressure" or "dual"): the one table of the ids
-ENV_MODES: dict[str, str] = {
-    "ThermoValve-v0": "setting",
-    "ThermoValvePressure-v0": "pressure",
-    "ThermoValveDual-v0": "dual",
-}
 ENV_IDS: tuple[str, ...] = tuple(ENV_MODES)
 MAX_EPISODE_STEPS = ControlParams().n_steps
 
@@ -55,11 +51,13 @@ for _id, _mode in ENV_MODES.items():
             max_episode_steps=MAX_EPISODE_STEPS,
         )
 
-from valve_env.tasks import CURRENT_TASK_IDS, TASK_IDS, TASKS, register_tasks  # noqa: E402
+from valve_env.tasks import CURRENT_TASK_IDS, TASK_IDS, TASKS, register_tasks, task_config  # noqa: E402
 
 register_tasks(MAX_EPISODE_STEPS)
-#: every registered id (the original three, then the tasks) -> what the agent sets
-ALL_ENV_MODES: dict[str, str] = {task_id: task.mode for task_id, task in TASKS.items()}
+# every registered id (the original three, then the tasks) -> what the agent sets and its EnvConfig, for the
+# layers below this one (valve_env.env_registry: ALL_ENV_MODES)
+for _id, _task in TASKS.items():
+    register_env(_id, _task.mode, make_config if _task.is_original else functools.partial(task_config, _id))
 ALL_ENV_IDS: tuple[str, ...] = tuple(ALL_ENV_MODES)
 
 __all__ = [

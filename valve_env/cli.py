@@ -7,8 +7,9 @@ Each sub-command lives beside the code it runs. A module in SUBCOMMAND_MODULES e
 Adding a sub-command (``loop-diagnose``, ``tasks``, ``benchmark``, ...):
 
 1. write ``register(subparsers)`` in the module that does the work and add the module
-   to SUBCOMMAND_MODULES (import the heavy parts inside ``func``, not at module level:
-   ``thermovalve --help`` imports every module listed here);
+   to SUBCOMMAND_MODULES, or, outside the core, to the ``thermovalve.cli`` entry points of its
+   distribution (:mod:`valve_env.plugins`; import the heavy parts inside ``func``, not at module
+   level: ``thermovalve --help`` imports every module listed here);
 2. in ``func``, **raise** on bad input instead of printing: :class:`UsageError` (or
    :class:`~valve_env.params.ConfigError`, :class:`~valve_env.data_io.DataError`,
    :class:`~valve_env.outputs.OutputError`, any ``ValueError``) becomes one line
@@ -39,6 +40,8 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
+from valve_env.plugins import CLI_GROUP, missing_extra, plugins
+
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.bench",
     "valve_env.diagnosis.cli",
@@ -46,17 +49,15 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.evaluation.cli",
     "valve_env.loops.cli",
     "valve_env.tasks.cli",
-    "agents.cli",
 )
+"""The core's sub-command modules; plug-ins add theirs through the ``thermovalve.cli`` entry points
+(:mod:`valve_env.plugins`: the RL add-on's ``agents.cli``)."""
 
 EXIT_OK = 0
 EXIT_ERROR = 1
 EXIT_BAD_INPUT = 2
 PREFIX = "thermovalve: error: "
 
-#: optional modules and the extra that provides them
-EXTRAS: dict[str, str] = {"stable_baselines3": "rl", "torch": "rl", "sb3_contrib": "rl", "distributed": "rl",
-                          "dask": "rl", "tensorboard": "rl"}
 
 
 class UsageError(ValueError):
@@ -90,15 +91,6 @@ def _bad_input_types() -> tuple[type[BaseException], ...]:
     from valve_env.params import ConfigError
 
     return (UsageError, ConfigError, DataError, OutputError, ValueError, TypeError, KeyError)
-
-
-def missing_extra(exc: ImportError) -> str | None:
-    """``pip install -e '.[rl]'`` advice when ``exc`` is a missing optional module."""
-    name = (getattr(exc, "name", None) or "").split(".")[0]
-    extra = EXTRAS.get(name)
-    if extra is None:
-        return None
-    return f"this command needs the optional package {name!r}: install it with pip install -e '.[{extra}]'"
 
 
 def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
@@ -301,6 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for name in SUBCOMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    for ep in plugins(CLI_GROUP):
+        ep.load().register(sub)
     return parser
 
 

@@ -1,10 +1,11 @@
 """Environment configuration: parameters + scenario + control, from keyword
-arguments and YAML files (``configs/*.yaml``).
+arguments and YAML files (the packaged ``valve_env/data/scenarios/*.yaml`` or a user's own).
 
 A YAML file may hold any of the sections ``valve``, ``bulb``, ``tank``,
 ``scenario``, ``control``, ``sensors``, each a mapping of field names to values. Keyword
 arguments to ``gym.make`` override the file: ``gym.make("ThermoValve-v0",
-config="configs/cold_supply.yaml", tapping_profile="L", valve={"F_hmax": 2.0})``.
+config="configs/scenarios/cold_supply.yaml", tapping_profile="L", valve={"F_hmax": 2.0})``; a packaged
+scenario also loads by its name, ``config="cold_supply"`` (:mod:`valve_env.data`).
 Top-level keywords that name a field of ScenarioParams or ControlParams are
 accepted directly.
 """
@@ -15,11 +16,13 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from pathlib import Path
+from importlib.resources.abc import Traversable
+from pathlib import Path, PurePath
 from typing import Any, ClassVar
 
 import yaml
 
+from valve_env.data import packaged_scenario, scenario_files
 from valve_env.effects import Effects, parse_effects
 from valve_env.params import (
     DP_MAX_MBAR,
@@ -253,13 +256,20 @@ def _unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
 
 
-def load_yaml(path: str | Path) -> dict[str, Any]:
+def load_yaml(path: str | Path | Traversable) -> dict[str, Any]:
     """Read a config YAML file; errors name the file and the problem in one line (a key given twice
-    in one mapping is an error)."""
-    p = Path(path)
+    in one mapping is an error). A name of a packaged scenario (``"cold_supply"``, or
+    ``configs/scenarios/cold_supply.yaml`` where no such file exists) reads the packaged file
+    (:func:`valve_env.data.packaged_scenario`)."""
+    p: Path | Traversable = path if not isinstance(path, (str, PurePath)) else Path(path)
+    if isinstance(path, (str, PurePath)):
+        p = packaged_scenario(path) or p
     if p.is_dir():
         raise ConfigError(f"config file {str(p)!r} is a directory, not a YAML file")
     if not p.is_file():
+        if isinstance(path, (str, PurePath)) and len(PurePath(path).parts) == 1 and not PurePath(path).suffix:
+            raise ConfigError(f"config {str(path)!r} is neither a file nor a packaged scenario; packaged: "
+                              f"{', '.join(scenario_files())}")
         raise ConfigError(f"config file {str(p)!r} does not exist")
     try:
         text = p.read_bytes().decode("utf-8")

@@ -13,13 +13,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from functools import cache
-from importlib import resources
 from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
 from numba import njit
 
+from valve_env.data import data_file
 from valve_env.params import DP_MAX_MBAR, SUPPLY_LIMITS_C, ConfigError, _from_mapping, check_fields, param
 
 PROFILES = ("S", "M", "L", "none")
@@ -99,7 +99,7 @@ def tapping_cycle(name: str) -> pd.DataFrame:
     """The tabled EU tapping cycle ``name`` (S, M or L) as a DataFrame."""
     if name not in ("S", "M", "L"):
         raise ConfigError(f"unknown tapping profile {name!r}; choose S, M or L")
-    with resources.files("valve_env.data").joinpath(f"ecodesign_tapping_profile_{name}.csv").open("r") as fh:
+    with data_file(f"ecodesign_tapping_profile_{name}.csv").open("r") as fh:
         df = pd.read_csv(fh)
     return df
 

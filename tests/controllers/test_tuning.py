@@ -1,9 +1,10 @@
 """The PI tuning procedure (step test, model fit, SIMC) reproduces the gains
-stored in configs/controllers.yaml."""
+stored in valve_env/data/controllers.yaml."""
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -42,8 +43,11 @@ def test_tuning_reproduces_the_stored_gains(fresh: dict, env_id: str) -> None:
 
 
 def test_gains_file_is_where_the_controllers_look() -> None:
-    assert GAINS_PATH.name == "controllers.yaml" and GAINS_PATH.parent.name == "configs"
-    assert GAINS_PATH.is_file()
+    """Package data beside valve_env/data/__init__.py, not a file of the repository around the package."""
+    import valve_env.data
+
+    assert GAINS_PATH.name == "controllers.yaml" and GAINS_PATH.is_file()
+    assert str(GAINS_PATH) == str(Path(valve_env.data.__file__).parent / "controllers.yaml")
 
 
 def test_fopdt_fit_recovers_a_known_model() -> None:

@@ -209,12 +209,12 @@ def test_config_files_and_keywords_select_scenarios(tmp_path):
 
 
 def test_shipped_scenario_configs_load():
-    from pathlib import Path
+    from valve_env.data import scenario_files
 
-    files = sorted((Path(__file__).resolve().parents[2] / "configs" / "scenarios").glob("*.yaml"))
+    files = scenario_files()
     assert len(files) >= 4
-    for f in files:
-        env = gym.make("ThermoValve-v0", config=str(f))
+    for name in files:
+        env = gym.make("ThermoValve-v0", config=name)
         obs, _ = env.reset(seed=0)
         assert np.all(np.isfinite(obs))
 

@@ -6,7 +6,7 @@ Built-in baselines (see docs/baselines.md):
 * ``self_acting``: the valve alone at a fixed setting (today's practice);
 * ``pi``: a discrete PI on the outlet temperature with anti-windup and a
   bumpless start, SIMC-tuned on a simulator step test
-  (:mod:`valve_env.controllers.tuning`, gains in ``configs/controllers.yaml``);
+  (:mod:`valve_env.controllers.tuning`, gains in ``valve_env/data/controllers.yaml``);
 * ``pi_compensated``: the PI plus an inverse-model Dahl hysteresis compensator;
 * ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``,
   ``pi_integral_band``: stiction compensators from the literature on the PI's setting, and
@@ -18,7 +18,8 @@ Built-in baselines (see docs/baselines.md):
   envs it controls, which the evaluator does).
 
 ``make_controller(name, env_id)`` builds one; any other name (``ppo``,
-``sac``, ...) is delegated to ``agents.loader.load_agent(name, env_id)``.
+``sac``, ...) goes to the controller loaders that plug-ins register (the ``thermovalve.controllers``
+entry points, :mod:`valve_env.plugins`; the RL add-on registers ``agents.loader.load_agent``).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from valve_env.controllers.compensators import (
 )
 from valve_env.controllers.oracle import Oracle, OracleSettings
 from valve_env.controllers.stiction_tuning import PIStictionTuned
+from valve_env.plugins import CONTROLLERS_GROUP, NotProvided, missing_extra, plugins
 
 BASELINES: dict[str, type[Controller]] = {
     SelfActing.name: SelfActing,
@@ -109,34 +111,35 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     Built-ins (:data:`CONTROLLERS`): ``self_acting``, ``pi``, ``pi_compensated``, ``pi_wear``,
     ``knocker``, ``constant_reinforcement``, ``two_move``, ``two_move_position``, ``pi_integral_band``,
     ``pi_stiction_tuned``, ``oracle``
-    (keyword arguments go to their constructors). Any other name is a trained agent, loaded by
-    ``agents.loader.load_agent(name, env_id, **kwargs)``; a missing ``agents``
-    package or loader raises :class:`UnknownControllerError` naming the agent.
+    (keyword arguments go to their constructors). Any other name goes to each registered controller
+    loader in turn (:mod:`valve_env.plugins`; trained agents: ``agents.loader.load_agent(name, env_id,
+    **kwargs)``); when none provides it, or a loader needs an extra that is not installed,
+    :class:`UnknownControllerError` names the controller in one line (and the extra to install).
     """
     if env_id not in ALL_ENV_MODES:
         raise ValueError(f"unknown env id {env_id!r}; known: {list(ALL_ENV_MODES)}")
     if name in CONTROLLERS:
         check_options(name, kwargs)
         return CONTROLLERS[name](env_id, **kwargs)
-    try:
-        from agents.loader import load_agent  # type: ignore[import-not-found]
-    except ImportError as exc:
-        missing = (exc.name or "").split(".")[0]
-        if missing in ("stable_baselines3", "torch"):
-            hint = f"trained agents need the RL extra ({missing} is missing): install it with pip install -e '.[rl]'"
-        else:
-            hint = f"the agent loader agents.loader.load_agent could not be imported ({exc})"
-        raise UnknownControllerError(
-            f"controller {name!r} is not a built-in ({', '.join(CONTROLLERS)}); {hint}"
-        ) from exc
-    try:
-        return load_agent(name, env_id, **kwargs)
-    except ValueError as exc:
-        if not str(exc).startswith("no shipped agent"):
-            raise
-        raise UnknownControllerError(
-            f"unknown controller {name!r}: not a built-in ({', '.join(CONTROLLERS)}) and {exc}"
-        ) from exc
+    notes: list[str] = []
+    cause: BaseException | None = None
+    for ep in plugins(CONTROLLERS_GROUP):
+        try:
+            loader = ep.load()
+        except ImportError as exc:  # a plug-in whose extra is not installed
+            notes.append(missing_extra(exc) or f"the controller plug-in {ep.value} could not be imported ({exc})")
+            cause = exc
+            continue
+        try:
+            return loader(name, env_id, **kwargs)
+        except NotProvided as exc:
+            notes.append(str(exc))
+            cause = exc
+    if not notes:
+        notes.append("no controller plug-in is installed (trained agents: pip install 'thermovalve[rl]')")
+    raise UnknownControllerError(
+        f"unknown controller {name!r}: not a built-in ({', '.join(CONTROLLERS)}); {'; '.join(notes)}"
+    ) from cause
 
 
 __all__ = [

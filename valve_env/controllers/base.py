@@ -28,7 +28,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from valve_env import ALL_ENV_MODES, ENV_MODES
+from valve_env.env_registry import ALL_ENV_MODES, ENV_MODES
 from valve_env.envs.thermovalve import OBS_NAMES
 
 OBS_DIM = len(OBS_NAMES)

@@ -80,7 +80,7 @@ class PIController(Controller):
     Loops: ThermoValve-v0 trims the setting; ThermoValvePressure-v0 sets the
     pump's differential pressure around ``u_bias`` (the setting is the env's);
     ThermoValveDual-v0 trims the setting and holds ``dp_hold_mbar``.
-    Gains default to ``configs/controllers.yaml`` (see
+    Gains default to ``valve_env/data/controllers.yaml`` (see
     :mod:`valve_env.controllers.tuning`).
     """
 

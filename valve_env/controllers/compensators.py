@@ -92,7 +92,7 @@ DEFAULT_BAND_MM = 0.1
 
 
 def _stored(env_id: str, name: str) -> dict[str, Any]:
-    """The stored settings of controller ``name`` for ``env_id`` in configs/controllers.yaml ({} if none)."""
+    """The stored settings of controller ``name`` for ``env_id`` in valve_env/data/controllers.yaml ({} if none)."""
     from valve_env.controllers.tuning import load_gains
 
     try:
@@ -437,7 +437,7 @@ class PIWear(PIController):
     the PI is updated when ``|e - e_last| > e_lim_K`` or ``h_max`` steps have passed since the last
     update: ``v = r + Kp e + I``, ``u = clip(v)``, ``I <- I + h (Kp dt / Ti e + dt / Tt (u - v))`` with
     ``h`` the steps since the last update. Between updates the setting holds. Gains: SIMC on the
-    stored FOPDT model (configs/controllers.yaml) with theta_eff = theta + dt/2 + (h_max - 1) dt / 2
+    stored FOPDT model (valve_env/data/controllers.yaml) with theta_eff = theta + dt/2 + (h_max - 1) dt / 2
     (the hold's mean extra delay), tau_c = theta_eff, unless ``Kp``/``Ti_s`` are given.
     Memory: the PI's (2), the setting sent, the error at the last update, steps since it.
     """

@@ -31,7 +31,7 @@ criterion stated here:
   demand must also cross after a reversal, so the stem sees ``S_eff = band_mm / g + 2 friction_band_K``
   and ``J = jump_mm / g`` (1.30 K and 0.56 K at 60 degC and 100 mbar for the 0.1 mm band).
 * **The linear part.** The stored FOPDT model from setting to outlet (``K, tau, theta`` in
-  configs/controllers.yaml, the model the SIMC ``pi`` is tuned on) is the valve's own loop closed
+  valve_env/data/controllers.yaml, the model the SIMC ``pi`` is tuned on) is the valve's own loop closed
   around the stem-to-tank response ``G_x``: ``K e^{-theta s} / (tau s + 1) = G_x / (1 + G_x)`` with
   the delay kept outside, so ``G_x(s) = K e^{-theta s} / (tau s + 1 - K)`` (nearly an integrator: the
   tank). With the PI ``C(s) = Kp (1 + 1 / (Ti s))`` on the outlet error and the bulb's unit feedback,

@@ -30,7 +30,7 @@ order hold adding half a step to the dead time (theta_eff = theta + dt/2):
 The closed-loop time constant ``tau_c`` is an input of the procedure (SIMC's
 "tight" choice is tau_c = theta; the inputs below state what is used and why).
 Everything is deterministic, so :func:`tune` reproduces the gains stored in
-``configs/controllers.yaml`` to the precision of the least-squares fit.
+``valve_env/data/controllers.yaml`` to the precision of the least-squares fit.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ import copy
 import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
@@ -47,10 +48,11 @@ import numpy as np
 import yaml
 from scipy.optimize import least_squares
 
-import valve_env  # noqa: F401  (registers the environments)
+from valve_env.data import data_file
 
-GAINS_PATH = Path(__file__).resolve().parents[2] / "configs" / "controllers.yaml"
-"""Where the tuned gains live (repository ``configs/``, rl-baselines3-zoo style: keyed by env id)."""
+GAINS_PATH: Traversable = data_file("controllers.yaml")
+"""Where the tuned gains live: package data ``valve_env/data/controllers.yaml`` (read through
+importlib.resources; rl-baselines3-zoo style: keyed by env id)."""
 
 SETTING_ENV_IDS = ("ThermoValve-v0", "ThermoValveDual-v0")
 PRESSURE_ENV_IDS = ("ThermoValvePressure-v0",)
@@ -256,7 +258,7 @@ def _r(x: float, nd: int = 6) -> float:
 
 
 def tune(specs: Mapping[str, StepTestSpec] | None = None) -> dict[str, dict[str, Any]]:
-    """Run the whole procedure; returns the ``configs/controllers.yaml`` content
+    """Run the whole procedure; returns the ``valve_env/data/controllers.yaml`` content
     (keyed by env id: the PI gains, the fitted model and the test's inputs)."""
     specs = dict(DEFAULT_SPECS if specs is None else specs)
     out: dict[str, dict[str, Any]] = {}
@@ -296,25 +298,26 @@ def gains_yaml(table: Mapping[str, Any], keep: Mapping[str, Any] | None = None) 
     return header + yaml.safe_dump(dict(table), sort_keys=False)
 
 
-def write_gains(table: Mapping[str, Any], path: str | Path = GAINS_PATH) -> Path:
-    """Write the tuning table (:func:`gains_yaml`) atomically."""
+def write_gains(table: Mapping[str, Any], path: str | Path | Traversable = GAINS_PATH) -> Path:
+    """Write the tuning table (:func:`gains_yaml`) atomically (the packaged file only where the package
+    is a directory on disk: a clone or an unpacked install)."""
     from valve_env.outputs import atomic_write_text
 
-    p = Path(path)
+    p = Path(str(path))
     p.parent.mkdir(parents=True, exist_ok=True)
     return atomic_write_text(p, gains_yaml(table, stored_gains(p)))
 
 
-def stored_gains(path: str | Path = GAINS_PATH) -> dict[str, Any]:
+def stored_gains(path: str | Path | Traversable = GAINS_PATH) -> dict[str, Any]:
     """The table in a gains file, or {} when there is none."""
-    p = Path(path)
+    p = Path(path) if isinstance(path, str) else path
     return dict(yaml.safe_load(p.read_text()) or {}) if p.is_file() else {}
 
 
-def load_gains(env_id: str, path: str | Path | None = None) -> dict[str, Any]:
+def load_gains(env_id: str, path: str | Path | Traversable | None = None) -> dict[str, Any]:
     """The stored tuning entry of ``env_id`` (``{"pi": {...}, "model": {...}, "procedure": {...}}``);
     a task id without its own entry takes the entry of the original id with its action."""
-    p = Path(path) if path is not None else GAINS_PATH
+    p = GAINS_PATH if path is None else Path(path) if isinstance(path, str) else path
     if not p.is_file():
         raise FileNotFoundError(f"controller gains file {str(p)!r} not found; run `thermovalve tune`")
     data = yaml.safe_load(p.read_text()) or {}

@@ -23,7 +23,7 @@ def make_thermovalve(
 ) -> gym.Env:
     """Build the env for ``mode`` and wrap it with the measurement wrappers that
     its ``sensors`` configuration asks for (noise, dead time)."""
-    from valve_env.wrappers import ObservationDelay, SensorNoise
+    from valve_env.envs.wrappers import ObservationDelay, SensorNoise
 
     cfg = make_config(config, **overrides)
     env: gym.Env = _CLASSES[mode](config=cfg, render_mode=render_mode)

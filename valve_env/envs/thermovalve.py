@@ -3,7 +3,7 @@ thermostatic valve with Dahl-friction hysteresis.
 
 The env coordinates: it samples a scenario, steps the shared simulator
 kernel (valve_env.simulator), builds observations, the reward and the KPIs.
-Sensor noise and dead time are wrappers (valve_env.wrappers).
+Sensor noise and dead time are wrappers (valve_env.envs.wrappers).
 """
 
 from __future__ import annotations
@@ -162,7 +162,7 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
     ## Arguments
 
     ``gym.make("ThermoValve-v0", config=None, render_mode=None, **overrides)``:
-    ``config`` a YAML path (configs/*.yaml), a mapping or an EnvConfig;
+    ``config`` a YAML path, a packaged scenario's name (valve_env/data/scenarios), a mapping or an EnvConfig;
     overrides name a section (``valve={"F_hmax": 2.0}``, ``tank=...``,
     ``bulb=...``, ``scenario=...``, ``control=...``, ``sensors=...``) or a
     single scenario or control field (``tapping_profile="L"``,
@@ -393,8 +393,8 @@ class ThermoValveEnv(gym.Env[np.ndarray, np.ndarray]):
         """A deep copy of the simulator's state (for MPC and branching rollouts).
 
         This is the bare env's state only: for an env with wrappers (``gym.make``'s,
-        sensor noise and dead time) use :func:`valve_env.wrappers.snapshot` and
-        :func:`~valve_env.wrappers.restore`, which include every wrapper's state."""
+        sensor noise and dead time) use :func:`valve_env.envs.wrappers.snapshot` and
+        :func:`~valve_env.envs.wrappers.restore`, which include every wrapper's state."""
         return SimState(
             state=self._s.copy(),
             acc=self._acc.copy(),

@@ -516,8 +516,8 @@ class ThermoValveVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         return obs
 
     def _noisy(self, i: int, observation: np.ndarray) -> np.ndarray:
-        """valve_env.wrappers.SensorNoise.observation for env i, from env i's generator."""
-        from valve_env.wrappers import noisy_observation
+        """valve_env.envs.wrappers.SensorNoise.observation for env i, from env i's generator."""
+        from valve_env.envs.wrappers import noisy_observation
 
         rng = self._rngs[i]
         assert rng is not None

@@ -130,12 +130,12 @@ def _scenario_kwargs(args: argparse.Namespace, env_kwargs: dict[str, Any]) -> di
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    import valve_env
+    from valve_env.env_registry import ALL_ENV_MODES
     from valve_env.evaluation.evaluator import OUTPUT_FILES, markdown_table
     from valve_env.outputs import OutputSet
 
-    if args.env not in valve_env.ALL_ENV_IDS:
-        raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
+    if args.env not in ALL_ENV_MODES:
+        raise UsageError(f"unknown env id {args.env!r}; known: {', '.join(ALL_ENV_MODES)}")
     check_episodes(args.episodes)
     if args.seed < 0:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
@@ -224,10 +224,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of episode 0; episode i uses seed + i (default 0)")
     p.add_argument("--json", default=None, metavar="OUT.json", help="write the docs/reference.md, section 7 JSON here")
     p.add_argument("--out", default=None, metavar="DIR", help="also write table.md, CSVs and figures into DIR")
-    p.add_argument("--config", default=None, metavar="YAML", help="env configuration file (configs/scenarios/*.yaml)")
+    p.add_argument("--config", default=None, metavar="YAML",
+                   help="env configuration file, or a packaged scenario's name (valve_env/data/scenarios/NAME.yaml)")
     p.add_argument("--scenario", default=None, metavar="NAME",
                    help="a named scenario of the one registry (valve_env.evaluation.scenarios, "
-                        "configs/scenarios/NAME.yaml)")
+                        "valve_env/data/scenarios/NAME.yaml)")
     p.add_argument("--env-kwargs", nargs="*", default=None, metavar="K=V",
                    help="env overrides, e.g. tapping_profile=L supply_C=60 'valve={F_hmax: 2.0}'")
     add_force(p)
@@ -249,8 +250,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "tune", help="re-run the PI tuning procedure (step test, FOPDT/IPDT fit, SIMC)",
         description="Runs valve_env.controllers.tuning.tune() and prints the gains; --write stores them.",
     )
-    t.add_argument("--write", action="store_true", help="write the gains to configs/controllers.yaml (or --gains)")
+    t.add_argument("--write", action="store_true",
+                   help="write the gains to valve_env/data/controllers.yaml (or --gains)")
     t.add_argument("--gains", default=None, metavar="PATH", help="gains file to write (default with --write: "
-                   "configs/controllers.yaml, the tracked file, replaced only with --force)")
+                   "valve_env/data/controllers.yaml, the tracked file, replaced only with --force)")
     add_force(t)
     t.set_defaults(func=cmd_tune)

@@ -32,9 +32,9 @@ import pandas as pd
 from gymnasium.vector import SyncVectorEnv
 from gymnasium.wrappers import RecordEpisodeStatistics
 
-import valve_env
-from valve_env.config import make_config
 from valve_env.controllers import PredictPolicy, make_controller
+from valve_env.env_registry import ALL_ENV_MODES
+from valve_env.env_registry import env_config as registered_env_config
 from valve_env.simulator import KPI_NAMES
 
 DEFAULT_CONTROLLERS: tuple[str, ...] = ("self_acting", "pi", "pi_compensated")
@@ -45,19 +45,14 @@ ControllerSpec = Mapping[str, PredictPolicy] | Sequence[str]
 
 
 def check_env_id(env_id: str) -> None:
-    if env_id not in valve_env.ALL_ENV_IDS:
-        raise ValueError(f"unknown env id {env_id!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
+    if env_id not in ALL_ENV_MODES:
+        raise ValueError(f"unknown env id {env_id!r}; known: {', '.join(ALL_ENV_MODES)}")
 
 
 def env_config(env_id: str, env_kwargs: Mapping[str, Any] | None = None, config: Any = None) -> Any:
     """The EnvConfig that ``gym.make(env_id, config=config, **env_kwargs)`` builds (a task's
     own configuration for a task id); raises ConfigError naming a bad field."""
-    from valve_env.tasks import get_task, task_config
-
-    kw = dict(env_kwargs or {})
-    if get_task(env_id).is_original:
-        return make_config(config, **kw)
-    return task_config(env_id, config, **kw)
+    return registered_env_config(env_id, config, **dict(env_kwargs or {}))
 
 
 def make_env(env_id: str, env_kwargs: Mapping[str, Any] | None = None, config: Any = None) -> gym.Env:

@@ -1,6 +1,7 @@
 """The one registry of named scenarios, used by ``thermovalve evaluate --scenario``, the
-leaderboard, the sweep and the files in ``configs/scenarios/`` (each static scenario NAME
-has ``configs/scenarios/NAME.yaml`` giving the same environment; a test holds them equal).
+leaderboard, the sweep and the packaged files ``valve_env/data/scenarios/`` (each static scenario NAME
+has ``valve_env/data/scenarios/NAME.yaml`` giving the same environment, which ``config="NAME"`` loads;
+a test holds them equal).
 
 The agents train on ``default`` (gym.make's defaults: EU tapping cycle M, seeded stochastic
 draws, 70 degC supply, the paper's valve). The others are not seen in training:

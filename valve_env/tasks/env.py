@@ -681,7 +681,7 @@ class ThermoValveDistrictHeatingPowerV1VectorEnv(ThermoValveTaskVectorEnv):
 def make_task_env(task_id: str, render_mode: str | None = None, **kwargs: Any) -> gym.Env:
     """A task's single env by id, with the sensor wrappers its configuration asks for
     (as valve_env.envs.make_thermovalve does for the original ids)."""
-    from valve_env.wrappers import ObservationDelay, SensorNoise
+    from valve_env.envs.wrappers import ObservationDelay, SensorNoise
 
     cls = {c.task_id: c for c in ThermoValveTaskEnv.__subclasses__()}[task_id]
     env: gym.Env = cls(render_mode=render_mode, **kwargs)
