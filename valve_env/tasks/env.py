@@ -502,8 +502,12 @@ class ThermoValveDistrictHeatingPowerEnv(ThermoValveTaskEnv):
 
     | index | name | unit |
     |---|---|---|
-    | 19 | hour_so_far_kW: the heat metered in the current clock hour so far, per hour | kW |
-    | 20 | peak_hourly_kW: the highest hourly mean power of the day so far | kW |
+    | 19 | hour_so_far_kW: the net heat metered in the current clock hour so far, per hour (box [-100, 100]) | kW |
+    | 20 | peak_hourly_kW: the highest hourly mean power of the day so far (box [0, 100]) | kW |
+
+    The coil gives heat back while the supply is colder than the store (the return leaves
+    warmer than the supply came): the step's heat is negative, the bill nets it, and so
+    hour_so_far_kW can be negative early in an hour.
 
     ## Reward
 
