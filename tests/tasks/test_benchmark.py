@@ -14,7 +14,7 @@ SHORT = {"horizon_h": 1.0}
 
 def _records(task: str, names: list[str], episodes: int = 2) -> list[dict]:
     cells = [bm.Cell(task, n, episodes, 0, dict(SHORT)) for n in names]
-    cells.append(bm.Cell(task, bm.SMOOTH, episodes, 0, {**SHORT, **bm.smooth_valve()}))
+    cells.append(bm.Cell(task, bm.SMOOTH, episodes, 0, {**SHORT, **bm.smooth_valve(task)}))
     return [bm.run_cell(c) for c in cells]
 
 
@@ -57,6 +57,15 @@ def test_cells_cover_every_task_and_the_smooth_valve() -> None:
     keys = {c.key for c in cells}
     assert "ThermoValveStickyValve-v0__pi@smooth_valve" in keys and len(cells) == 6
     smooth = next(c for c in cells if c.controller == bm.SMOOTH)
-    assert smooth.env_kwargs == {"valve": {"F_hmax": 1e-3, "effects": {}}} and smooth.seed == bm.HELD_OUT_SEED
+    assert smooth.env_kwargs == {"valve": {"F_hmax": 1e-3, "effects": {"stiction": None}}}
+    assert smooth.seed == bm.HELD_OUT_SEED
+    # the smooth valve is the task's without its stiction (effects combine by name; null removes one)
+    from valve_env.tasks import get_task
+
+    assert get_task("ThermoValveStickyValve-v0").config().effects.names == ("stiction",)
+    cfg = get_task(smooth.task).config(**smooth.env_kwargs)
+    assert not cfg.effects and cfg.valve.F_hmax == 1e-3
+    dh = next(c for c in cells if c.controller == bm.SMOOTH and c.task == "ThermoValveDistrictHeating-v0")
+    assert dh.env_kwargs == {"valve": {"F_hmax": 1e-3, "effects": {}}}
     with pytest.raises(ValueError):
         bm.make_cells(["ThermoValveStickyValve-v0"], ["no_such_controller"])

@@ -32,10 +32,14 @@ HIGH_REFERENCE = "oracle"
 SMOOTH = "pi@smooth_valve"
 
 
-def smooth_valve() -> dict[str, Any]:
-    """The ``valve=`` override of a smooth valve: Dahl friction 1 mN (F_hmax must be > 0) and no
-    named effects (no stiction)."""
-    return {"valve": {"F_hmax": 1e-3, "effects": {}}}
+def smooth_valve(task_id: str | None = None) -> dict[str, Any]:
+    """The ``valve=`` override of a smooth valve on ``task_id``: Dahl friction 1 mN (F_hmax must be
+    > 0) and none of the task's named effects (its stiction): each removed by name (``null``; effects
+    combine by name, docs/tasks.md, "A valve file on a task")."""
+    from valve_env.tasks import get_task
+
+    own = get_task(task_id).sections.get("valve", {}).get("effects", {}) if task_id is not None else {}
+    return {"valve": {"F_hmax": 1e-3, "effects": dict.fromkeys(own)}}
 
 
 @dataclass(frozen=True)
@@ -93,7 +97,7 @@ def make_cells(
             else:
                 cells.append(Cell(task, name, int(episodes), int(seed)))
         if smooth:
-            cells.append(Cell(task, SMOOTH, int(episodes), int(seed), smooth_valve()))
+            cells.append(Cell(task, SMOOTH, int(episodes), int(seed), smooth_valve(task)))
     return cells
 
 
