@@ -314,6 +314,11 @@ class EffectOverrideWarning(UserWarning):
     with other parameters: the file's parameters win (docs/tasks.md, "A valve file on a task")."""
 
 
+#: the overrides already told: each once per process, not once per env built from the same file (an
+#: evaluation builds one per episode, and gymnasium's make resets the warnings module's own registries)
+_TOLD: set[str] = set()
+
+
 def combine_effects(
     current: Effects, given: Any, where: str = "valve.effects", origins: dict[str, str] | None = None,
     source: str | None = None, warn: bool = False,
@@ -347,10 +352,12 @@ def combine_effects(
     added = parse_effects({n: v for n, v in given.items() if v is not None}, where).as_dict()
     for name, pars in added.items():
         if warn and name in have and have[name] != pars:
-            warnings.warn(
-                f"{source or where}: valve effect {name} {pars} overrides {name} {have[name]} of "
-                f"{origins.get(name, 'the configuration')} (the file's parameters win; docs/tasks.md, "
-                "'A valve file on a task')", EffectOverrideWarning, stacklevel=5)
+            msg = (f"{source or where}: valve effect {name} {pars} overrides {name} {have[name]} of "
+                   f"{origins.get(name, 'the configuration')} (the file's parameters win; docs/tasks.md, "
+                   "'A valve file on a task')")
+            if msg not in _TOLD:
+                _TOLD.add(msg)
+                warnings.warn(msg, EffectOverrideWarning, stacklevel=5)
         have[name] = pars
         origins[name] = source or where
     return parse_effects(have, where)

@@ -69,6 +69,10 @@ def test_a_valve_file_that_overrides_a_tasks_effect_warns_naming_both(tmp_path: 
     msg = str(rec[0].message)
     assert "stiction" in msg and "0.04" in msg and "0.1" in msg and TASK in msg and "sticky.yaml" in msg, msg
     assert env.unwrapped.cfg.effects.as_dict() == {"sensor_lag": {"tau_s": 90.0}, "stiction": {"band_mm": 0.04}}
+    # told once per process: the envs of an evaluation, built from the same file, do not repeat it
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EffectOverrideWarning)
+        gym.make_vec(TASK, num_envs=2, vectorization_mode="vector_entry_point", config=str(vfile))
     # the same parameters as the task's are no override
     same = _valve_file(tmp_path, {"stiction": {"band_mm": 0.1}}, "same.yaml")
     with warnings.catch_warnings():
