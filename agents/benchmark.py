@@ -14,8 +14,9 @@ controllers, ``pi`` runs on a smooth valve (``pi@smooth_valve``) on every
 task: does the valve matter?
 
 Writes into ``--out`` (refused if it holds files, unless ``--force``):
-``table.md`` (per task: cost = -return, the normalised score 0 =
-self_acting, 1 = oracle, KPIs; the headroom and valve findings),
+``table.md`` (per task: cost = -return with its 95 % interval, the gap
+score 0 = pi, 1 = oracle with its 95 % interval, the score 0 = self_acting,
+1 = oracle, KPIs; the headroom and valve findings),
 ``results.json``, ``episodes.csv``, ``scores.png`` and ``kpis.png``. The
 scoring itself is valve_env.tasks.benchmark (core: no Dask); this command
 lives in agents/ because Dask is in the ``rl`` extra. docs/tasks.md.
@@ -57,8 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--tasks", default=None, help="comma-separated task ids (default: those of `thermovalve tasks`)")
     p.add_argument("--controllers", default=None,
-                   help="comma-separated controller names (default: every controller make_controller knows "
-                        "that applies to the task)")
+                   help="comma-separated controller names or training run directories given as paths "
+                        "(out/runs/tiny_ppo; default: every controller make_controller knows that applies to the task)")
     p.add_argument("--episodes", type=int, default=10, help="episodes per cell (default 10)")
     p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help=f"first seed (default {HELD_OUT_SEED}, held out)")
     p.add_argument("--horizon-h", type=float, default=None, help="episode length, h (default: the task's, 24)")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from importlib.resources.abc import Traversable
@@ -23,6 +24,7 @@ from typing import Any, ClassVar
 import yaml
 
 from valve_env.data import packaged_scenario, scenario_files
+from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.effects import Effects, parse_effects
 from valve_env.params import (
     DP_MAX_MBAR,
@@ -317,21 +319,90 @@ def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+class EffectOverrideWarning(UserWarning):
+    """A config file or mapping names a valve effect that the configuration it is laid on already has,
+    with other parameters: the file's parameters win (docs/tasks.md, "A valve file on a task")."""
+
+
+#: the overrides already told: each once per process, not once per env built from the same file (an
+#: evaluation builds one per episode, and gymnasium's make resets the warnings module's own registries)
+_TOLD: set[str] = set()
+
+
+def combine_effects(
+    current: Effects, given: Any, where: str = "valve.effects", origins: dict[str, str] | None = None,
+    source: str | None = None, warn: bool = False,
+) -> Effects:
+    """The named effects ``current`` with the ``effects:`` mapping ``given`` laid on them, by name:
+    ``current``'s effects stay, ``given``'s are added, an effect both name takes ``given``'s parameters,
+    and an effect given as ``None`` (YAML ``null``) is removed (a ConfigError if ``current`` has none
+    of that name: the ``stiction:`` with nothing under it is a mistake there). ``given`` ``None`` or
+    ``{}`` changes nothing. With ``warn``, an override with other parameters raises an
+    :class:`EffectOverrideWarning` naming the effect, both parameter sets, ``source`` (where ``given``
+    comes from) and the overridden effect's origin (``origins``: effect name -> where it came from,
+    updated in place). docs/tasks.md, "A valve file on a task"."""
+    if given is None:
+        return current
+    if isinstance(given, Effects):
+        given = given.as_dict()
+    if not isinstance(given, Mapping):
+        return parse_effects(given, where)  # the one-line error of a malformed mapping
+    unknown = sorted(str(k) for k in given if k not in EFFECTS)
+    if unknown:
+        raise ConfigError(f"{where}: unknown effect(s) {unknown}; known effects: {', '.join(EFFECTS)}")
+    have = current.as_dict()
+    origins = origins if origins is not None else {}
+    for name in [n for n, v in given.items() if v is None]:
+        if name not in have:
+            first = EFFECTS[name].parameters[0]
+            raise ConfigError(f"{where}.{name} is empty (None); give its parameters, e.g. {{{first.name}: "
+                              f"{first.default}}} (null removes an effect, and there is no {name} to remove)")
+        del have[name]
+        origins.pop(name, None)
+    added = parse_effects({n: v for n, v in given.items() if v is not None}, where).as_dict()
+    for name, pars in added.items():
+        if warn and name in have and have[name] != pars:
+            msg = (f"{source or where}: valve effect {name} {pars} overrides {name} {have[name]} of "
+                   f"{origins.get(name, 'the configuration')} (the file's parameters win; docs/tasks.md, "
+                   "'A valve file on a task')")
+            if msg not in _TOLD:
+                _TOLD.add(msg)
+                warnings.warn(msg, EffectOverrideWarning, stacklevel=5)
+        have[name] = pars
+        origins[name] = source or where
+    return parse_effects(have, where)
+
+
 def make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None, **overrides: Any) -> EnvConfig:
     """Build an EnvConfig from a YAML path, a mapping or an EnvConfig, then
     apply keyword overrides: a section name with a mapping or a dataclass
     (``valve={"sigma": 5.0}``), or a single field of ScenarioParams or
     ControlParams by its name (``tapping_profile="L"``). A bad value read from a
-    file raises a ConfigError that names the file."""
+    file raises a ConfigError that names the file. The valve's named effects
+    (``valve: {effects: ...}``) combine by name (:func:`combine_effects`)."""
+    return layer_config(config, overrides)
+
+
+def layer_config(
+    config: str | Path | EnvConfig | Mapping[str, Any] | None, overrides: Mapping[str, Any],
+    owner: str = "the configuration", source: str | None = None,
+) -> EnvConfig:
+    """:func:`make_config` with the effects' origins named: ``owner`` names where an EnvConfig
+    ``config``'s effects come from (e.g. "task ThermoValveStickyValve-v0"); with ``source`` the
+    ``overrides`` are a config file or mapping laid on it (``source`` names it), and an effect they
+    override with other parameters warns (:class:`EffectOverrideWarning`)."""
     try:
-        return _make_config(config, **overrides)
+        return _make_config(config, overrides, owner, source)
     except ConfigError as exc:
         if isinstance(config, (str, Path)) and str(config) not in str(exc):
             raise ConfigError(f"config file {str(config)!r}: {exc}") from None
         raise
 
 
-def _make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = None, **overrides: Any) -> EnvConfig:
+def _make_config(
+    config: str | Path | EnvConfig | Mapping[str, Any] | None, overrides: Mapping[str, Any],
+    owner: str = "the configuration", source: str | None = None,
+) -> EnvConfig:
     if isinstance(config, EnvConfig):
         base: dict[str, Any] = {}
         start = config
@@ -345,11 +416,24 @@ def _make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = Non
             base = dict(config)
         else:
             raise ConfigError(f"config must be a YAML path, a mapping or an EnvConfig, got {type(config).__name__}")
+    # the valve's named effects, layer by layer (the start's, the file's, then the keywords'), combined by name
+    effect_layers: list[tuple[Any, str, bool]] = []
+
+    def take_effects(section: Mapping[str, Any], label: str, warn: bool) -> Mapping[str, Any]:
+        if "effects" not in section:
+            return section
+        rest = dict(section)
+        effect_layers.append((rest.pop("effects"), label, warn))
+        return rest
+
     sections: dict[str, Any] = {}
     for k, v in base.items():
         if k not in SECTIONS:
             raise ConfigError(f"unknown config section {k!r}; known: {sorted(SECTIONS)}")
         sections[k] = _section(k, v)
+    if "valve" in sections:
+        sections["valve"] = take_effects(sections["valve"], str(config) if isinstance(config, (str, Path))
+                                         else "the config", False)
     scen_fields = {f.name for f in fields(ScenarioParams)}
     ctrl_fields = {f.name for f in fields(ControlParams)}
     for k, v in overrides.items():
@@ -361,7 +445,10 @@ def _make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = Non
                     f"{k}= must be a mapping of field names or a {SECTIONS[k].__name__}, got "
                     + ("None" if v is None else f"{type(v).__name__} {v!r}")
                 )
-            sections = _merge(sections, {k: _section(k, v)})
+            v = _section(k, v)
+            if k == "valve":
+                v = take_effects(v, source or "the valve= keyword", source is not None)
+            sections = _merge(sections, {k: v})
         elif k in scen_fields:
             sections = _merge(sections, {"scenario": {k: v}})
         elif k in ctrl_fields:
@@ -370,12 +457,12 @@ def _make_config(config: str | Path | EnvConfig | Mapping[str, Any] | None = Non
             raise ConfigError(
                 f"unknown environment option {k!r}; use a section ({sorted(SECTIONS)}) or a scenario/control field"
             )
-    built: dict[str, Any] = {"effects": start.effects}
-    if "valve" in sections and isinstance(sections["valve"], Mapping) and "effects" in sections["valve"]:
-        # the valve's named effects (docs/reference.md, "The valve file"), checked against the registry
-        valve_section = dict(sections["valve"])
-        built["effects"] = parse_effects(valve_section.pop("effects"))
-        sections["valve"] = valve_section
+    # the valve's named effects (docs/reference.md, "The valve file"), checked against the registry
+    effects = start.effects
+    origins = dict.fromkeys(effects.names, owner)
+    for given, label, warn in effect_layers:
+        effects = combine_effects(effects, given, "valve.effects", origins, label, warn)
+    built: dict[str, Any] = {"effects": effects}
     for name, cls in SECTIONS.items():
         current = getattr(start, name)
         if name in sections:

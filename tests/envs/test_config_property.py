@@ -24,7 +24,7 @@ import pytest
 from hypothesis import HealthCheck, assume, currently_in_test_context, given, settings, target
 from hypothesis import strategies as st
 
-import valve_env  # noqa: F401  (registers the environments)
+import valve_env  # registers the environments
 from valve_env.config import MAX_EPISODE_STEPS, SECTIONS, EnvConfig, make_config
 from valve_env.params import SUPPLY_LIMITS_C, ConfigError, Spec
 
@@ -222,3 +222,86 @@ def test_a_small_tank_under_heavy_draws_stays_within_its_temperatures(n_layers, 
         make_config(d, control={"n_sub": cfg.control.n_sub - 1})
     for seed in range(3):
         _run(cfg, "ThermoValve-v0", np.full((300, 1), 0.5), seed)
+
+
+# -- the benchmark tasks: every current id, single and batched, over a whole episode -------------
+
+POLICIES = ("random", "bang_bang", "extreme")
+
+
+def _policy_actions(policy: str, rng: np.random.Generator, n_steps: int, shape: tuple[int, ...],
+                    lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(n_steps, *shape) actions: uniform in the box; the box's corners held for a random 1-240
+    steps each (a relay: long enough to charge the store to the supply, or let it cool); or
+    +-1e300 (clipped by the env), likewise held."""
+    if policy == "random":
+        return rng.uniform(lo, hi, size=(n_steps, *shape))
+    corners = np.empty((n_steps, *shape))
+    k = 0
+    while k < n_steps:
+        hold = int(rng.integers(1, 241))
+        corners[k: k + hold] = rng.integers(0, 2, size=shape)
+        k += hold
+    if policy == "bang_bang":
+        return lo + corners * (hi - lo)
+    return np.where(corners > 0, 1e300, -1e300)
+
+
+def _assert_in_box(obs: np.ndarray, space: gym.spaces.Box, what: str) -> None:
+    """Every row of ``obs`` finite and in ``space`` (vectorised: Box.contains row by row is slow),
+    then Box.contains on the worst row, so gymnasium's own test agrees."""
+    o = np.atleast_2d(obs)
+    assert np.all(np.isfinite(o)), what
+    low = np.argwhere(o < space.low)
+    high = np.argwhere(o > space.high)
+    assert low.size == 0 and high.size == 0, (
+        f"{what}: below the box at (row, column) {low[:5].tolist()}, above at {high[:5].tolist()}; "
+        f"columns' minima {o.min(axis=0)}, maxima {o.max(axis=0)}")
+    assert space.contains(o[np.argmin(((o - space.low) / (space.high - space.low)).min(axis=1))])
+
+
+@pytest.mark.parametrize("policy", POLICIES)
+@pytest.mark.parametrize("task_id", valve_env.CURRENT_TASK_IDS)
+def test_every_current_task_stays_in_its_box_batched(task_id: str, policy: str) -> None:
+    """64 envs, a whole episode and into the next (autoreset): every observation finite and in
+    the box, every reward finite. A relay charging the store to the supply and a supply plan
+    dipping below it make the coil give heat back (a negative heat flow, docs/tasks.md)."""
+    n = 64
+    env = gym.make_vec(task_id, num_envs=n, vectorization_mode="vector_entry_point")
+    space = env.single_observation_space
+    lo, hi = env.single_action_space.low.astype(np.float64), env.single_action_space.high.astype(np.float64)
+    n_steps = env.unwrapped.cfg.control.n_steps
+    obs, _ = env.reset(seed=11)
+    _assert_in_box(obs, space, f"{task_id} reset")
+    u = _policy_actions(policy, np.random.default_rng(11), n_steps + 10, (n, lo.size), lo, hi)
+    ended = 0
+    for k, a in enumerate(u):
+        obs, r, term, trunc, _ = env.step(a.astype(np.float32) if policy != "extreme" else a)
+        _assert_in_box(obs, space, f"{task_id} {policy} step {k}")
+        assert np.all(np.isfinite(r)), (task_id, policy, k)
+        ended += int(np.sum(term | trunc))
+    assert ended == n, f"{ended} of {n} episodes ended"
+    env.close()
+
+
+@pytest.mark.parametrize("policy", POLICIES)
+@pytest.mark.parametrize("task_id", valve_env.CURRENT_TASK_IDS)
+def test_every_current_task_stays_in_its_box_single(task_id: str, policy: str) -> None:
+    """The single env (gym.make, its wrappers included), a whole episode and a reset."""
+    env = gym.make(task_id)
+    space = env.observation_space
+    lo, hi = env.action_space.low.astype(np.float64), env.action_space.high.astype(np.float64)
+    obs, _ = env.reset(seed=5)
+    _assert_in_box(obs, space, f"{task_id} reset")
+    u = _policy_actions(policy, np.random.default_rng(5), 3000, (lo.size,), lo, hi)
+    ended = False
+    for k, a in enumerate(u):
+        obs, r, term, trunc, info = env.step(a.astype(np.float32) if policy != "extreme" else a)
+        _assert_in_box(obs, space, f"{task_id} {policy} step {k}")
+        assert np.isfinite(r), (task_id, policy, k)
+        if term or trunc:
+            assert all(np.isfinite(v) for v in info["kpis"].values() if v == v), info["kpis"]
+            ended = True
+            obs, _ = env.reset()
+            _assert_in_box(obs, space, f"{task_id} reset after the episode")
+    assert ended, "the run did not reach an episode's end"

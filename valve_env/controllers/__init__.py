@@ -19,7 +19,10 @@ Built-in baselines (see docs/baselines.md):
 
 ``make_controller(name, env_id)`` builds one; any other name (``ppo``,
 ``sac``, ...) goes to the controller loaders that plug-ins register (the ``thermovalve.controllers``
-entry points, :mod:`valve_env.plugins`; the RL add-on registers ``agents.loader.load_agent``).
+entry points, :mod:`valve_env.plugins`; the RL add-on registers ``agents.loader.load_agent``), and a
+name that is a path (it holds a ``/``, or starts with ``.`` or ``~``: e.g. ``out/runs/tiny_ppo``,
+``./tiny_ppo``) goes to them with ``run_dir=path``: the run directory a ``thermovalve train`` run
+writes (:func:`run_dir_of`).
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ import dataclasses
 import inspect
 import math
 import numbers
+import os
+from pathlib import Path
 from typing import Any
 
 from valve_env.controllers.base import ALL_ENV_MODES, Controller, PredictPolicy, original_id
@@ -105,6 +110,37 @@ def check_options(name: str, options: dict[str, Any]) -> None:
             raise ValueError(f"controller {name!r} option {key} must be {what}, got {value!r}")
 
 
+#: the files that make a directory a training run (agents/train.py writes them; ``model.zip`` or
+#: ``best/best_model.zip`` holds the policy)
+RUN_FILES = ("config.yml",)
+RUN_MODELS = ("best/best_model.zip", "model.zip")
+
+
+def is_path_name(name: str) -> bool:
+    """Whether controller ``name`` names a path (a trained run directory) rather than a controller:
+    it holds a path separator or starts with ``.`` or ``~``. A bare name (``ppo``) never does, even
+    where a directory of that name exists."""
+    return "/" in name or os.sep in name or name.startswith((".", "~"))
+
+
+def run_dir_of(name: str) -> Path:
+    """The training run directory that path-like controller ``name`` names, checked: it exists and
+    holds ``config.yml`` and a model (``best/best_model.zip`` or ``model.zip``); else an
+    :class:`UnknownControllerError` in one line naming what is missing."""
+    path = Path(name).expanduser()
+    if not path.is_dir():
+        what = "does not exist" if not path.exists() else "is not a directory"
+        raise UnknownControllerError(f"controller {name!r} is a path that {what}; give a training run "
+                                     "directory (what thermovalve train --out writes) or a controller name")
+    missing = [f for f in RUN_FILES if not (path / f).is_file()]
+    if not any((path / m).is_file() for m in RUN_MODELS):
+        missing.append(" or ".join(RUN_MODELS))
+    if missing:
+        raise UnknownControllerError(f"controller {name!r} is not a training run directory: no "
+                                     f"{', no '.join(missing)} in {path}")
+    return path
+
+
 def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) -> PredictPolicy:
     """A controller by name for ``env_id``.
 
@@ -113,7 +149,8 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     ``pi_stiction_tuned``, ``oracle``
     (keyword arguments go to their constructors). Any other name goes to each registered controller
     loader in turn (:mod:`valve_env.plugins`; trained agents: ``agents.loader.load_agent(name, env_id,
-    **kwargs)``); when none provides it, or a loader needs an extra that is not installed,
+    **kwargs)``); a path (:func:`is_path_name`) is a training run directory, handed to the loaders as
+    ``run_dir``. When none provides it, or a loader needs an extra that is not installed,
     :class:`UnknownControllerError` names the controller in one line (and the extra to install).
     """
     if env_id not in ALL_ENV_MODES:
@@ -121,6 +158,8 @@ def make_controller(name: str, env_id: str = "ThermoValve-v0", **kwargs: Any) ->
     if name in CONTROLLERS:
         check_options(name, kwargs)
         return CONTROLLERS[name](env_id, **kwargs)
+    if is_path_name(name):
+        kwargs = {**kwargs, "run_dir": run_dir_of(name)}
     notes: list[str] = []
     cause: BaseException | None = None
     for ep in plugins(CONTROLLERS_GROUP):
@@ -160,10 +199,14 @@ __all__ = [
     "PICompensated",
     "PIController",
     "PredictPolicy",
+    "RUN_FILES",
+    "RUN_MODELS",
     "SelfActing",
     "UnknownControllerError",
     "check_options",
     "controller_options",
+    "is_path_name",
     "make_controller",
     "original_id",
+    "run_dir_of",
 ]

@@ -217,7 +217,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--controllers", default=None,
                    help="comma-separated names: self_acting, pi, pi_compensated, pi_wear, knocker, "
                         "constant_reinforcement, two_move, two_move_position, pi_integral_band, pi_stiction_tuned, "
-                        "oracle (MPC bound: slow), trained agents (ppo, sac, ...); "
+                        "oracle (MPC bound: slow), trained agents (ppo, sac, ...), a training run directory "
+                        "given as a path (out/runs/tiny_ppo, ./run: what thermovalve train --out writes); "
                         "name:key=value passes options, e.g. self_acting:setting_C=60 (default: the baselines "
                         "that support the env, without the oracle)")
     p.add_argument("--episodes", type=int, default=10, help="episodes per controller (default 10)")

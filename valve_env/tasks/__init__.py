@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from valve_env.config import EnvConfig, load_yaml, make_config
+from valve_env.config import EnvConfig, layer_config, load_yaml, make_config
 from valve_env.params import ConfigError
 
 
@@ -53,20 +53,29 @@ class Task:
 
     def config(self, config: str | Path | EnvConfig | Mapping[str, Any] | None = None, **overrides: Any) -> EnvConfig:
         """The task's EnvConfig, then a YAML file or mapping of sections, then keyword overrides
-        (as ``gym.make``). An EnvConfig replaces the task's physical configuration."""
+        (as ``gym.make``). An EnvConfig replaces the task's physical configuration.
+
+        The valve's named effects combine by name (docs/tasks.md, "A valve file on a task"): the
+        task's own effects stay, a file's (e.g. a valve file of ``thermovalve diagnose
+        --valve-out``) and the keywords' are added, an effect named by both takes the later
+        parameters (a file that overrides one of the task's own warns,
+        :class:`~valve_env.config.EffectOverrideWarning`), and ``{name: null}`` removes one."""
         if isinstance(config, EnvConfig):
             base = config
         else:
             base = make_config(None, **{k: dict(v) for k, v in self.sections.items()})
             if config is not None:
-                sections = load_yaml(config) if isinstance(config, (str, Path)) else dict(config)
+                is_file = isinstance(config, (str, Path))
+                sections = load_yaml(config) if is_file else dict(config)
                 try:
-                    base = make_config(base, **sections)
+                    base = layer_config(base, sections, owner=f"task {self.id}",
+                                        source=f"config file {str(config)!r}" if is_file else "the config mapping")
                 except ConfigError as exc:  # name the file, as make_config does for the original ids
-                    if isinstance(config, (str, Path)) and str(config) not in str(exc):
+                    if is_file and str(config) not in str(exc):
                         raise ConfigError(f"config file {str(config)!r}: {exc}") from None
                     raise
-        return make_config(base, **overrides)
+        return layer_config(base, overrides, owner=f"task {self.id}" if not isinstance(config, EnvConfig)
+                            else "the configuration")
 
     def action_space_text(self) -> str:
         return {

@@ -1,6 +1,8 @@
 """The benchmark report: every controller on every task over held-out seeds,
-with a normalised score per task (0 = ``self_acting``, 1 = ``oracle``, as
-pc-gym normalises against its oracle). docs/tasks.md.
+with its cost (= -return) and two normalised scores per task: the gap score
+(0 = ``pi``, 1 = ``oracle``: the share of pi's optimality gap a controller
+closes) and the score (0 = ``self_acting``, 1 = ``oracle``), with 95 %
+confidence intervals over the episodes. docs/tasks.md, "The benchmark report".
 
 This module is the core's part (no Dask, no torch): the grid of cells, one
 cell's evaluation, the scores and the report files. ``thermovalve
@@ -28,14 +30,24 @@ import pandas as pd
 HELD_OUT_SEED = 5000
 LOW_REFERENCE = "self_acting"
 HIGH_REFERENCE = "oracle"
+#: the gap score's reference: 0 = this controller, 1 = the oracle (docs/tasks.md, "The benchmark report")
+GAP_REFERENCE = "pi"
+#: the confidence level of the intervals over episodes
+CI_LEVEL = 0.95
+#: bootstrap resamples of the gap score's interval (seeded: the report is reproducible)
+N_RESAMPLES = 9999
 #: the controller variant that runs pi on a smooth valve (no friction to speak of, no effects)
 SMOOTH = "pi@smooth_valve"
 
 
-def smooth_valve() -> dict[str, Any]:
-    """The ``valve=`` override of a smooth valve: Dahl friction 1 mN (F_hmax must be > 0) and no
-    named effects (no stiction)."""
-    return {"valve": {"F_hmax": 1e-3, "effects": {}}}
+def smooth_valve(task_id: str | None = None) -> dict[str, Any]:
+    """The ``valve=`` override of a smooth valve on ``task_id``: Dahl friction 1 mN (F_hmax must be
+    > 0) and none of the task's named effects (its stiction): each removed by name (``null``; effects
+    combine by name, docs/tasks.md, "A valve file on a task")."""
+    from valve_env.tasks import get_task
+
+    own = get_task(task_id).sections.get("valve", {}).get("effects", {}) if task_id is not None else {}
+    return {"valve": {"F_hmax": 1e-3, "effects": dict.fromkeys(own)}}
 
 
 @dataclass(frozen=True)
@@ -93,7 +105,7 @@ def make_cells(
             else:
                 cells.append(Cell(task, name, int(episodes), int(seed)))
         if smooth:
-            cells.append(Cell(task, SMOOTH, int(episodes), int(seed), smooth_valve()))
+            cells.append(Cell(task, SMOOTH, int(episodes), int(seed), smooth_valve(task)))
     return cells
 
 
@@ -128,9 +140,65 @@ def normalised_scores(
     return {c: (cost[low] - v) / span for c, v in cost.items()}
 
 
+def gap_scores(cost: Mapping[str, float], ref: str = GAP_REFERENCE, oracle: str = HIGH_REFERENCE) -> dict[str, float]:
+    """Each controller's gap score ``(cost[ref] - cost[c]) / (cost[ref] - cost[oracle])``: the share of
+    the reference's (pi's) optimality gap to the oracle that the controller closes; 0 for ``ref``, 1 for
+    the oracle, negative if worse than ``ref``. :func:`normalised_scores` with pi as the low reference."""
+    return normalised_scores(cost, low=ref, high=oracle)
+
+
+def mean_ci(x: Sequence[float], level: float = CI_LEVEL) -> tuple[float, float]:
+    """The t-interval of the mean of ``x`` at ``level`` (two-sided; Student's t with n - 1 degrees of
+    freedom, the sample sd); NaN for fewer than two values."""
+    from scipy import stats
+
+    a = np.asarray(x, dtype=float)
+    if a.size < 2:
+        return math.nan, math.nan
+    half = float(stats.t.ppf(0.5 + level / 2.0, a.size - 1)) * float(a.std(ddof=1)) / math.sqrt(a.size)
+    return float(a.mean()) - half, float(a.mean()) + half
+
+
+def _gap_statistic(c: np.ndarray, r: np.ndarray, o: np.ndarray, axis: int = -1) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (r.mean(axis) - c.mean(axis)) / (r.mean(axis) - o.mean(axis))
+
+
+def gap_score_ci(
+    costs: Mapping[str, Mapping[int, float]], ref: str = GAP_REFERENCE, oracle: str = HIGH_REFERENCE,
+    level: float = CI_LEVEL, n_resamples: int = N_RESAMPLES, seed: int = 0,
+) -> dict[str, tuple[float, float]]:
+    """The gap score's interval per controller from per-episode costs (``costs[controller][seed]``):
+    a paired percentile bootstrap over episodes (scipy.stats.bootstrap, ``paired=True``): the seeds
+    the controller, the reference and the oracle share are resampled together, the gap score of the
+    resampled means computed, and its ``level`` percentile interval taken. NaN where a reference is
+    missing or fewer than two seeds are shared."""
+    from scipy import stats
+
+    out: dict[str, tuple[float, float]] = {}
+    for name, per_seed in costs.items():
+        out[name] = (math.nan, math.nan)
+        if ref not in costs or oracle not in costs:
+            continue
+        shared = sorted(set(per_seed) & set(costs[ref]) & set(costs[oracle]))
+        if len(shared) < 2:
+            continue
+        c, r, o = (np.array([costs[n][k] for k in shared], float) for n in (name, ref, oracle))
+        if name in (ref, oracle):  # 0 and 1 by construction
+            v = 0.0 if name == ref else 1.0
+            out[name] = (v, v)
+            continue
+        res = stats.bootstrap((c, r, o), _gap_statistic, paired=True, vectorized=True, n_resamples=n_resamples,
+                              confidence_level=level, method="percentile", random_state=np.random.default_rng(seed))
+        out[name] = (float(res.confidence_interval.low), float(res.confidence_interval.high))
+    return out
+
+
 def task_table(records: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
     """Per-episode rows of all cells -> one row per (task, controller): cost (= -return) and KPI
-    means and standard deviations, the score and the number of episodes."""
+    means and standard deviations, the cost's 95 % t-interval (``cost_ci_lo``, ``cost_ci_hi``), the
+    score (0 = self_acting, 1 = oracle), the gap score (0 = pi, 1 = oracle) and its paired bootstrap
+    interval (``gap_score_ci_lo``, ``gap_score_ci_hi``), and the number of episodes."""
     rows = []
     for rec in records:
         c = rec["cell"]
@@ -145,12 +213,21 @@ def task_table(records: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
     out = pd.concat([means, stds], axis=1)
     out["episodes"] = g.size()
     out["seeds"] = g["seed"].agg(lambda s: f"{int(s.min())}-{int(s.max())}")
+    ci = {key: mean_ci(sub.to_numpy()) for key, sub in g["cost"]}
+    out["cost_ci_lo"] = [ci[key][0] for key in out.index]
+    out["cost_ci_hi"] = [ci[key][1] for key in out.index]
     out = out.reset_index()
     scores = []
     for task, sub in out.groupby("task", sort=False):
-        sc = normalised_scores(dict(zip(sub["controller"], sub["cost"], strict=True)))
-        scores += [(task, c, v) for c, v in sc.items()]
-    sc_df = pd.DataFrame(scores, columns=["task", "controller", "score"])
+        cost = dict(zip(sub["controller"], sub["cost"], strict=True))
+        sc, gap = normalised_scores(cost), gap_scores(cost)
+        eps = df[df["task"] == task]
+        per_seed = {str(c): dict(zip(e["seed"].astype(int), e["cost"], strict=True))
+                    for c, e in eps.groupby("controller", sort=False)}
+        gci = gap_score_ci(per_seed)
+        scores += [(task, c, sc[c], gap[c], *gci[c]) for c in cost]
+    sc_df = pd.DataFrame(scores, columns=["task", "controller", "score", "gap_score", "gap_score_ci_lo",
+                                          "gap_score_ci_hi"])
     return out.merge(sc_df, on=["task", "controller"], how="left")
 
 
@@ -242,20 +319,33 @@ def _f(v: float, digits: int = 3) -> str:
     return f"{v:.{digits}g}" if abs(v) < 1000 else f"{v:.0f}"
 
 
+def _ci(lo: Any, hi: Any) -> str:
+    """`` [lo, hi]``, or nothing where the interval is unknown."""
+    if lo is None or hi is None or not (math.isfinite(lo) and math.isfinite(hi)):
+        return ""
+    return f" [{_f(lo)}, {_f(hi)}]"
+
+
 def markdown_report(table: pd.DataFrame, found: Mapping[str, Mapping[str, Any]]) -> str:
     """The report's table (one block per task) and the findings, as markdown."""
     lines = ["# ThermoValve benchmark", ""]
     seeds = sorted(set(table["seeds"]))
+    pct = f"{100 * CI_LEVEL:g} %"
     lines += [f"Held-out seeds {', '.join(seeds)} ({int(table['episodes'].max())} episodes per controller). "
-              "cost = -return (mean over episodes); score: 0 = self_acting, 1 = oracle "
-              "((cost_self_acting - cost) / (cost_self_acting - cost_oracle)); "
-              f"`{SMOOTH}` is pi on a smooth valve (F_hmax 1 mN, no effects).", ""]
+              f"cost = -return (mean over episodes, [{pct} t-interval]); "
+              f"gap score: 0 = {GAP_REFERENCE}, 1 = oracle ((cost_{GAP_REFERENCE} - cost) / "
+              f"(cost_{GAP_REFERENCE} - cost_oracle): the share of {GAP_REFERENCE}'s optimality gap closed; "
+              f"[{pct} paired percentile bootstrap over the episodes]); "
+              "score: 0 = self_acting, 1 = oracle ((cost_self_acting - cost) / (cost_self_acting - cost_oracle)); "
+              f"`{SMOOTH}` is pi on a smooth valve (F_hmax 1 mN, none of the task's effects).", ""]
     for task, sub in table.groupby("task", sort=False):
         kpis = [k for k in REPORT_KPIS if k in sub.columns and sub[k].notna().any()]
-        lines += [f"## {task}", "", "| controller | cost | score | " + " | ".join(kpis) + " |",
-                  "|---|---:|---:|" + "---:|" * len(kpis)]
+        lines += [f"## {task}", "", "| controller | cost [CI] | gap score [CI] | score | " + " | ".join(kpis) + " |",
+                  "|---|---:|---:|---:|" + "---:|" * len(kpis)]
         for _, r in sub.iterrows():
-            cells = [f"{_f(r['cost'])} ± {_f(r['cost_std'], 2)}", _f(r["score"])]
+            cells = [f"{_f(r['cost'])}{_ci(r.get('cost_ci_lo'), r.get('cost_ci_hi'))}",
+                     f"{_f(r.get('gap_score', math.nan))}{_ci(r.get('gap_score_ci_lo'), r.get('gap_score_ci_hi'))}",
+                     _f(r["score"])]
             cells += [_f(r[k]) for k in kpis]
             lines.append(f"| {r['controller']} | " + " | ".join(cells) + " |")
         f = found.get(str(task), {})
@@ -286,7 +376,8 @@ def markdown_report(table: pd.DataFrame, found: Mapping[str, Mapping[str, Any]])
 
 
 def plot_scores(table: pd.DataFrame, path: Any) -> None:
-    """Grouped bars: each task's cost per controller (normalised score on the bars where known)."""
+    """Grouped bars: each task's cost per controller with its confidence interval, the gap score
+    (0 = pi, 1 = oracle) at the bars where known, else the score (0 = self_acting, 1 = oracle)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -297,15 +388,19 @@ def plot_scores(table: pd.DataFrame, path: Any) -> None:
     for ax, task in zip(axes[0], tasks, strict=True):
         sub = table[table["task"] == task]
         y = np.arange(len(sub))
-        ax.barh(y, sub["cost"], xerr=sub["cost_std"], color="tab:blue", alpha=0.8)
+        lo, hi = sub["cost"] - sub["cost_ci_lo"], sub["cost_ci_hi"] - sub["cost"]
+        err = np.vstack([lo.fillna(0.0), hi.fillna(0.0)])
+        ax.barh(y, sub["cost"], xerr=err, color="tab:blue", alpha=0.8)
         ax.set_yticks(y, sub["controller"])
         ax.invert_yaxis()
-        for yi, (c, s) in enumerate(zip(sub["cost"], sub["score"], strict=True)):
+        gap = sub["gap_score"] if sub["gap_score"].notna().any() else sub["score"]
+        for yi, (c, s) in enumerate(zip(sub["cost"], gap, strict=True)):
             if math.isfinite(s):
                 ax.annotate(f"{s:.2f}", (c, yi), xytext=(3, 0), textcoords="offset points", va="center",
                             fontsize=8)
         ax.set_title(task, fontsize=9)
-        ax.set_xlabel("cost = -return (score at the bar)")
+        what = f"gap score, 0 = {GAP_REFERENCE}" if sub["gap_score"].notna().any() else "score, 0 = self_acting"
+        ax.set_xlabel(f"cost = -return, {100 * CI_LEVEL:g} % CI ({what}, at the bar)")
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
@@ -352,15 +447,20 @@ def report_json(table: pd.DataFrame, found: Mapping[str, Any], meta: Mapping[str
 
 
 __all__ = [
+    "CI_LEVEL",
+    "GAP_REFERENCE",
     "HELD_OUT_SEED",
     "SMOOTH",
     "Cell",
     "findings",
+    "gap_score_ci",
+    "gap_scores",
     "known_controllers",
     "limit_cycle",
     "limit_cycles",
     "make_cells",
     "markdown_report",
+    "mean_ci",
     "normalised_scores",
     "run_cell",
     "smooth_valve",

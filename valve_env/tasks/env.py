@@ -502,8 +502,12 @@ class ThermoValveDistrictHeatingPowerEnv(ThermoValveTaskEnv):
 
     | index | name | unit |
     |---|---|---|
-    | 19 | hour_so_far_kW: the heat metered in the current clock hour so far, per hour | kW |
-    | 20 | peak_hourly_kW: the highest hourly mean power of the day so far | kW |
+    | 19 | hour_so_far_kW: the net heat metered in the current clock hour so far, per hour (box [-100, 100]) | kW |
+    | 20 | peak_hourly_kW: the highest hourly mean power of the day so far (box [0, 100]) | kW |
+
+    The coil gives heat back while the supply is colder than the store (the return leaves
+    warmer than the supply came): the step's heat is negative, the bill nets it, and so
+    hour_so_far_kW can be negative early in an hour.
 
     ## Reward
 
@@ -530,6 +534,8 @@ class ThermoValveDistrictHeatingPowerEnv(ThermoValveTaskEnv):
     * v0: initial release (issue 18, 24 Nov 2026).
     * v1 (24 Nov 2026, ThermoValveDistrictHeatingPower-v1): the store behind a thermostatic mixing
       valve, no tracking charge from 60 to 65 degC. v0 stays registered, bit for bit.
+    * 28 Nov 2026 (both versions): hour_so_far_kW's box is [-100, 100], not [0, 100] (the coil gives heat
+      back; the observations, rewards and KPIs are unchanged).
     """
 
     task_id: ClassVar[str] = "ThermoValveDistrictHeatingPower-v0"
@@ -638,6 +644,8 @@ class ThermoValveDistrictHeatingPowerV1Env(ThermoValveTaskEnv):
 
     * v0: ThermoValveDistrictHeatingPower-v0 (its docstring; registered, bit for bit).
     * v1: the store behind a thermostatic mixing valve, free from 60 to 65 degC (issue 18, 24 Nov 2026).
+    * 28 Nov 2026 (both versions): hour_so_far_kW's box is [-100, 100], not [0, 100] (the coil gives heat
+      back; the observations, rewards and KPIs are unchanged).
     """
 
     task_id: ClassVar[str] = "ThermoValveDistrictHeatingPower-v1"

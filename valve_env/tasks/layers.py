@@ -226,6 +226,12 @@ class PowerChargeTariff(DistrictHeatingTariff):
     power_eur_kW_day: float = param(0.192, 0.0, None, "EUR/(kW day)")
 
 
+#: the bound of the heat meter's hourly readings in the observation, kW, either way: the coil's heat
+#: flow m cp (T_supply - T_return) takes the sign of the supply's excess over the store, and its size is
+#: bounded by the same coil (UA about 800 W/K: tens of kW at most) whichever way the heat goes
+METER_KW = 100.0
+
+
 class DistrictHeatingPowerLayer(DistrictHeatingLayer):
     """:class:`DistrictHeatingLayer`'s bill plus a power charge on the day's highest hourly
     mean power (clock hours: energy metered in the hour / 1 h), as a heat meter's hourly
@@ -237,7 +243,9 @@ class DistrictHeatingPowerLayer(DistrictHeatingLayer):
     far pays the rise, so the episode's sum is exactly the charge on its highest hour, and the
     reward stays a per-step sum. Observed (two more columns): the current hour's energy so far
     as a mean power over the hour (kW) and the highest hourly mean so far (kW): the meter's
-    readings, which the customer sees.
+    readings, which the customer sees. The heat is net, as the bill's energy: while the supply
+    is colder than the store the coil gives heat back (a negative step heat), so the hour so far
+    can be negative (docs/tasks.md, "ThermoValveDistrictHeatingPower-v0").
     """
 
     kpi_names: ClassVar[tuple[str, ...]] = (*DistrictHeatingLayer.kpi_names, "power_charge_eur", "peak_hourly_kW")
@@ -251,9 +259,13 @@ class DistrictHeatingPowerLayer(DistrictHeatingLayer):
         self._per_hour = int(round(3600.0 / self.dt_s))
 
     def obs_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The meter's two columns: the current hour's net heat in [-METER_KW, METER_KW] (the coil
+        gives heat back while the supply is colder than the store: a negative step heat, which the
+        bill nets as it nets the energy), the day's highest hour in [0, METER_KW] (a maximum
+        starting at zero)."""
         lo, hi = super().obs_bounds()
-        return np.concatenate([lo, [0.0, 0.0]]).astype(np.float32), np.concatenate([hi, [100.0, 100.0]]).astype(
-            np.float32)
+        return (np.concatenate([lo, [-METER_KW, 0.0]]).astype(np.float32),
+                np.concatenate([hi, [METER_KW, METER_KW]]).astype(np.float32))
 
     def _hour_so_far_J(self, k: np.ndarray, acc: np.ndarray) -> np.ndarray:
         """The heat metered in the current clock hour before step index ``k`` (J): the hour's
@@ -298,5 +310,5 @@ def make_layer(name: str | None, params: Mapping[str, Any], scenario: ScenarioPa
     raise ConfigError(f"unknown task layer {name!r}; known: district_heating, district_heating_power")
 
 
-__all__ = ["DistrictHeatingLayer", "DistrictHeatingPowerLayer", "DistrictHeatingTariff", "PowerChargeTariff",
-           "TaskLayer", "make_layer"]
+__all__ = ["METER_KW", "DistrictHeatingLayer", "DistrictHeatingPowerLayer", "DistrictHeatingTariff",
+           "PowerChargeTariff", "TaskLayer", "make_layer"]
