@@ -114,3 +114,28 @@ def test_seeded_columns_and_bad_config() -> None:
         simulate_independent(dataclasses.replace(run, stiction_variant="karnopp2"))
     with pytest.raises(ConfigError, match="unknown effect"):
         simulate_independent(dataclasses.replace(run, effects={"backlash": {"band_mm": 0.1}}))
+
+
+def test_the_medium_programmes_and_measurement_conventions() -> None:
+    """The independent simulator records the conventions of measured data: a thermostat's or a constant
+    medium temperature (the truth), and measurement conventions on the record (valve_env.studies.conventions)."""
+    run = dataclasses.replace(SHORT, T_noise_C=0.01, x_noise_mm=2.4e-3, rel_noise=0.015)
+    smooth = simulate_independent(run)
+    steps = simulate_independent(dataclasses.replace(run, medium="steps"))
+    const = simulate_independent(dataclasses.replace(run, medium="constant"))
+    # the same plateaus: a thermostat changes between them within about 20 s instead of minutes
+    m_s, m_t = smooth["true_T_med_C"].to_numpy(), steps["true_T_med_C"].to_numpy()
+    assert np.max(np.abs(np.diff(m_t))) > 3 * np.max(np.abs(np.diff(m_s)))
+    assert np.ptp(const["true_T_med_C"].to_numpy()) == 0.0
+    np.testing.assert_array_equal(smooth["true_T_tank_C"].to_numpy(), const["true_T_tank_C"].to_numpy())
+    rec = simulate_independent(dataclasses.replace(run, medium="steps", conventions=("stepped_medium", "dropped_5")))
+    assert len(rec) == pytest.approx(0.95 * len(smooth), abs=2)
+    assert np.mean(np.diff(rec["T_med_C"].to_numpy()) == 0) > 0.8  # noiseless, stored on change
+    q = simulate_independent(dataclasses.replace(run, conventions=("quantised_0.1",)))
+    z = q["T_tank_C"].to_numpy() / 0.1
+    assert np.max(np.abs(z - np.round(z))) < 1e-6
+    assert q.attrs["conventions"] == ["quantised_0.1"]
+    with pytest.raises(ConfigError, match="convention"):
+        simulate_independent(dataclasses.replace(run, conventions=("sampled_by_hand",)))
+    with pytest.raises(ConfigError, match="medium"):
+        simulate_independent(dataclasses.replace(run, medium="wavy"))

@@ -156,6 +156,8 @@ class Finding:
     validated: bool = False
     relevant: bool = False
     effect_size_mm: float = 0.0
+    #: the opening's change the record's temperature resolution makes (a quantised record; else 0)
+    input_resolution_mm: float = 0.0
     #: an event effect's (stiction's) slips in the training opening: their number and median size (mm), and
     #: whether they show the fitted band (slips_show_band; its significance needs it)
     training_slips: dict[str, Any] | None = None
@@ -199,6 +201,7 @@ class Finding:
             "validated": bool(self.validated),
             "relevant": bool(self.relevant),
             "effect_size_mm": float(self.effect_size_mm),
+            **({"input_resolution_mm": float(self.input_resolution_mm)} if self.input_resolution_mm else {}),
             **({"training_slips": self.training_slips} if self.training_slips is not None else {}),
             **({"null_guard": self.null_guard} if self.null_guard is not None else {}),
             "on_top_of": list(self.reference),
@@ -443,6 +446,9 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
         f.training_slips = {"n": n_sl, "median_mm": med, "show_band": shown}
         f.significant = f.significant and (shown or slips_stand_in)
     f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
+    if not EFFECTS[effect].variance_gain and train.quantised:
+        f.input_resolution_mm = input_resolution_mm(model, train, fit.params)
+        f.relevant = f.relevant and f.effect_size_mm >= f.input_resolution_mm
     if EFFECTS[effect].variance_gain:
         # stiction acts in events (the slips, once per reversal of the demand under the (S, J) model: 6 in
         # 11 h at 20 s in the small randomised study), of which the held-out quarter holds one or two, and
@@ -473,6 +479,47 @@ NULL_BAND_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
 NULL_EXCEED = 1
 
 
+def _null_world(train: RunData) -> RunData:
+    """The world of stiction's null copies: the run's TV-denoised temperatures
+    (:func:`valve_env.estimation.bootstrap.denoised_run`). A record with a quantised temperature channel
+    (noise below its step, docs/reference.md, section 2) is a staircase, which TV keeps and whose steps
+    would make the world's valve slip: there the smoother's level, with its rounding of the kinks put back
+    by one van Cittert step (level + (level - the smoothed rounding of the level)), stands for the
+    channel's truth (docs/diagnosis.md, "Measured data of any convention")."""
+    from dataclasses import replace
+
+    from valve_env.estimation.bootstrap import denoised_run
+    from valve_env.estimation.temperature import smooth_temperature
+
+    if not train.quantised:
+        return denoised_run(train)
+    out = {}
+    for key, level, noise in (("T", train.T, train.T_noise), ("M", train.M, train.M_noise)):
+        if noise is None or noise.method != "quantisation":
+            out[key] = level
+            continue
+        again = smooth_temperature(train.t, noise.remeasure(level, 0.0, np.random.default_rng(0)))[0]
+        out[key] = level + (level - again)
+    return replace(train, T=out["T"], M=out["M"])
+
+
+def input_resolution_mm(model: Model, data: RunData, values: dict[str, float]) -> float:
+    """The change of the simulated opening (RMS, mm) that a shift of the sensed temperature by the
+    record's temperature resolution makes: the quantisation sd q / sqrt(12) of a quantised channel (noise
+    below its step), 0 where every temperature channel is noisy. A quantised record's rounding error is
+    neither white nor in the likelihood's noise model, and a smooth effect that moves the opening by less
+    than it does is not identifiable from the record (docs/diagnosis.md, "Measured data of any convention")."""
+    from dataclasses import replace
+
+    sd = max((n.sd for n in (data.T_noise, data.M_noise) if n is not None and n.method == "quantisation"),
+             default=0.0)
+    if sd <= 0.0:
+        return 0.0
+    xs, _, _ = model.simulate(data, values)
+    xq, _, _ = model.simulate(replace(data, T=data.T + sd, M=data.M + sd), values)
+    return float(np.sqrt(np.mean((xq - xs) ** 2)))
+
+
 def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valve: ValveParams,
                   copies: int = NULL_COPIES, seed: int = 0) -> dict[str, Any]:
     """A parametric bootstrap of stiction's likelihood-ratio statistic under the reference model.
@@ -495,7 +542,7 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     (1 + k) / (1 + copies), k the copies at or above the observed one."""
     from valve_env.diagnosis.fitting import Model
     from valve_env.diagnosis.stiction import resting_noise_sd
-    from valve_env.estimation.bootstrap import denoised_run, world_opening
+    from valve_env.estimation.bootstrap import world_opening
 
     ref_model = Model(ref_fit.effects, valve)
     stick_model = Model(stick_fit.effects, valve)
@@ -510,14 +557,15 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
 
     rng = np.random.default_rng(seed)
     obs = stat(train)
-    world = denoised_run(train)
+    # the world's temperatures: TV-denoised, as before; a quantised record's TV denoising keeps its staircase,
+    # whose steps would make the world's valve slip, so there the smoother's level stands for them
+    world = _null_world(train)
     x_w = world_opening(ref_model, world, ref)
     sd = resting_noise_sd(train.x, float(valve.stroke), None)
     n = len(train)
     null = np.empty(copies)
     for i in range(copies):
-        T = world.T + train.s_T * rng.standard_normal(n)
-        M = world.M + train.s_M * rng.standard_normal(n)
+        T, M = train.remeasure(world.T, world.M, rng)  # as the run's channels were recorded
         y = x_w + sd * rng.standard_normal(n)
         null[i] = stat(RunData.from_arrays(train.t, T, M, y, train.dp, train.ps, name="null copy"))
     k = int(np.sum(null >= obs))

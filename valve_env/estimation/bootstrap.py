@@ -222,8 +222,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
         resid = data.x - x_true
         block = resid_block if resid_block is not None else residual_block_length(resid)
         y = x_true + block_resample(resid, block, rng)
-    T = data.T + data.s_T * rng.standard_normal(n)
-    M = data.M + data.s_M * rng.standard_normal(n)
+    T, M = data.remeasure(data.T, data.M, rng)  # as the run's channels were recorded
     return RunData.from_arrays(data.t, T, M, y, data.dp, data.ps, name=f"{data.name} (bootstrap)")
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from valve_env.estimation.temperature import smooth_temperature
+from valve_env.estimation.temperature import ChannelNoise, channel_noise, smooth_temperature
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,10 @@ class RunData:
     s_T: float
     s_M: float
     name: str = "run"
+    #: how each temperature channel was recorded (quantum, noise; :func:`channel_noise`), so that a
+    #: copy measured again (:meth:`remeasure`) follows the record's convention
+    T_noise: ChannelNoise | None = None
+    M_noise: ChannelNoise | None = None
 
     @classmethod
     def from_arrays(cls, t: np.ndarray, T_tank: np.ndarray, T_med: np.ndarray, x: np.ndarray, dp: np.ndarray,
@@ -48,7 +52,26 @@ class RunData:
         t, T_tank, T_med, x, dp, ps = map(f, (t, T_tank, T_med, x, dp, ps))
         T, vT, s_T, _ = smooth_temperature(t, T_tank)
         M, vM, s_M, _ = smooth_temperature(t, T_med)
-        return cls(t, T_tank, T_med, x, dp, ps, T, vT, M, vM, s_T, s_M, name)
+        return cls(t, T_tank, T_med, x, dp, ps, T, vT, M, vM, s_T, s_M, name, channel_noise(T_tank),
+                   channel_noise(T_med))
+
+    @property
+    def quantised(self) -> bool:
+        """Whether a temperature channel's noise lies below its quantisation step (its record is a
+        staircase: the rounding, not white noise, is its measurement error)."""
+        return any(n is not None and n.method == "quantisation" for n in (self.T_noise, self.M_noise))
+
+    def remeasure(self, T: np.ndarray, M: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Latent tank and medium temperatures measured again as this run's channels were
+        (:meth:`valve_env.estimation.temperature.ChannelNoise.remeasure`; white noise of ``s_T``/``s_M``
+        where the run carries no channel record)."""
+        def one(level: np.ndarray, noise: ChannelNoise | None, sd: float) -> np.ndarray:
+            if noise is None:
+                return level + sd * rng.standard_normal(level.shape[0])
+            return noise.remeasure(level, sd, rng)
+
+        Tm = one(T, self.T_noise, self.s_T)
+        return Tm, one(M, self.M_noise, self.s_M)
 
     @classmethod
     def from_frame(cls, df: pd.DataFrame, name: str = "run") -> RunData:
@@ -62,7 +85,7 @@ class RunData:
     def slice(self, a: int, b: int) -> RunData:
         s = slice(a, b)
         return RunData(self.t[s], self.T_raw[s], self.M_raw[s], self.x[s], self.dp[s], self.ps[s], self.T[s],
-                       self.vT[s], self.M[s], self.vM[s], self.s_T, self.s_M, self.name)
+                       self.vT[s], self.M[s], self.vM[s], self.s_T, self.s_M, self.name, self.T_noise, self.M_noise)
 
     @property
     def median_dt(self) -> float:

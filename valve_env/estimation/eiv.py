@@ -50,7 +50,8 @@ import pandas as pd
 
 from valve_env.estimation.fit import MLEstimator
 from valve_env.estimation.model import SDEModel
-from valve_env.estimation.valve_model import ValveModel, noise_sd
+from valve_env.estimation.temperature import channel_noise
+from valve_env.estimation.valve_model import ValveModel
 
 #: the fitted parameters the bootstrap reports on (docs/reference.md, section 7's params, and the noise parameters)
 REPORTED: tuple[str, ...] = ("sigma", "F_hmax", "p_bset", "s_F", "s_x")
@@ -109,8 +110,12 @@ def temperature_bootstrap(est: MLEstimator, data: pd.DataFrame, *, B: int = 16, 
     prep = model.prepare(raw)
     T_s = prep["T_tank_s"].to_numpy(dtype=float)
     M_s = prep["T_med_s"].to_numpy(dtype=float)
-    sT = noise_sd(raw["T_tank_C"].to_numpy(dtype=float)) if T_noise_C is None else float(T_noise_C)
-    sM = noise_sd(raw["T_med_C"].to_numpy(dtype=float)) if T_med_noise_C is None else float(T_med_noise_C)
+    # each channel as it was recorded (a quantised or held channel: rounded to its grid, not white noise of
+    # its quantisation sd; docs/reference.md, section 2)
+    nT = channel_noise(raw["T_tank_C"].to_numpy(dtype=float))
+    nM = channel_noise(raw["T_med_C"].to_numpy(dtype=float))
+    sT = nT.sd if T_noise_C is None else float(T_noise_C)
+    sM = nM.sd if T_med_noise_C is None else float(T_med_noise_C)
     free = [n for n in REPORTED if n in est.free_]
     rng = np.random.default_rng(seed)
     init = {k: float(v) for k, v in est.params_.items()}
@@ -119,8 +124,8 @@ def temperature_bootstrap(est: MLEstimator, data: pd.DataFrame, *, B: int = 16, 
     failed = 0
     for _ in range(B):
         d = raw.copy()
-        d["T_tank_C"] = T_s + sT * rng.standard_normal(len(d))
-        d["T_med_C"] = M_s + sM * rng.standard_normal(len(d))
+        d["T_tank_C"] = nT.remeasure(T_s, sT, rng) if T_noise_C is None else T_s + sT * rng.standard_normal(len(d))
+        d["T_med_C"] = nM.remeasure(M_s, sM, rng) if T_med_noise_C is None else M_s + sM * rng.standard_normal(len(d))
         m = ValveModel(model.valve, init=init, clip_width_mm=model.clip_width_mm, sign_eps=model.sign_eps,
                        tv_factor=model.tv_factor, denoiser=model.denoiser)
         try:

@@ -193,6 +193,24 @@ class ChannelNoise:
     quantum: float | None
     held_fraction: float
     mad_sd: float
+    #: a value on the channel's quantisation grid (the grid is ``offset + k quantum``)
+    offset: float = 0.0
+
+    def remeasure(self, level: np.ndarray, sd: float, rng: np.random.Generator) -> np.ndarray:
+        """The channel measured again from a latent ``level``, the way it was recorded: white noise of
+        ``sd`` (the smoother's estimate) on a noisy channel; on a quantised one the noise that lies below
+        its step (none: its noise is not seen, so the rounding is the measurement) and the rounding to
+        its grid; on a noiseless one, nothing. For the null copies and bootstraps that must reproduce the
+        record's measurement (a quantised channel given white noise of q / sqrt(12) instead is far
+        noisier after smoothing than the rounded record). One standard normal per sample is drawn
+        whatever the convention, so a noisy channel's copies are as before."""
+        eps = rng.standard_normal(level.shape[0])
+        if self.method == "mad" and self.quantum is None:
+            return level + sd * eps
+        y = level + (sd * eps if self.method == "mad" else 0.0)
+        if self.quantum is not None:
+            y = self.offset + np.round((y - self.offset) / self.quantum) * self.quantum
+        return y
 
     def describe(self, channel: str) -> dict[str, object]:
         """A JSON-ready note: the channel, its noise sd and why (docs/reference.md, section 2)."""
@@ -221,10 +239,11 @@ def channel_noise(y: np.ndarray) -> ChannelNoise:
     q = quantum(y)
     held = float(np.mean(np.diff(y) == 0.0)) if y.size > 1 else 1.0
     floor = (q if q is not None else RESOLUTION_FLOOR_C) / math.sqrt(12.0)
+    off = float(y[0]) if y.size else 0.0
     if math.isfinite(mad) and mad > floor:
-        return ChannelNoise(mad, "mad", q, held, mad)
+        return ChannelNoise(mad, "mad", q, held, mad, off)
     return ChannelNoise(floor, "quantisation" if q is not None else "resolution_floor", q, held,
-                        mad if math.isfinite(mad) else 0.0)
+                        mad if math.isfinite(mad) else 0.0, off)
 
 
 def relaxed_tv(y: np.ndarray, lam: float) -> np.ndarray:
