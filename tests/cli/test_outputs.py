@@ -179,10 +179,10 @@ def test_fit_force_replaces_and_prints_what_it_wrote(tmp_path: Path, run_csv: Pa
                                                      capsys: pytest.CaptureFixture[str]) -> None:
     out, cfg = tmp_path / "fit.json", tmp_path / "valve.yaml"
     out.write_text(PREVIOUS)
-    assert main(["fit", str(run_csv), "--json", str(out), "--config", str(cfg), "--n-starts", "1"]) == 2
+    assert main(["fit", str(run_csv), "--json", str(out), "--valve-out", str(cfg), "--n-starts", "1"]) == 2
     assert out.read_text() == PREVIOUS and not cfg.exists()
     capsys.readouterr()
-    assert main(["fit", str(run_csv), "--json", str(out), "--config", str(cfg), "--n-starts", "1", "--force"]) == 0
+    assert main(["fit", str(run_csv), "--json", str(out), "--valve-out", str(cfg), "--n-starts", "1", "--force"]) == 0
     printed = capsys.readouterr().out
     assert f"wrote {out}, {cfg}" in printed
     assert "params" in json.loads(out.read_text())

@@ -1,6 +1,6 @@
 """``thermovalve fit``: the base valve model fitted to a measured run (docs/reference.md, section 7).
 
-    thermovalve fit RUN.csv --json OUT.json [--report DIR] [--config OUT.yaml]
+    thermovalve fit RUN.csv --json OUT.json [--report DIR] [--valve-out VALVE.yaml]
                             [--validate OTHER.csv] [--n-starts N] [--seed S] [--bootstrap B | --ml]
 
 writes {"params": {"sigma", "F_hmax", "p_bset"}, "std": {...}, "loglik", "rms_mm", "n", ...}.
@@ -39,8 +39,6 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
     p.add_argument("--report", metavar="DIR", default=None,
                    help="write figures and a markdown report (Table 4, Fig. 5-7) into DIR")
-    p.add_argument("--config", metavar="OUT.yaml", default=None,
-                   help="write an environment config with the fitted 'valve:' parameters")
     p.add_argument("--valve-out", metavar="VALVE.yaml", default=None,
                    help="write the fitted valve as a valve file for gym.make(id, config=VALVE.yaml) "
                    "(docs/reference.md)")
@@ -77,7 +75,6 @@ def run_fit(args: argparse.Namespace) -> int:
     # further outputs (e.g. a fitted valve file) join this set
     outs = OutputSet(inputs=[args.run, args.validate], force=args.force)
     json_out = outs.add(args.json_out, "--json")
-    cfg = outs.add(args.config, "--config") if args.config else None
     valve_out = outs.add(args.valve_out, "--valve-out") if args.valve_out else None
     report_dir = Path(args.report) if args.report else None
     if report_dir is not None:
@@ -121,10 +118,6 @@ def run_fit(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.run}: the fit gave a non-finite {bad[0]}; the run does not identify the valve")
     with outs:
         outs.write_text(json_out, json_text(summary))
-        if cfg is not None:
-            import yaml
-
-            outs.write_text(cfg, yaml.safe_dump({"valve": summary["params"]}, sort_keys=False))
         if valve_out is not None:
             from valve_env.valvefile import write_valve
 
