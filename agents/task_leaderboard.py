@@ -230,7 +230,7 @@ def markdown(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: 
                          f"{g['wins_vs_best_baseline']}/{g['n']} | "
                          f"{_f(g.get('tdis_Kh'))} / {_f(g.get('tdis_Kh_pi'))} | "
                          f"{_f(g.get('reversals_ratio_pi'), 2)}x | {'yes' if g['goal_met'] else 'no'} |")
-        lines += ["", "Goal (issue 19): gap closed >= 50 % of the best non-oracle baseline's gap to the oracle "
+        lines += ["", "Goal: gap closed >= 50 % of the best non-oracle baseline's gap to the oracle "
                   "(the agent's own base law counts as a baseline), with tdis_Kh no worse than pi's "
                   f"(+{TDIS_TOL_KH} K h). Learned = the agent's score minus its base law's.", ""]
     if gen:

@@ -120,7 +120,7 @@ def oracle(seed: int, episodes: int, tasks: list[str], settings: dict[str, Any] 
 
 def storage_bound(task: str, seed: int, env_kwargs: dict[str, Any] | None = None) -> dict[str, float]:
     """A lower bound on the cost (-return) of any controller on one district-heating day (docs/controllers.md,
-    "A bound on the district-heating tasks"): the tank as one energy store (heat in at most the fully open
+    "oracle: the bound"): the tank as one energy store (heat in at most the fully open
     valve's flow times supply minus cold water, out the day's draws and the standing loss, linear in the mean
     temperature), bought at the step's price, settled at the end as the task settles it; tracking costs at
     least w_track (T_mean - T_target - free_band_K)^2 above the band (the top is the hottest layer; v1's
@@ -281,7 +281,8 @@ def main() -> None:
                     help='JSON object of oracle settings over the task\'s own, e.g. \'{"replan_steps": 240}\'')
     ap.add_argument("--env-kwargs", default="{}",
                     help="JSON object of gym.make keyword arguments for `oracle` and `bound`, to screen a task "
-                         'variant, e.g. \'{"tariff": {"surcharge_per_K": 0.02}}\' (docs/tasks.md, "Fifth round")')
+                         'variant, e.g. \'{"tariff": {"surcharge_per_K": 0.02}}\' '
+                         '(docs/tasks.md, "The benchmark report")')
     ap.add_argument("--baselines", default="pi",
                     help="comma-separated controllers the oracle's headroom is taken against (first: the table's "
                          "reference), e.g. pi,self_acting,pi_wear")

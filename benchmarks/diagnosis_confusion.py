@@ -1,4 +1,4 @@
-"""Confusion-matrix study of the diagnosis (issue 6).
+"""Confusion-matrix study of the diagnosis (docs/diagnosis_confusion.md).
 
 Hide an effect (or none) in generated runs, randomised over effects, effect sizes,
 sampling intervals, record lengths, noise levels, sampling jitter and seeds; run the

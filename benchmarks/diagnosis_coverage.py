@@ -1,4 +1,5 @@
-"""Coverage study of the diagnosis's parameter uncertainty (issue 6).
+"""Coverage study of the diagnosis's parameter uncertainty (docs/diagnosis.md, "Parameter uncertainty: the
+coverage study").
 
 Hide one effect at a time in generated runs (effect sizes, sampling intervals, jitter,
 record lengths, noise levels and seeds randomised as in the confusion study), run the
@@ -149,7 +150,7 @@ def coverage(results: list[dict[str, Any]], named_only: bool = True) -> dict[str
                 "max_sd_ratio": float(np.nanmax(sr)), "rms_bias_error": float(np.sqrt(np.mean(be**2))),
                 "mean_bias_error": float(np.mean(be)),
                 # the correction's error against the reported sd, which carries the bootstrap world's bias in
-                # quadrature since issue 20's eighth round (docs/uncertainty.md)
+                # quadrature (docs/diagnosis.md, "Parameter uncertainty: the coverage study")
                 "rms_bias_error_reported_sd": float(np.sqrt(np.mean((be / sr) ** 2))),
             }
     allz = []

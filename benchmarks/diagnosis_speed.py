@@ -1,4 +1,5 @@
-"""Speed of the diagnosis, bootstrap included (issue 20's goal: 24 h at 10 s diagnosed in at most 30 s).
+"""Speed of the diagnosis, bootstrap included (the goal: 24 h at 10 s diagnosed in at most 30 s; docs/diagnosis.md,
+"Speed").
 
 Times full diagnoses (every candidate, hold-out validation, forward selection and the model-based
 bootstrap of each named effect, at the bootstrap size ``thermovalve diagnose`` uses by default) of

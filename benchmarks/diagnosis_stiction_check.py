@@ -1,16 +1,17 @@
-"""Development study of stiction's decision (issue 20, docs/diagnosis.md, "Round 7").
+"""Development study of stiction's decision: the slips' band (docs/diagnosis.md, "Method").
 
 The stiction-only stand-in of the diagnosis (``diagnose(df, effects=["stiction"], bootstrap_B=0)``, whose
 base fit the other candidates do not improve, so it is harsher on the null than the full diagnosis) on the
 `none` and `stiction` runs of generated studies (:func:`valve_env.experiment.random_cases`). For each run it
-records the decision, the LR test, the fitted band and the training slips with round 7's test of the slips'
+records the decision, the LR test, the fitted band and the training slips with the test of the slips'
 band (the finding's ``training_slips``).
 
     python benchmarks/diagnosis_stiction_check.py --set 31:24:none --set 5151:60 --workers 2 --json out/s.json
 
 ``--set SEED:RUNS[:CLASSES]`` draws ``RUNS`` cases from ``SEED`` (classes comma-separated with '+', default
 all) and keeps the `none` and `stiction` ones. A run whose finding has the slips' band had failed the
-slips' check with the likelihood's band, so in round 6 its cause was `none` (printed as ``before``).
+slips' check with the likelihood's band, so without the retest at the slips' band its cause is `none`
+(printed as ``before``).
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--few-slips-only", action="store_true",
                     help="diagnose only the runs whose training opening has two or three slips: with fewer the "
                     "slips' band is not tested, with four or more the fit's band is the slips' median already, "
-                    "so elsewhere round 7 decides as round 6")
+                    "so elsewhere the decision is the same with or without the retest at the slips' band")
     a = ap.parse_args(argv)
     outs = OutputSet(force=a.force)
     try:
@@ -108,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         rs = [r for r in results if r["truth"] == truth and not r.get("skipped")]
         skipped = sum(1 for r in results if r["truth"] == truth and r.get("skipped"))
         print(f"{truth}: {skipped} runs skipped, {len(rs)} diagnosed, named stiction "
-              f"{sum(r['cause'] == 'stiction' for r in rs)} (round 6: {sum(r['before'] == 'stiction' for r in rs)})")
+              f"{sum(r['cause'] == 'stiction' for r in rs)} "
+              f"(without the retest: {sum(r['before'] == 'stiction' for r in rs)})")
     if json_path is not None:
         outs.write_text(json_path, json.dumps(results, indent=1, default=float))
     outs.commit()

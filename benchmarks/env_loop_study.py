@@ -1,4 +1,4 @@
-"""Env-loop records diagnosed, sticky against smooth (issue 21's acceptance; docs/loops.md, "Loops from the
+"""Env-loop records diagnosed, sticky against smooth (docs/loops.md, "Loops from the
 environment").
 
     python benchmarks/env_loop_study.py --env-id ThermoValveStickyCirculation-v0 --seeds 100-111 --kp 5 --ti 1500

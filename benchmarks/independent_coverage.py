@@ -22,18 +22,18 @@ generator (:mod:`valve_env.experiment`):
 
 Study seeds (chosen before any run, never tuned on): base 20261127 (the EIV
 study; 20261123 before it), effects 20261124; the project generator's runs use
-20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301. Issue 20's third
-round (docs/uncertainty.md, "Named effects"): held out 20261201 (effects, independent),
-20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
-development. Fourth round (the named effects' pre-processing bracket): development 7700, 7702
+20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301. The named effects' study
+(docs/uncertainty.md, "The studies (`benchmarks/independent_coverage.py`)"): held out 20261201 (effects,
+independent), 20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
+development. The named effects' pre-processing bracket: development 7700, 7702
 (independent), 7701 (project); held out 20261125 (effects, independent) and 20261126 (effects,
-project), run once with the final code. Eighth round (the smooth effects per effect): development
+project), run once with the final code. The smooth effects per effect: development
 20261124, 20261125 (independent), 20261202, 7301 (project); held out 20270213 (independent) and
-20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study. Eighth
-round (stiction's band sd; each stiction run's record carries ``band_sd_parts``): development 500, 777,
+20270214 (project), run once. ``--summarise`` pools earlier ``--json`` files of a study. Stiction's
+band sd (each stiction run's record carries ``band_sd_parts``): development 500, 777,
 20261124, 20261201, 20270122, 20270131 (independent), 20261126, 20261202, 20270121, 20270132 (project);
-held out 20270211 (independent, 4 runs) and 20270212 (project, 8 runs). Twelfth round (a smooth
-effect's replicates refitted on TV; each record carries the bootstrap's ``boot_bias``, ``boot_spread``,
+held out 20270211 (independent, 4 runs) and 20270212 (project, 8 runs). A smooth
+effect's replicates refitted on TV (each record carries the bootstrap's ``boot_bias``, ``boot_spread``,
 ``boot_B`` and ``replicates_prepared``, and the summary the ``tv_corrected`` rule): development 20270414,
 303 (project), 20270413 (independent); held out 20270614, 20270615 (project), 20270613 (independent).
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
@@ -204,7 +204,7 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "std_bootstrap": (unc.get("bootstrap_std") or {}).get(name, float("nan")),
                     "std_from": (unc.get("std_from") or {}).get(name, ""),
                     # the bootstrap's parts: bias and spread of the re-estimates about the world's truth, whether
-                    # corrected, and how the replicates were prepared (issue 20, twelfth round)
+                    # corrected, and how the replicates were prepared
                     "boot_bias": (unc.get("bias") or {}).get(name, float("nan")),
                     "boot_spread": (unc.get("spread") or {}).get(name, float("nan")),
                     "boot_corrected": (unc.get("bias_corrected") or {}).get(name),
@@ -215,7 +215,7 @@ def run_effects(case: dict[str, Any]) -> dict[str, Any]:
                     "misspecified": mis.get("misspecified"),
                     # stiction's band: the parts of its sd (noise copies, the slips' own, their number)
                     "band_sd_parts": unc.get("band_sd_parts"),
-                    # stiction's breakaway travel S beside the slip J (the (S, J) profile; issue 20, ninth round)
+                    # stiction's breakaway travel S beside the slip J (the (S, J) profile)
                     "stick_slip": unc.get("stick_slip"),
                     "ljung_box_p": ((mis.get("outputs") or {}).get("x_mm") or {}).get("ljung_box_p")})
     elif d.cause != "none":
@@ -317,8 +317,8 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
                 # the band as the breakaway travel S (the (S, J) profile) or the slips' J, and J beside it
                 ss = [r.get("stick_slip") or {} for r in rs]
                 entry["breakaway_applied"] = [s.get("applied") for s in ss]
-                # the stick-slip filter's profile of S / J (tenth round; the ninth round's open-loop profile
-                # before it) and the stick-slip check's statistic, which decide it
+                # the stick-slip filter's profile of S / J (not the open-loop one, reported for information)
+                # and the stick-slip check's statistic, which decide it
                 entry["S_over_J"] = [s.get("profile_S_over_J") for s in ss]
                 entry["travel_over_slip"] = [s.get("travel_over_slip_median") for s in ss]
                 entry["J_rel_err"] = [s["J_mm"] / r["true_value"] - 1.0 if "J_mm" in s else float("nan")
@@ -333,10 +333,10 @@ def summarise_effects(results: list[dict[str, Any]]) -> dict[str, Any]:
     return summ
 
 
-#: the sds of a named effect that the effects study compares (issue 20: "chosen by measured coverage")
+#: the sds of a named effect that the effects study compares (the reported sd is chosen by measured coverage)
 EFFECT_SDS: dict[str, str] = {
     "reported": "the JSON's std (smooth effects: the TV refit, max(bootstrap, Hessian/HAC) (+) half the IRW-TV "
-                "difference, the bootstrap's replicates refitted on TV since the twelfth round; stiction's band: "
+                "difference, the bootstrap's replicates refitted on TV; stiction's band: "
                 "the bootstrap)",
     "hessian": "inverse Hessian (std_hessian)",
     "robust": "HAC sandwich of the per-sample scores (std_robust)",

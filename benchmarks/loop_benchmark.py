@@ -1,4 +1,4 @@
-"""Loop-diagnosis benchmark (docs/loops.md, "Benchmark").
+"""Loop-diagnosis benchmark (docs/loops.md, "Figures").
 
 Prints, in one run:
 * on the real loops of the chosen split set (benchmarks/plant_loops_split.csv; --set dev, heldout
@@ -103,7 +103,7 @@ def real_loops(data: Path, which: str) -> None:
           f"720 samples mean {np.mean(per720):.2f} s, max {np.max(per720):.2f} s")
 
 
-#: the external-oscillation set's load (docs/loops.md, "Tenth session: external oscillation"): a sinusoid added to the
+#: the external-oscillation set's load (docs/loops.md, "Decision", condition 4): a sinusoid added to the
 #: process input (``sim.simulate_loop``'s ``external_amp``, % of valve travel, like the load random walk), its period
 #: and amplitude drawn uniformly from these ranges, s and %
 EXTERNAL_PERIOD_S = (300.0, 1200.0)
@@ -113,7 +113,7 @@ EXTERNAL_AMP = (0.5, 2.0)
 def sim_cases(seed0: int, n: int) -> list[dict]:
     """The simulated benchmark loops of seeds ``seed0 .. seed0 + n - 1``: process, band S and jump J of the
     sticky loop (its seed), the seed of its smooth twin, and the external-oscillation set's sinusoid (period and
-    amplitude, drawn from their own stream, so the sticky loops and twins are those of the earlier sessions)."""
+    amplitude, drawn from their own stream, so the sticky loops and twins do not depend on it)."""
     rng = np.random.default_rng(seed0)
     ext = np.random.default_rng([seed0, 21])
     procs = ["flow", "pressure", "temperature", "level"]

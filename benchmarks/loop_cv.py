@@ -102,9 +102,9 @@ def collect(data: Path | None, out: Path, workers: int, force: bool, env_seeds: 
 
 
 # --- the rule family (fixed before any evaluation) -----------------------------------------------------
-#: "bootstrap": the parametric-bootstrap LR test at alpha = 0.05 (the fourth session's decision); "likelihood":
-#: the third session's chi-square test of the n_eff-adjusted LR at 0.01 with a BIC threshold; the shape route of
-#: the second session is no longer in the family (the third session's evaluation rejected it)
+#: "bootstrap": the parametric-bootstrap LR test at alpha = 0.05; "likelihood": the chi-square test of the
+#: n_eff-adjusted LR at 0.01 with a BIC threshold (docs/loops.md, "Decision"); the shape route is not in the family
+#: (an earlier evaluation rejected it)
 ROUTES = ("bootstrap", "likelihood")
 DELTA_BICS = (-10.0, -20.0, -40.0)
 #: held-out check: None = not required; else the share of the adjusted LR the halves may lose

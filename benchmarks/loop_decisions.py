@@ -1,5 +1,5 @@
 """Loop diagnoses' decisions per record, stored and compared: a speed change must not change them (docs/loops.md,
-"Eleventh session: speed").
+"Decision").
 
     python benchmarks/loop_decisions.py --out before.json --sim 7000:20 --env seat:0-3 \
         --real dev --data /path/to/plant_loops

@@ -1,8 +1,9 @@
-"""Does a drifting valve input raise the stick-slip's likelihood on the env loops? (docs/loops.md, "Ninth session")
+"""Does a drifting valve input raise the stick-slip's likelihood on the env loops? (docs/loops.md, "Loops from the
+environment")
 
     python benchmarks/loop_drift_study.py --env-id ThermoValveStickyCirculation-v0 --seeds 0-11 --kp 5 --ti 1500
 
-The seventh session found that between the recorded OP (the valve's setting) and the stem sit the bulb
+Between the recorded OP (the valve's setting) and the stem sit the bulb
 temperature and the Dahl friction force, a slowly varying disturbance of the stem's input of about a sixth of the
 band. This study adds that disturbance to the loop model as a state, a random walk on the valve's input,
 ``u[k] = OP[k] + d[k]``, ``d[k] = d[k-1] + q eps[k]``, and evaluates the exact likelihood of the stick-slip loop

@@ -1,10 +1,10 @@
 """A probe, not a method: does a static curve given to every loop candidate take a smooth env record's band away
-and leave a sticky one's? (docs/loops.md, "Fifteenth session: the smooth stem's own band, tested".)
+and leave a sticky one's? (docs/loops.md, "Loops from the environment".)
 
     python benchmarks/loop_static_curve_probe.py --records 2:0,10:0,0:0.1,1:0.1 [--hours 24]
 
 Each record ``SEED:BAND_MM`` is the mid-stroke task's 24 h PI record (ThermoValveStickyCirculation-v0, Kp 5, Ti
-1500 s, as the fourteenth session's study), diagnosed as it is (``valve_env.loops.diagnose``). The diagnosis's linear
+1500 s), diagnosed as it is (``valve_env.loops.diagnose``). The diagnosis's linear
 fit and its better nonlinear fit (backlash or stiction, by likelihood) are then refitted at their own process
 structure (lag, delay, disturbance basis, AR order) with one more regressor: the centred square of the valve path
 through the same process filter (a Hammerstein term). Printed: the unadjusted LR of the nonlinear valve over the

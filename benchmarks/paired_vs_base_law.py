@@ -1,4 +1,4 @@
-"""Training runs against their own base law, paired by seed (docs/agents.md, "A grid on the sticky valve").
+"""Training runs against their own base law, paired by seed (docs/agents.md, "Sweeps on Dask").
 
     python benchmarks/paired_vs_base_law.py --env ThermoValveStickyValve-v0 --seed 1000 --episodes 10 RUN_DIR...
 

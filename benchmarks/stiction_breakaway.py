@@ -1,10 +1,11 @@
-"""Stiction's breakaway travel S beside its slip J (issue 20, ninth and tenth rounds): the (S, J) profiles on
+"""Stiction's breakaway travel S beside its slip J: the (S, J) profiles on
 stick-slip runs of the independent simulator's variants ``reset``, ``sj`` and ``force`` and of the project's
-generator (docs/uncertainty.md, "Issue 20, ninth round" and "Tenth round").
+generator (docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S"; docs/uncertainty.md, "Stick-slip
+variants (`stiction_variant`)").
 
 Each run is drawn and diagnosed as ``benchmarks/stiction_misspecification.py`` does it (stiction the only
 candidate, no bootstrap, the training part); then the profiles of S / J
-(:func:`valve_env.estimation.stick_profile.sj_profile`: the ninth round's open-loop one, and the tenth round's
+(:func:`valve_env.estimation.stick_profile.sj_profile`: the open-loop one, and the one
 on the stick-slip filter's likelihood, :func:`~valve_env.estimation.stick_profile.sj_filter_loglik`) and the
 stick-slip check's statistic are taken at the ML estimate, and :func:`valve_env.estimation.bootstrap.breakaway_evident`
 (on the filter's profile) says whether the diagnosis's bootstrap would report S or J (the slips') as the band.
@@ -44,11 +45,11 @@ def profile_case(case: dict[str, Any]) -> dict[str, Any]:
     t0 = time.process_time()
     p = sj_profile(model, train, fit.params)
     t1 = time.process_time()
-    # the stick-slip filter's profile (tenth round): the diagnosis's likelihood with slips of J < S
+    # the stick-slip filter's profile: the diagnosis's likelihood with slips of J < S
     pf = sj_profile(model, train, fit.params, loglik=sj_filter_loglik)
     applied = breakaway_evident(med, pf.ratio, pf.ratio_sd)
-    # the band the bootstrap reports where applied: the filter's reading over its development calibration (eleventh
-    # round; here on the ML band, the bootstrap's is bias-corrected)
+    # the band the bootstrap reports where applied: the filter's reading over its development calibration
+    # (here on the ML band, the bootstrap's is bias-corrected)
     S_cal = calibrated_ratio(pf.ratio, pf.ratio_sd)[0] * pf.J_mm
     out.update({"profile": p.to_json(), "S_profile": p.S_mm, "travel_over_slip": med, "applied": applied,
                 "profile_cpu_s": t1 - t0, "filter_profile": pf.to_json(), "S_filter": pf.S_mm,

@@ -1,6 +1,6 @@
-"""The misspecification check for stiction (issue 20): its firing rates on stick-slip runs of the project's
+"""The misspecification check for stiction: its firing rates on stick-slip runs of the project's
 generator (the right model) and of the independent simulator's variants ``reset``, ``sj`` and ``force``
-(docs/uncertainty.md, "Issue 20, seventh round").
+(docs/uncertainty.md, "Sandwich standard errors and the misspecification check").
 
 Each run is drawn as ``benchmarks/independent_coverage.py --study effects --only stiction`` draws it (run i
 keeps its seed), written to a CSV and read back with the loader, then diagnosed with stiction as the only

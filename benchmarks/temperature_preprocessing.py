@@ -1,4 +1,5 @@
-"""Temperature pre-processing compared: TV denoising against IRW-RTS smoothing (issue 20).
+"""Temperature pre-processing compared: TV denoising against IRW-RTS smoothing (docs/estimation.md,
+"Temperature pre-processing").
 
 The two ways the project turns a noisy temperature channel into the valve's driver
 (:mod:`valve_env.estimation.temperature`): the relaxed total-variation denoising the EKF's valve
@@ -26,8 +27,8 @@ the true opening; per method and noise level this prints
     python benchmarks/temperature_preprocessing.py --noise 0.01 --fit
     python benchmarks/temperature_preprocessing.py --survey 20261231 --cases 30
 
-``--survey SEED`` is the collapse survey instead (docs/estimation.md, "The collapse of the noise
-estimate"): the smoother on both temperature channels of the diagnosis study's randomised runs
+``--survey SEED`` is the collapse survey instead (docs/estimation.md, "Temperature
+pre-processing"): the smoother on both temperature channels of the diagnosis study's randomised runs
 (:func:`valve_env.experiment.random_cases`, ``--cases`` of them: 5-30 s sampling, 12-30 h, noise
 0-0.01 K); per channel its noise sd over the true one (the count below 0.1, a collapse, and the
 quantiles), the RMS errors of the level and of the rate over each interval against the truth, and

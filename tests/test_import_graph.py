@@ -16,7 +16,8 @@ own): no cycle except the known ones below.
 
 **The known cycles are a ratchet.** :data:`KNOWN_UNIT_CYCLES` lists, explicitly, the strongly connected
 components that remain among the identification packages (valve_env.estimation, valve_env.diagnosis,
-valve_env.loops, valve_env.studies) until the identification redesign of issue 40 removes them. The test
+valve_env.loops, valve_env.studies) until a redesign of the identification packages removes them
+(docs/architecture.md, "The target"). The test
 fails on any cycle not in that list, and also when a listed cycle has gone or changed, so the list stays
 true: whoever breaks a cycle deletes its entry in the same commit.
 """
@@ -37,7 +38,7 @@ IDENTIFICATION = ("valve_env.estimation", "valve_env.diagnosis", "valve_env.loop
 #: the unit-level cycles that remain in the identification packages (see the module docstring)
 KNOWN_UNIT_CYCLES: frozenset[frozenset[str]] = frozenset({
     # estimation/bootstrap.py imports diagnosis.fitting at module level, diagnosis/fitting.py imports
-    # estimation.model; 12 imports one way, 10 the other (issue 40)
+    # estimation.model; 12 imports one way, 10 the other
     frozenset({"valve_env.diagnosis", "valve_env.estimation"}),
 })
 

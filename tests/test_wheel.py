@@ -1,4 +1,5 @@
-"""The core installs as a wheel and works outside the repository (issue 40).
+"""The core installs as a wheel and works outside the repository (docs/architecture.md,
+"Package data").
 
 The test copies the sources that git tracks (pyproject.toml, README.md, LICENSE, valve_env/, agents/) to
 a temporary directory, builds the wheel there, installs it with the core's dependencies (no ``rl``

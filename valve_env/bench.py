@@ -490,7 +490,7 @@ def _external(module: str) -> dict[str, Any]:
 
 # -- the whole run ---------------------------------------------------------------------------
 def run_bench(quick: bool = False, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Every figure of docs/reference.md, section 6 and issue 4, measured in this process."""
+    """Every figure of docs/reference.md, section 6 and docs/speed.md, "The latest run", measured in this process."""
     say = progress or (lambda _m: None)
     res: dict[str, Any] = {"quick": quick, "machine": machine()}
     t_start = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Hide an effect in generated data and require the diagnosis to find it (issue 6).
+"""Hide an effect in generated data and require the diagnosis to find it (docs/diagnosis.md, "Method").
 
 Short records (10 h of 10 s data) keep the default run fast; the >= 50-run
 confusion-matrix study is benchmarks/diagnosis_confusion.py (and test_slow.py).
@@ -169,9 +169,9 @@ def test_small_randomised_study() -> None:
 
 
 def test_small_randomised_study_stiction() -> None:
-    """The small study's stiction run (about 10 h, five training slips): LR 6.6 (p = 0.005, `none`) under the
-    moment-matched filter of rounds 3-8; named since round 9 (the measured slip decision behind the simulated
-    null guard, docs/diagnosis.md, "The stick-slip filter, round 9")."""
+    """The small study's stiction run (about 10 h, five training slips): LR 6.6 (p = 0.005, `none`) under a
+    moment-matched filter; named with the measured slip decision behind the simulated
+    null guard (docs/diagnosis.md, "Method")."""
     df = dict(_small_study())["stiction"]
     d = diagnose(df, bootstrap_B=0)
     assert d.cause == "stiction", d.summary()
@@ -220,13 +220,13 @@ def test_json_document(results, tmp_path: Path) -> None:  # type: ignore[no-unty
 
 
 def test_null_guard_stops_a_false_stiction_finding(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Issue 20, round 9 (docs/diagnosis.md): a generated run without stiction (development seed 31, run 21 of
-    its 24 `none` cases: 20 s, 13.2 h) whose base model misfits at the tank's heating steps. With the former
-    temperature smoother (whose noise estimate collapsed, docs/estimation.md "The collapse of the noise
-    estimate") the measured slip decision's stiction finding there was significant, relevant and validated
-    (LR 134) and only the simulated null guard stopped it. With the Student-t smoother the candidate is not
-    significant at all (p = 0.49): the run is `none` with the guard and without it; where a significant
-    stiction finding is still rejected, the guard's record says why."""
+    """The simulated null guard (docs/diagnosis.md, "Method"): a generated run without stiction (development seed 31,
+    run 21 of its 24 `none` cases: 20 s, 13.2 h) whose base model misfits at the tank's heating steps. With the former
+    temperature smoother (whose noise estimate collapsed, docs/estimation.md, "Temperature pre-processing") the measured
+    slip decision's stiction finding there was significant, relevant and validated (LR 134) and only the simulated null
+    guard stopped it. With the Student-t smoother the candidate is not significant at all (p = 0.49): the run is `none`
+    with the guard and without it; where a significant stiction finding is still rejected, the guard's record says why.
+    """
     from valve_env.diagnosis import diagnose as dg
     from valve_env.experiment import random_cases, simulate_case
 
@@ -295,10 +295,11 @@ def test_stiction_fit_carries_on_past_a_kink_where_the_line_search_fails() -> No
 
 
 def test_record_slips_name_a_stiction_run_the_held_out_quarter_misses() -> None:
-    """Round 13 (docs/diagnosis.md): a stiction run of development seed 20270529 (run 58: band 0.0158 mm, 30 s,
-    14.5 h) whose likelihood band (9 um) the two training slips (median 14.2 um) do not show; with the band held
-    at theirs stiction is significant (LR 241), but the held-out quarter's four slips (median 21.5 um) miss it by
-    52 %, and round 7's confirmation left the run `none`. The six slips of the record (median 17.7 um) measure it."""
+    """The record's slips confirm the slips' band: a stiction run of development seed 20270529 (run 58: band 0.0158 mm,
+    30 s, 14.5 h) whose likelihood band (9 um) the two training slips (median 14.2 um) do not show; with the band held
+    at theirs stiction is significant (LR 241), but the held-out quarter's four slips (median 21.5 um) miss it by 52 %,
+    and the held-out quarter's confirmation alone leaves the run `none`. The six slips of the record (median 17.7 um)
+    measure it."""
     from valve_env.experiment import random_cases, simulate_case
 
     df = simulate_case(random_cases(60, 20270529)[58])

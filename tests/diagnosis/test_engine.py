@@ -49,8 +49,8 @@ def test_monotone_path_removes_small_reversals_without_lag() -> None:
 
 
 def test_stick_demand_reads_the_noise_off_the_seat() -> None:
-    """A demand seated on most samples still has its noise's reversals removed (docs/diagnosis.md, "Twelfth
-    round"): the noise sd is read off the end stops. Read over all samples, the seated ones (exactly 0) made
+    """A demand seated on most samples still has its noise's reversals removed: the noise sd is read off the end
+    stops. Read over all samples, the seated ones (exactly 0) made
     the deviation 0 and every reversal of the noise re-stuck the diagnosed stem (seed 20270423 run 8, 72 %
     of the samples seated)."""
     rng = np.random.default_rng(3)
@@ -204,9 +204,9 @@ def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
 
     monkeypatch.setattr(dg, "_fit", fake_fit)
     monkeypatch.setattr(dg, "_finding", fake_finding)
-    monkeypatch.setattr(dg, "NULL_GUARD", False)  # round 9's guard is tested in test_diagnose.py
+    monkeypatch.setattr(dg, "NULL_GUARD", False)  # the null guard is tested in test_diagnose.py
     monkeypatch.setattr(dg, "slips_show_band", lambda x, stroke, band: held_out_shows_it and band == 0.033)
-    monkeypatch.setattr(dg, "record_shows_band", lambda parts, stroke, band: False)  # round 13's: test_diagnose.py
+    monkeypatch.setattr(dg, "record_shows_band", lambda parts, stroke, band: False)  # record's slips: test_diagnose.py
     valve = type("V", (), {"stroke": 2.0})()
     f = dg._try("stiction", (), Fit(0.0, 0.0), Data(), Data(), (0, 4), valve, 0.001, (0.0, 0.0, 0.0), None, 2.0,
                 1.0)

@@ -1,5 +1,6 @@
-"""Issue 20: a named effect's misspecification-robust sd and its misspecification check
-(valve_env.estimation.robust.robust_finding; docs/uncertainty.md, "Named effects")."""
+"""A named effect's misspecification-robust sd and its misspecification check
+(valve_env.estimation.robust.robust_finding; docs/uncertainty.md, "Sandwich standard errors and the
+misspecification check")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The effects as SDE extensions of the estimator's base valve model (hooks of issue 5).
+"""The effects as SDE extensions of the estimator's base valve model (its extension hooks).
 
 Run in a fresh interpreter: inside pytest's process numba's cache of first-class function
 types in the estimator's compiled filter has raised ``ReferenceError: underlying object has

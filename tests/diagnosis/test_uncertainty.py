@@ -1,4 +1,5 @@
-"""Honest uncertainty of the named effect's parameters (issue 6): the stick band estimator, the
+"""Honest uncertainty of the named effect's parameters (docs/diagnosis.md, "Parameter uncertainty: the coverage
+study"): the stick band estimator, the
 stick-slip filter's bias, and the model-based bootstrap. The >= 30-run coverage study is
 benchmarks/diagnosis_coverage.py (slow test below)."""
 
@@ -58,7 +59,7 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
     fit = m.fit(d, with_std=False)
     b = bootstrap(m, d, fit, B=4, band_B=60, seed=2)
     assert 0.7 <= b.spread["band_mm"] / o.std(ddof=1) <= 1.4, (b.spread, o.std(ddof=1))
-    # the reported sd is at least the added-noise spread and the slips' own (issue 20, eighth round)
+    # the reported sd is at least the added-noise spread and the slips' own
     parts = b.band_parts
     assert parts["n_slips"] >= 4 and parts["noise_sd_mm"] == b.spread["band_mm"], parts
     assert b.std["band_mm"] >= max(parts["noise_sd_mm"], parts["slips_sd_mm"]), (b.std, parts)
@@ -73,14 +74,13 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
         band_sampling(df["true_x_mm"].to_numpy(), 2.5e-3, stroke, draws=1)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 20, known and reported: since round 9 the filter decides a resting "
-                   "stem's slip on each measurement (round 8's measured slip decision, behind the simulated null "
+@pytest.mark.xfail(strict=True, reason="known and reported: the filter decides a resting "
+                   "stem's slip on each measurement (the measured slip decision, behind the simulated null "
                    "guard of diagnose): it catches the slip at the sample that shows it, but with the slip decided "
                    "by the measurement a smaller band costs only the log of the slip's prior where the stem rests, "
                    "so the likelihood peaks below the band (here at 0.7 band, the band 11 log-units below; the "
-                   "moment-matched filter of rounds 3-8 peaked at 0.85 band, the band 86 below). The band is "
-                   "measured from the slips, not by this likelihood (docs/diagnosis.md, 'The stick-slip filter, "
-                   "round 9').")
+                   "moment-matched filter peaked at 0.85 band, the band 86 below). The band is "
+                   "measured from the slips, not by this likelihood (docs/diagnosis.md, 'Method').")
 def test_stick_filter_nested_and_peaks_at_the_band() -> None:
     """Exact stick-slip data: the filter's likelihood is maximal near the true band (the first-passage
     hazard; a filter that re-applied the slip probability every sub-step peaked at 2.5 times the band),
@@ -169,9 +169,9 @@ def test_coverage_study_targets(coverage_303: dict) -> None:  # type: ignore[typ
 @pytest.mark.slow
 def test_coverage_study_medium_temperature_per_effect(coverage_303: dict) -> None:  # type: ignore[type-arg]
     """medium_temperature's per-effect bounds of :func:`test_coverage_study_targets`: >= 50 % within 1 sd and
-    >= 80 % within 2 sd of its 10 runs. Short in round 11 (4 / 7 of 10, rms z 1.53): the bootstrap refitted its
-    replicates on the IRW-RTS temperatures while the estimate is the TV refit, whose own error it never saw; since
-    the twelfth round the replicates are refitted on TV too (docs/uncertainty.md, "Issue 20, twelfth round")."""
+    >= 80 % within 2 sd of its 10 runs. Short (4 / 7 of 10, rms z 1.53) where the bootstrap refits its
+    replicates on the IRW-RTS temperatures while the estimate is the TV refit, whose own error it never sees; so
+    the replicates are refitted on TV too (docs/uncertainty.md, "Errors in variables and robust uncertainty")."""
     v = coverage_303["per_effect"]["medium_temperature"]
     assert v["within_1sd"] >= 0.50 and v["within_2sd"] >= 0.80, v
 
@@ -183,17 +183,18 @@ def test_coverage_study_stiction_band_sd_is_its_sampling_sd(coverage_303: dict) 
     noise of its size, 200 draws). A run with fewer than 4 training slips takes the likelihood's band and
     has no such oracle (on this seed one run, 30 s sampling: band 0.0165 +- 0.0030 mm against a true
     0.0164; its oracle had 46 finite draws of 200, which failed this test's draws check unnoticed in the
-    slow suite until the eighth round).
+    slow suite).
 
-    The reported sd is at least that sampling sd and within a factor of it (issue 20, eighth round: it now also
+    The reported sd is at least that sampling sd and within a factor of it (it also
     takes the slips' own spread and the bootstrap world's bias, which the oracle's noise draws on one fixed true
     opening do not see; measured median ratio 1.97, range 1.43-4.35). The bootstrap's bias correction is
-    made in the project's stick-slip world and errs: RMS 0.96 sampling sd, mean +0.40, on the 9 runs (the
-    seventh round's claim of at most 0.6 no longer held); the reported sd carries that error (the world's
+    made in the project's stick-slip world and errs: RMS 0.96 sampling sd, mean +0.40, on the 9 runs (an
+    earlier claim of at most 0.6 no longer holds); the reported sd carries that error (the world's
     bias in quadrature), so against the reported sd it is 0.45 RMS; all 10 estimates lie within 2 reported
     sd (9 within 1). Counting estimates within 1 sd is no test of the method on one seed of 10 runs. Over 68
     named stiction runs of five other held-out seeds (505, 808, 909, 1111, 1212) the z lay within 1 / 2
-    reported sd in 65 % / 96 % before the eighth round (docs/diagnosis.md)."""
+    reported sd in 65 % / 96 % before the reported sd took the slips' own spread (docs/diagnosis.md, "Parameter
+    uncertainty: the coverage study")."""
     v = coverage_303["per_effect"]["stiction"]
     o = v["oracle"]
     assert o["n"] >= 7 and o["n"] + o["likelihood_band_runs"] == v["n"] and o["draws_min"] >= 150, o

@@ -1,5 +1,5 @@
-"""Issue 20, eighth round: stiction's band sd from the slips' own spread (valve_env.diagnosis.stiction.slips_sd,
-band_spread; valve_env.estimation.bootstrap; docs/uncertainty.md, "Issue 20, eighth round")."""
+"""Stiction's band sd from the slips' own spread (valve_env.diagnosis.stiction.slips_sd,
+band_spread; valve_env.estimation.bootstrap; docs/diagnosis.md, "Parameter uncertainty: the coverage study")."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def test_band_sd_on_generated_runs_with_known_band(dt: int) -> None:
     """30 generated 3 h runs with a known band (0.03 mm, 10-25 slips each): the band's reported sd (band_spread,
     as the bootstrap reports it) is within a factor of the estimator's true sampling sd over the runs (0.8-2.5:
     it errs on the wide side, measured 1.3 and 1.4), and the truth lies within 1 / 2 reported sd in >= 60 % /
-    >= 85 % of the runs (issue 20's goals for a named effect; measured 73 / 97 % and 80 / 100 %)."""
+    >= 85 % of the runs (the goals for a named effect; measured 73 / 97 % and 80 / 100 %)."""
     S = 0.03
     est, sds = [], []
     for seed in range(30):

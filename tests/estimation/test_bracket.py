@@ -1,8 +1,8 @@
 """The pre-processing bracket of a named smooth effect (valve_env.estimation.bootstrap.apply_bootstrap),
 and the effects study's alternative bracket rules (benchmarks/independent_coverage.py).
 
-docs/uncertainty.md, "Issue 20, eighth round": the TV refit is the estimate and half the IRW-TV difference
-enters its sd in quadrature; the study prints the coverage of two other rules beside it (the whole
+docs/uncertainty.md, "Errors in variables and robust uncertainty": the TV refit is the estimate and half the
+IRW-TV difference enters its sd in quadrature; the study prints the coverage of two other rules beside it (the whole
 difference; the midpoint of the two estimates) from the same runs, and pools earlier runs (--summarise).
 Stiction's band is not bracketed: it passes through apply_bootstrap exactly as the bootstrap gives it."""
 

@@ -61,7 +61,7 @@ def test_fit_bad_input_exits_nonzero_with_one_line(tmp_path: Path, run_csv: Path
 
 
 def test_fit_eiv_and_robust_fields(tmp_path: Path, run_csv: Path) -> None:
-    """The default fit reports the errors-in-variables estimates and their sd (issue 20: the one a
+    """The default fit reports the errors-in-variables estimates and their sd (the one a
     study shows calibrated) with the sandwich, the inverse Hessian and the misspecification check
     beside them; --ml keeps the plain ML fit, labelled as not calibrated."""
     out = tmp_path / "out.json"

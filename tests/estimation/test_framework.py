@@ -1,5 +1,6 @@
-"""One identification framework (issue 20): one loader, one set of transforms, one standard-error
-implementation, one temperature pre-processing module, one estimator interface.
+"""One identification framework (docs/estimation.md, "Architecture: one identification framework"): one loader,
+one set of transforms, one standard-error implementation, one temperature pre-processing module, one estimator
+interface.
 
 The structural checks read the source (an AST walk): the diagnosis modules import these pieces from
 their one owner and define no second copy."""

@@ -1,6 +1,6 @@
-"""Issue 20, ninth and tenth rounds: stiction's breakaway travel S beside its slip J, the (S, J) profiles of the
+"""Stiction's breakaway travel S beside its slip J, the (S, J) profiles of the
 open-loop and of the stick-slip filter's likelihood (valve_env.estimation.stick_profile;
-valve_env.estimation.bootstrap.breakaway_band; docs/uncertainty.md, "Issue 20, ninth round" and "Tenth round")."""
+valve_env.estimation.bootstrap.breakaway_band; docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S")."""
 
 from __future__ import annotations
 
@@ -106,7 +106,7 @@ def test_profile_reads_the_breakaway_of_a_force_valve(runs) -> None:  # type: ig
     valve's stays at 1 (S = J, the slips' band)."""
     m, run, vals = runs["force"]
     p = sj_profile(m, run, vals)
-    assert p.ratio >= 2.25  # the ninth round's open-loop threshold
+    assert p.ratio >= 2.25  # above every J = S valve's open-loop reading (up to 2.0)
     assert abs(p.S_mm - S_TRUE) / S_TRUE < 0.25, p.to_json()
     ll = p.to_json()["profile_loglik"]
     assert isinstance(ll, dict) and ll["1"] == 0.0 and max(ll.values()) > 0.0
@@ -128,7 +128,7 @@ def _fit(vals: dict[str, float]) -> FitResult:
 
 
 def test_filter_profile_tells_force_from_j_equal_s(runs) -> None:  # type: ignore[no-untyped-def]
-    """The stick-slip filter's profile (tenth round) puts the force valve (S / J = 3) at or above the threshold,
+    """The stick-slip filter's profile puts the force valve (S / J = 3) at or above the threshold,
     its reading within 2 profile sd of 3 and S nearer the truth than the slips' J; the J = S valves stay below it
     (the sj valve's stem stuck longer than it slipped, so only the threshold keeps it; the reset valve's did not,
     and its profile stays at 1). The profile is flat near its peak on this run (2.25 to 3.5 within 7 log-units
@@ -163,7 +163,7 @@ def test_breakaway_band_moves_force_and_keeps_reset(runs) -> None:  # type: igno
     assert out["S_sd_mm"] == sm.std["band_mm"]
     lo, hi = sm.interval_95["band_mm"]
     assert lo < S_TRUE < hi  # the band's interval covers the true breakaway travel
-    # the filter's reading (2.25 here against 3) corrected for its low reading on the fitted valve (eleventh round):
+    # the filter's reading (2.25 here against 3) corrected for its low reading on the fitted valve:
     # S within 25 % of the truth and within its sd, the uncorrected S = 2.25 J was 25 % short
     assert out["S_over_J"] == pytest.approx(out["profile_S_over_J"] / BREAKAWAY_READ)
     assert abs(S - S_TRUE) < 0.25 * S_TRUE and abs(S - S_TRUE) < sm.std["band_mm"], out

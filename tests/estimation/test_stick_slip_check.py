@@ -1,5 +1,5 @@
-"""Issue 20: the misspecification check of a stick-slip effect (valve_env.estimation.robust.stick_slip_check;
-docs/uncertainty.md, "Issue 20, seventh round")."""
+"""The misspecification check of a stick-slip effect (valve_env.estimation.robust.stick_slip_check;
+docs/uncertainty.md, "Sandwich standard errors and the misspecification check")."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""The IRW-RTS temperature smoother recovers the measurement noise (docs/estimation.md, "The collapse of the
-noise estimate")."""
+"""The IRW-RTS temperature smoother recovers the measurement noise (docs/estimation.md, "Temperature
+pre-processing")."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The band's fit resolves a small slip jump (docs/loops.md, "Band uncertainty", seventh session, second round): its
+"""The band's fit resolves a small slip jump (docs/loops.md, "Band uncertainty"): its
 J / S grid is finer than the decision's, so a stick-slip valve with J/S about a third is not read as a deadband (J = 0)
 with a band a quarter short; the decision (the sample-rate fits) is unchanged."""
 

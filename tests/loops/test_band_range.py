@@ -1,4 +1,4 @@
-"""A band the record resolves (docs/loops.md, "Twelfth session: a band the valve never crosses back"): at least one
+"""A band the record resolves (docs/loops.md, "Band uncertainty"): at least one
 sample's OP move, and crossed back by the fitted valve at least once. A valve that only moves on in its first direction
 shows its slip jump, not its band (a band wider than the OP's whole range is never crossed back); the seated fallback
 does not name such a band."""
@@ -33,8 +33,8 @@ def test_a_band_wider_than_the_op_range_is_never_crossed_back() -> None:
 
 def test_seated_fallback_does_not_name_a_band_never_crossed_back() -> None:
     """Smooth seat seed 5 (development): its seated comparison is justified with a stick-slip that slips twice, upwards,
-    in 4 h (band 5.6 % of OP, inside the OP's range of 7.7 %, but never crossed back), which named it until the twelfth
-    session; the sticky seed 0's seated valve crosses its band back tens of times and stays named
+    in 4 h (band 5.6 % of OP, inside the OP's range of 7.7 %, but never crossed back), which was named without this
+    condition; the sticky seed 0's seated valve crosses its band back tens of times and stays named
     (tests/loops/test_envloop.py)."""
     loop = record_env_loop(0.0, seed=5)
     s = select_noise_order(loop)

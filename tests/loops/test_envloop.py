@@ -51,7 +51,7 @@ def test_env_loop_study_hours_reach_the_record(capsys: pytest.CaptureFixture[str
 
 def test_env_loop_takes_the_valves_friction() -> None:
     """``F_hmax`` sets the valve's Dahl friction on the recorded stem (the smooth stem's own hysteresis band,
-    docs/loops.md "Fifteenth session"); an out-of-range value is refused in one line naming the field, and the
+    docs/loops.md, "Loops from the environment"); an out-of-range value is refused in one line naming the field, and the
     studies' ``--f-hmax`` reaches it."""
     paper = record_env_loop(0.0, seed=0, hours=1.0, warmup_h=2.5)
     light = record_env_loop(0.0, seed=0, hours=1.0, warmup_h=2.5, F_hmax=0.01)
@@ -76,11 +76,11 @@ def _diagnose_via_csv(band_mm: float, seed: int, tmp_path: Path) -> str:
 
 
 #: at the seat the sticky stem is a relay that only the seated comparison can model (docs/loops.md, "Loops from the
-#: environment", tenth session); it names seed 0 but not every seed: seeds 0-5 named 0 and 1, not 2-5 (2 and 3: the
-#: true stem explains the outlet no better than the linear valve on its seat; 4: the held-out halves, thirteenth
-#: session; 5: below the evidence needed); issue 21 stays open on it
-STICKY_NOT_SEEN = pytest.mark.xfail(strict=True, reason="issue 21: the seated comparison names seat seeds 0 and 1 "
-                                    "of 0-5, not 2-5")
+#: environment"); it names seed 0 but not every seed: seeds 0-5 named 0 and 1, not 2-5 (2 and 3: the
+#: true stem explains the outlet no better than the linear valve on its seat; 4: the held-out halves;
+#: 5: below the evidence needed): a known limitation
+STICKY_NOT_SEEN = pytest.mark.xfail(strict=True, reason="known limitation: the seated comparison "
+                                    "names seat seeds 0 and 1 of 0-5, not 2-5")
 
 
 def test_env_loop_smooth_is_not_stiction(tmp_path: Path) -> None:
@@ -88,14 +88,14 @@ def test_env_loop_smooth_is_not_stiction(tmp_path: Path) -> None:
 
 
 def test_env_loop_sticky_is_stiction(tmp_path: Path) -> None:
-    """Seed 0 at the seat: named through the seated comparison (docs/loops.md, "Loops from the environment", tenth
-    session), a stick-slip band near the stem's 0.1 mm (about 1.4 % of OP at the smooth stem's 0.07 mm per %)."""
+    """Seed 0 at the seat: named through the seated comparison (docs/loops.md, "Loops from the environment"),
+    a stick-slip band near the stem's 0.1 mm (about 1.4 % of OP at the smooth stem's 0.07 mm per %)."""
     d = _diagnosis_via_csv(STICKY_MM, 0, tmp_path)
     assert d.cause == "stiction"
     assert d.result["decision"]["seat"]["seated"] is True
     assert d.fits["stiction"].seat == d.result["decision"]["seat"]["nonlinear_pct"]
     assert 1.0 < d.result["stiction"]["band_fitted_pct"] < 2.0
-    assert d.result["stiction"]["band_resolved"] is True  # its valve crosses the band back (twelfth session)
+    assert d.result["stiction"]["band_resolved"] is True  # its valve crosses the band back
 
 
 @pytest.mark.slow

@@ -1,4 +1,4 @@
-"""External oscillation (docs/loops.md, "Tenth session: external oscillation"): a stiction finding on an oscillating
+"""External oscillation (docs/loops.md, "Decision", condition 4): a stiction finding on an oscillating
 record must also hold when every valve candidate carries a sinusoidal load at the oscillation's period, so an
 external sinusoid is not read as a sticky valve, while a sticky valve under the same kind of load is still named."""
 
@@ -31,7 +31,7 @@ def test_dominant_period_and_basis() -> None:
 
 
 def test_external_sinusoid_is_not_stiction_and_sticky_still_is() -> None:
-    # the smooth twin of benchmark seed 6607 (a level loop) under a 600 s sinusoid: the ninth session's false alarm
+    # the smooth twin of benchmark seed 6607 (a level loop) under a 600 s sinusoid: a false alarm without condition 4
     smooth, _ = simulate_loop("level", S=0.0, seed=16607, external_amp=1.0, external_period_s=600.0)
     d = diagnose(smooth)
     assert d.cause != "stiction"
@@ -48,7 +48,7 @@ def test_external_sinusoid_is_not_stiction_and_sticky_still_is() -> None:
 
 
 def test_loop_own_limit_cycle_is_not_explained_away_by_a_periodic_load() -> None:
-    """Mid-stroke development seed 390 (sticky stem, Kp 5, Ti 1500 s; docs/loops.md, "Thirteenth session"): the plain
+    """Mid-stroke development seed 390 (sticky stem, Kp 5, Ti 1500 s; docs/loops.md, "Oscillation causes"): the plain
     comparison justifies the valve, but a sinusoidal load at the cycle's period absorbs the limit cycle's fundamental
     (the integrating outlet filters its harmonics), so condition 4 would withdraw it. The record rules an external
     load out: the OP explains the PV's oscillation and the identified linear loop damps it. So condition 4 is waived

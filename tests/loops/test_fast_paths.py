@@ -1,5 +1,5 @@
-"""The loop model's fast paths compute what the paths they replaced computed (docs/loops.md, "Eleventh session:
-speed"): the candidates' output-error fits from lagged moments against the record-pass fit (``_oe_fit``), the LR
+"""The loop model's fast paths compute what the paths they replaced computed: the
+candidates' output-error fits from lagged moments against the record-pass fit (``_oe_fit``), the LR
 scan's Schur-complement solve and whole-delay moments against least squares on the delayed lag output, and the fit
 memo against fitting afresh."""
 

@@ -1,4 +1,4 @@
-"""The cause of an oscillation that is not named stiction (docs/loops.md, "Oscillation causes"; ninth session):
+"""The cause of an oscillation that is not named stiction (docs/loops.md, "Oscillation causes"):
 ``aggressive_tuning`` only when the fitted linear process, closed by the controller identified from the record,
 rings at the observed period; a loop-internal oscillation that the linear loop damps is ``nonlinear_oscillation``."""
 

@@ -1,4 +1,4 @@
-"""The valve's seat in the loop model (docs/loops.md, "Loops from the environment", tenth session): below its seat a
+"""The valve's seat in the loop model (docs/loops.md, "Loops from the environment"): below its seat a
 valve passes nothing whatever its input, and a sticky stem resting on the seat breaks away only once the OP has
 risen the slip jump above it (the stick-slip's lower end stop)."""
 

@@ -1,4 +1,4 @@
-"""The seated fallback's halves (docs/loops.md, "Fourteenth session: the seated fallback's halves"): the held-out check
+"""The seated fallback's halves (docs/loops.md, "Decision", condition 3): the held-out check
 cuts the record in halves, and a half in which the fitted valve never crosses its band back holds no evidence of the
 band; the seated fallback names only a band crossed back within each half."""
 
@@ -28,8 +28,8 @@ def test_heldout_halves_cover_the_record_after_each_cut() -> None:
 
 def test_seated_fallback_needs_the_band_crossed_back_in_each_half() -> None:
     """Smooth seat seed 364 (development): the seated comparison is justified with a stick-slip of 4.6 % of OP whose
-    valve moves three times in 4 h, all in the second half, reversing once (so the twelfth session's `band_resolved`
-    holds); the held-out check then tests the valve on one half only. The thirteenth session's code named it."""
+    valve moves three times in 4 h, all in the second half, reversing once (so `band_resolved`
+    holds); the held-out check then tests the valve on one half only. Without the halves' condition it was named."""
     loop = record_env_loop(0.0, seed=364)
     s = select_noise_order(loop)
     memo: FitMemo = {}

@@ -1,6 +1,6 @@
 """The valve between the recorded samples (docs/loops.md, "Model"): a historian records interval means of OP, so the
 band's fit drives the valve with a mean-preserving sub-sample OP and feeds the process the valve's interval mean; one
-substep is the sample-rate valve of the earlier sessions (nested), which the decision keeps."""
+substep is the sample-rate valve (nested), which the decision keeps."""
 
 from __future__ import annotations
 

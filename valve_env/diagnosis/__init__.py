@@ -1,5 +1,5 @@
 """Diagnosis: find what the calibrated valve simulation gets wrong, name the physical cause,
-extend the model and measure the gain (issue 6; docs/reference.md, sections 3 and 4; docs/diagnosis.md).
+extend the model and measure the gain (docs/reference.md, sections 3 and 4; docs/diagnosis.md).
 
 Public API (imported lazily, so that ``thermovalve`` starts fast):
 

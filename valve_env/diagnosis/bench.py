@@ -1,7 +1,7 @@
 """Speed of the diagnosis: a full diagnosis of 24 h of 10 s data with every candidate, the bootstrap included.
 
 ``run_bench()`` is wired into ``thermovalve bench`` and printed by ``benchmarks/diagnosis_speed.py``; the
-target is at most 30 s (issue 20: "24 h at 10 s diagnosed in at most 30 s, bootstrap included") on the
+target is at most 30 s (docs/diagnosis.md, "Speed": 24 h at 10 s diagnosed in at most 30 s, bootstrap included) on the
 project's 2-core machine, with the bootstrap size that ``diagnose`` and ``thermovalve diagnose`` use by
 default (:data:`DEFAULT_BOOTSTRAP_B`).
 """
@@ -12,7 +12,7 @@ import inspect
 import time
 from typing import Any
 
-#: the target wall time of one diagnosis of 24 h at 10 s, bootstrap included (issue 20)
+#: the target wall time of one diagnosis of 24 h at 10 s, bootstrap included (docs/diagnosis.md, "Speed")
 TARGET_S = 30.0
 
 

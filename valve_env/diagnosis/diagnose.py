@@ -33,12 +33,12 @@ automatic:
    the training opening: at least two slips whose median size is the fitted band within 50 %
    (:func:`slips_show_band`). Where the slips do not show the likelihood's band, stiction is tested
    again with the band held at the slips' median, and named with it only if that is significant and
-   the held-out opening's slips show that band too (docs/diagnosis.md, "Round 7"), or the whole record's
+   the held-out opening's slips show that band too, or the whole record's
    slips, at least four, do (:func:`record_shows_band`; they also stand in for the training part's two slips
-   where it holds one: "The stick-slip filter, round 13"). A stiction finding
+   where it holds one). A stiction finding
    that would be named must also pass a simulated null (:func:`stiction_null`: the reference model's world
-   with the run's inputs, the temperatures' pre-processing error included; docs/diagnosis.md, "The
-   stick-slip filter, round 9"). Where
+   with the run's inputs, the temperatures' pre-processing error included; docs/diagnosis.md,
+   "Method"). Where
    several candidates pass, the best is the one with the largest held-out
    log-likelihood gain (:func:`rank_key`); the others are ranked by delta BIC.
 6. Forward selection: with the named effect in the model, try the remaining
@@ -164,7 +164,7 @@ class Finding:
     #: how the effect parameters' std were obtained, and the bootstrap's details where it ran
     std_method: str = "inverse Hessian / HAC sandwich (not calibrated)"
     uncertainty: dict[str, Any] | None = None
-    #: issue 20: the inverse-Hessian and HAC-sandwich sds side by side and the misspecification check
+    #: the inverse-Hessian and HAC-sandwich sds side by side and the misspecification check
     #: (valve_env.estimation.robust.robust_finding), for a named effect
     robust: dict[str, Any] | None = None
     #: stiction's simulated null (:func:`stiction_null`), where it was run (a finding that would be named)
@@ -340,7 +340,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
          vr: tuple[int, int], valve: ValveParams, alpha: float, ref_val: tuple[float, float, float],
          warm: dict[str, float] | None, min_gain: float, min_size: float,
          previous: Finding | None = None, guard: bool = True) -> Finding:
-    """The candidate ``effect`` fitted and tested against the reference (:func:`_finding`, round 7's slips' band
+    """The candidate ``effect`` fitted and tested against the reference (:func:`_finding`, the slips' band
     where it applies); ``guard``: stiction's simulated null guard applied to the finding (:func:`_null_guarded`).
     :func:`diagnose` holds it off in the first step, whose findings are tried again where the base fit improves,
     and applies it to the step it keeps: the guard decides nothing before that (docs/diagnosis.md, "Speed")."""
@@ -354,7 +354,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         # from the paper's values (a strong effect can pull the base fit far from the truth), and from
         # the base fit where that is better (the extension contains the base model: never worse). Stiction
         # always tries both: from the paper's values its fit can stop on a kink far above the base fit and
-        # still far below its maximum (docs/diagnosis.md, "round 12": 245 log-units on stiction seed 7)
+        # still far below its maximum (245 log-units below it on the development run of stiction seed 7)
         est = _fit(effects, valve, train)
         if est.result_.loglik < ref_fit.loglik + 1.0 or EFFECTS[effect].variance_gain:
             alt = _fit(effects, valve, train, {**ref_fit.params, **(warm or {})})
@@ -364,7 +364,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
     f = _finding(effect, est, ref_effects, ref_fit, train, valid, vr, valve, alpha, ref_val, min_gain, min_size)
     seen = f.training_slips
     if seen is not None and not seen["show_band"] and seen["median_mm"] is not None and SLIP_BAND_TEST:
-        # the likelihood's band is not the one the training slips show (docs/diagnosis.md, "Round 7": its
+        # the likelihood's band is not the one the training slips show (its
         # maximum sits at a small band, a third to half of the slips' median on true stiction, because the
         # stick-slip filter also absorbs the base model's misfit at the tank's heating steps; refits from the
         # slips' median and from twice the band go back to it). Test the band the slips measure, as the fit
@@ -375,7 +375,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         band = float(seen["median_mm"])
         held_x = valid.x[vr[0]:vr[1]]
         held = slips_show_band(held_x, float(valve.stroke), band)
-        # round 13 (docs/diagnosis.md, "The stick-slip filter, round 13"): at 20-30 s the held-out quarter
+        # at 20-30 s sampling the held-out quarter
         # holds few slips, and two of them may miss a band that the record's slips measure. Where the slips
         # of the whole record (training and held-out pooled) are enough to measure a band on their own
         # (stiction.MIN_JUMPS, as the fit does) and measure this one, they confirm it, and they stand in
@@ -397,7 +397,7 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
 
 
 def _null_guarded(f: Finding, ref_fit: FitResult, train: RunData, valve: ValveParams) -> Finding:
-    """Stiction's null guard (docs/diagnosis.md, "The stick-slip filter, round 9"): a stiction finding that
+    """Stiction's null guard (docs/diagnosis.md, "Method"): a stiction finding that
     would be named is named only if at most ``NULL_EXCEED`` copies of :func:`stiction_null` reach its statistic (the
     reference model's world with the run's inputs, the pre-processing's error included)."""
     if not (NULL_GUARD and EFFECTS[f.effect].variance_gain and f.accepted):
@@ -420,8 +420,7 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
              slips_stand_in: bool = False) -> Finding:
     """The candidate ``effect``'s finding from its fit ``est``: the LR test, the held-out measures, relevance,
     and (stiction) the training slips' check; ``slips_stand_in``: the whole record's slips show the band
-    (:func:`record_shows_band`) and stand in for the training slips' check (docs/diagnosis.md, "The
-    stick-slip filter, round 13")."""
+    (:func:`record_shows_band`) and stand in for the training slips' check."""
     model, fit = est.backend_, est.result_
     lr = max(2.0 * (fit.loglik - ref_fit.loglik), 0.0)
     k = len(EFFECTS[effect].parameters)
@@ -439,7 +438,7 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
     f.significant = p < alpha and f.delta_bic < 0
     if EFFECTS[effect].variance_gain:
         # an event effect's gain must come with its events: the training opening slips by the fitted band
-        # (docs/diagnosis.md, "The stick-slip filter, round 6": under the null the base model's misfit at the
+        # (under the null the base model's misfit at the
         # tank's heating steps gives stiction tens of units with a band that the opening's slips do not show)
         n_sl, med = slip_sizes(train.x, float(valve.stroke))
         shown = band_shown(n_sl, med, float(fit.params["band_mm"]))  # the slips found once, for both
@@ -467,9 +466,9 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
     return f
 
 
-#: round 9 (docs/diagnosis.md): whether a stiction finding that would be named must pass the simulated null
+#: whether a stiction finding that would be named must pass the simulated null
 NULL_GUARD = True
-#: the stiction null guard (issue 20, round 9, docs/diagnosis.md): copies of the training run simulated
+#: the stiction null guard (docs/diagnosis.md, "Method"): copies of the training run simulated
 #: under the reference model (:func:`stiction_null`), and the band's grid (factors of the fitted band) on
 #: which the statistic is profiled
 NULL_COPIES = 19
@@ -535,10 +534,10 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     measured sd to both temperature channels (smoothed again like a measured run, so that the smoothed
     temperatures lead the world's at its kinks as the run's lead the water) and to the opening (the resting
     steps' sd, :func:`valve_env.diagnosis.stiction.resting_noise_sd`). Under the null the stick-slip filter's
-    gain comes from that misfit (docs/diagnosis.md, rounds 5-6); copies driven by the run's smoothed
+    gain comes from that misfit; copies driven by the run's smoothed
     temperatures, with the fitted noise model or the residuals resampled in blocks, lack it and gave a null
-    of 0 on every development run tried, false findings included (docs/diagnosis.md, "The stick-slip filter,
-    round 9"). Returns the observed statistic, the copies' statistics and the Monte Carlo p-value
+    of 0 on every development run tried, false findings included (docs/diagnosis.md, "Measured data of any
+    convention"). Returns the observed statistic, the copies' statistics and the Monte Carlo p-value
     (1 + k) / (1 + copies), k the copies at or above the observed one."""
     from valve_env.diagnosis.fitting import Model
     from valve_env.diagnosis.stiction import resting_noise_sd
@@ -590,11 +589,10 @@ def slips_show_band(x: np.ndarray, stroke: float, band: float, min_slips: int = 
 
     Used for stiction on the held-out part as one of its validations, on the training part as a
     condition of its significance, and on the held-out part to confirm a band measured from two or three
-    training slips (round 7). Under the null the base model's misfit at the tank's heating
+    training slips. Under the null the base model's misfit at the tank's heating
     steps gives the stick-slip filter tens of units with a small fitted band (3.5-8 um, 2-4 noise sd)
     that the opening's slips do not show (their median 1.7-11 bands, or fewer than two slips), while
-    on every named stiction run of the development seeds the median slip is 0.77-1.13 band
-    (docs/diagnosis.md, "The stick-slip filter, round 6")."""
+    on every named stiction run of the development seeds the median slip is 0.77-1.13 band."""
     return band_shown(*slip_sizes(x, stroke), band, min_slips, tol)
 
 
@@ -603,7 +601,7 @@ def record_shows_band(parts: tuple[np.ndarray, ...], stroke: float, band: float,
     held-out opening, each searched apart by :func:`valve_env.diagnosis.stiction.slips`) pooled, at least
     :data:`valve_env.diagnosis.stiction.MIN_JUMPS` of them (the count from which the fit takes the band from the
     slips alone, :func:`valve_env.diagnosis.stiction.jump_band`), whose median lies within ``tol`` (relative) of
-    ``band`` (docs/diagnosis.md, "The stick-slip filter, round 13")."""
+    ``band``."""
     from valve_env.diagnosis.stiction import MIN_JUMPS, slips
 
     sz = np.concatenate([slips(np.asarray(x, dtype=float), stroke) for x in parts])
@@ -651,7 +649,7 @@ def _bootstrap_finding(f: Finding, B: int) -> None:
                "the replicates' RMS error and the inverse-Hessian/HAC sd with half the IRW-TV difference added in "
                "quadrature; others " + how)
     if "band_mm" in b.names:
-        # issue 20, eighth round: the band's sd is the slips' (docs/uncertainty.md)
+        # the band's sd is the slips' (docs/diagnosis.md, "Parameter uncertainty: the coverage study")
         how += ("; band_mm: measured from the slips, sd the larger of the band's spread over added-noise copies of "
                 "the opening and the slips' own (bootstrap of the slip sizes' median, small-sample t factor)")
     f.std_method = f"{METHOD} (B={B}{aside}; {how})"
@@ -796,7 +794,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
     for step in steps:
         best = step[0]
         if best.accepted:
-            # issue 20: sandwich beside the Hessian, and the misspecification check (at the ML estimate)
+            # sandwich beside the Hessian, and the misspecification check (at the ML estimate)
             from valve_env.estimation.robust import robust_finding
 
             best.robust = robust_finding(best.estimator.backend_, train, best.fit,

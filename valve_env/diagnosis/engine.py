@@ -57,15 +57,14 @@ DECIDE_MOVING = 0.5
 #: prior probability that a stem which moved at the last sample has stuck since without a reversal of the
 #: demand (a valve that re-sticks after every slip, or at a pause of the demand), before the band's own
 #: probability that it stays stuck there; exp(-2), the log-likelihood ratio of 2 at which the earlier filter
-#: re-stuck it (docs/diagnosis.md, "The stick-slip filter, round 5")
+#: re-stuck it
 RESTICK_P = math.exp(-2.0)
 #: the prior probability of a slip (between measurements) at which the filter with the measured slip
 #: decision (``measured=True``) decides that a resting stem moves
 DECIDE_PRIOR = 0.999
-#: rounds 8-9 (docs/diagnosis.md): whether a resting stem's slip is weighed by each measurement (in use since
-#: round 9, behind diagnose's simulated null guard); each such measurement is scored under the two-component
-#: mixture (round 8's variant, scored under the moment-matched predictive, was worse on the null: LR 157 and 111
-#: on two development `none` runs; commit 97e27fb)
+#: whether a resting stem's slip is weighed by each measurement (in use behind diagnose's simulated null
+#: guard); each such measurement is scored under the two-component mixture (scored under the moment-matched
+#: predictive instead, it was worse on the null: LR 157 and 111 on two development `none` runs)
 MEASURED_SLIP = True
 
 
@@ -301,8 +300,7 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
         xs[k] = x_sub[sub_idx[k]]
     d2 = xs[2:] - 2.0 * xs[1:-1] + xs[:-2]
     # the noise is read off the stops: a seated demand is clipped to exactly 0, and where more than half of
-    # the samples are seated the deviation of all the second differences is 0 (docs/diagnosis.md, "The
-    # stick-slip filter, round 12")
+    # the samples are seated the deviation of all the second differences is 0
     inside = (xs > 0.0) & (xs < stroke)
     free = inside[2:] & inside[1:-1] & inside[:-2]
     if np.sum(free) >= 3:
@@ -444,8 +442,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     measurement's posterior updates ``p_slip``. A valve that re-sticks after every slip (a staircase)
     or at a pause of the demand is followed as well as an (S, J) one (docs/diagnosis.md, "The (S, J)
     stick-slip"); as the band vanishes both alternatives lose their prior, so the statistic tends to 0
-    (docs/diagnosis.md, "The stick-slip filter, round 5": the earlier filter scored the measurement
-    against the hypothesis that the measurement had chosen).
+    (a filter that scores the measurement against the hypothesis the measurement had chosen does not: its twice
+    the log-likelihood gain at a band of 1e-8 mm was 18.8-76.8 on development runs).
 
     The breakaway probability is a first-passage hazard: a stem that has stuck while the demand
     was ``dmax`` away has a band larger than ``dmax``, so it slips in this sub-step with
@@ -453,8 +451,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     all while ``|d|`` stays below ``dmax``. ``dmax`` restarts where the stem sticks again and after a
     measurement that moves the stem estimate towards the demand.
 
-    **The measured slip decision** (``measured``, default ``MEASURED_SLIP``; docs/diagnosis.md, "The
-    stick-slip filter, round 8" and "round 9"): a resting stem is not moment-matched between measurements. Each
+    **The measured slip decision** (``measured``, default ``MEASURED_SLIP``; docs/diagnosis.md,
+    "Method"): a resting stem is not moment-matched between measurements. Each
     measurement is scored once under the mixture of "stuck where it rests" (prior ``1 - p_slip``) and
     "slipped onto the demand" (prior ``p_slip``, landing sd ``landing * band``); Bayes' rule updates
     ``p_slip``, and where the slip is the more probable (``DECIDE_MOVING``) the stem is put on the demand
@@ -470,8 +468,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     **The slip J** (``slip``; negative, the default: ``J = band``, the diagnosis's stem, whose arithmetic is
     then the J = S filter's exactly): with ``0 < slip < band`` the stem of :func:`stick_simulate_sj` with
     ``S = band``: a slip lands ``band - slip`` short of the demand (at most the distance it broke away at),
-    and the moving stem follows the demand's increments with that lag (issue 20, tenth round;
-    docs/uncertainty.md, "Tenth round"). Only the measured slip decision (``measured``) carries the lag.
+    and the moving stem follows the demand's increments with that lag (docs/diagnosis.md, "What
+    ``band_mm`` is on a valve with J < S"). Only the measured slip decision (``measured``) carries the lag.
 
     Returns (loglik, one-step prediction errors of the hypothesis followed, their variances, each
     sample's log-likelihood term: the mixture's where the filter weighed hypotheses, 0 off ``mask``)."""

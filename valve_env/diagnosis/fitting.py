@@ -380,8 +380,8 @@ class Model:
         parameter crosses a value), along which a finite-difference gradient points downhill in no direction
         that the line search can use, and restarting L-BFGS-B from there fails the same way. Nelder-Mead
         (``scipy.optimize.minimize``, no gradient; ``KINK_FEVALS`` evaluations per free parameter) from that
-        point, then L-BFGS-B again; the better fit is kept (docs/diagnosis.md, "The stick-slip filter, round
-        14": on 20270705 run 28 the stiction fit from the base fit stopped at its start, LR 255 and a held-out
+        point, then L-BFGS-B again; the better fit is kept (on the development
+        study 20270705, run 28, the stiction fit from the base fit stopped at its start, LR 255 and a held-out
         gain of +0.01, and Nelder-Mead carried it to LR 357)."""
         if fit.converged or "ABNORMAL" not in fit.message:
             return fit

@@ -1,4 +1,4 @@
-"""The named effects as continuous-discrete SDE models for the estimator (issue 5's hooks).
+"""The named effects as continuous-discrete SDE models for the estimator (its extension hooks).
 
 :func:`effect_model` builds a subclass of
 :class:`valve_env.estimation.valve_model.ValveModel` with any combination of

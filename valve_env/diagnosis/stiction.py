@@ -119,8 +119,8 @@ def slips_sd(sizes: np.ndarray, rng: np.random.Generator, resamples: int = 999) 
     interval gives a sd estimated from few values. nan with fewer than 2 slips.
 
     The bootstrap of a median from few values is coarse (its resampled medians take few distinct values);
-    the factor keeps 2 sd from being an over-confident interval there (docs/uncertainty.md, "Issue 20,
-    eighth round")."""
+    the factor keeps 2 sd from being an over-confident interval there (docs/diagnosis.md, "Parameter
+    uncertainty: the coverage study")."""
     from scipy import stats
 
     sz = np.asarray(sizes, dtype=float)
@@ -136,8 +136,8 @@ def slips_sd(sizes: np.ndarray, rng: np.random.Generator, resamples: int = 999) 
 def band_spread(x: np.ndarray, stroke: float, s_w: float, draws: int, rng: np.random.Generator,
                 band: float) -> tuple[float, dict[str, float], np.ndarray]:
     """The sampling sd (mm) of :func:`jump_band`'s band measured on the opening ``x``, its parts, and the
-    added-noise re-estimates: (sd, parts, draws). The sd is the larger of two (docs/uncertainty.md,
-    "Issue 20, eighth round"):
+    added-noise re-estimates: (sd, parts, draws). The sd is the larger of two (docs/diagnosis.md,
+    "Parameter uncertainty: the coverage study"):
 
     * ``noise_sd_mm``: the sd of the band re-estimated on ``draws`` copies of ``x`` with fresh white noise
       of its sd ``s_w`` added (:func:`band_draws`; a copy with too few slips counts as ``band``): which noisy

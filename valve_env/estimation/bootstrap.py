@@ -56,8 +56,8 @@ smoothing itself puts into an effect (the IRW-RTS smoother made sensor lags abou
 independent simulator, where the true temperatures gave them back). A named smooth effect therefore
 also gets the pre-processing bracket (:func:`apply_bootstrap`): it is refitted on TV-denoised
 temperatures, that refit is the estimate, and half the two pre-processings' difference is added to
-its sd (docs/uncertainty.md, "Issue 20, fourth round"). Its replicates are refitted the same way, on
-TV-denoised temperatures (:func:`replicate_denoiser`; twelfth round): the world's temperatures are smooth,
+its sd (docs/uncertainty.md, "Errors in variables and robust uncertainty"). Its replicates are refitted the
+same way, on TV-denoised temperatures (:func:`replicate_denoiser`): the world's temperatures are smooth,
 where TV errs on the ramps, so the replicates' error about the world's truth carries TV's own
 errors-in-variables error, which a bootstrap of the IRW-RTS estimate never saw (medium_temperature on the
 project generator, seed 303: 4 / 7 of 10 runs within 1 / 2 sd before, 6 / 9 after). That error enters the
@@ -93,22 +93,22 @@ BRACKET = True
 BRACKET_DENOISER = "tv"
 BRACKET_WEIGHT = 0.5
 #: Whether the refit on the bracket's denoiser is corrected by its replicates' clear bias (else that bias enters
-#: its sd only; :func:`bootstrap`, docs/uncertainty.md, "Issue 20, twelfth round")
+#: its sd only; :func:`bootstrap`)
 BRACKET_CORRECT = False
 #: Re-estimates whose Shapiro-Wilk p-value is below this are too far from normal to bias-correct by their mean.
 NORMAL_P = 1e-3
 #: stiction's band as the breakaway travel S where the slips are shorter (:func:`breakaway_band`)
 BREAKAWAY = True
 #: the least median of the demand's travel while stuck over the slip, and the least S / J of the stick-slip
-#: filter's (S, J) profile, at which the band is taken as S (:func:`breakaway_evident`; docs/uncertainty.md,
-#: "Tenth round": on development runs whose travel passed the first threshold the filter's profile read
-#: 1.75-4.0 on `force` valves and 1.0-1.5 on J = S valves)
+#: filter's (S, J) profile, at which the band is taken as S (:func:`breakaway_evident`; docs/diagnosis.md, "What
+#: ``band_mm`` is on a valve with J < S"): on development runs whose travel passed the first threshold the
+#: filter's profile read 1.75-4.0 on `force` valves and 1.0-1.5 on J = S valves)
 BREAKAWAY_TRAVEL = 1.0
 BREAKAWAY_RATIO = 1.75
 #: the filter profile's S / J reads low on the fitted valve (its demand's error near the reversals: on the true
 #: demand the same filter read S within -4 to -12 % on the three runs tried): the geometric mean of the reading over
 #: the true S / J, and the standard error of its log, over the 11 development ``force`` runs where the band is taken as
-#: S (independent seeds 20270302, 20270306, 20270311, 20270331; docs/uncertainty.md, "Eleventh round"). The band
+#: S (independent seeds 20270302, 20270306, 20270311, 20270331). The band
 #: is the reading over this factor (:func:`breakaway_band`)
 BREAKAWAY_READ = 0.789
 BREAKAWAY_READ_SE = 0.056
@@ -418,7 +418,7 @@ def replicate_denoiser(model: Model, names: list[str]) -> str:
     was made. Where the bracket is on and ``names`` hold a named smooth effect's parameter (:func:`bracketed`),
     the reported estimate is the refit on the bracket's denoiser (:func:`preprocessing_refit`), so the
     replicates are refitted on it too, and their bias about the world's truth is that pre-processing's error in a
-    world of smooth temperatures (docs/uncertainty.md, "Issue 20, twelfth round"); else ``"irw"``."""
+    world of smooth temperatures; else ``"irw"``."""
     return BRACKET_DENOISER if BRACKET and bracketed(model, names) else "irw"
 
 
@@ -445,7 +445,7 @@ def bracketed(model: Model, names: list[str]) -> list[str]:
 def preprocessing_refit(model: Model, data: RunData, fit: FitResult, names: list[str]) -> dict[str, float]:
     """The estimates of ``names`` refitted (from ``fit``) on the TV-denoised temperatures
     (:func:`denoised_run`): the errors-in-variables bracket of a named effect (docs/uncertainty.md,
-    "The pre-processing's error"). Stiction's band is measured from the slips, not from the
+    "Errors in variables and robust uncertainty"). Stiction's band is measured from the slips, not from the
     temperatures: it is not refitted (its entry is the estimate's)."""
     smooth = bracketed(model, names)
     if not smooth:
@@ -469,7 +469,7 @@ def apply_bootstrap(model: Model, data: RunData, fit: FitResult, b: BootstrapRes
     effects' fitted parameters (:func:`bracketed`) are refitted on the TV-denoised temperatures
     (:func:`preprocessing_refit`); the estimate is that refit's, and the sd the larger of the
     bootstrap's and the inverse Hessian's, with half the two pre-processings' difference added in
-    quadrature (docs/uncertainty.md, "The pre-processing's error"). ``fit.extra`` keeps both
+    quadrature (docs/uncertainty.md, "Errors in variables and robust uncertainty"). ``fit.extra`` keeps both
     estimates (``irw_<name>``, ``tv_<name>``)."""
     fit.extra.update({f"hessian_std_{k}": float(fit.std.get(k, float("nan"))) for k in b.names})
     on = bracketed(model, b.names) if (BRACKET if bracket is None else bracket) else []
@@ -504,7 +504,7 @@ def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float, stroke: floa
 
     Why not the bootstrap world's spread: its opening, simulated open loop from the fitted valve, slips
     more regularly than the measured one (0.44 of the estimator's true sampling sd on seed 631). Why the
-    slips' own spread (issue 20, eighth round): the added noise alone gave 1-sd coverage of 1/5 on fresh
+    slips' own spread: the added noise alone gave 1-sd coverage of 1/5 on fresh
     `reset`/`sj` runs of the independent simulator (docs/uncertainty.md). The added-noise mean is not used
     (added noise moves the median of the slips up, the noise of the measurement moved it down), so the
     bias stays the bootstrap world's, and the sd carries it in quadrature whether it was corrected or not:
@@ -529,21 +529,21 @@ def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float, stroke: floa
 
 def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> dict[str, object]:
     """Stiction's band as the breakaway travel S where the slips say that the stem slips less than it sticks
-    (issue 20, ninth and tenth rounds; docs/uncertainty.md): returns the ``stick_slip`` block of the JSON, and where
-    it is applied updates ``sm`` in place (the band's estimate, sd and 95 % interval).
+    (docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S"): returns the ``stick_slip`` block of the
+    JSON, and where it is applied updates ``sm`` in place (the band's estimate, sd and 95 % interval).
 
     The band measured from the slips (``sm``'s, bias-corrected) is the slip J. The (S, J) profile of the stick-slip
     filter's likelihood (:func:`valve_env.estimation.stick_profile.sj_profile` with
     :func:`~valve_env.estimation.stick_profile.sj_filter_loglik`) gives the ratio k = S / J with its sd; it is applied
     where :func:`breakaway_evident` says so (the profile reads S / J clearly above 1 and the stick-slip check's
     statistic does not contradict it).
-    Then k is the profile's reading corrected for its low reading on the fitted valve (:func:`calibrated_ratio`,
-    eleventh round), the band is k J and its sd ``sqrt((k sd_J)^2 + (J sd_k)^2)``: the slips' sd scaled and the
+    Then k is the profile's reading corrected for its low reading on the fitted valve (:func:`calibrated_ratio`),
+    the band is k J and its sd ``sqrt((k sd_J)^2 + (J sd_k)^2)``: the slips' sd scaled and the
     calibrated profile's width (the (S, J) trade-off). Elsewhere the band stays the slips' (J = S), and the block
     reports the profile for information. The block: ``S_mm``, ``S_sd_mm`` (the band reported), ``J_mm``, ``J_sd_mm``
     (the slips'), ``applied``, where applied ``S_over_J`` and ``S_over_J_sd`` (the calibrated k), the filter
     profile's reading (:meth:`~valve_env.estimation.stick_profile.SJProfile.to_json`), the
-    ninth round's open-loop profile's (``open_loop``, for information) and the check's
+    open-loop profile's (``open_loop``, for information) and the check's
     ``travel_over_slip_median``."""
     from valve_env.estimation.robust import stick_slip_check
     from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile
@@ -554,7 +554,7 @@ def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> 
         return {}
     check = stick_slip_check(model, data, fit, warn=False)
     values = {**fit.params, k: float(fit.params[k])}
-    # the open-loop profile (ninth round), reported for information, and the stick-slip filter's (tenth), which
+    # the open-loop profile, reported for information, and the stick-slip filter's, which
     # decides and measures S
     prof_ol = sj_profile(model, data, values)
     prof = sj_profile(model, data, values, loglik=sj_filter_loglik)
@@ -587,20 +587,20 @@ def calibrated_ratio(ratio: float, ratio_sd: float) -> tuple[float, float]:
 
 def breakaway_evident(travel_over_slip: float, ratio: float, ratio_sd: float) -> bool:
     """Whether the band is the (S, J) profile's S rather than the slips' J (:func:`breakaway_band`): the profile's
-    S / J (the stick-slip filter's, tenth round) is at least :data:`BREAKAWAY_RATIO` and at least one of its sd
-    ``ratio_sd`` above 1 (eleventh round: a flat profile is no evidence of J < S; a J = S run of
+    S / J (the stick-slip filter's) is at least :data:`BREAKAWAY_RATIO` and at least one of its sd
+    ``ratio_sd`` above 1 (a flat profile is no evidence of J < S; a J = S run of
     tests/diagnosis/test_uncertainty.py read 1.75 +- 1.27 and took S at +90 %, while every development ``force``
     run that takes S reads 1.18-4.7 sd above 1), and the fitted demand's travel
     while stuck over the slip
     (the stick-slip check's statistic, :func:`valve_env.estimation.robust.stuck_travel`'s median; nan with no
     slip measured) at least :data:`BREAKAWAY_TRAVEL`: the stem stuck longer than it slipped.
 
-    Neither profile alone is a test of J < S: the ninth round's open-loop profile put J = S valves up to 2.0
+    Neither profile alone is a test of J < S: the open-loop profile put J = S valves up to 2.0
     and ``force`` valves at 1.75-2.75; the filter's puts some J = S valves at 1.25-2.25 too. Those valves stuck
     less long than they slipped (travel ratio below 1: a stem that re-sticks after every slip), while on the
     ``force`` valves the ratio is above 1 (their slip J is shorter than the breakaway travel). On the development
     runs that pass the travel test the filter's profile read 1.0-1.5 on J = S valves and 1.75-4.0 on ``force``
-    valves (docs/uncertainty.md, "Tenth round")."""
+    valves (docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S")."""
     return bool(math.isfinite(travel_over_slip) and travel_over_slip >= BREAKAWAY_TRAVEL
                 and ratio >= BREAKAWAY_RATIO and ratio - 1.0 >= ratio_sd)
 

@@ -45,7 +45,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--validate", metavar="OTHER.csv", default=None,
                    help="an independent run for cross-validation (paper Fig. 7)")
     p.add_argument("--eiv", action="store_true",
-                   help="errors in variables (the default since issue 20; kept for old command lines)")
+                   help="errors in variables (the default; kept for old command lines)")
     p.add_argument("--ml", action="store_true",
                    help="the plain maximum-likelihood fit alone (faster): params the relaxed-denoiser ML estimates, "
                    "std the inverse Hessian, which is NOT calibrated under temperature noise (docs/uncertainty.md)")

@@ -12,8 +12,8 @@ The pieces (docs/estimation.md, "Standard errors"):
   not positive (or below ``rtol`` times the largest), or when the +-1 sd interval of the
   likelihood along it (``2 / sqrt(lam)`` wide) is wider than the parameter box along it. Such
   directions carry no information; inverting them lets finite-difference noise and the scores of
-  a flat direction inflate every sd (a 500-fold inflated sd of the medium-temperature beta,
-  issue 16).
+  a flat direction inflate every sd (a 500-fold inflated sd of the medium-temperature beta
+  where every direction was inverted).
 * :func:`hac_meat`: the Newey-West (Bartlett) long-run covariance of per-sample scores
   (statsmodels' ``S_hac_simple``).
 * :func:`hessian_sandwich_sd`: the larger of the model-based sd (inverse Hessian) and the robust
@@ -156,7 +156,7 @@ def hessian_sandwich_parts(nll: Callable[[np.ndarray], float], contrib: Callable
     ``working`` marks the residual model's parameters (noise levels, correlation time): in the
     sandwich of the others they are held at their estimates (a working covariance: the sandwich for
     the parameters of the mean stays valid however wrong it is, Liang and Zeger 1986); letting their
-    scores in carried the misfit of a nearly flat noise direction into every sd (issue 16: 500 times
+    scores in carried the misfit of a nearly flat noise direction into every sd (500 times
     the bootstrap sd of beta). The working parameters keep the full sandwich. NaN where nothing is
     identified."""
     z = np.asarray(z, dtype=float)

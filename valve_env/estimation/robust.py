@@ -247,7 +247,7 @@ BOOTSTRAP_ADVICE = ("the reported sd is a bootstrap in this model's own world, w
 
 #: the stick-slip check fires when the median, over the slips, of the demand's travel while stuck over the slip's
 #: size lies outside [1 / STICK_TOL, STICK_TOL] (:func:`stick_slip_check`; calibrated on development runs,
-#: docs/uncertainty.md, "Issue 20, seventh round")
+#: docs/uncertainty.md, "Sandwich standard errors and the misspecification check")
 STICK_TOL = 1.6
 #: the fewest slips the stick-slip check judges (fewer: not tested, it does not fire)
 STICK_MIN_SLIPS = 4
@@ -294,7 +294,8 @@ def stick_slip_check(model: Model, data: RunData, fit: FitResult, *, tol: float 
     Why not the whiteness check: at each slip the stick-slip filter's one-step error is one large error, and
     the filter catches up over a few samples, so its standardised errors are neither Gaussian nor white on
     the right model (Ljung-Box p below 1e-5 on 15 of 15 development runs, slips set aside or not;
-    docs/uncertainty.md, "Issue 20, seventh round"). The whiteness result is kept beside it for
+    docs/uncertainty.md, "Sandwich standard errors and the misspecification check"). The
+    whiteness result is kept beside it for
     information (``whiteness``)."""
     stroke = float(model.valve.stroke)
     demand, _, _ = model.simulate(data, {**fit.params, "band_mm": 0.0})
@@ -347,7 +348,8 @@ def effect_misspecification(model: Model, data: RunData, fit: FitResult, *, alph
 
 def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = True,
                    bootstrap_sd: bool = False) -> dict[str, object]:
-    """What a named effect's JSON carries beside its ``std`` (docs/uncertainty.md, "Named effects"):
+    """What a named effect's JSON carries beside its ``std`` (docs/uncertainty.md, "Sandwich standard
+    errors and the misspecification check"):
     ``std_hessian`` and ``std_robust`` of its effect parameters (:func:`sandwich_std`), ``robust_lags``
     and ``misspecification`` (:func:`effect_misspecification`, which warns)."""
     from valve_env.diagnosis.effects import EFFECTS

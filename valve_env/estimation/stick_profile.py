@@ -26,10 +26,10 @@ The open-loop profile is not a test of J < S: on 36 development runs whose valve
 above 1 on 28, up to 2.0 (a stem that re-sticks after every slip lags its demand by half a step on average,
 and the fitted demand's error near the reversals is of the lag's size); on 12 of 13 ``force`` runs (S / J 1.8-3.3)
 it read 1.75-2.75, S within -31 to +16 %. The diagnosis's bootstrap takes as the band the S of the stick-slip
-filter's profile (:func:`sj_filter_loglik`, tenth round) where it reads at least 1.75 and the stem stuck longer
-than it slipped, that reading corrected for its low reading on the fitted valve (eleventh round;
-:func:`valve_env.estimation.bootstrap.breakaway_band`, :func:`~valve_env.estimation.bootstrap.calibrated_ratio`;
-docs/uncertainty.md, "Issue 20, ninth round" to "Eleventh round").
+filter's profile (:func:`sj_filter_loglik`) where it reads at least 1.75 and the stem stuck longer
+than it slipped, that reading corrected for its low reading on the fitted valve
+(:func:`valve_env.estimation.bootstrap.breakaway_band`, :func:`~valve_env.estimation.bootstrap.calibrated_ratio`;
+docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S").
 """
 
 from __future__ import annotations

@@ -435,7 +435,7 @@ def _irw_pass(t: np.ndarray, y: np.ndarray, q: float, r: float, smooth: bool,
 
 #: degrees of freedom of the Student-t process noise of :func:`smooth_temperature` (its mixing
 #: Gamma(nu/2, nu/2)): the heaviest tail of 0.5, 1, 2 and 4 that recovered the noise sd best on the
-#: development seeds (docs/estimation.md, "The collapse of the noise estimate")
+#: development seeds (docs/estimation.md, "Temperature pre-processing")
 STUDENT_NU = 1.0
 
 
@@ -463,7 +463,7 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, nu: float = STUDENT_NU, max
     The former smoother (iteratively reweighted Gaussian passes with ``q`` and ``r`` re-estimated by
     Nelder-Mead at weights without a prior) drove r to 0 on a quarter of the channels of the
     development runs, returning the raw reading as the "smoothed" temperature (docs/estimation.md,
-    "The collapse of the noise estimate").
+    "Temperature pre-processing").
 
     Returns (level degC, rate K/s, s_T degC, s_v K/s/sqrt(s)), with s_T = sqrt(r) and s_v = sqrt(q)
     the nominal (lambda = 1) scale of the rate's random walk."""

@@ -17,7 +17,7 @@ draws, 70 degC supply, the paper's valve). The others are not seen in training:
 | random_supply | the supply temperature wanders (Ornstein-Uhlenbeck, 5 K sd, 2 h) |
 | valve_random | per episode, sigma, F_hmax and p_bset ~ N(paper Table 4 estimate, its standard error) |
 
-Until issue 16 the leaderboard's ``cold_supply`` meant a constant 65 degC supply while
+Earlier leaderboards' ``cold_supply`` meant a constant 65 degC supply while
 ``configs/scenarios/cold_supply.yaml`` meant 60 degC with a daily swing; the first is now
 ``supply_65C`` (the same environment, so its published figures stand under the new name).
 

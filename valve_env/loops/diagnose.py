@@ -20,18 +20,18 @@ nonlinearity is named ``stiction`` only when all of these hold:
    load at the oscillation's period (the periodogram peak near the oscillation test's period; the noise order
    chosen again): an external periodic load is the other explanation of an oscillation, and it is given to the
    linear valve and the nonlinear ones alike, so the comparison is between valves, not disturbances
-   (:func:`with_periodic_load`; docs/loops.md, "Tenth session: external oscillation"). Not where the record rules an
+   (:func:`with_periodic_load`; docs/loops.md, "Decision"). Not where the record rules an
    external load out: an oscillation the OP explains through the linear process, which the linear loop closed by the
    identified controller damps (:func:`oscillation_cause`), is the loop's own limit cycle, and a sinusoid at its
-   period only absorbs its fundamental (docs/loops.md, "Thirteenth session: the loop's own limit cycle").
+   period only absorbs its fundamental (docs/loops.md, "Oscillation causes").
 
 A **parametric-bootstrap LR test** (the scan's statistic against 19 records simulated from the fitted
 linear loop, :func:`bootstrap_test`; its replicates only with ``bootstrap=True``) is reported
 (``decision.bootstrap``) but does not vote:
-the fourth session's grouped cross-validation rejected it (its Gaussian AR null is too narrow for the
+the grouped cross-validation rejected it (its Gaussian AR null is too narrow for the
 simulated smooth loops' load drift; docs/loops.md, "Decision").
 
-**The valve's seat** (docs/loops.md, "Loops from the environment", tenth session): where the comparison above does
+**The valve's seat** (docs/loops.md, "Loops from the environment"): where the comparison above does
 not name stiction and the record holds a seat (:func:`valve_env.loops.model.scan_seats`), the same comparison runs
 again with each kind of valve on its seat (the stick-slip's lower end stop; the linear valve's seat kept only where its
 maximum-likelihood fit keeps it, :func:`linear_seat_kept`) and decides, naming only a band the record resolves
@@ -48,7 +48,7 @@ it does (the oscillation is the loop's own): ``aggressive_tuning`` when the fitt
 controller identified from the record rings at the observed period (:func:`closed_loop`, :func:`rings`), or
 when the controller cannot be identified (the earlier rule), and ``nonlinear_oscillation`` when the linear loop
 damps it, so that a nonlinearity the likelihood did not confirm as stiction sustains it (docs/loops.md,
-"Oscillation causes"; ninth session).
+"Oscillation causes").
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ RING_PERIOD_FACTOR = 2.0
 #: inflation of the profile-likelihood sd of the band, from the simulated calibration study
 #: (benchmarks/loop_benchmark.py --calibrate; docs/loops.md, "Band uncertainty")
 BAND_SD_INFLATION = 1.0
-#: relative model-error sd of the band, calibrated on simulated loops (the fifth session: seeds 0-19, 1000-1019 and
+#: relative model-error sd of the band, calibrated on simulated loops (seeds 0-19, 1000-1019 and
 #: 2000-2019 of benchmarks/loop_benchmark.py, 53 named bands): the smallest value whose 2-sd coverage reaches the
 #: nominal 95 % (0.08: 92 %, 0.10: 98 %, 1-sd 74 %); docs/loops.md, "Band uncertainty"
 BAND_REL_SD = 0.10
@@ -107,7 +107,8 @@ SAMPLING_SD_SHARE = 1.0
 #: nonlinearity the decision's BIC preferred (docs/loops.md, "Band uncertainty")
 BAND_CANDIDATE = "stiction"
 #: evidence needed on the BIC scale: delta BIC below -20 (beyond Kass & Raftery's "very strong", 10; set on the
-#: development loops, docs/loops.md; chosen again by the fourth session's grouped cross-validation)
+#: development loops, docs/loops.md; chosen again by the grouped cross-validation, docs/loops.md, "Grouped
+#: cross-validation")
 DELTA_BIC_MAX = -20.0
 #: level of the parametric-bootstrap LR test, reported beside the decision (round(1/alpha) - 1 = 19 replicates;
 #: docs/loops.md, "Decision")
@@ -226,7 +227,7 @@ def _heldout_gain(loop: LoopData, valve: str, s: Settings, seat_lin: float = -ma
     """Held-out log-likelihood gain of ``valve`` (on its ``seat``) over the linear valve (on ``seat_lin``), summed
     over the two halves (the fits looked up in ``memo`` first: :func:`~valve_env.loops.model.fit_valve`); ``extra_S``
     are bands added to each half's band grid (the seat search's band, paired with the seat the halves are given:
-    docs/loops.md, "Thirteenth session: the seat search")."""
+    :func:`~valve_env.loops.model.scan_seats`)."""
     first, second = heldout_halves(loop.n, s.k0)
     gain = 0.0
     s = replace(s, n_grid=10)
@@ -258,8 +259,8 @@ def crosses_back(x: np.ndarray) -> bool:
 
 
 def band_resolved(fit: ValveFit, op: np.ndarray) -> bool:
-    """Whether the record ``op`` resolves the band of the valve ``fit`` (docs/loops.md, "Band uncertainty" and "Twelfth
-    session: a band the valve never crosses back"): the band is at least one sample's OP move
+    """Whether the record ``op`` resolves the band of the valve ``fit`` (docs/loops.md, "Band uncertainty"): the band
+    is at least one sample's OP move
     (:func:`sampling_offset`: a narrower band holds the valve for less than a sample), and the fitted valve crosses it
     back at least once (:func:`crosses_back`). A valve that only moves on in its first direction shows its slip jump J
     and that the band exceeds every push back in the record, not the band: a band wider than the OP's whole range,
@@ -272,7 +273,7 @@ def crosses_back_in_halves(fit: ValveFit, loop: LoopData, k0: int) -> bool:
     """Whether the fitted valve crosses its band back (:func:`crosses_back`) within each half of the held-out check
     (:func:`heldout_halves`; the path is the whole record's). A half in which the valve never reverses holds no
     evidence of the band, so the held-out check on it tests the valve only on the other half (docs/loops.md,
-    "Fourteenth session: the seated fallback's halves")."""
+    "Decision", condition 3)."""
     x = fit.path(loop.op)
     return all(crosses_back(x[a:b]) for a, b in heldout_halves(loop.n, k0))
 
@@ -311,7 +312,7 @@ def _band_fit(loop: LoopData, fit: ValveFit, s: Settings, scan_S: float) -> Valv
     ``s.band_substeps`` steps per sample on the mean-preserving sub-sample OP (docs/loops.md, "Band uncertainty":
     the recorded OP is an interval mean, so the sample-rate valve never sees the band's ends on a fast cycle),
     its band grid holding the decision fit's and the LR scan's bands and its J / S grid the finer ``BAND_J_FRACTIONS``
-    (seventh session, second round: a small slip jump was read as J = 0). The decision itself stays with the
+    (on the coarser grid a small slip jump was read as J = 0). The decision itself stays with the
     sample-rate valve, whose false-alarm rate and held-out check were calibrated."""
     if s.band_substeps == fit.substeps:
         return fit
@@ -356,8 +357,8 @@ def bootstrap_test(loop: LoopData, lin: ValveFit, s: Settings, alpha: float, see
 
 
 def with_periodic_load(loop: LoopData, s: Settings, period_s: float, reselect: bool = True) -> Settings:
-    """``s`` with a sinusoidal load in every candidate's disturbance basis (docs/loops.md, "Tenth session: external
-    oscillation"), at the periodogram peak of the control error near the oscillation test's ``period_s``
+    """``s`` with a sinusoidal load in every candidate's disturbance basis (docs/loops.md, "Decision",
+    condition 4), at the periodogram peak of the control error near the oscillation test's ``period_s``
     (:func:`~valve_env.loops.model.dominant_period`); with ``reselect`` the noise order is chosen again with it."""
     period = dominant_period(loop.pv - loop.sp, loop.dt, period_s)
     if reselect:
@@ -370,7 +371,7 @@ def _pct_or_none(seat: float) -> float | None:
     return float(seat) if math.isfinite(seat) else None
 
 
-#: no seat for either kind of valve (the earlier sessions' comparison)
+#: no seat for either kind of valve (the unseated comparison)
 NO_SEAT = Seats(-math.inf, -math.inf, 0.0, 0.0)
 
 
@@ -381,7 +382,7 @@ def linear_seat_kept(loop: LoopData, s: Settings, seats: Seats, unseated: ValveF
     where the maximum-likelihood linear valve on that seat (its AR noise fitted) does not gain a parameter's BIC cost
     (``log n`` in 2 ln L) over the linear valve without a seat (``unseated``, the first comparison's), a nonlinear
     valve would be compared with a linear one that fits worse than the linear valve the record already has
-    (docs/loops.md, "Thirteenth session: the seat search ... and the seated fallback's linear valve")."""
+    (docs/loops.md, "Loops from the environment")."""
     if not math.isfinite(seats.linear):
         return seats
     lin = fit_valve(loop.op, loop.pv, "linear", replace(s, seat=seats.linear), memo=memo)
@@ -411,7 +412,7 @@ def compare(loop: LoopData, s: Settings, alpha: float = 0.01, heldout: bool = Tr
             bootstrap: bool = False, seats: Seats = NO_SEAT, memo: FitMemo | None = None) -> Comparison:
     """Fit the three valve candidates with the disturbance model of ``s`` on ``seats`` and compare them
     (:class:`Comparison`). ``memo`` holds the record's process fits across the comparisons of one diagnosis (a fit
-    repeated is looked up: :func:`~valve_env.loops.model.fit_valve`; docs/loops.md, "Eleventh session: speed")."""
+    repeated is looked up: :func:`~valve_env.loops.model.fit_valve`)."""
     if memo is None:
         memo = {}
     s_nl = replace(s, seat=seats.nonlinear)
@@ -460,9 +461,9 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
     ``bootstrap`` runs the replicates of the non-voting parametric-bootstrap test (:func:`bootstrap_test`;
     the LR scan itself always runs). With ``periodic_load``, a stiction finding on an oscillating record must also
     hold when every candidate carries a sinusoidal load at the oscillation's period (:func:`with_periodic_load`;
-    docs/loops.md, "Tenth session: external oscillation"). Where the comparison without a seat does not name
+    docs/loops.md, "Decision", condition 4). Where the comparison without a seat does not name
     stiction and the record holds a seat, the same comparison with each kind of valve on its seat decides, its band
-    resolved by the record (docs/loops.md, "Loops from the environment", tenth session)."""
+    resolved by the record (docs/loops.md, "Loops from the environment")."""
     s = settings or select_noise_order(loop)
     if s.dt != loop.dt:
         s = replace(s, dt=loop.dt)
@@ -473,7 +474,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         """Whether ``c`` names stiction, with condition 4 (the periodic load, on the same seats) where it applies: not
         where the record itself rules an external load out, an oscillation the OP explains through the linear process
         and the linear loop closed by the identified controller damps (:func:`oscillation_cause`'s
-        ``nonlinear_oscillation``; docs/loops.md, "Thirteenth session: the loop's own limit cycle")."""
+        ``nonlinear_oscillation``; docs/loops.md, "Oscillation causes")."""
         if not (periodic_load and c.justified and osc["oscillating"] and not math.isfinite(s.load_period_s)):
             return c.justified, None
         if oscillation_cause(loop, c.fits["linear"], osc["period_s"], s.k0)[0] == "nonlinear_oscillation":
@@ -492,9 +493,9 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         alt = compare(loop, s, alpha, heldout, bootstrap, seats=seats, memo=memo)
         # the seated fallback names only a band the record resolves (band_resolved): not one below one sample's OP
         # move (the flow loops' smooth twins 16612 and 16616 were named at 0.06-0.07 % of OP), nor one its valve never
-        # crosses back (smooth seat seeds 5 and 8: two slips upwards in 4 h, bands 5.6 and 7.3 % of OP; twelfth
-        # session), nor one it does not cross back within each of the held-out check's halves (smooth seat seeds 364 and
-        # 408: one and two reversals, all in the second half; fourteenth session)
+        # crosses back (smooth seat seeds 5 and 8: two slips upwards in 4 h, bands 5.6 and 7.3 % of OP),
+        # nor one it does not cross back within each of the held-out check's halves (smooth seat seeds 364 and
+        # 408: one and two reversals, all in the second half)
         band_fit_alt = alt.fits[BAND_CANDIDATE]
         if (alt.justified and band_resolved(band_fit_alt, loop.op)
                 and crosses_back_in_halves(band_fit_alt, loop, s.k0)):
@@ -545,7 +546,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
         "shape": {k: shape[k] for k in ("statistic", "phase_signed_deg", "ratio", "tau_r", "tau_l", "integrating",
                                         "verdict")},
     }
-    if periodic is not None:  # the check under a periodic load (docs/loops.md, "Tenth session")
+    if periodic is not None:  # the check under a periodic load (docs/loops.md, "Decision", condition 4)
         pn = periodic.nonlin
         result["decision"]["periodic_load"] = {
             "period_s": periodic.s.load_period_s,
@@ -553,7 +554,7 @@ def diagnose(loop: LoopData, settings: Settings | None = None, alpha: float = 0.
             "justified": periodic.justified, "best_nonlinear": pn["candidate"], "delta_bic": pn["delta_bic"],
             "p_value": pn["p_value"], "heldout_loglik_gain": pn["heldout_loglik_gain"], "neff_factor": periodic.neff}
     # what the linear loop says of the oscillation (oscillation_cause), also where stiction is named: its
-    # nonlinear_oscillation waives condition 4 (docs/loops.md, "Thirteenth session")
+    # nonlinear_oscillation waives condition 4 (docs/loops.md, "Decision" and "Oscillation causes")
     result["oscillation"] = {**osc, "linear_sim_r2": r2, "closed_loop": cl,
                              "linear_loop_cause": osc_cause if osc["oscillating"] else None}
     result["loop"] = {"tag": loop.tag, "source": loop.source, "n_samples": loop.n, "dt_s": loop.dt,

@@ -34,7 +34,7 @@ def record_env_loop(band_mm: float | None, seed: int = 0, hours: float = RECORD_
     ``filter_s`` is the PI's first-order measurement filter (the historian records the unfiltered PV);
     ``Kp`` (K of setting per K) and ``Ti_s`` override the PI's stored gains for ``env_id``; ``F_hmax`` (N) the
     valve's Dahl friction (default: the paper's 1.31 N, whose hysteresis loop is 0.8 K of setting wide, 2 % of OP:
-    wider than the 0.1 mm stick band's 0.6 K; docs/loops.md, "Fifteenth session: the smooth stem's own band")."""
+    wider than the 0.1 mm stick band's 0.6 K; docs/loops.md, "Loops from the environment")."""
     if not (hours > 0.0 and warmup_h >= 0.0):  # also rejects NaN
         raise ValueError(f"record_env_loop: hours must be > 0 and warmup_h >= 0, got {hours!r} and {warmup_h!r}")
     total = hours + warmup_h

@@ -44,7 +44,7 @@ VALVES: tuple[str, ...] = ("linear", "backlash", "stiction")
 VALVE_EXTRA_PARAMS = {"linear": 0, "backlash": 1, "stiction": 2}
 #: J / S values tried for the stiction valve (it includes J = 0, so it nests the backlash candidate)
 J_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)
-#: J / S values tried by the band's fit (docs/loops.md, "Band uncertainty", seventh session, second round): a finer
+#: J / S values tried by the band's fit (docs/loops.md, "Band uncertainty"): a finer
 #: grid holding J_FRACTIONS (nested), so that a small slip jump (J/S 0.3-0.4) is not read as J = 0
 BAND_J_FRACTIONS: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0)
 #: time constants tried for the self-regulating process, s
@@ -112,7 +112,7 @@ def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, subst
 
 def seated(x: np.ndarray, seat: float) -> np.ndarray:
     """The valve position ``x`` (% of OP) on its seat at ``seat``: a control valve closes on its seat, so below it the
-    flow is nil whatever the stem's input or stiction (docs/loops.md, "Loops from the environment", tenth session);
+    flow is nil whatever the stem's input or stiction (docs/loops.md, "Loops from the environment");
     for a sticky valve the seat is the stick-slip's end stop (:func:`valve_path`'s ``seat``). ``seat`` -inf (or any
     non-finite value) is no seat."""
     return np.maximum(x, seat) if np.isfinite(seat) else x
@@ -238,7 +238,7 @@ def _oe_fit_moments(pv: np.ndarray, w: np.ndarray, bidx: np.ndarray, bval: np.nd
                     BB: np.ndarray, k0: int, k1: int, p: int, n_iter: int, r: np.ndarray) -> tuple:
     # pragma: no cover - compiled
     """:func:`_oe_fit` for :func:`_best_process`'s many candidates, the same alternating least squares computed
-    faster (docs/loops.md, "Eleventh session: speed"): the AR-filtered normal equations are sums over the lag pairs
+    faster: the AR-filtered normal equations are sums over the lag pairs
     of the AR(2) filter of the terms' lagged cross moments, so the moments of ``w`` are taken once (the basis's
     and ``pv``'s, :func:`_fixed_moments`, once for all candidates) and each iteration assembles its equations from
     them instead of a pass over the record; the residual, the AR filter and the RSS are computed on the record as
@@ -357,7 +357,7 @@ def disturbance_basis(n: int, dt: float, knot_s: float, period_s: float = math.i
     """Hat functions (linear B-splines) with knots every ``knot_s``: a slow load disturbance (one
     column, a constant, when ``knot_s`` is infinite or longer than the record); with a finite ``period_s``, also a
     sine and a cosine of that period: a periodic load at the record's oscillation period, the same for every valve
-    candidate (docs/loops.md, "Tenth session: external oscillation")."""
+    candidate (docs/loops.md, "Decision", condition 4)."""
     t = np.arange(n) * dt
     if not np.isfinite(knot_s) or knot_s >= t[-1]:
         B = np.ones((n, 1))
@@ -375,7 +375,7 @@ def dominant_period(r: np.ndarray, dt: float, near_s: float, factor: float = 1.5
     """The period (s) of the largest peak of the periodogram of ``r`` (its linear trend removed; zero-padded
     ``pad`` times, so the peak is located to a fraction of a Fourier bin) between ``near_s / factor`` and
     ``near_s * factor`` (and at least two samples): the least-squares period of a sinusoid near an oscillation's
-    period ``near_s`` (docs/loops.md, "Tenth session: external oscillation")."""
+    period ``near_s`` (docs/loops.md, "Decision", condition 4)."""
     z = r - np.polyval(np.polyfit(np.arange(r.size), r, 1), np.arange(r.size))
     m = pad * r.size
     power = np.abs(np.fft.rfft(z, m)) ** 2
@@ -403,16 +403,16 @@ class Settings:
     n_grid: int = 16
     disturbance_knot_s: float = 1200.0
     #: the period of a sinusoidal load in the disturbance basis of every candidate, s (inf: none; set by
-    #: valve_env.loops.diagnose for an oscillating record: docs/loops.md, "Tenth session: external oscillation")
+    #: valve_env.loops.diagnose for an oscillating record: docs/loops.md, "Decision", condition 4)
     load_period_s: float = math.inf
     #: the valve's steps per recorded sample, driven by the mean-preserving sub-sample OP (:func:`subsample_op`) and
-    #: averaged back over each sample, as the historian averages OP; 1 is the sample-rate valve of the earlier
-    #: sessions (nested). The decision's fits use ``substeps``, the band's fit ``band_substeps`` (docs/loops.md,
-    #: "Model" and "Band uncertainty"; seventh session)
+    #: averaged back over each sample, as the historian averages OP; 1 is the sample-rate valve (nested). The
+    #: decision's fits use ``substeps``, the band's fit ``band_substeps`` (docs/loops.md, "Model" and "Band
+    #: uncertainty")
     substeps: int = 1
     band_substeps: int = 4
     #: the valve's seat, % of OP: every candidate's valve position is clipped from below at it (:func:`seated`;
-    #: docs/loops.md, "Loops from the environment", tenth session); -inf is no seat (the earlier sessions' model)
+    #: docs/loops.md, "Loops from the environment"); -inf is no seat (the unseated model)
     seat: float = -math.inf
 
     @property
@@ -568,7 +568,7 @@ def _fit_path(op: np.ndarray, pv: np.ndarray, S: float, J: float, d0: float, s: 
     """:func:`fit_process` behind the valve ``(S, J, d0)`` (``S`` 0: the linear valve) on ``s.seat`` at
     ``s.substeps``, looked up in ``memo`` (the same record's fits) first and stored there: the backlash valve's paths
     are the stiction valve's at J = 0, and a comparison on other seats repeats the fits of a kind of valve whose seat
-    is the same (docs/loops.md, "Eleventh session: speed")."""
+    is the same."""
     key = (s, s.k0 if k0 is None else k0, pv.size if k1 is None else k1, float(S), float(J), float(d0))
     if memo is not None and key in memo:
         return memo[key]
@@ -635,7 +635,7 @@ def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray
     has the values ``bval[k]`` in the columns ``bidx[k]``. A delay shifts the lag's output (the filter starts
     at rest at ``x[0]``; for the integrator the shift adds a constant, which the basis holds).
 
-    Computed fast (docs/loops.md, "Eleventh session: speed"): the basis block of the normal equations is the same
+    Computed fast: the basis block of the normal equations is the same
     for every path and structure, so each is solved by its Schur complement with the basis block's inverse taken
     once; the lag's output's moments are taken once per whole-sample delay (its squares and lag-one products from
     prefix sums), a fractional delay's being the linear interpolation's combinations of its two whole delays'."""
@@ -832,8 +832,8 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
 SEAT_QUANTILES: tuple[float, ...] = tuple(float(q) for q in np.round(np.arange(0.05, 0.951, 0.05), 3))
 
 
-#: the seat's second stage (docs/loops.md, "Loops from the environment", tenth session, and "Thirteenth session: the
-#: seat search"): about each of the ``SEAT_FINE_TOP`` first-stage levels whose best nonlinear path fits best, seat
+#: the seat's second stage (docs/loops.md, "Loops from the environment"; :func:`scan_seats`): about each of the
+#: ``SEAT_FINE_TOP`` first-stage levels whose best nonlinear path fits best, seat
 #: levels in quantile steps of ``SEAT_FINE_STEP`` within ``SEAT_FINE_SPAN`` of it (the first stage's own step: the
 #: neighbourhoods reach the levels half-way to the next), crossed with bands in geometric steps of ``SEAT_FINE_RATIO``
 #: over the scan's range, scored under that level's process structure (lag and delay); the ``SEAT_FINE_KEEP`` best of
@@ -847,7 +847,7 @@ SEAT_FINE_KEEP = 4
 
 @dataclass(frozen=True)
 class Seats:
-    """The seat of each kind of valve (docs/loops.md, "Loops from the environment", tenth session), % of OP (-inf:
+    """The seat of each kind of valve (docs/loops.md, "Loops from the environment"), % of OP (-inf:
     no seat): the linear valve's and the nonlinear valves' (backlash and stick-slip, whose stem rests on the seat and
     breaks away from it), each the level of :data:`SEAT_QUANTILES` (or none) that the LR scan's best path of that
     kind fits best, a level kept only where it gains more than a parameter's BIC cost (``log n``) over no seat (the
@@ -867,7 +867,7 @@ def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
     squares, each path with its best process structure) repeated with the valve on each seat level; then, for a
     seated nonlinear valve, a second stage searching band and seat together: a valve that rests on its seat is a
     relay whose likelihood is a narrow ridge in (band, seat), which the first stage's grid can rank below a wrong
-    level (docs/loops.md, "Thirteenth session: the seat search"). About each of the ``SEAT_FINE_TOP`` best first-stage
+    level. About each of the ``SEAT_FINE_TOP`` best first-stage
     levels, seat levels ``SEAT_FINE_STEP`` apart (quantiles, within ``SEAT_FINE_SPAN``) are crossed with bands
     ``SEAT_FINE_RATIO`` apart under that level's best path's process structure (:func:`_scan_rss_paths`'
     ``structure``), and the ``SEAT_FINE_KEEP`` best of each neighbourhood are scored again over every structure."""

@@ -114,7 +114,7 @@ _MIXING_VALVE_SOURCES: dict[str, str] = {
         "Technical Guidelines for the Prevention, Control and Investigation of Infections Caused by Legionella "
         "species: stored at 60 degC, at least 50 degC at the outlets within a minute; DVGW W 551 (2004): 60 "
         "degC at the cylinder's outlet); 65 degC, the band's top, is the upper end of the usual 60-65 degC store "
-        "setting, a conservative choice (the valve takes up to 90 degC; the fifth round found the same headroom "
+        "setting, a conservative choice (the valve takes up to 90 degC; a screening found the same headroom "
         "with no upper end, docs/tasks.md)",
     "the tracking charge below 60 degC (unchanged)":
         "a mixing valve cannot heat: a store below the target delivers it too cold",

@@ -287,7 +287,7 @@ class ThermoValveStickyValveEnv(ThermoValveTaskEnv):
     ## Version history
 
     * v0: initial release (started at 55 +- 3 degC, ThermoValve-v0's reward).
-    * v0, revised (issue 18, 23 Nov 2026): steady start at 60 +- 0.5 degC and no energy term, so the
+    * v0, revised (23 Nov 2026): steady start at 60 +- 0.5 degC and no energy term, so the
       cost is what the sticky stem spoils; the id was kept (the tasks are not released yet; the
       earlier figures are in git history).
     """
@@ -340,7 +340,7 @@ class ThermoValveStickyCirculationEnv(ThermoValveTaskEnv):
 
     ## Version history
 
-    * v0 (issue 18, 24 Nov 2026): ThermoValveStickyValve-v0 plus the circulation loop; that task is unchanged.
+    * v0 (24 Nov 2026): ThermoValveStickyValve-v0 plus the circulation loop; that task is unchanged.
     """  # noqa: E501
 
     task_id: ClassVar[str] = "ThermoValveStickyCirculation-v0"
@@ -466,7 +466,7 @@ class ThermoValveDistrictHeatingEnv(ThermoValveTaskEnv):
     ## Version history
 
     * v0: initial release (started at 55 +- 3 degC, no settlement).
-    * v0, revised (issue 18, 23 Nov 2026): steady start at 60 +- 0.5 degC and the end-of-day
+    * v0, revised (23 Nov 2026): steady start at 60 +- 0.5 degC and the end-of-day
       settlement of the stored heat (an oracle seeing the end emptied the tank); the id was kept
       (the tasks are not released yet; the earlier figures are in git history).
     * v1 (24 Nov 2026, ThermoValveDistrictHeating-v1): the store behind a thermostatic mixing valve,
@@ -531,7 +531,7 @@ class ThermoValveDistrictHeatingPowerEnv(ThermoValveTaskEnv):
 
     ## Version history
 
-    * v0: initial release (issue 18, 24 Nov 2026).
+    * v0: initial release (24 Nov 2026).
     * v1 (24 Nov 2026, ThermoValveDistrictHeatingPower-v1): the store behind a thermostatic mixing
       valve, no tracking charge from 60 to 65 degC. v0 stays registered, bit for bit.
     * 28 Nov 2026 (both versions): hour_so_far_kW's box is [-100, 100], not [0, 100] (the coil gives heat
@@ -601,7 +601,7 @@ class ThermoValveDistrictHeatingV1Env(ThermoValveTaskEnv):
     ## Version history
 
     * v0: ThermoValveDistrictHeating-v0 (its docstring; registered, bit for bit).
-    * v1: the store behind a thermostatic mixing valve, free from 60 to 65 degC (issue 18, 24 Nov 2026).
+    * v1: the store behind a thermostatic mixing valve, free from 60 to 65 degC (24 Nov 2026).
     """
 
     task_id: ClassVar[str] = "ThermoValveDistrictHeating-v1"
@@ -643,7 +643,7 @@ class ThermoValveDistrictHeatingPowerV1Env(ThermoValveTaskEnv):
     ## Version history
 
     * v0: ThermoValveDistrictHeatingPower-v0 (its docstring; registered, bit for bit).
-    * v1: the store behind a thermostatic mixing valve, free from 60 to 65 degC (issue 18, 24 Nov 2026).
+    * v1: the store behind a thermostatic mixing valve, free from 60 to 65 degC (24 Nov 2026).
     * 28 Nov 2026 (both versions): hour_so_far_kW's box is [-100, 100], not [0, 100] (the coil gives heat
       back; the observations, rewards and KPIs are unchanged).
     """
