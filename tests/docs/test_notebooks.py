@@ -27,7 +27,8 @@ def _code(nb: dict) -> str:
 
 def test_the_teaching_path() -> None:
     assert [p.name for p in NOTEBOOKS] == [
-        "01_valve_and_hysteresis.ipynb", "02_pi_on_a_sticky_valve.ipynb", "03_benchmark_your_controller.ipynb"]
+        "01_valve_and_hysteresis.ipynb", "02_pi_on_a_sticky_valve.ipynb", "03_benchmark_your_controller.ipynb",
+        "04_identify_your_valve.ipynb", "05_loop_diagnosis.ipynb"]
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
