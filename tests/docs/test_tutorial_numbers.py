@@ -96,7 +96,7 @@ def test_a_slip_short_of_the_demand_widens_the_whole_loop_by_the_dead_band() -> 
 # -- tutorial 2: a PI on the sticky valve -----------------------------------------------------------------
 TASK = "ThermoValveStickyValve-v0"
 SHORT = {"horizon_h": 5.0}
-SMOOTH = {"valve": {"effects": {}}}
+SMOOTH = {"valve": {"effects": {"stiction": None}}}  # null removes the task's own effect
 
 
 def turns(x: np.ndarray, threshold_mm: float = 0.01) -> int:
