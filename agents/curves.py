@@ -51,9 +51,9 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
 
 
 def plot_runs(runs: Sequence[dict[str, Any]], path: Any, title: str) -> None:
-    import matplotlib
+    from valve_env.plotting import headless
 
-    matplotlib.use("Agg")
+    headless()
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 4.5))

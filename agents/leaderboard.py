@@ -143,9 +143,9 @@ def compare(per_ep: Mapping[str, pd.DataFrame], agent: str, ref: str = REFERENCE
 
 def plot_board(board: Mapping[str, Any], env_id: str, path: Path) -> Path:
     """Tracking (rmse_K) versus primary energy, one panel per scenario, mean +- std."""
-    import matplotlib
+    from valve_env.plotting import headless
 
-    matplotlib.use("Agg")
+    headless()
     import matplotlib.pyplot as plt
 
     scen = list(board)

@@ -246,9 +246,9 @@ def markdown(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: 
 
 
 def plot(boards: Mapping[str, Any], path: Any) -> None:
-    import matplotlib
+    from valve_env.plotting import headless
 
-    matplotlib.use("Agg")
+    headless()
     import matplotlib.pyplot as plt
 
     tasks = list(boards)

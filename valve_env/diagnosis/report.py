@@ -49,9 +49,9 @@ def _series(model: Model, data: RunData,
 
 def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str]]:
     """Write the PNG figures; returns (file name, caption) pairs."""
-    import matplotlib
+    from valve_env.plotting import headless
 
-    matplotlib.use("Agg")
+    headless()
     import matplotlib.pyplot as plt
 
     data = d.valid if d.valid_range[0] > 0 else d.train

@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+from valve_env.plotting import headless
 
-matplotlib.use("Agg")
+headless()
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402

@@ -17,9 +17,9 @@ FIGURES = ("phase.png", "simulation.png", "residuals.png", "profile.png")
 
 def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path]:
     """Stage ``report.md`` and the figures in ``directory`` (declared in ``outs`` by the caller)."""
-    import matplotlib
+    from valve_env.plotting import headless
 
-    matplotlib.use("Agg")
+    headless()
     import matplotlib.pyplot as plt
     from statsmodels.stats.diagnostic import acorr_ljungbox
     from statsmodels.tsa.stattools import acf

@@ -378,9 +378,9 @@ def markdown_report(table: pd.DataFrame, found: Mapping[str, Mapping[str, Any]])
 def plot_scores(table: pd.DataFrame, path: Any) -> None:
     """Grouped bars: each task's cost per controller with its confidence interval, the gap score
     (0 = pi, 1 = oracle) at the bars where known, else the score (0 = self_acting, 1 = oracle)."""
-    import matplotlib
+    from valve_env.plotting import headless
 
-    matplotlib.use("Agg")
+    headless()
     import matplotlib.pyplot as plt
 
     tasks = list(dict.fromkeys(table["task"]))
@@ -408,9 +408,9 @@ def plot_scores(table: pd.DataFrame, path: Any) -> None:
 
 def plot_kpis(table: pd.DataFrame, path: Any, kpis: Sequence[str] = ("iae_Kh", "reversals")) -> None:
     """Each task's tracking and wear KPIs per controller (the tradeoff the score hides)."""
-    import matplotlib
+    from valve_env.plotting import headless
 
-    matplotlib.use("Agg")
+    headless()
     import matplotlib.pyplot as plt
 
     tasks = list(dict.fromkeys(table["task"]))

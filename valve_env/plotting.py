@@ -1,0 +1,21 @@
+"""The one place that chooses matplotlib's backend for the figures the package writes.
+
+Figures are written to files, so a script, the CLI or a worker needs no display: :func:`headless`
+selects Agg there. In a notebook (an ``inline`` backend, or any ``module://`` backend a front end
+installed) the user's backend is kept, so that the figures a tutorial makes still show inline after
+a command has written its own.
+"""
+
+from __future__ import annotations
+
+
+def headless() -> None:
+    """Select the Agg backend unless a notebook's inline (``module://...``) backend is active."""
+    import matplotlib
+
+    backend = str(matplotlib.get_backend())
+    if not backend.startswith("module://") and "inline" not in backend.lower():
+        matplotlib.use("Agg")
+
+
+__all__ = ["headless"]
