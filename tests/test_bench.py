@@ -35,6 +35,7 @@ def test_bench_is_a_cli_subcommand() -> None:
     assert "valve_env.bench" in cli.SUBCOMMAND_MODULES
 
 
+@pytest.mark.slow  # about a minute on 2 cores: it times every part of the package (make test-slow)
 def test_bench_quick_writes_every_figure(small_bench: None, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "bench.json"
     assert _run(["bench", "--quick", "--json", str(out)]) == 0

@@ -97,7 +97,7 @@ def test_fit_reports_one_fit_in_the_json_and_the_report(tmp_path) -> None:
     report's misspecification verdict is the JSON's."""
     df = simulate_experiment(seed=3, duration_h=4.0, dt_s=10.0)
     path = tmp_path / "run.csv"
-    apply_convention(df, "quantised_0.01").to_csv(path, index=False)
+    apply_convention(df, "quantised_0.1").to_csv(path, index=False)
     code = main(["fit", str(path), "--json", str(tmp_path / "f.json"), "--report", str(tmp_path / "rep"),
                  "--bootstrap", "0"])
     assert code == 0
@@ -107,7 +107,8 @@ def test_fit_reports_one_fit_in_the_json_and_the_report(tmp_path) -> None:
         assert f"| {label} | {j['params'][k]:.4g} |" in md
     verdict = "not misspecified" if not j["misspecification"]["misspecified"] else "misspecified"
     assert f"**Misspecification check** (the verdict the JSON gives, `misspecification`): {verdict}" in md
-    assert j["preprocessing"][0]["method"] == "quantisation"
+    assert j["preprocessing"][0]["method"] == "quantisation" and j["preprocessing"][0]["quantum_C"] == 0.1
+    assert "T_tank_C: noise sd 0.0289 degC from its quantisation step 0.1 K" in md
 
 
 # --------------------------------------------------------------------------- the corpus

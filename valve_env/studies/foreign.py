@@ -86,7 +86,7 @@ _DEFAULT_PLAN: dict[str, tuple[str, ...]] = {
 #: the run seeds of the default suite (one per class) and of the full corpus (three per class)
 DEFAULT_SEEDS: tuple[int, ...] = (102,)
 FULL_SEEDS: tuple[int, ...] = (102, 211, 307)
-BASE_RUN: dict[str, float] = {"duration_h": 6.0, "dt_s": 10.0}
+BASE_RUN: dict[str, float] = {"duration_h": 6.0, "dt_s": 20.0}
 
 
 def corpus_cases(size: str = "default", seeds: tuple[int, ...] | None = None) -> list[dict[str, Any]]:
