@@ -292,17 +292,144 @@ def denoise_temperature(y: np.ndarray, t: np.ndarray, tv_factor: float = 4.5,
                         denoiser: str = "relaxed") -> tuple[np.ndarray, np.ndarray]:
     """Denoised temperature (:func:`relaxed_tv`, or plain :func:`tv_denoise` with
     ``denoiser="tv"``, with lam = tv_factor x :func:`noise_sd`) and its rate over the following
-    interval (K/s; 0 at the end). The noise level is :func:`channel_noise`'s, so a held or quantised
-    channel is denoised at its quantisation level."""
+    interval (K/s; 0 at the end). The noise level is :func:`channel_noise`'s.
+
+    A quantised channel whose noise lies below its step (``method == "quantisation"``) is a staircase,
+    which TV keeps, and whose one-step flips would each reverse the Dahl friction the EKF drives with
+    this path: there it is the smoother's level (:func:`smooth_temperature`) freed of reversals smaller
+    than 5 quantisation sd (:func:`monotone_path`, as the output-error likelihood treats its input),
+    for either denoiser (docs/diagnosis.md, "Measured data of any convention")."""
     if denoiser not in DENOISERS:
         raise ValueError(f"unknown denoiser {denoiser!r}; use one of {DENOISERS}")
     y = np.ascontiguousarray(y, dtype=float)
-    lam = tv_factor * channel_noise(y).sd
-    ys = relaxed_tv(y, lam) if denoiser == "relaxed" else tv_denoise(y, lam)
+    t = np.ascontiguousarray(t, dtype=float)
+    noise = channel_noise(y)
+    if noise.method == "quantisation" and y.shape[0] >= 4:
+        ys = monotone_path(smooth_temperature(t, y)[0], 5.0 * noise.sd)
+    else:
+        lam = tv_factor * noise.sd
+        ys = relaxed_tv(y, lam) if denoiser == "relaxed" else tv_denoise(y, lam)
     v = np.zeros_like(ys)
     if len(ys) > 1:
         v[:-1] = np.diff(ys) / np.diff(np.asarray(t, dtype=float))
     return ys, v
+
+
+# --------------------------------------------------------------------------- monotone paths
+@njit(cache=True)
+def _pava(y: np.ndarray, a: int, b: int, increasing: bool, out: np.ndarray) -> None:
+    """Isotonic least-squares fit of y[a:b] (pool adjacent violators), written to out[a:b]."""
+    m = b - a
+    if m <= 0:
+        return
+    val = np.empty(m)
+    wt = np.empty(m)
+    cnt = np.empty(m, dtype=np.int64)
+    top = 0
+    sgn = 1.0 if increasing else -1.0
+    for i in range(a, b):
+        val[top] = sgn * y[i]
+        wt[top] = 1.0
+        cnt[top] = 1
+        top += 1
+        while top > 1 and val[top - 2] > val[top - 1]:
+            w = wt[top - 2] + wt[top - 1]
+            val[top - 2] = (wt[top - 2] * val[top - 2] + wt[top - 1] * val[top - 1]) / w
+            wt[top - 2] = w
+            cnt[top - 2] += cnt[top - 1]
+            top -= 1
+    i = a
+    for j in range(top):
+        for _ in range(cnt[j]):
+            out[i] = sgn * val[j]
+            i += 1
+
+
+@njit(cache=True)
+def monotone_path(y: np.ndarray, delta: float) -> np.ndarray:
+    """Remove reversals smaller than ``delta`` from a path, without shifting it in time.
+
+    The turning points are the extremes of the path that are followed by a retrace of at least
+    ``delta`` (a zig-zag with threshold delta; the extreme itself is the turning point, so no lag).
+    Between turning points the path is replaced by its isotonic least-squares fit, which is
+    monotone and level-unbiased. The Dahl model is driven by this path: the small wiggles that
+    remain after smoothing a noisy channel would otherwise each flip the friction force."""
+    n = y.shape[0]
+    out = y.copy()
+    if n < 3 or delta <= 0.0:
+        return out
+    tps = np.empty(n + 1, dtype=np.int64)
+    ntp = 0
+    tps[ntp] = 0
+    ntp += 1
+    # direction from the first retrace of delta
+    hi = y[0]
+    lo = y[0]
+    ihi = 0
+    ilo = 0
+    direction = 0
+    k = 1
+    while k < n and direction == 0:
+        if y[k] > hi:
+            hi = y[k]
+            ihi = k
+        if y[k] < lo:
+            lo = y[k]
+            ilo = k
+        if hi - y[k] >= delta and ihi >= ilo:
+            direction = -1  # rose to hi, now falling
+            if ilo > 0:
+                tps[ntp] = ilo
+                ntp += 1
+            tps[ntp] = ihi
+            ntp += 1
+            ext = y[k]
+            iext = k
+        elif y[k] - lo >= delta and ilo >= ihi:
+            direction = 1
+            if ihi > 0:
+                tps[ntp] = ihi
+                ntp += 1
+            tps[ntp] = ilo
+            ntp += 1
+            ext = y[k]
+            iext = k
+        k += 1
+    if direction == 0:
+        inc = y[n - 1] >= y[0]
+        _pava(y, 0, n, inc, out)
+        return out
+    while k < n:
+        if direction == 1:
+            if y[k] > ext:
+                ext = y[k]
+                iext = k
+            elif ext - y[k] >= delta:
+                tps[ntp] = iext
+                ntp += 1
+                direction = -1
+                ext = y[k]
+                iext = k
+        else:
+            if y[k] < ext:
+                ext = y[k]
+                iext = k
+            elif y[k] - ext >= delta:
+                tps[ntp] = iext
+                ntp += 1
+                direction = 1
+                ext = y[k]
+                iext = k
+        k += 1
+    if tps[ntp - 1] != n - 1:
+        tps[ntp] = n - 1
+        ntp += 1
+    for j in range(ntp - 1):
+        a = tps[j]
+        b = tps[j + 1]
+        inc = y[b] >= y[a]
+        _pava(y, a, b + 1 if j == ntp - 2 else b, inc, out)
+    return out
 
 
 # --------------------------------------------------------------------------- IRW-RTS smoothing
