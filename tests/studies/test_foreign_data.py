@@ -64,7 +64,7 @@ def test_the_smoother_takes_a_held_noiseless_channel() -> None:
 # --------------------------------------------------------------------------- the regression, through the CLI
 @pytest.mark.parametrize("effect", ["none", "stiction"])
 def test_a_stepped_noiseless_medium_temperature_is_diagnosed(tmp_path, capsys, effect) -> None:
-    """The issue's case: a rig holds T_med by thermostat and logs it without noise between steps.
+    """A rig that holds T_med by thermostat and logs it without noise between steps.
     ``diagnose`` crashed (ZeroDivisionError) on every such run; now the whole path runs (bootstrap,
     report, valve file) and names the cause it names on the same run logged with noise."""
     effects = {"stiction": {"band_mm": 0.06}} if effect == "stiction" else None
