@@ -9,10 +9,11 @@ or by a thermostat in noiseless steps). The case is written as a CSV file and re
 user's file is (:func:`valve_env.diagnosis.diagnose.read_run`), then diagnosed.
 
 The outcome is judged against the same run without the convention (:func:`acceptable`): the same
-cause; or ``none`` where the convention leaves less evidence (:attr:`Convention.loses_information`);
+cause, or the truth where the original missed it; or ``none`` where the convention leaves less evidence
+(:attr:`Convention.loses_information`);
 or a one-line refusal where refusal is the right answer (:data:`MAY_REFUSE`). Anything else raised
 is a failure. The default test suite runs :func:`corpus_cases` ``("default")`` (35 transformed
-runs), the slow suite ``("full")`` (over 200); ``benchmarks/foreign_data.py`` prints the table.
+runs), the slow suite ``("full")`` (285); ``benchmarks/foreign_data.py`` prints the table.
 """
 
 from __future__ import annotations
@@ -83,6 +84,10 @@ _DEFAULT_PLAN: dict[str, tuple[str, ...]] = {
     "setpoint_drift": ("quantised_0.01", "dp_constant", "dropped_10", "spikes", "medium_thermostat", "dt_60_gen",
                        "quantised_tank_0.1"),
 }
+#: the full corpus's cases whose outcome is wrong today (measured on the code of 2026-11-28: 283 of 285 right):
+#: a 1 h gap makes a sensor lag read as a set-point drift, and 5 % of rows dropped hide a stiction band
+KNOWN_WRONG: frozenset[tuple[int, str, str]] = frozenset({(307, "sensor_lag", "gap_1h"),
+                                                         (307, "stiction", "dropped_5")})
 #: the run seeds of the default suite (one per class) and of the full corpus (three per class)
 DEFAULT_SEEDS: tuple[int, ...] = (102,)
 FULL_SEEDS: tuple[int, ...] = (102, 211, 307)
@@ -168,10 +173,13 @@ def acceptable(result: dict[str, Any], original_cause: str) -> tuple[bool, str]:
         return cause != result["class"], f"{cause} (the record cannot identify {result['class']})"
     if cause == original_cause:
         return True, f"{cause}, as on the original"
+    if cause == result["class"]:  # the truth, which the original missed: never a fault of the convention
+        return True, f"{cause}, the truth (the original named {original_cause})"
     if loses and cause == "none":
         return True, "none: the convention leaves less evidence"
     return False, f"{cause} where the original named {original_cause}"
 
 
-__all__ = ["CLASSES", "EFFECT_OF", "GENERATIONS", "Generation", "MAY_REFUSE", "acceptable", "corpus_cases",
+__all__ = ["KNOWN_WRONG", "CLASSES", "EFFECT_OF", "GENERATIONS", "Generation", "MAY_REFUSE", "acceptable",
+           "corpus_cases",
            "run_case", "simulate", "DEFAULT_SEEDS", "FULL_SEEDS"]
