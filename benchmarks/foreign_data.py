@@ -17,6 +17,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
+from valve_env.outputs import OutputError, OutputSet
 from valve_env.studies.foreign import acceptable, corpus_cases, run_case
 
 
@@ -37,12 +38,12 @@ def main(argv: list[str] | None = None) -> int:
     cases = corpus_cases(a.size, seeds)
     originals = [{"class": c, "seed": s, "convention": ""} for c, s in sorted({(k["class"], k["seed"]) for k in cases})]
     jobs = [{**c, "bootstrap_B": a.bootstrap} for c in originals + cases]
-    if a.json:
-        from pathlib import Path
-
-        if Path(a.json).exists() and not a.force:
-            print(f"{a.json} exists; give --force to replace it", file=sys.stderr)
-            return 2
+    outs = OutputSet(force=a.force)
+    try:  # the project's output policy, checked before the long run
+        json_path = outs.add(a.json) if a.json else None
+    except OutputError as exc:
+        print(f"thermovalve: error: {exc}", file=sys.stderr)
+        return 2
     t0 = time.time()
     if a.workers > 1:
         with ProcessPoolExecutor(a.workers) as ex:
@@ -67,11 +68,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{'named right' if o['cause'] == o['class'] else 'NOT the truth'}  ({o['seconds']:.1f} s CPU)")
     print(f"\n{len(rows)} transformed runs ({len(originals)} originals): 0 tracebacks, {refused} refused in one line, "
           f"{right}/{len(rows)} right; wall {time.time() - t0:.0f} s on {a.workers} worker(s)")
-    if a.json:
-        from valve_env.outputs import atomic_write_text
-
-        atomic_write_text(a.json, json.dumps({"originals": results[:len(originals)], "cases": rows}, indent=1,
-                                             default=str))
+    if json_path is not None:
+        outs.write_text(json_path, json.dumps({"originals": results[:len(originals)], "cases": rows}, indent=1,
+                                              default=str))
+        outs.commit()
     return 0 if right == len(rows) else 1
 
 

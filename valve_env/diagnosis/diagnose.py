@@ -102,7 +102,6 @@ def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
     except DataError as exc:
         raise DiagnosisError(_one_line(str(exc))) from None
     out = checked[[*REQUIRED, "x_mm"]].copy()
-    out.attrs["preprocessing"] = notes
     t = out["time_s"].to_numpy()
     if len(t) < MIN_SAMPLES:
         raise DiagnosisError(f"{name}: too short a record: {len(t)} samples (the diagnosis needs at least "

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.data_io import DataError
-from valve_env.estimation.temperature import channel_noise
+from valve_env.estimation.temperature import channel_noise, noise_sd
 
 #: the temperature channels whose noise level the likelihoods need
 TEMPERATURE_CHANNELS: tuple[str, ...] = ("T_tank_C", "T_med_C")
@@ -70,9 +70,7 @@ def _spike_threshold(channel: str, y: np.ndarray) -> float:
         sd = channel_noise(_without_spikes(y)).sd
         return max(SPIKE_SD * math.sqrt(1.5) * sd, SPIKE_MIN[channel])
     level = float(np.median(np.abs(y)))
-    d2 = np.diff(y, 2)
-    sd = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0) if y.size > 3 else 0.0
-    return max(SPIKE_SD * math.sqrt(1.5) * sd, SPIKE_MIN[channel] * level)
+    return max(SPIKE_SD * math.sqrt(1.5) * noise_sd(y), SPIKE_MIN[channel] * level)
 
 
 def _without_spikes(y: np.ndarray) -> np.ndarray:
