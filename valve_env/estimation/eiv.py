@@ -192,7 +192,7 @@ class EIVFit:
     denoiser; ``estimator``: the relaxed-denoiser :class:`MLEstimator` (residuals, report);
     ``misspecification``: :func:`valve_env.estimation.robust.misspecification_check`;
     ``fit_time_s``: wall time of the whole procedure; ``bias_correction``: on a quantised record (a
-    temperature channel whose noise lies below its step), the relative correction applied to each
+    tank temperature whose noise lies below its step), the bracket's relative correction of each
     estimate, else None."""
 
     params: dict[str, float]
@@ -233,7 +233,7 @@ def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: i
        the relaxed fit, plus (``B > 0``, default 8) the temperature noise's variance from the
        temperature bootstrap (:func:`temperature_bootstrap` of the relaxed base fit; kept in
        ``bootstrap``).
-    4. On a quantised record (a temperature channel whose noise lies below its step,
+    4. On a quantised record (a tank temperature whose noise lies below its step,
        :func:`~valve_env.estimation.temperature.channel_noise`), the bootstrap's bias correction ``c``
        (log scale; ``bias_correction`` holds exp(c) - 1) brackets the estimate as the two denoisers do:
        the estimate moves to the middle of [raw, bias-corrected] and the bracket adds c^2 / 12 to the
@@ -269,8 +269,8 @@ def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: i
                                                             fixed=fixed).fit(data)
         boot = temperature_bootstrap(base_est, data, B=B, seed=seed)
         parts["temperature"] = {}
-    quantised = any(channel_noise(data[c].to_numpy(dtype=float)).method == "quantisation"
-                    for c in ("T_tank_C", "T_med_C"))
+    # the tank temperature is the valve's sensed one: its staircase's turning points are the Dahl friction's
+    quantised = channel_noise(data["T_tank_C"].to_numpy(dtype=float)).method == "quantisation"
     correction: dict[str, float] | None = {} if (quantised and boot is not None) else None
     for k in EIV_REPORTED:
         a = np.log(fits["relaxed"].params_[k])
