@@ -116,3 +116,13 @@ def test_quantised_record_is_bias_corrected() -> None:
             + (1 + 1 / 4) * parts["temperature"]["sigma"] ** 2)
     assert (fq.std["sigma"] / fq.params["sigma"]) ** 2 == pytest.approx(rel2 + np.log1p(c) ** 2 / 12.0, rel=1e-6)
     assert abs(fq.params["sigma"] - truth) < 2.0 * fq.std["sigma"]
+
+
+def test_quantisation_note() -> None:
+    """The console and report.md say what the bracket did: half the bootstrap's correction, per parameter."""
+    from valve_env.estimation.report import quantisation_note
+
+    assert quantisation_note({"eiv": {"bias_correction": None}}) is None
+    assert quantisation_note({}) is None
+    note = quantisation_note({"eiv": {"bias_correction": {"sigma": 0.21, "F_hmax": -0.0}}})
+    assert note is not None and "sigma +10.0 %" in note and "F_hmax +0.0 %" in note and "quantised" in note
