@@ -45,7 +45,7 @@ RANGES: dict[str, Any] = {
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
-    from valve_env.diagnosis.diagnose import diagnose
+    from valve_env.valveid.diagnose import diagnose
 
     conv = case.get("convention", "")
     if conv == "irregular":  # jittered sample times (20 % of the interval) and 5 % of the rows missing

@@ -36,7 +36,7 @@ EFFECT_CLASSES = STUDY_CLASSES[1:]  # every named effect, no 'none' runs
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
-    from valve_env.diagnosis.diagnose import diagnose
+    from valve_env.valveid.diagnose import diagnose
 
     df = simulate_case(case)
     t0 = time.perf_counter()
@@ -63,13 +63,13 @@ def band_oracle(df: Any, n_train: int, case: dict[str, Any], finding: dict[str, 
     """Stiction's band measured against the estimator's own sampling distribution on this run.
 
     The generated run knows its true opening (``true_x_mm``); the jump estimator applied to it plus
-    fresh noise of the run's size (:func:`valve_env.diagnosis.stiction.band_sampling`, on the
+    fresh noise of the run's size (:func:`valve_env.valveid.stiction.band_sampling`, on the
     training part the diagnosis used) gives the estimator's true spread and bias here. The error of
     the reported band then splits into the noise realisation of this run (``z_raw``: the raw estimate
     in its sampling distribution, N(0, 1) by construction) and the error of the bias correction
     (``bias_error``, in sampling sd); ``sd_ratio`` is the reported sd over the sampling sd."""
-    from valve_env.diagnosis.stiction import band_sampling, jump_band
     from valve_env.params import ValveParams
+    from valve_env.valveid.stiction import band_sampling, jump_band
 
     stroke = float(ValveParams().stroke)
     truth = float(case["effects"]["stiction"]["band_mm"])

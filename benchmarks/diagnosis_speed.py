@@ -4,7 +4,7 @@
 Times full diagnoses (every candidate, hold-out validation, forward selection and the model-based
 bootstrap of each named effect, at the bootstrap size ``thermovalve diagnose`` uses by default) of
 generated 24 h runs at 10 s: no effect, a sensor lag and stiction
-(:func:`valve_env.diagnosis.bench.run_bench`). Numba's compilation is timed apart, first.
+(:func:`valve_env.valveid.bench.run_bench`). Numba's compilation is timed apart, first.
 
     python benchmarks/diagnosis_speed.py [--seed 2024] [--bootstrap B]
 
@@ -21,7 +21,7 @@ import sys
 
 
 def main(argv: list[str] | None = None) -> int:
-    from valve_env.diagnosis.bench import TARGET_S, default_bootstrap_b, run_bench
+    from valve_env.valveid.bench import TARGET_S, default_bootstrap_b, run_bench
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seed", type=int, default=2024)

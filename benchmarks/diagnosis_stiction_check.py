@@ -27,9 +27,9 @@ from valve_env.outputs import OutputError, OutputSet
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
-    from valve_env.diagnosis.diagnose import diagnose
-    from valve_env.diagnosis.stiction import slips
     from valve_env.params import ValveParams
+    from valve_env.valveid.diagnose import diagnose
+    from valve_env.valveid.stiction import slips
 
     df = simulate_case(case)
     stroke = float(ValveParams().stroke)

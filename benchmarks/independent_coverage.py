@@ -6,14 +6,14 @@ loader, so no tool sees the truth), on runs of the independent simulator
 (:mod:`valve_env.studies.independent`) and, for comparison, of the project's own
 generator (:mod:`valve_env.experiment`):
 
-* ``base``: ``thermovalve fit --ml`` (``valve_env.estimation.report.fit_run``) and
-  ``thermovalve fit``, the default (:func:`valve_env.estimation.eiv.fit_eiv`) on runs
+* ``base``: ``thermovalve fit --ml`` (``valve_env.valveid.fit_report.fit_run``) and
+  ``thermovalve fit``, the default (:func:`valve_env.valveid.eiv.fit_eiv`) on runs
   without effects at 0.01 degC of temperature noise (``--T-noise -1``: drawn per run
   from 0.001-0.02 degC): sigma, F_hmax, p_bset, z = (estimate - truth) / sd, 1-sd and
   2-sd coverage of each candidate sd (``SD_CANDIDATES``: inverse Hessian, HAC sandwich,
   the bias-corrected temperature bootstrap, the default fit's, the EIV state model;
   ``--shipped-only``: the default fit's with its ML fit's inverse Hessian and sandwich).
-* ``effects``: ``thermovalve diagnose`` (``valve_env.diagnosis.diagnose.diagnose``)
+* ``effects``: ``thermovalve diagnose`` (``valve_env.valveid.diagnose.diagnose``)
   on runs with one named effect each (stiction once per stick-slip variant) and
   runs without: the cause named, and the true effect's parameter against the truth
   (z, coverage, relative error), with the coverage of each of its sds (``EFFECT_SDS``:
@@ -121,12 +121,12 @@ def _as_measured(df: pd.DataFrame) -> pd.DataFrame:
 def run_base(case: dict[str, Any]) -> dict[str, Any]:
     """One base run: the default fit (``thermovalve fit``: ML, inverse Hessian, the sandwich, the
     misspecification check), the shipped errors-in-variables fit (``thermovalve fit --eiv``:
-    :func:`valve_env.estimation.eiv.fit_eiv`, with the temperature bootstrap of B replicates, whose
+    :func:`valve_env.valveid.eiv.fit_eiv`, with the temperature bootstrap of B replicates, whose
     bias-corrected result is the previous "after") and the EIV fit with the temperature error as a
     filter state (``fit_eiv(model="eiv")``)."""
-    from valve_env.estimation.eiv import fit_eiv
-    from valve_env.estimation.report import fit_run
-    from valve_env.estimation.robust import robust_std, score_contributions
+    from valve_env.valveid.eiv import fit_eiv
+    from valve_env.valveid.fit_report import fit_run
+    from valve_env.valveid.robust import robust_std, score_contributions
 
     df, truth, _ = _simulate(case)
     data = _as_measured(df)
@@ -177,7 +177,7 @@ def run_base(case: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_effects(case: dict[str, Any]) -> dict[str, Any]:
-    from valve_env.diagnosis.diagnose import diagnose
+    from valve_env.valveid.diagnose import diagnose
 
     df, truth, effects = _simulate(case)
     data = _as_measured(df)

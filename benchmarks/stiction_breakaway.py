@@ -5,9 +5,9 @@ variants (`stiction_variant`)").
 
 Each run is drawn and diagnosed as ``benchmarks/stiction_misspecification.py`` does it (stiction the only
 candidate, no bootstrap, the training part); then the profiles of S / J
-(:func:`valve_env.estimation.stick_profile.sj_profile`: the open-loop one, and the one
-on the stick-slip filter's likelihood, :func:`~valve_env.estimation.stick_profile.sj_filter_loglik`) and the
-stick-slip check's statistic are taken at the ML estimate, and :func:`valve_env.estimation.bootstrap.breakaway_evident`
+(:func:`valve_env.valveid.stick_profile.sj_profile`: the open-loop one, and the one
+on the stick-slip filter's likelihood, :func:`~valve_env.valveid.stick_profile.sj_filter_loglik`) and the
+stick-slip check's statistic are taken at the ML estimate, and :func:`valve_env.valveid.bootstrap.breakaway_evident`
 (on the filter's profile) says whether the diagnosis's bootstrap would report S or J (the slips') as the band.
 Printed per run: the truth S, the slips' band J, both profiles' S / J, the filter's gain over J = S, the errors
 against S, the check's statistic and the decision. ``--variants force`` runs one variant only.
@@ -33,8 +33,8 @@ from stiction_misspecification import add_misspecification, diagnose_case, study
 
 def profile_case(case: dict[str, Any]) -> dict[str, Any]:
     """:func:`stiction_misspecification.run_case`'s record and the (S, J) profiles of its fit."""
-    from valve_env.estimation.bootstrap import breakaway_evident, calibrated_ratio
-    from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile
+    from valve_env.valveid.bootstrap import breakaway_evident, calibrated_ratio
+    from valve_env.valveid.stick_profile import sj_filter_loglik, sj_profile
 
     out, f, d = diagnose_case(case)
     add_misspecification(out, f, d)

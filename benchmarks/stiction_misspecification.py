@@ -7,7 +7,7 @@ keeps its seed), written to a CSV and read back with the loader, then diagnosed 
 candidate and no bootstrap (``diagnose(data, effects=["stiction"], bootstrap_B=0)``: the check runs at the ML
 estimate on the training part, as in the full diagnosis). Printed per run: whether stiction was named, its
 band against the truth, the whiteness check (the smooth effects' check) and the stick-slip check
-(:func:`valve_env.estimation.robust.stick_slip_check`).
+(:func:`valve_env.valveid.robust.stick_slip_check`).
 
     python benchmarks/stiction_misspecification.py --generator project --runs 6 --seed 20261202 --json out/sm_p.json
     python benchmarks/stiction_misspecification.py --generator independent --runs 3 --seed 777 --json out/sm_i.json
@@ -37,7 +37,7 @@ from valve_env.outputs import OutputError, OutputSet  # noqa: E402
 def diagnose_case(case: dict[str, Any]) -> tuple[dict[str, Any], Any, Any]:
     """The run drawn, read back and diagnosed with stiction the only candidate: (its record, the stiction finding,
     the diagnosis)."""
-    from valve_env.diagnosis.diagnose import diagnose
+    from valve_env.valveid.diagnose import diagnose
 
     df, _truth, effects = _simulate(case)
     data = _as_measured(df)
@@ -54,7 +54,7 @@ def diagnose_case(case: dict[str, Any]) -> tuple[dict[str, Any], Any, Any]:
 
 def add_misspecification(out: dict[str, Any], f: Any, d: Any) -> None:
     """The misspecification checks of the stiction finding ``f`` at its fit, into the record ``out``."""
-    from valve_env.estimation.robust import effect_misspecification
+    from valve_env.valveid.robust import effect_misspecification
 
     mis = effect_misspecification(f.estimator.backend_, d.train, f.fit, warn=False)
     out["fired"] = bool(mis["misspecified"])

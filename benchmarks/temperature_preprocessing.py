@@ -2,10 +2,10 @@
 "Temperature pre-processing").
 
 The two ways the project turns a noisy temperature channel into the valve's driver
-(:mod:`valve_env.estimation.temperature`): the relaxed total-variation denoising the EKF's valve
-model uses (:func:`~valve_env.estimation.temperature.denoise_temperature`) and the robust
+(:mod:`valve_env.valveid.temperature`): the relaxed total-variation denoising the EKF's valve
+model uses (:func:`~valve_env.valveid.temperature.denoise_temperature`) and the robust
 integrated-random-walk Rauch-Tung-Striebel smoother the output-error likelihood uses
-(:func:`~valve_env.estimation.temperature.smooth_temperature`). Generated runs
+(:func:`~valve_env.valveid.temperature.smooth_temperature`). Generated runs
 (:func:`valve_env.experiment.simulate_experiment`, the base valve) carry the true temperature and
 the true opening; per method and noise level this prints
 
@@ -17,11 +17,11 @@ the true opening; per method and noise level this prints
   parameters from the pre-processed temperatures against the true opening (the driver's error as
   the valve sees it);
 * ``s/noise``: each method's estimate of the tank channel's noise sd over the true one (TV's is
-  :func:`~valve_env.estimation.temperature.noise_sd`, which sets its penalty; the smoother's is its
+  :func:`~valve_env.valveid.temperature.noise_sd`, which sets its penalty; the smoother's is its
   fitted measurement noise, ``RunData.s_T``, which the diagnosis uses);
 * with ``--fit``: the |error| (%) of sigma, F_hmax and p_bset fitted from each by output error
-  (:class:`valve_env.diagnosis.fitting.Model`) and by the EKF
-  (:class:`valve_env.estimation.fit.MLEstimator`, ``ekf_*``).
+  (:class:`valve_env.valveid.fitting.Model`) and by the EKF
+  (:class:`valve_env.ident.mle.MLEstimator`, ``ekf_*``).
 
     python benchmarks/temperature_preprocessing.py --seeds 900 901 902 903 904 905
     python benchmarks/temperature_preprocessing.py --noise 0.01 --fit
@@ -47,12 +47,12 @@ import time
 import numpy as np
 import pandas as pd
 
-from valve_env.diagnosis.diagnose import check_run, prepare
-from valve_env.diagnosis.fitting import Model, RunData
-from valve_env.estimation.fit import MLEstimator
-from valve_env.estimation.temperature import denoise_temperature, noise_sd, smooth_temperature
-from valve_env.estimation.valve_model import base_valve_model, prepare_inputs
 from valve_env.experiment import random_cases, simulate_case, simulate_experiment
+from valve_env.ident.mle import MLEstimator
+from valve_env.valveid.diagnose import check_run, prepare
+from valve_env.valveid.fitting import Model, RunData
+from valve_env.valveid.temperature import denoise_temperature, noise_sd, smooth_temperature
+from valve_env.valveid.valve_model import base_valve_model, prepare_inputs
 
 
 def _rate(t: np.ndarray, T: np.ndarray) -> np.ndarray:

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from valve_env import experiment, simulator
-from valve_env.diagnosis import engine
-from valve_env.diagnosis.effects import EFFECTS as DIAGNOSIS_EFFECTS
-from valve_env.diagnosis.sde_effects import HOOKS, effect_model
 from valve_env.effects import ENGINE_INDEX, REGISTRY, parse_effects
 from valve_env.physics import trajectory
 from valve_env.physics.valve import setpoint_pressure
 from valve_env.valvefile import read_valve, valve_text
+from valve_env.valveid import oe as engine
+from valve_env.valveid.effects import EFFECTS as DIAGNOSIS_EFFECTS
+from valve_env.valveid.sde_effects import HOOKS, effect_model
 
 NAMES = list(REGISTRY)
 

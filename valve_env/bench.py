@@ -507,8 +507,8 @@ def run_bench(quick: bool = False, progress: Callable[[str], None] | None = None
     say("evidence for the means")
     res["evidence"] = bench_evidence(quick)
     say("estimator and diagnosis")
-    res["estimation"] = _external("valve_env.estimation.bench")
-    res["diagnosis"] = _external("valve_env.diagnosis.bench")
+    res["estimation"] = _external("valve_env.valveid.fit_bench")
+    res["diagnosis"] = _external("valve_env.valveid.bench")
     best = max(res["batched"], key=lambda r: r["env_steps_per_s"])
     native = {r["num_envs"]: r for r in res["batched"]}
     sync = {r["num_envs"]: r for r in res["sync"]}

@@ -6,8 +6,8 @@ knows an effect reads it from :data:`REGISTRY`:
 
 * the data generator (:mod:`valve_env.experiment`: validation of ``effects=``, the random
   sizes of the diagnosis studies),
-* the diagnosis (:mod:`valve_env.diagnosis.effects`, the engine's effect vector
-  :data:`ENGINE_INDEX`, the estimator's SDE models in :mod:`valve_env.diagnosis.sde_effects`),
+* the diagnosis (:mod:`valve_env.valveid.effects`, the engine's effect vector
+  :data:`ENGINE_INDEX`, the estimator's SDE models in :mod:`valve_env.valveid.sde_effects`),
 * the environments (the ``valve: effects:`` mapping of a config, :func:`parse_effects`,
   packed for the simulator kernel by :mod:`valve_env.simulator`),
 * the valve file (:mod:`valve_env.valvefile`).

@@ -32,7 +32,7 @@ def test_confusion_matrix_correct_rate(confusion_seed11: dict) -> None:
 
 @pytest.mark.slow
 def test_bench_24h_diagnoses_its_cases() -> None:
-    from valve_env.diagnosis.bench import run_bench
+    from valve_env.valveid.bench import run_bench
 
     r = run_bench()
     assert r["samples"] == 8641

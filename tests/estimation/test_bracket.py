@@ -1,4 +1,4 @@
-"""The pre-processing bracket of a named smooth effect (valve_env.estimation.bootstrap.apply_bootstrap),
+"""The pre-processing bracket of a named smooth effect (valve_env.valveid.bootstrap.apply_bootstrap),
 and the effects study's alternative bracket rules (benchmarks/independent_coverage.py).
 
 docs/uncertainty.md, "Errors in variables and robust uncertainty": the TV refit is the estimate and half the
@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from tests.diagnosis.studies import load_study
-from valve_env.diagnosis.fitting import FitResult, Model
-from valve_env.estimation import bootstrap as bs
+from valve_env.valveid import bootstrap as bs
+from valve_env.valveid.fitting import FitResult, Model
 
 
 def _fit(effects: tuple[str, ...], params: dict[str, float], std: dict[str, float]) -> FitResult:
@@ -130,9 +130,9 @@ def test_bootstrap_refits_replicates_on_tv_and_corrects_the_refit(monkeypatch: p
     kept. The replicates' clear bias (TV low by 0.002 in the world) is not a correction (``BRACKET_CORRECT`` off:
     the world's temperatures are the smoothed ones, not the real ones) but part of the sd, their RMS error about
     the world's truth; switched on, it corrects the refit."""
-    from valve_env.diagnosis.diagnose import check_run, prepare
-    from valve_env.estimation.temperature import denoise_temperature
     from valve_env.experiment import simulate_experiment
+    from valve_env.valveid.diagnose import check_run, prepare
+    from valve_env.valveid.temperature import denoise_temperature
 
     df = simulate_experiment(seed=31, duration_h=4.0, dt_s=20.0, effects={"medium_temperature": {"beta": 0.1}},
                              T_noise_C=0.008, x_noise_mm=2.5e-3)

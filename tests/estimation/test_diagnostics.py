@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from valve_env.estimation.diagnostics import (
+from valve_env.valveid.diagnostics import (
     cumulated_periodogram,
     paper_figure,
     phase_diagram,
@@ -59,7 +59,7 @@ def test_figures(tmp_path: Path) -> None:
 
 
 def test_run_bench_returns_flat_figures() -> None:
-    from valve_env.estimation.bench import run_bench
+    from valve_env.valveid.fit_bench import run_bench
 
     out = run_bench(hours=2.0, min_time_s=0.1, generic=False)
     assert all(isinstance(v, float) for v in out.values())

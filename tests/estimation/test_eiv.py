@@ -1,4 +1,4 @@
-"""Errors in variables for the base fit (valve_env.estimation.eiv): the temperature-noise
+"""Errors in variables for the base fit (valve_env.valveid.eiv): the temperature-noise
 bootstrap adds to the Hessian's variance, vanishes without temperature noise, reports its bias."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import warnings
 import numpy as np
 import pytest
 
-from valve_env.estimation.eiv import temperature_bootstrap
-from valve_env.estimation.fit import MLEstimator
-from valve_env.estimation.valve_model import ValveModel
 from valve_env.experiment import simulate_experiment
+from valve_env.ident.mle import MLEstimator
+from valve_env.valveid.eiv import temperature_bootstrap
+from valve_env.valveid.valve_model import ValveModel
 
 NAMES = ("sigma", "F_hmax", "p_bset")
 

@@ -1,4 +1,4 @@
-"""Sandwich standard errors and the misspecification check (valve_env.estimation.robust)."""
+"""Sandwich standard errors and the misspecification check (valve_env.valveid.robust)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from valve_env.estimation.examples import Ornstein2D
-from valve_env.estimation.fit import IdentifiabilityWarning, MLEstimator
-from valve_env.estimation.robust import (
+from valve_env.ident.examples import Ornstein2D
+from valve_env.ident.mle import IdentifiabilityWarning, MLEstimator
+from valve_env.valveid.robust import (
     MisspecificationWarning,
     misspecification_check,
     newey_west_lags,

@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from valve_env.estimation.diagnostics import paper_figure, phase_diagram, residual_report, whiteness_figure
-from valve_env.estimation.fit import MLEstimator
-from valve_env.estimation.valve_model import ValveModel
+from valve_env.ident.mle import MLEstimator
 from valve_env.params import ValveParams
+from valve_env.valveid.diagnostics import paper_figure, phase_diagram, residual_report, whiteness_figure
+from valve_env.valveid.valve_model import ValveModel
 
 #: The parameters handed to the environment (ValveParams fields).
 VALVE_FIELDS: tuple[str, ...] = ("sigma", "F_hmax", "p_bset")
@@ -58,7 +58,7 @@ def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame |
         "converged": bool(est.converged_),
         "identifiability": list(est.identifiability_),
         "fit_time_s": float(est.fit_time_s_),
-        "model": "base valve model, docs/reference.md, section 1 (valve_env.estimation.valve_model.ValveModel)",
+        "model": "base valve model, docs/reference.md, section 1 (valve_env.valveid.valve_model.ValveModel)",
     }
     out.update(uncertainty_summary(est))
     if validation is not None:
@@ -76,10 +76,10 @@ def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame |
 def uncertainty_summary(est: MLEstimator) -> dict[str, Any]:
     """The robust standard errors and the misspecification check of a fit, for the JSON:
     ``std_hessian`` (inverse Hessian), ``std_robust`` (the HAC sandwich of
-    :func:`valve_env.estimation.robust.robust_std`), ``robust_lags``, ``std_method`` (which of them
-    ``std`` holds) and ``misspecification`` (:func:`~valve_env.estimation.robust.misspecification_check`,
+    :func:`valve_env.valveid.robust.robust_std`), ``robust_lags``, ``std_method`` (which of them
+    ``std`` holds) and ``misspecification`` (:func:`~valve_env.valveid.robust.misspecification_check`,
     which also warns)."""
-    from valve_env.estimation.robust import misspecification_check, robust_std
+    from valve_env.valveid.robust import misspecification_check, robust_std
 
     rob = robust_std(est)
     return {"std_hessian": {k: _f(est.std_.get(k, float("nan"))) for k in VALVE_FIELDS},
@@ -91,14 +91,14 @@ def uncertainty_summary(est: MLEstimator) -> dict[str, Any]:
 def eiv_summary(fit: Any, data: pd.DataFrame, validation: pd.DataFrame | None = None) -> dict[str, Any]:
     """The ``thermovalve fit --eiv`` JSON: :func:`fit_summary` of the relaxed-denoiser fit with
     ``params`` and ``std`` replaced by the errors-in-variables result
-    (:class:`valve_env.estimation.eiv.EIVFit`) and its details under ``eiv``."""
+    (:class:`valve_env.valveid.eiv.EIVFit`) and its details under ``eiv``."""
     out = fit_summary(fit.estimator, data, validation)
     out["params"] = {k: float(fit.params[k]) for k in VALVE_FIELDS}
     out["std"] = {k: _f(fit.std[k]) for k in VALVE_FIELDS}
-    out["std_method"] = "errors in variables (valve_env.estimation.eiv.fit_eiv, docs/uncertainty.md)"
+    out["std_method"] = "errors in variables (valve_env.valveid.eiv.fit_eiv, docs/uncertainty.md)"
     out["eiv"] = fit.to_dict()
     out["fit_time_s"] = float(fit.fit_time_s)
-    out["model"] = f"{fit.model} valve model with errors in variables (valve_env.estimation.eiv.fit_eiv)"
+    out["model"] = f"{fit.model} valve model with errors in variables (valve_env.valveid.eiv.fit_eiv)"
     return out
 
 
@@ -183,7 +183,7 @@ def write_report(est: MLEstimator, data: pd.DataFrame, outdir: str | Path, summa
              "(the paper: residual sd 2.4e-3 mm).", ""]
     pre = summary.get("preprocessing") or []
     if pre:
-        from valve_env.estimation.preprocess import describe
+        from valve_env.valveid.preprocess import describe
 
         parts += ["## Pre-processing: the record as measured", ""] + [f"- {x}" for x in describe(pre)] + [""]
     if summary.get("identifiability"):

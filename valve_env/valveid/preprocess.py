@@ -9,7 +9,7 @@ missing samples, one long gap, or a few isolated spikes. Both identification pat
 each convention is handled once, here, and reported:
 
 * **temperature channels** (``T_tank_C``, ``T_med_C``): the noise level the smoothers and the
-  bootstrap use comes from :func:`~valve_env.estimation.temperature.channel_noise` (never 0 or NaN:
+  bootstrap use comes from :func:`~valve_env.valveid.temperature.channel_noise` (never 0 or NaN:
   the quantisation sd q / sqrt(12) of a quantised or held channel, a resolution floor for a
   noiseless one). The data are not changed; the note says which level was used and why.
 * **isolated spikes** (one sample far from both neighbours, which agree) in the temperature and
@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.data_io import DataError
-from valve_env.estimation.temperature import channel_noise, noise_sd
+from valve_env.valveid.temperature import channel_noise, noise_sd
 
 #: the temperature channels whose noise level the likelihoods need
 TEMPERATURE_CHANNELS: tuple[str, ...] = ("T_tank_C", "T_med_C")

@@ -5,7 +5,7 @@ The procedure (docs/reference.md, section 4), as an expert in grey-box modelling
 automatic:
 
 1. Read and check the run (docs/reference.md, section 2). Estimate the latent temperatures
-   (:mod:`valve_env.diagnosis.engine`).
+   (:mod:`valve_env.valveid.oe`).
 2. Split: fit on the first part of the run, hold out the rest for validation
    (``holdout``), or fit on the whole run and validate on ``validate``.
 3. Fit the base model (docs/reference.md, section 1) by maximum likelihood and describe its
@@ -61,11 +61,11 @@ import pandas as pd
 from scipy import stats
 
 from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
-from valve_env.diagnosis.effects import EFFECTS, check_effects
-from valve_env.diagnosis.fitting import FitResult, Model, RunData
-from valve_env.estimation.estimator import ValveEstimator
-from valve_env.estimation.preprocess import preprocess_run
 from valve_env.params import ValveParams
+from valve_env.valveid.effects import EFFECTS, check_effects
+from valve_env.valveid.estimator import ValveEstimator
+from valve_env.valveid.fitting import FitResult, Model, RunData
+from valve_env.valveid.preprocess import preprocess_run
 
 MIN_SAMPLES = 200
 MIN_DURATION_S = 1.9 * 3600.0  # a 2 h record, less a few samples lost at its ends
@@ -164,7 +164,7 @@ class Finding:
     std_method: str = "inverse Hessian / HAC sandwich (not calibrated)"
     uncertainty: dict[str, Any] | None = None
     #: the inverse-Hessian and HAC-sandwich sds side by side and the misspecification check
-    #: (valve_env.estimation.robust.robust_finding), for a named effect
+    #: (valve_env.valveid.robust.robust_finding), for a named effect
     robust: dict[str, Any] | None = None
     #: stiction's simulated null (:func:`stiction_null`), where it was run (a finding that would be named)
     null_guard: dict[str, Any] | None = None
@@ -232,7 +232,7 @@ class Diagnosis:
     seconds: float = 0.0
     notes: list[str] = field(default_factory=list)
     valve: ValveParams = field(default_factory=ValveParams)
-    #: what the pre-processing found and did, per run (:func:`valve_env.estimation.preprocess.preprocess_run`)
+    #: what the pre-processing found and did, per run (:func:`valve_env.valveid.preprocess.preprocess_run`)
     preprocessing: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
@@ -479,15 +479,15 @@ NULL_EXCEED = 1
 
 def _null_world(train: RunData) -> RunData:
     """The world of stiction's null copies: the run's TV-denoised temperatures
-    (:func:`valve_env.estimation.bootstrap.denoised_run`). A record with a quantised temperature channel
+    (:func:`valve_env.valveid.bootstrap.denoised_run`). A record with a quantised temperature channel
     (noise below its step, docs/reference.md, section 2) is a staircase, which TV keeps and whose steps
     would make the world's valve slip: there the smoother's level, with its rounding of the kinks put back
     by one van Cittert step (level + (level - the smoothed rounding of the level)), stands for the
     channel's truth (docs/diagnosis.md, "Measured data of any convention")."""
     from dataclasses import replace
 
-    from valve_env.estimation.bootstrap import denoised_run
-    from valve_env.estimation.temperature import smooth_temperature
+    from valve_env.valveid.bootstrap import denoised_run
+    from valve_env.valveid.temperature import smooth_temperature
 
     if not train.quantised:
         return denoised_run(train)
@@ -527,20 +527,20 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     band grid ``NULL_BAND_FACTORS`` times the fitted band (nothing else refitted).
 
     The copies come from the errors-in-variables world. Its true temperatures are the run's TV-denoised
-    ones (:func:`valve_env.estimation.bootstrap.denoised_run`, which keeps the kinks of the tank's heating
+    ones (:func:`valve_env.valveid.bootstrap.denoised_run`, which keeps the kinks of the tank's heating
     steps), the reference model's opening is simulated from them on a 1 s grid
-    (:func:`~valve_env.estimation.bootstrap.world_opening`), and each copy adds white noise of the run's
+    (:func:`~valve_env.valveid.bootstrap.world_opening`), and each copy adds white noise of the run's
     measured sd to both temperature channels (smoothed again like a measured run, so that the smoothed
     temperatures lead the world's at its kinks as the run's lead the water) and to the opening (the resting
-    steps' sd, :func:`valve_env.diagnosis.stiction.resting_noise_sd`). Under the null the stick-slip filter's
+    steps' sd, :func:`valve_env.valveid.stiction.resting_noise_sd`). Under the null the stick-slip filter's
     gain comes from that misfit; copies driven by the run's smoothed
     temperatures, with the fitted noise model or the residuals resampled in blocks, lack it and gave a null
     of 0 on every development run tried, false findings included (docs/diagnosis.md, "Measured data of any
     convention"). Returns the observed statistic, the copies' statistics and the Monte Carlo p-value
     (1 + k) / (1 + copies), k the copies at or above the observed one."""
-    from valve_env.diagnosis.fitting import Model
-    from valve_env.diagnosis.stiction import resting_noise_sd
-    from valve_env.estimation.bootstrap import world_opening
+    from valve_env.valveid.bootstrap import world_opening
+    from valve_env.valveid.fitting import Model
+    from valve_env.valveid.stiction import resting_noise_sd
 
     ref_model = Model(ref_fit.effects, valve)
     stick_model = Model(stick_fit.effects, valve)
@@ -572,9 +572,9 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
 
 
 def slip_sizes(x: np.ndarray, stroke: float) -> tuple[int, float | None]:
-    """The number of slips of the opening ``x`` (:func:`valve_env.diagnosis.stiction.slips`) and their median
+    """The number of slips of the opening ``x`` (:func:`valve_env.valveid.stiction.slips`) and their median
     size (mm; None without slips)."""
-    from valve_env.diagnosis.stiction import slips
+    from valve_env.valveid.stiction import slips
 
     sz = slips(np.asarray(x, dtype=float), stroke)
     return int(sz.size), (float(np.median(sz)) if sz.size else None)
@@ -582,7 +582,7 @@ def slip_sizes(x: np.ndarray, stroke: float) -> tuple[int, float | None]:
 
 def slips_show_band(x: np.ndarray, stroke: float, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:
     """Whether the opening ``x`` shows stiction's events: at least ``min_slips`` slips
-    (:func:`valve_env.diagnosis.stiction.slips`) whose median lies within ``tol`` (relative) of the
+    (:func:`valve_env.valveid.stiction.slips`) whose median lies within ``tol`` (relative) of the
     fitted ``band``. Noise alone makes few slips, of no particular size (on generated runs without
     stiction 4-5 in 11 h over the whole record, 0.6-1 band of a typical fit).
 
@@ -597,11 +597,11 @@ def slips_show_band(x: np.ndarray, stroke: float, band: float, min_slips: int = 
 
 def record_shows_band(parts: tuple[np.ndarray, ...], stroke: float, band: float, tol: float = 0.5) -> bool:
     """Whether the slips of a whole record measure ``band``: the slips of its ``parts`` (the training and the
-    held-out opening, each searched apart by :func:`valve_env.diagnosis.stiction.slips`) pooled, at least
-    :data:`valve_env.diagnosis.stiction.MIN_JUMPS` of them (the count from which the fit takes the band from the
-    slips alone, :func:`valve_env.diagnosis.stiction.jump_band`), whose median lies within ``tol`` (relative) of
+    held-out opening, each searched apart by :func:`valve_env.valveid.stiction.slips`) pooled, at least
+    :data:`valve_env.valveid.stiction.MIN_JUMPS` of them (the count from which the fit takes the band from the
+    slips alone, :func:`valve_env.valveid.stiction.jump_band`), whose median lies within ``tol`` (relative) of
     ``band``."""
-    from valve_env.diagnosis.stiction import MIN_JUMPS, slips
+    from valve_env.valveid.stiction import MIN_JUMPS, slips
 
     sz = np.concatenate([slips(np.asarray(x, dtype=float), stroke) for x in parts])
     return band_shown(int(sz.size), float(np.median(sz)) if sz.size else None, band, MIN_JUMPS, tol)
@@ -631,8 +631,8 @@ def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[
 
 def _bootstrap_finding(f: Finding, B: int) -> None:
     """Replace the effect parameters' std of an accepted finding by the model-based bootstrap's
-    (:meth:`valve_env.estimation.estimator.ValveEstimator.bootstrap`, the estimation's facility)."""
-    from valve_env.estimation.bootstrap import METHOD, NORMAL_P
+    (:meth:`valve_env.valveid.estimator.ValveEstimator.bootstrap`, the estimation's facility)."""
+    from valve_env.valveid.bootstrap import METHOD, NORMAL_P
 
     f.estimator.bootstrap(B)
     b, source = f.estimator.bootstrap_, f.estimator.std_from_
@@ -789,12 +789,12 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         ref_val = (best.validation_rms_after_mm, ref_val[1] + best.validation_loglik_gain,
                    best.validation_sim_rms_after_mm)
     # honest uncertainty of the named effects: a model-based bootstrap of the whole chain (smoothing
-    # of the temperatures included), see valve_env.estimation.bootstrap
+    # of the temperatures included), see valve_env.valveid.bootstrap
     for step in steps:
         best = step[0]
         if best.accepted:
             # sandwich beside the Hessian, and the misspecification check (at the ML estimate)
-            from valve_env.estimation.robust import robust_finding
+            from valve_env.valveid.robust import robust_finding
 
             best.robust = robust_finding(best.estimator.backend_, train, best.fit,
                                          bootstrap_sd=bootstrap_B > 0)

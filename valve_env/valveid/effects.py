@@ -10,13 +10,13 @@ parameter space (tau = 0, beta = 0, band = 0), which the likelihood-ratio test a
 
 The diagnosis fits each effect's ``parameters`` (not its ``extra`` ones: stiction's slip jump is
 held at the band, J = S). Stiction's likelihood is that of a stick-slip filter
-(:func:`valve_env.diagnosis.engine.stick_loglik`); it is rough in ``band_mm``, so the band
-itself is measured from the jumps of the opening (:mod:`valve_env.diagnosis.stiction`) and the
+(:func:`valve_env.valveid.oe.stick_loglik`); it is rough in ``band_mm``, so the band
+itself is measured from the jumps of the opening (:mod:`valve_env.valveid.stiction`) and the
 likelihood serves the test. The same effects are available as continuous-discrete SDE models
-for the estimator in :mod:`valve_env.diagnosis.sde_effects`.
+for the estimator in :mod:`valve_env.valveid.sde_effects`.
 
 A new effect is a declaration in the registry plus its term in
-:func:`valve_env.diagnosis.engine.simulate_valve` (through :mod:`valve_env.physics.trajectory`).
+:func:`valve_env.valveid.oe.simulate_valve` (through :mod:`valve_env.physics.trajectory`).
 """
 
 from __future__ import annotations

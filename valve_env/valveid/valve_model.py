@@ -47,10 +47,10 @@ import numpy as np
 import pandas as pd
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-from valve_env.estimation.model import CompiledFunctions, Parameter, SDEModel, with_overrides
-from valve_env.estimation.temperature import DENOISERS, denoise_temperature, noise_sd, relaxed_tv, tv_denoise
+from valve_env.ident.sde import CompiledFunctions, Parameter, SDEModel, with_overrides
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, N_VALVE, ValveParams
 from valve_env.physics import valve as phys
+from valve_env.valveid.temperature import DENOISERS, denoise_temperature, noise_sd, relaxed_tv, tv_denoise
 
 # numba versions of the shared physics functions (the same source as the environment uses)
 nb_demanded_opening = nb.njit(cache=True)(phys.demanded_opening)
@@ -499,7 +499,7 @@ class ValveModel(SDEModel):
         for a subclass that changes the hooks or adds states (then the generic kernel runs)."""
         if not self.is_base:
             return None
-        from valve_env.estimation.filters import _alloc
+        from valve_env.ident.kalman import _alloc
 
         res = _alloc(len(arr.t), 1, 1)
         pp = _f(p)

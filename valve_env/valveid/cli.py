@@ -97,9 +97,9 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from valve_env.cli import progress_bar
-    from valve_env.diagnosis.diagnose import diagnose, read_run
-    from valve_env.diagnosis.effects import EFFECTS, check_effects
     from valve_env.outputs import OutputSet, json_text
+    from valve_env.valveid.diagnose import diagnose, read_run
+    from valve_env.valveid.effects import EFFECTS, check_effects
 
     check_range("--holdout", args.holdout, 0.05, 0.5)
     check_range("--alpha", args.alpha, 0.0, 0.5, lo_open=True, hi_open=True)
@@ -115,7 +115,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     if not args.no_report:
         report = Path(args.report) if args.report else out.with_suffix(".md")
         outs.add(report, "--report" if args.report else "report (default: beside --json; give --report)")
-        from valve_env.diagnosis.report import FIGURE_SUFFIXES
+        from valve_env.valveid.report import FIGURE_SUFFIXES
 
         outs.add_in_dir(report.parent, [f"{report.stem}{sfx}" for sfx in FIGURE_SUFFIXES], "report figure")
     run = read_run(args.run)
@@ -134,7 +134,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     with outs:
         outs.write_text(out, json_text(result.to_json()))
         if report is not None:
-            from valve_env.diagnosis.report import write_report
+            from valve_env.valveid.report import write_report
 
             write_report(result, outs.stage_dir(report.parent) / report.name)
         if valve_out is not None:

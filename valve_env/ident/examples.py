@@ -6,7 +6,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from valve_env.estimation.model import CompiledFunctions, Parameter, SDEModel
+from valve_env.ident.sde import CompiledFunctions, Parameter, SDEModel
 
 
 class Ornstein2D(SDEModel):

@@ -18,7 +18,7 @@ TARGET_S = 30.0
 
 def default_bootstrap_b() -> int:
     """The bootstrap size ``diagnose`` uses by default (read from its signature, so it cannot drift)."""
-    from valve_env.diagnosis.diagnose import diagnose
+    from valve_env.valveid.diagnose import diagnose
 
     return int(inspect.signature(diagnose).parameters["bootstrap_B"].default)
 
@@ -40,8 +40,8 @@ def run_bench(hours: float = 24.0, dt_s: float = 10.0, seed: int = 2024,
     bootstrap replicates of the named effects' sd (default: ``diagnose``'s default)."""
     import numpy as np
 
-    from valve_env.diagnosis.diagnose import diagnose
     from valve_env.experiment import simulate_experiment
+    from valve_env.valveid.diagnose import diagnose
 
     cases = CASES if cases is None else cases
     B = default_bootstrap_b() if bootstrap_B is None else int(bootstrap_B)

@@ -21,9 +21,9 @@ The pieces (docs/estimation.md, "Standard errors"):
   estimates in the sandwich of the others (Liang and Zeger 1986), delta method to the natural
   scale.
 
-Used by :class:`valve_env.estimation.fit.MLEstimator` (the EKF likelihood: inverse Hessian over
+Used by :class:`valve_env.ident.mle.MLEstimator` (the EKF likelihood: inverse Hessian over
 the identified directions) and by the output-error likelihood of the diagnosis
-(:class:`valve_env.diagnosis.fitting.Model`: the sandwich).
+(:class:`valve_env.valveid.fitting.Model`: the sandwich).
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ def hac_meat(G: np.ndarray, nlags: int | None = None, *, demean: bool = True) ->
 
     The one HAC meat of the project (statsmodels' ``S_hac_simple``): the output-error sandwich
     (:func:`hessian_sandwich_parts`) takes it about the scores' mean (``demean``, the default), the
-    EKF's (:func:`valve_env.estimation.robust.robust_std`) about zero, the scores' expectation at the
+    EKF's (:func:`valve_env.valveid.robust.robust_std`) about zero, the scores' expectation at the
     maximum (``demean=False``). At an interior maximum the mean score is zero to the optimiser's
     tolerance, so the two agree there."""
     G = np.asarray(G, dtype=float)

@@ -1,6 +1,6 @@
 """The breakaway travel S of a stem that slips less than it sticks (J < S): the (S, J) profile.
 
-Stiction's band is measured from the slips of the opening (:func:`valve_env.diagnosis.stiction.jump_band`).
+Stiction's band is measured from the slips of the opening (:func:`valve_env.valveid.stiction.jump_band`).
 Under the project's stick-slip (J = S, :mod:`valve_env.physics.stickslip`) a slip is the band. A stem whose
 slip J is shorter than its breakaway travel S (the independent simulator's ``force`` valve, Karnopp's
 static and Coulomb friction: J = S (1 - r) / (1 + r)) slips J, and the rest of S, the lag (S - J) / 2 of the
@@ -14,7 +14,7 @@ about 0.2 K), and a lag moves the whole branch while a larger ``F_hmax`` moves o
 k the hysteresis of the moving branches, ``2 F_hmax / C + (S - J)``, is kept at the fit's (``F_hmax`` lowered
 by ``C (k - 1) J / 2``, then the best of a few offsets about that); the other parameters stay at the fit's.
 The likelihood is the open-loop one: the (S, J) stem (:func:`stick_simulate_sj`) on the fitted valve's demand,
-its residual an Ornstein-Uhlenbeck process plus white noise (:func:`valve_env.diagnosis.engine.ou_loglik`,
+its residual an Ornstein-Uhlenbeck process plus white noise (:func:`valve_env.valveid.oe.ou_loglik`,
 the diagnosis's output-error likelihood without the stick-slip filter, which holds J = S). So the profile
 asks one question: with the same hysteresis, is part of it a lag of the stem (S > J) rather than friction?
 The estimate is the grid's best k; its sd the half-rise width of the profile (the k whose log-likelihood
@@ -28,7 +28,7 @@ and the fitted demand's error near the reversals is of the lag's size); on 12 of
 it read 1.75-2.75, S within -31 to +16 %. The diagnosis's bootstrap takes as the band the S of the stick-slip
 filter's profile (:func:`sj_filter_loglik`) where it reads at least 1.75 and the stem stuck longer
 than it slipped, that reading corrected for its low reading on the fitted valve
-(:func:`valve_env.estimation.bootstrap.breakaway_band`, :func:`~valve_env.estimation.bootstrap.calibrated_ratio`;
+(:func:`valve_env.valveid.bootstrap.breakaway_band`, :func:`~valve_env.valveid.bootstrap.calibrated_ratio`;
 docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S").
 """
 
@@ -40,11 +40,11 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from valve_env.diagnosis.engine import ou_loglik, stick_simulate_sj
+from valve_env.valveid.oe import ou_loglik, stick_simulate_sj
 
 if TYPE_CHECKING:
-    from valve_env.diagnosis.fitting import Model
-    from valve_env.estimation.data import RunData
+    from valve_env.valveid.data import RunData
+    from valve_env.valveid.fitting import Model
 
 #: the ratios S / J profiled (a force-law valve with Coulomb / static friction r has S / J = (1 + r) / (1 - r):
 #: 3 at r = 0.5; the slips' band reads J a little long, so the measured ratio is lower)
@@ -57,7 +57,7 @@ _FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
 def sj_loglik(model: Model, data: RunData, values: dict[str, float], S: float, J: float) -> float:
     """The open-loop log-likelihood of the opening under the (S, J) stem on ``model``'s valve with ``values``
     (module docstring): ``model.simulate``'s stem with band S and slip J, its residual scored by
-    :func:`~valve_env.diagnosis.engine.ou_loglik`."""
+    :func:`~valve_env.valveid.oe.ou_loglik`."""
     xs = model.simulate(data, {**values, "band_mm": S}, slip=J)[0]
     mask = np.ones(len(data), dtype=np.bool_)
     ll, _, _ = ou_loglik(data.t, data.x - xs, values["s_w"], values["s_e"], values["tau_e"], mask)

@@ -1,6 +1,6 @@
 """Errors in variables inside the likelihood: a noisy input as a state observed with its own noise.
 
-A model ``base`` (an :class:`~valve_env.estimation.model.SDEModel`) takes an input
+A model ``base`` (an :class:`~valve_env.ident.sde.SDEModel`) takes an input
 ``u_j`` that is itself a measurement: the sensed temperature of the valve, whose
 white noise (docs/reference.md, section 2) the base valve model removes by
 total-variation denoising and then treats as exact. :class:`InputErrorModel`
@@ -14,7 +14,7 @@ and observes the raw measurement of the input as an extra output with its own no
     y_meas = u_j + d + e_T,    e_T ~ N(0, s_e^2).
 
 The base model sees ``u_j + d`` wherever it reads ``u_j``, so the likelihood (and
-the inverse Hessian, and the sandwich of :mod:`valve_env.estimation.robust`) carry
+the inverse Hessian, and the sandwich of :mod:`valve_env.valveid.robust`) carry
 the input's uncertainty: the filter's innovations of the base outputs include
 ``dh/du_j P_dd dh/du_j'`` and the estimates are no longer conditioned on an
 exact input. Extra parameters: ``s_d`` (stationary sd of the input error, the
@@ -50,8 +50,9 @@ from typing import Any
 import numba as nb
 import numpy as np
 
-from valve_env.estimation.model import Parameter, SDEModel, with_overrides
-from valve_env.estimation.valve_model import (
+from valve_env.ident.sde import Parameter, SDEModel, with_overrides
+from valve_env.params import I_P_BSET, I_STROKE
+from valve_env.valveid.valve_model import (
     C_CLIP_W,
     C_SIGN_EPS,
     P_F_HMAX,
@@ -70,7 +71,6 @@ from valve_env.estimation.valve_model import (
     nb_stiffness,
     smooth_sign,
 )
-from valve_env.params import I_P_BSET, I_STROKE
 
 #: the error model's parameters, appended after the base model's
 EIV_PARAMETERS: tuple[str, ...] = ("s_d", "tau_d", "s_e")
@@ -313,7 +313,7 @@ class ValveEIVModel(InputErrorModel):
     uncertain input: the force balance reads ``T_tank_s + d``, the raw ``T_tank_C`` is observed with
     sd ``s_e`` (see the module doc). Parameters: the base valve's (``sigma, F_hmax, p_bset, s_F,
     s_x``), then ``s_d`` (degC), ``tau_d`` (s), ``s_e`` (degC). ``valve`` and the keyword
-    options of :class:`~valve_env.estimation.valve_model.ValveModel` pass through (``init`` and
+    options of :class:`~valve_env.valveid.valve_model.ValveModel` pass through (``init`` and
     ``fixed`` may name any parameter)."""
 
     def __init__(self, valve: Any = None, *, init: Mapping[str, float] | None = None,
@@ -356,7 +356,7 @@ class ValveEIVModel(InputErrorModel):
         assert isinstance(self.base, ValveModel)
         if not self.base.is_base:
             return None
-        from valve_env.estimation.filters import _alloc
+        from valve_env.ident.kalman import _alloc
 
         res = _alloc(len(arr.t), 2, 2)
         pp = np.ascontiguousarray(p, dtype=np.float64)
@@ -384,12 +384,12 @@ def denoising_error(T_C: np.ndarray, t: np.ndarray, *, tv_factor: float = 4.5, B
 
     The denoised signal stands for the true one: ``B`` times white noise of the channel's sd
     (``noise_C``, default estimated from second differences) is added to it and the copy is
-    denoised again (:func:`~valve_env.estimation.valve_model.denoise_temperature`); the pooled sd of
+    denoised again (:func:`~valve_env.valveid.valve_model.denoise_temperature`); the pooled sd of
     (re-denoised - denoised) is ``s_d`` and its lag-1 autocorrelation rho gives
     ``tau_d = -dt / ln rho`` (dt the median sample interval). The raw measurement cannot tell this
     error itself (the denoised signal was fitted to it), so the error state's size is fixed from
     this calibration rather than estimated (docs/uncertainty.md)."""
-    from valve_env.estimation.valve_model import denoise_temperature, noise_sd
+    from valve_env.valveid.valve_model import denoise_temperature, noise_sd
 
     T_C = np.asarray(T_C, dtype=float)
     t = np.asarray(t, dtype=float)

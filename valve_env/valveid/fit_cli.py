@@ -5,7 +5,7 @@
 
 writes {"params": {"sigma", "F_hmax", "p_bset"}, "std": {...}, "loglik", "rms_mm", "n", ...}.
 By default ``params`` and ``std`` are the errors-in-variables fit's
-(:func:`valve_env.estimation.eiv.fit_eiv`, B = 8 temperature-bootstrap refits), whose sd the
+(:func:`valve_env.valveid.eiv.fit_eiv`, B = 8 temperature-bootstrap refits), whose sd the
 held-out coverage studies show calibrated at 2 sd (docs/uncertainty.md); ``--ml`` gives the plain
 maximum-likelihood fit, whose inverse-Hessian sd is NOT calibrated under temperature noise.
 ``params`` holds ValveParams fields only, so it passes straight to
@@ -23,7 +23,7 @@ from typing import Any
 
 from valve_env.cli import UsageError, add_force
 
-#: the files ``--report DIR`` writes (valve_env.estimation.report.write_report)
+#: the files ``--report DIR`` writes (valve_env.valveid.fit_report.write_report)
 REPORT_FILES: tuple[str, ...] = ("report.md", "fit.png", "phase.png", "whiteness.png")
 
 
@@ -80,18 +80,18 @@ def run_fit(args: argparse.Namespace) -> int:
     if report_dir is not None:
         names = [*REPORT_FILES, *(["validation.png"] if args.validate else [])]
         outs.add_in_dir(report_dir, names, "--report")
-    from valve_env.estimation.preprocess import preprocess_run
+    from valve_env.valveid.preprocess import preprocess_run
 
     data, pre = preprocess_run(load_run(args.run), source=str(args.run))
     validation = preprocess_run(load_run(args.validate), source=str(args.validate))[0] if args.validate else None
-    from valve_env.estimation.report import eiv_summary, fit_run, fit_summary, write_report
+    from valve_env.valveid.fit_report import eiv_summary, fit_run, fit_summary, write_report
 
     bar = progress_bar(3 if report_dir is not None else 2, desc="fit", unit="step")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             if not args.ml:
-                from valve_env.estimation.eiv import fit_eiv
+                from valve_env.valveid.eiv import fit_eiv
 
                 eiv = fit_eiv(data, n_starts=args.n_starts, seed=args.seed, B=args.bootstrap)
                 est = eiv.estimator

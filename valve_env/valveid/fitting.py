@@ -1,26 +1,26 @@
 """Maximum-likelihood fits of the base valve model and its extensions (simulation likelihood).
 
-The likelihood is that of :mod:`valve_env.diagnosis.engine`: the valve is
+The likelihood is that of :mod:`valve_env.valveid.oe`: the valve is
 simulated from the latent (smoothed) temperatures, and the residual of the
 measured opening is an Ornstein-Uhlenbeck model error plus white noise. Free
 parameters: the paper's Table 4 (``sigma``, ``F_hmax``, ``p_bset``), the
 noise (``s_w``, ``s_e``, ``tau_e``) and the parameters of the effects
 switched on. Stiction's band is not fitted by the optimiser: its likelihood
 is rough and trades off against F_hmax, so it is measured from the jumps of
-the opening (:mod:`valve_env.diagnosis.stiction`) and held while the rest is
+the opening (:mod:`valve_env.valveid.stiction`) and held while the rest is
 fitted. Standard deviations here are the larger of the inverse-Hessian and
 the HAC-sandwich ones (delta method to the natural scale); they ignore the
 smoothing error of the temperatures and are optimistic, so the diagnosis
 replaces them for the named effects by a model-based bootstrap
-(:mod:`valve_env.estimation.bootstrap`).
+(:mod:`valve_env.valveid.bootstrap`).
 
 This is the output-error back-end of the identification framework
 (docs/estimation.md, "Architecture"): the data container is
-:class:`valve_env.estimation.data.RunData`, the parameters and their
-transforms are :mod:`valve_env.estimation.model`'s, the standard errors
-:func:`valve_env.estimation.covariance.hessian_sandwich_sd`; the scikit-learn
+:class:`valve_env.valveid.data.RunData`, the parameters and their
+transforms are :mod:`valve_env.ident.sde`'s, the standard errors
+:func:`valve_env.ident.uncertainty.hessian_sandwich_sd`; the scikit-learn
 style front is ``ValveEstimator(effects, likelihood="output_error")``
-(:mod:`valve_env.estimation.estimator`).
+(:mod:`valve_env.valveid.estimator`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares, minimize
 
-from valve_env.diagnosis.effects import EFFECTS, ENGINE_INDEX, N_EFFECT_PARAMS, EffectParameter
-from valve_env.diagnosis.engine import (
+from valve_env.ident.sde import Parameter, dnat_dwork, from_work, to_work, work_bounds
+from valve_env.ident.uncertainty import hessian_sandwich_sd
+from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
+from valve_env.valveid.data import RunData
+from valve_env.valveid.effects import EFFECTS, ENGINE_INDEX, N_EFFECT_PARAMS, EffectParameter
+from valve_env.valveid.oe import (
     BAND_SPREAD,
     LANDING_SD,
     LOG2PI,
@@ -43,15 +47,11 @@ from valve_env.diagnosis.engine import (
     stick_loglik,
     stick_simulate_sj,
 )
-from valve_env.diagnosis.stiction import jump_band
-from valve_env.estimation.covariance import hessian_sandwich_sd
-from valve_env.estimation.data import RunData
-from valve_env.estimation.model import Parameter, dnat_dwork, from_work, to_work, work_bounds
-from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
+from valve_env.valveid.stiction import jump_band
 
 _PAPER = ValveParams()
 #: the base (paper Table 4) and residual-model parameters, all on a log scale (the estimation's
-#: :class:`~valve_env.estimation.model.Parameter` and its transforms); ``init`` is only nominal:
+#: :class:`~valve_env.ident.sde.Parameter` and its transforms); ``init`` is only nominal:
 #: :meth:`Model.default_start` sets the start
 BASE_PARAMS: tuple[Parameter, ...] = (
     Parameter("sigma", _PAPER.sigma, 0.3, 100.0, "log", unit="N/K"),
@@ -102,7 +102,7 @@ class FitResult:
 KINK_FEVALS = 60
 
 
-#: valve paths (:func:`~valve_env.diagnosis.engine.simulate_valve`'s output) that a :class:`Model` keeps, the
+#: valve paths (:func:`~valve_env.valveid.oe.simulate_valve`'s output) that a :class:`Model` keeps, the
 #: most recently used first out (:meth:`Model._valve_path`). A finite-difference gradient moves one parameter at a
 #: time, and the three noise parameters and stiction's band leave the path as it is: with the base point and
 #: the valve parameters' steps kept, those evaluations run only the filter (docs/diagnosis.md, "Speed")
@@ -151,7 +151,7 @@ class Model:
         # the kept valve paths hold runs and their simulations: a copied or pickled model starts without them
         return {**self.__dict__, "_paths": OrderedDict()}
 
-    # --- the work (optimiser) scale: the transforms of valve_env.estimation.model ----------
+    # --- the work (optimiser) scale: the transforms of valve_env.ident.sde ----------
     def to_work(self, values: dict[str, float]) -> np.ndarray:
         """Natural values (clipped to their bounds) -> the optimiser's scale."""
         return np.array([to_work(_clip(values[q.name], q), q) for q in self.parameters])
@@ -187,7 +187,7 @@ class Model:
 
     def _valve_path(self, data: RunData, vp: np.ndarray, e: np.ndarray, delta: float,
                     want_sub: bool) -> tuple[np.ndarray, ...]:
-        """:func:`~valve_env.diagnosis.engine.simulate_valve` of ``data``, kept for the last :data:`PATH_CACHE`
+        """:func:`~valve_env.valveid.oe.simulate_valve` of ``data``, kept for the last :data:`PATH_CACHE`
         distinct inputs. The path depends on the run's time, temperatures and pressures, the valve vector, the
         effects that shape the demand (the bulb lag, the medium's weight, the drift: not the band or the slip,
         which act after it), the reversal threshold and whether the sub-step path is wanted; a run is one object
@@ -211,7 +211,7 @@ class Model:
                  slip: float = -1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Open-loop simulation: (opening mm, gas temperature degC, friction force N) at the samples. With
         stiction the stem breaks away at ``band_mm`` and slips ``slip`` where ``0 < slip < band_mm`` (the (S, J)
-        stem, :func:`~valve_env.diagnosis.engine.stick_simulate_sj`), else the whole band (J = S)."""
+        stem, :func:`~valve_env.valveid.oe.stick_simulate_sj`), else the whole band (J = S)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
         x, Tg, F, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), stuck)
@@ -225,7 +225,7 @@ class Model:
     def _filter(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None,
                 slip: float = -1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """(log-likelihood, one-step prediction errors, their variances, each sample's log-likelihood term);
-        ``slip`` is the stick-slip filter's (:func:`~valve_env.diagnosis.engine.stick_loglik`; negative: J = S)."""
+        ``slip`` is the stick-slip filter's (:func:`~valve_env.valveid.oe.stick_loglik`; negative: J = S)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
         x, _, _, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), stuck)
@@ -286,7 +286,7 @@ class Model:
 
         Each effect parameter is first scanned over a grid with the other parameters at ``start`` (a
         robust start: the likelihood can be far from quadratic away from the optimum). Stiction's band
-        is measured from the slips of the opening (:func:`valve_env.diagnosis.stiction.jump_band`) and
+        is measured from the slips of the opening (:func:`valve_env.valveid.stiction.jump_band`) and
         held fixed; only where the record has too few slips is it fitted, by a 1-D profile search
         alternating with fits of the other parameters (:meth:`_coordinate_ascent`). With
         ``profile_band`` (:data:`PROFILE_BAND`, off) the measured band is afterwards profiled by the
@@ -296,7 +296,7 @@ class Model:
         start = {**self.default_start(data), **(start or {})}
         fixed = dict(fixed or {})
         free = dict(fixed)  # what stays fixed in the final profile search of the band
-        # stiction's band is measured from the staircase of the opening (valve_env.diagnosis.stiction):
+        # stiction's band is measured from the staircase of the opening (valve_env.valveid.stiction):
         # its likelihood is rough and trades the band off against F_hmax, which traps a joint fit
         for p in self.eff_params:
             if p.name == "band_mm" and p.name not in fixed:
@@ -556,7 +556,7 @@ class Model:
         """Standard deviations: the larger of the model-based one (inverse Hessian of the negative
         log-likelihood over the identified directions) and the robust one (Newey-West HAC sandwich of
         the per-sample scores, the residual model's parameters held as a working covariance); delta
-        method to natural scale. The one implementation of :mod:`valve_env.estimation.covariance`."""
+        method to natural scale. The one implementation of :mod:`valve_env.ident.uncertainty`."""
         bounds = self.work_bounds()
         widths = np.array([bounds[i][1] - bounds[i][0] for i in free], dtype=float)
         g = np.array([dnat_dwork(zf[j], self.parameters[i]) for j, i in enumerate(free)])

@@ -8,16 +8,16 @@ DataFrame is validated with :func:`~valve_env.data_io.validate_run`). ``effects`
 registry :mod:`valve_env.effects`. The two likelihood back-ends:
 
 * ``"ekf"``: the continuous-discrete SDE valve model with the effects as extra states and
-  parameters (:func:`valve_env.diagnosis.sde_effects.effect_model`), extended Kalman filter,
-  :class:`~valve_env.estimation.fit.MLEstimator`; the inputs are the TV-denoised temperatures.
+  parameters (:func:`valve_env.valveid.sde_effects.effect_model`), extended Kalman filter,
+  :class:`~valve_env.ident.mle.MLEstimator`; the inputs are the TV-denoised temperatures.
 * ``"output_error"``: the valve simulated from the IRW-RTS-smoothed temperatures, the residual an
-  Ornstein-Uhlenbeck model error plus white noise (:class:`valve_env.diagnosis.fitting.Model`, the
+  Ornstein-Uhlenbeck model error plus white noise (:class:`valve_env.valveid.fitting.Model`, the
   diagnosis's likelihood); standard errors the larger of the identified inverse Hessian and the HAC
-  sandwich (:mod:`valve_env.estimation.covariance`).
+  sandwich (:mod:`valve_env.ident.uncertainty`).
 
-Both use the same parameter transforms (:mod:`valve_env.estimation.model`) and the same standard
-errors (:mod:`valve_env.estimation.covariance`). The back-end object is ``backend_`` (and, for the
-output error, the diagnosis's :class:`~valve_env.diagnosis.fitting.FitResult` is ``result_``): the
+Both use the same parameter transforms (:mod:`valve_env.ident.sde`) and the same standard
+errors (:mod:`valve_env.ident.uncertainty`). The back-end object is ``backend_`` (and, for the
+output error, the diagnosis's :class:`~valve_env.valveid.fitting.FitResult` is ``result_``): the
 numbers are the back-end's, unchanged.
 """
 
@@ -31,9 +31,9 @@ from typing import Any
 import pandas as pd
 
 from valve_env.data_io import load_run, validate_run
-from valve_env.estimation.base import Estimator
-from valve_env.estimation.data import RunData
+from valve_env.ident.mle import Estimator
 from valve_env.params import ValveParams
+from valve_env.valveid.data import RunData
 
 #: the likelihood back-ends, by name
 LIKELIHOODS: tuple[str, ...] = ("ekf", "output_error")
@@ -43,13 +43,13 @@ class ValveEstimator(Estimator):
     """Maximum likelihood of the valve with ``effects`` under the ``likelihood`` back-end.
 
     ``fixed`` holds parameters at given values; ``start`` (output error only) starts from given
-    values; ``options`` go to the back-end (:class:`~valve_env.estimation.fit.MLEstimator`'s
-    keywords, or :meth:`valve_env.diagnosis.fitting.Model.fit`'s ``maxiter``/``with_std``)."""
+    values; ``options`` go to the back-end (:class:`~valve_env.ident.mle.MLEstimator`'s
+    keywords, or :meth:`valve_env.valveid.fitting.Model.fit`'s ``maxiter``/``with_std``)."""
 
     def __init__(self, effects: tuple[str, ...] | list[str] = (), *, likelihood: str = "ekf",
                  valve: ValveParams | None = None, fixed: Mapping[str, float] | None = None,
                  start: Mapping[str, float] | None = None, **options: Any) -> None:
-        from valve_env.diagnosis.effects import check_effects
+        from valve_env.valveid.effects import check_effects
 
         if likelihood not in LIKELIHOODS:
             raise ValueError(f"unknown likelihood {likelihood!r}; choose one of {', '.join(LIKELIHOODS)}")
@@ -64,7 +64,7 @@ class ValveEstimator(Estimator):
 
     def fit(self, data: pd.DataFrame | RunData | str | os.PathLike[str]) -> ValveEstimator:
         """Fit to a run: a path (read by the loader), a DataFrame (validated) or, for the output error,
-        the framework's prepared :class:`~valve_env.estimation.data.RunData` (used as it is, e.g. a
+        the framework's prepared :class:`~valve_env.valveid.data.RunData` (used as it is, e.g. a
         training slice). Returns ``self``."""
         if isinstance(data, RunData):
             if self.likelihood != "output_error":
@@ -82,14 +82,14 @@ class ValveEstimator(Estimator):
     def bootstrap(self, B: int = 16, seed: int = 0, params: tuple[str, ...] | list[str] | None = None
                   ) -> ValveEstimator:
         """The calibrated uncertainty of a fitted output-error estimator: the model-based bootstrap of the
-        whole chain (:func:`valve_env.estimation.bootstrap.bootstrap`, ``B`` replicates, temperature
+        whole chain (:func:`valve_env.valveid.bootstrap.bootstrap`, ``B`` replicates, temperature
         smoothing included) with the pre-processing bracket, applied as the diagnosis applies it to a
-        named effect (:func:`valve_env.estimation.bootstrap.apply_bootstrap`: ``std_`` of ``params``
+        named effect (:func:`valve_env.valveid.bootstrap.apply_bootstrap`: ``std_`` of ``params``
         the bootstrap's sd, at least the inverse-Hessian/HAC sd, and ``params_`` bias-corrected where
         the bias is clear). ``params``: default the effects' parameters, or the base model's
         ``sigma``, ``F_hmax``, ``p_bset`` without effects. Returns ``self``; ``bootstrap_`` holds the
         replicates and their summary, ``std_from_`` where each sd came from."""
-        from valve_env.estimation.bootstrap import apply_bootstrap, bootstrap
+        from valve_env.valveid.bootstrap import apply_bootstrap, bootstrap
 
         self._check()
         if self.likelihood != "output_error":
@@ -110,9 +110,9 @@ class ValveEstimator(Estimator):
         self.std_ = {k: v for k, v in self.result_.std.items() if k not in self.fixed}
 
     def _fit_ekf(self, df: pd.DataFrame) -> None:
-        from valve_env.diagnosis.sde_effects import effect_model
-        from valve_env.estimation.fit import MLEstimator
-        from valve_env.estimation.valve_model import base_valve_model
+        from valve_env.ident.mle import MLEstimator
+        from valve_env.valveid.sde_effects import effect_model
+        from valve_env.valveid.valve_model import base_valve_model
 
         model = effect_model(self.effects, valve=self.valve) if self.effects else base_valve_model(self.valve)
         est = MLEstimator(model, fixed=self.fixed, **self.options).fit(df)
@@ -128,7 +128,7 @@ class ValveEstimator(Estimator):
         self.rms_ = dict(est.rms_)
 
     def _fit_output_error(self, run: RunData) -> None:
-        from valve_env.diagnosis.fitting import Model
+        from valve_env.valveid.fitting import Model
 
         model = Model(tuple(self.effects), self.valve)
         res = model.fit(run, start=self.start or None, fixed=self.fixed or None, **self.options)

@@ -1,6 +1,6 @@
 """Errors in variables for the base valve fit: the temperature-noise part of the standard errors.
 
-The base model (:class:`~valve_env.estimation.valve_model.ValveModel`) takes the
+The base model (:class:`~valve_env.valveid.valve_model.ValveModel`) takes the
 total-variation-denoised tank temperature as an exact input, so the inverse
 Hessian of its likelihood measures only what the noise on the opening does to
 the estimates. The noise on the sensed temperature (docs/reference.md, section 2: white,
@@ -15,7 +15,7 @@ to every reversal, collapses), so the temperature noise is propagated by a
 
 1. take the denoised temperatures of the fitted run as the best estimate of the
    true ones, and the noise sd of each temperature channel from its second
-   differences (:func:`~valve_env.estimation.valve_model.noise_sd`), or a given sd;
+   differences (:func:`~valve_env.valveid.valve_model.noise_sd`), or a given sd;
 2. ``B`` times: add fresh white noise of that sd to them, keep every other
    column (the measured opening included), and re-run the whole fit, denoising
    included, warm-started at the estimate (one start, no Hessian);
@@ -48,10 +48,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from valve_env.estimation.fit import MLEstimator
-from valve_env.estimation.model import SDEModel
-from valve_env.estimation.temperature import channel_noise
-from valve_env.estimation.valve_model import ValveModel
+from valve_env.ident.mle import MLEstimator
+from valve_env.ident.sde import SDEModel
+from valve_env.valveid.temperature import channel_noise
+from valve_env.valveid.valve_model import ValveModel
 
 #: the fitted parameters the bootstrap reports on (docs/reference.md, section 7's params, and the noise parameters)
 REPORTED: tuple[str, ...] = ("sigma", "F_hmax", "p_bset", "s_F", "s_x")
@@ -88,7 +88,7 @@ class EIVResult:
                 "std_temperature": dict(self.std_temperature), "bias": dict(self.bias),
                 "T_noise_C": self.T_noise_C, "T_med_noise_C": self.T_med_noise_C, "B": self.B,
                 "failed": self.failed, "method": "inverse Hessian + conditional temperature-noise bootstrap "
-                                                  "(valve_env.estimation.eiv)"}
+                                                  "(valve_env.valveid.eiv)"}
 
 
 def temperature_bootstrap(est: MLEstimator, data: pd.DataFrame, *, B: int = 16, seed: int = 0,
@@ -188,7 +188,7 @@ class EIVFit:
     the sandwich of the relaxed-denoiser fit, ``denoiser`` the bracket's, ``temperature`` the
     temperature bootstrap's, if run), each as a relative sd; ``estimates``: the fits with each
     denoiser; ``estimator``: the relaxed-denoiser :class:`MLEstimator` (residuals, report);
-    ``misspecification``: :func:`valve_env.estimation.robust.misspecification_check`;
+    ``misspecification``: :func:`valve_env.valveid.robust.misspecification_check`;
     ``fit_time_s``: wall time of the whole procedure."""
 
     params: dict[str, float]
@@ -216,22 +216,22 @@ def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: i
     """Errors-in-variables fit of the valve (docs/uncertainty.md, "Errors in variables").
 
     1. The model: ``"base"`` (default) the base valve model; ``"eiv"`` the temperature error inside
-       the likelihood, :class:`~valve_env.estimation.eiv_model.ValveEIVModel` (the denoised
+       the likelihood, :class:`~valve_env.valveid.eiv_model.ValveEIVModel` (the denoised
        temperature plus an error state of the denoiser's calibrated size; measured less well
        calibrated on the independent simulator, docs/uncertainty.md).
     2. The reversal excursion, which the white-noise model cannot carry: the model is fitted on the
        temperature denoised two ways, ``relaxed`` (the default, which overshoots a smooth reversal)
        and plain ``tv`` (which shaves it); the estimate is their midpoint on the log scale and the
        bracket's width w adds w^2 / 12 (a uniform distribution over it) to the variance.
-    3. The sampling variance: the sandwich (HAC, :func:`valve_env.estimation.robust.robust_std`) of
+    3. The sampling variance: the sandwich (HAC, :func:`valve_env.valveid.robust.robust_std`) of
        the relaxed fit, plus (``B > 0``, default 8) the temperature noise's variance from the
        temperature bootstrap (:func:`temperature_bootstrap` of the relaxed base fit, its bias
        correction not applied; kept in ``bootstrap``).
     """
     import time
 
-    from valve_env.estimation.eiv_model import valve_eiv_model
-    from valve_env.estimation.robust import misspecification_check, robust_std
+    from valve_env.valveid.eiv_model import valve_eiv_model
+    from valve_env.valveid.robust import misspecification_check, robust_std
 
     if model not in ("eiv", "base"):
         raise ValueError(f"model must be 'eiv' or 'base', got {model!r}")

@@ -11,7 +11,7 @@ within the interval on average); the band is the median over the slips. The same
 the staircase of a stem that re-sticks right after every slip (each step a plateau and a jump of the
 band). The likelihood of the stick-slip filter is rough in the band and the band trades off against
 the Dahl friction's F_hmax (both make hysteresis), which traps the joint fit; the slips measure the
-band directly, without the valve model. Used by :class:`valve_env.diagnosis.fitting.Model` for
+band directly, without the valve model. Used by :class:`valve_env.valveid.fitting.Model` for
 ``band_mm``.
 """
 
@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from valve_env.estimation.valve_model import noise_sd as _smooth_noise_sd
+from valve_env.valveid.valve_model import noise_sd as _smooth_noise_sd
 
 
 def _away_from_stops(x: np.ndarray, stroke: float, edge_mm: float) -> np.ndarray:
@@ -32,7 +32,7 @@ def _away_from_stops(x: np.ndarray, stroke: float, edge_mm: float) -> np.ndarray
 
 def noise_sd(x: np.ndarray) -> float:
     """sd of the white noise on the opening: the robust second-difference estimate of
-    :func:`valve_env.estimation.valve_model.noise_sd` (the stem moves smoothly between slips, which
+    :func:`valve_env.valveid.valve_model.noise_sd` (the stem moves smoothly between slips, which
     are outliers of the second differences)."""
     return _smooth_noise_sd(np.asarray(x, dtype=float))
 
@@ -184,7 +184,7 @@ def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int
                rng: np.random.Generator) -> np.ndarray:
     """``draws`` band estimates (:func:`jump_band`) of ``x_true`` plus white noise of ``noise_sd_mm``
     from ``rng``, nan where too few jumps: :func:`band_sampling` without its checks, and the band's
-    extra replicates of the bootstrap (:func:`valve_env.estimation.bootstrap.bootstrap`)."""
+    extra replicates of the bootstrap (:func:`valve_env.valveid.bootstrap.bootstrap`)."""
     return np.array([jump_band(x_true + noise_sd_mm * rng.standard_normal(x_true.shape[0]), stroke)[0]
                      for _ in range(draws)])
 

@@ -1,7 +1,7 @@
 """The named effects as continuous-discrete SDE models for the estimator (its extension hooks).
 
 :func:`effect_model` builds a subclass of
-:class:`valve_env.estimation.valve_model.ValveModel` with any combination of
+:class:`valve_env.valveid.valve_model.ValveModel` with any combination of
 the effects of docs/reference.md, section 3, so that ``MLEstimator(effect_model(["sensor_lag"]))``
 fits it with the estimator's extended Kalman filter and the likelihood-ratio
 statistic against the base model is ``2 (fit_ext.loglik_ - fit_base.loglik_)``.
@@ -21,7 +21,7 @@ of stick-slip: inside the band the stem hardly moves, outside it it follows
 the demand within ``tau_slip`` (5 s; fit with ``n_sub`` >= 4 at 10 s sampling). It captures the dead band and the delay
 of a sticking stem but not the saw-tooth of stick-slip itself; the diagnosis
 uses the exact stick-slip with a decision-directed filter instead
-(:func:`valve_env.diagnosis.engine.stick_loglik`). The temperatures and their
+(:func:`valve_env.valveid.oe.stick_loglik`). The temperatures and their
 rates are the estimator's smoothed inputs (``tank_temperature(t, u)``,
 ``medium_temperature(t, u)``, ``u[U_V]``, ``u[U_V_MED]``).
 """
@@ -33,10 +33,10 @@ from typing import Any
 import numba as nb
 import numpy as np
 
-from valve_env.diagnosis.effects import check_effects
 from valve_env.effects import REGISTRY
-from valve_env.estimation.model import Parameter
-from valve_env.estimation.valve_model import (
+from valve_env.ident.sde import Parameter
+from valve_env.valveid.effects import check_effects
+from valve_env.valveid.valve_model import (
     N_BASE_CONSTANTS,
     N_BASE_PARAMS,
     N_BASE_STATES,

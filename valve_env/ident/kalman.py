@@ -1,7 +1,7 @@
 """Continuous-discrete Kalman filters and the likelihood (prediction-error decomposition).
 
 * :func:`ekf_python`: the continuous-discrete extended Kalman filter for any
-  :class:`~valve_env.estimation.model.SDEModel` (plain Python, slow but generic).
+  :class:`~valve_env.ident.sde.SDEModel` (plain Python, slow but generic).
 * :func:`ekf_compiled`: the same algorithm in a numba kernel that calls the
   model's compiled functions (:meth:`SDEModel.compiled`).
 * :func:`lkf`: the linear Kalman filter with exact discretisation (matrix
@@ -30,7 +30,7 @@ import pandas as pd
 import scipy.linalg
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
-from valve_env.estimation.model import SDEModel, check_names
+from valve_env.ident.sde import SDEModel, check_names
 
 LOG2PI = float(np.log(2.0 * np.pi))
 

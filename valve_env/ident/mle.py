@@ -1,5 +1,11 @@
 """Maximum-likelihood estimation (scikit-learn style) for :class:`SDEModel` models.
 
+The estimator interface of the identification framework: ``fit(data)`` returns the estimator itself, and
+what it learned ends in ``_`` (``params_``, ``std_``, ``loglik_``, ``n_obs_``, ``n_free_``, ``aic_``,
+``bic_``, ``converged_``). :class:`MLEstimator` (the EKF likelihood of an :class:`SDEModel`) and
+:class:`valve_env.valveid.estimator.ValveEstimator` (the valve with effects of the registry, either
+likelihood) implement it (:class:`Estimator`).
+
     est = MLEstimator(model, n_starts=3, seed=0).fit(df)
     est.params_, est.std_, est.corr_, est.tstat_, est.loglik_, est.n_obs_
     est.predict(df), est.simulate(df), est.smooth(df), est.residuals(df)
@@ -8,7 +14,7 @@ The optimiser (scipy's L-BFGS-B, bounded, several starts) works on each
 parameter's transformed scale (``Parameter.transform``). Standard errors come
 from the inverse of the Hessian of the negative log-likelihood, computed by
 central finite differences on the transformed scale, over the directions the
-data identify (:mod:`valve_env.estimation.covariance`, shared with the
+data identify (:mod:`valve_env.ident.uncertainty`, shared with the
 diagnosis), and are mapped to the natural scale with the delta method. A parameter that ends on a bound is
 reported with a NaN standard error; a (near-)singular Hessian names the
 parameters that the data do not identify (``identifiability_`` and an
@@ -27,11 +33,44 @@ import numpy as np
 import pandas as pd
 import scipy.optimize
 
-from valve_env.estimation.base import Estimator
-from valve_env.estimation.base import NotFittedError as NotFittedError  # re-exported: raised by predict etc.
-from valve_env.estimation.covariance import fd_hessian, identified_directions
-from valve_env.estimation.filters import Arrays, FilterResult, rts_smooth, run_filter, to_arrays
-from valve_env.estimation.model import Parameter, SDEModel, dnat_dwork, from_work, to_work, work_bounds
+from valve_env.ident.kalman import Arrays, FilterResult, rts_smooth, run_filter, to_arrays
+from valve_env.ident.sde import Parameter, SDEModel, dnat_dwork, from_work, to_work, work_bounds
+from valve_env.ident.uncertainty import fd_hessian, identified_directions
+
+
+class NotFittedError(RuntimeError):
+    """The estimator is used before ``fit``."""
+
+
+class Estimator:
+    """Base class: ``fit`` returns ``self``; learned attributes end in ``_``."""
+
+    params_: dict[str, float]
+    std_: dict[str, float]
+    loglik_: float
+    n_obs_: int
+    n_free_: int
+    aic_: float
+    bic_: float
+    converged_: bool
+
+    def fit(self, data: Any) -> Estimator:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def _check(self) -> None:
+        if not hasattr(self, "params_"):
+            raise NotFittedError("call fit(data) first")
+
+    def summary(self) -> pd.DataFrame:
+        """Table of estimates: estimate, std and t-statistic per parameter."""
+        self._check()
+        rows = []
+        for name, value in self.params_.items():
+            sd = self.std_.get(name, float("nan"))
+            rows.append({"parameter": name, "estimate": value, "std": sd,
+                         "t": value / sd if sd == sd and sd > 0 else float("nan")})
+        return pd.DataFrame(rows).set_index("parameter")
+
 
 
 class IdentifiabilityWarning(UserWarning):
@@ -75,7 +114,7 @@ class MLEstimator(Estimator):
 
     Learned attributes end in ``_``: ``params_``, ``std_`` (natural scale),
     ``params_work_``/``std_work_``/``cov_work_`` (transformed scale; ``cov_work_`` the inverse
-    Hessian, the bread of :func:`valve_env.estimation.robust.robust_std`), ``corr_`` (DataFrame),
+    Hessian, the bread of :func:`valve_env.valveid.robust.robust_std`), ``corr_`` (DataFrame),
     ``cov_`` (natural scale, DataFrame), ``tstat_``, ``loglik_``, ``nll_``,
     ``n_obs_`` (scalar observations), ``n_samples_``, ``n_free_``, ``aic_``,
     ``bic_``, ``free_``, ``at_bound_``, ``identifiability_`` (messages),
@@ -279,7 +318,7 @@ class MLEstimator(Estimator):
 
     def _hessian(self, theta: np.ndarray, arr: Arrays, base: np.ndarray, free: list[int],
                  inner: list[int]) -> np.ndarray:
-        """The Hessian over the ``inner`` coordinates (:func:`valve_env.estimation.covariance.fd_hessian`,
+        """The Hessian over the ``inner`` coordinates (:func:`valve_env.ident.uncertainty.fd_hessian`,
         relative steps); NaN when the filter fails near the optimum."""
         seen: list[float] = []
 

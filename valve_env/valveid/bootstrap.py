@@ -1,6 +1,6 @@
 """Honest uncertainty of a named effect's parameters: a model-based bootstrap of the whole chain.
 
-Why not the Hessian: the output-error likelihood of :mod:`valve_env.diagnosis.fitting`
+Why not the Hessian: the output-error likelihood of :mod:`valve_env.valveid.fitting`
 conditions on the *smoothed* temperatures as if they were exact. Their smoothing error is an
 error in the input (errors in variables) that moves the estimates coherently over the record;
 the likelihood cannot see it, and neither can a HAC sandwich of its scores. For stiction the
@@ -63,9 +63,9 @@ errors-in-variables error, which a bootstrap of the IRW-RTS estimate never saw (
 project generator, seed 303: 4 / 7 of 10 runs within 1 / 2 sd before, 6 / 9 after). That error enters the
 sd (root-mean-square error); it is not corrected (``BRACKET_CORRECT``: the world is not the real one, and
 the correction lost coverage on the independent simulator). The bootstrap is the estimation's facility:
-:meth:`valve_env.estimation.estimator.ValveEstimator.bootstrap` runs it and :func:`apply_bootstrap`; the
+:meth:`valve_env.valveid.estimator.ValveEstimator.bootstrap` runs it and :func:`apply_bootstrap`; the
 diagnosis reaches it through that method. The likelihood-based sds beside it (inverse Hessian, HAC
-sandwich) and the misspecification check are :mod:`valve_env.estimation.robust`'s.
+sandwich) and the misspecification check are :mod:`valve_env.valveid.robust`'s.
 """
 
 from __future__ import annotations
@@ -79,9 +79,9 @@ from arch.bootstrap import optimal_block_length
 from scipy.stats import shapiro
 from statsmodels.robust.scale import qn_scale
 
-from valve_env.diagnosis.effects import EFFECTS
-from valve_env.diagnosis.fitting import FitResult, Model, RunData
-from valve_env.diagnosis.stiction import band_draws, band_spread, jump_band, resting_noise_sd
+from valve_env.valveid.effects import EFFECTS
+from valve_env.valveid.fitting import FitResult, Model, RunData
+from valve_env.valveid.stiction import band_draws, band_spread, jump_band, resting_noise_sd
 
 #: Name of the method, as written into the JSON.
 METHOD = "model-based bootstrap (residual blocks)"
@@ -201,7 +201,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
 
     ``x_true``: the bootstrap world's true opening, if already simulated (:func:`world_opening`).
     ``x_noise_sd``: with stiction, the sd of the white noise on the opening (default:
-    :func:`valve_env.diagnosis.stiction.resting_noise_sd` of ``data``).
+    :func:`valve_env.valveid.stiction.resting_noise_sd` of ``data``).
     ``resid_block``: without stiction, the opening's noise is the residuals ``data.x - x_true``
     resampled in circular blocks of this length (default: :func:`residual_block_length`); 0
     draws the fitted noise model instead (white ``s_w`` plus the Ornstein-Uhlenbeck ``s_e``,
@@ -331,7 +331,7 @@ def screen_refits(reps: np.ndarray, z: float = GROSS_Z) -> tuple[np.ndarray, boo
 
 def _refit(model: Model, rep: RunData, values: dict[str, float], names: list[str]) -> dict[str, float]:
     """Re-estimate on a replicate, as :meth:`Model.fit` estimates: stiction's band from the jumps of
-    the opening (:func:`valve_env.diagnosis.stiction.jump_band`, no valve model needed), the smooth
+    the opening (:func:`valve_env.valveid.stiction.jump_band`, no valve model needed), the smooth
     parameters by L-BFGS-B from the truth of the bootstrap world (with the band fixed), where any of
     ``names`` (the parameters bootstrapped) is one of them."""
     out = dict(values)
@@ -358,7 +358,7 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     ``B`` replicates re-estimate every effect parameter; stiction's band, which needs no refit, is
     re-estimated on ``band_B`` replicates in all (the ``B`` plus replicate openings alone). ``names``:
     the parameters to bootstrap (default the effects'; e.g. the base model's ``sigma``, ``F_hmax``,
-    ``p_bset``, :meth:`valve_env.estimation.estimator.ValveEstimator.bootstrap`)."""
+    ``p_bset``, :meth:`valve_env.valveid.estimator.ValveEstimator.bootstrap`)."""
     rng = np.random.default_rng(seed)
     if names is None:
         names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
@@ -424,11 +424,11 @@ def replicate_denoiser(model: Model, names: list[str]) -> str:
 
 def denoised_run(data: RunData, denoiser: str = BRACKET_DENOISER) -> RunData:
     """``data`` with its latent temperatures from the other pre-processing of the framework
-    (:func:`valve_env.estimation.temperature.denoise_temperature`, plain TV by default) instead of the
+    (:func:`valve_env.valveid.temperature.denoise_temperature`, plain TV by default) instead of the
     IRW-RTS smoother; the raw channels, the opening and the noise levels stay."""
     from dataclasses import replace
 
-    from valve_env.estimation.temperature import denoise_temperature
+    from valve_env.valveid.temperature import denoise_temperature
 
     T, vT = denoise_temperature(data.T_raw, data.t, denoiser=denoiser)
     M, vM = denoise_temperature(data.M_raw, data.t, denoiser=denoiser)
@@ -438,7 +438,7 @@ def denoised_run(data: RunData, denoiser: str = BRACKET_DENOISER) -> RunData:
 def bracketed(model: Model, names: list[str]) -> list[str]:
     """The parameters among ``names`` that take the pre-processing bracket: the effects' fitted ones
     (stiction's band is measured from the slips; the base model's are the base fit's business,
-    :func:`valve_env.estimation.eiv.fit_eiv`, where plain TV is the biased side on sharp reversals)."""
+    :func:`valve_env.valveid.eiv.fit_eiv`, where plain TV is the biased side on sharp reversals)."""
     return [p.name for p in model.eff_params if p.name in names and p.name != "band_mm"]
 
 
@@ -497,7 +497,7 @@ def apply_bootstrap(model: Model, data: RunData, fit: FitResult, b: BootstrapRes
 def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float, stroke: float, draws: int, band: float,
                             rng: np.random.Generator) -> dict[str, float]:
     """The band's sd from the measured opening's own slips, replacing the bootstrap world's spread
-    (:func:`valve_env.diagnosis.stiction.band_spread`: the larger of the sd of the band re-estimated on
+    (:func:`valve_env.valveid.stiction.band_spread`: the larger of the sd of the band re-estimated on
     copies of ``x`` with fresh white noise of its sd ``s_x``, and of the sd from the slips' own spread);
     returns its parts (``band_sd_parts`` in the JSON). ``sm.spread`` keeps the added-noise copies' sd
     (the sd of the re-estimates).
@@ -533,8 +533,8 @@ def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> 
     JSON, and where it is applied updates ``sm`` in place (the band's estimate, sd and 95 % interval).
 
     The band measured from the slips (``sm``'s, bias-corrected) is the slip J. The (S, J) profile of the stick-slip
-    filter's likelihood (:func:`valve_env.estimation.stick_profile.sj_profile` with
-    :func:`~valve_env.estimation.stick_profile.sj_filter_loglik`) gives the ratio k = S / J with its sd; it is applied
+    filter's likelihood (:func:`valve_env.valveid.stick_profile.sj_profile` with
+    :func:`~valve_env.valveid.stick_profile.sj_filter_loglik`) gives the ratio k = S / J with its sd; it is applied
     where :func:`breakaway_evident` says so (the profile reads S / J clearly above 1 and the stick-slip check's
     statistic does not contradict it).
     Then k is the profile's reading corrected for its low reading on the fitted valve (:func:`calibrated_ratio`),
@@ -542,11 +542,11 @@ def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> 
     calibrated profile's width (the (S, J) trade-off). Elsewhere the band stays the slips' (J = S), and the block
     reports the profile for information. The block: ``S_mm``, ``S_sd_mm`` (the band reported), ``J_mm``, ``J_sd_mm``
     (the slips'), ``applied``, where applied ``S_over_J`` and ``S_over_J_sd`` (the calibrated k), the filter
-    profile's reading (:meth:`~valve_env.estimation.stick_profile.SJProfile.to_json`), the
+    profile's reading (:meth:`~valve_env.valveid.stick_profile.SJProfile.to_json`), the
     open-loop profile's (``open_loop``, for information) and the check's
     ``travel_over_slip_median``."""
-    from valve_env.estimation.robust import stick_slip_check
-    from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile
+    from valve_env.valveid.robust import stick_slip_check
+    from valve_env.valveid.stick_profile import sj_filter_loglik, sj_profile
 
     k = "band_mm"
     J, sd_J = float(sm.corrected[k]), float(sm.std[k])
@@ -592,7 +592,7 @@ def breakaway_evident(travel_over_slip: float, ratio: float, ratio_sd: float) ->
     tests/diagnosis/test_uncertainty.py read 1.75 +- 1.27 and took S at +90 %, while every development ``force``
     run that takes S reads 1.18-4.7 sd above 1), and the fitted demand's travel
     while stuck over the slip
-    (the stick-slip check's statistic, :func:`valve_env.estimation.robust.stuck_travel`'s median; nan with no
+    (the stick-slip check's statistic, :func:`valve_env.valveid.robust.stuck_travel`'s median; nan with no
     slip measured) at least :data:`BREAKAWAY_TRAVEL`: the stem stuck longer than it slipped.
 
     Neither profile alone is a test of J < S: the open-loop profile put J = S valves up to 2.0

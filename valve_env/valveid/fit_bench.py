@@ -1,7 +1,7 @@
 """Speed of the estimator (docs/reference.md, section 6): likelihood evaluations per second and the wall
 time of a maximum-likelihood fit of the base valve model on 24 h of 10 s data.
 
-    from valve_env.estimation.bench import run_bench
+    from valve_env.valveid.fit_bench import run_bench
     run_bench()  # {"estimator_nll_evals_per_s": ..., "estimator_fit_wall_s": ..., ...}
 
 The first call of each compiled kernel is made before timing (numba compiles on first use
@@ -14,9 +14,9 @@ import time
 import warnings
 from typing import Any
 
-from valve_env.estimation.filters import to_arrays
-from valve_env.estimation.fit import MLEstimator, negloglik
-from valve_env.estimation.valve_model import ValveModel
+from valve_env.ident.kalman import to_arrays
+from valve_env.ident.mle import MLEstimator, negloglik
+from valve_env.valveid.valve_model import ValveModel
 
 
 def _bench_data(seed: int, hours: float) -> Any:

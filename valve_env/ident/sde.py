@@ -43,8 +43,8 @@ class Parameter:
     optimiser works on ("log" requires lower > 0 or None, "logit" maps
     (lower, upper) to the real line, "none" divides by ``scale``, the typical
     size); ``fixed`` keeps it at ``init``. These transforms are the one set
-    both likelihoods use (the EKF of :mod:`valve_env.estimation.fit` and the
-    output error of :mod:`valve_env.diagnosis.fitting`).
+    both likelihoods use (the EKF of :mod:`valve_env.ident.mle` and the
+    output error of :mod:`valve_env.valveid.fitting`).
     """
 
     name: str
@@ -146,7 +146,7 @@ class CompiledFunctions:
     the model functions call). Functions that receive dispatchers in ``ctx``
     must not use ``cache=True`` (numba cannot reload such cache entries); the
     filter kernel that calls them compiles once per process. Used by the
-    compiled filter kernel in :mod:`valve_env.estimation.filters`."""
+    compiled filter kernel in :mod:`valve_env.ident.kalman`."""
 
     drift: Callable[..., Any]
     drift_jacobian: Callable[..., Any]
@@ -180,7 +180,7 @@ class SDEModel:
         """numba versions of the model functions, or None (the generic Python path).
 
         A subclass that changes a model function must either override this too
-        or return None; :class:`valve_env.estimation.valve_model.ValveModel`
+        or return None; :class:`valve_env.valveid.valve_model.ValveModel`
         documents how its hooks are compiled."""
         return None
 

@@ -12,22 +12,22 @@ different friction law, ...) they are not, and
     cov = H^-1 M H^-1,    M = sum_k g_k g_k' + sum_{l=1..L} w_l sum_k (g_k g_{k-l}' + g_{k-l} g_k')
 
 (Huber 1967, White 1982; with L > 0 the Newey-West HAC form, Bartlett weights
-w_l = 1 - l / (L + 1), :func:`valve_env.estimation.covariance.hac_meat`) is consistent for the
+w_l = 1 - l / (L + 1), :func:`valve_env.ident.uncertainty.hac_meat`) is consistent for the
 estimator's covariance (the quasi-ML, "sandwich" covariance). ``H^-1`` is the fit's
 inverse Hessian (``MLEstimator.cov_work_``). ``lags=0`` gives Huber-White.
 
 **Misspecification check.** :func:`misspecification_check` runs the residual
-whiteness tests of :mod:`valve_env.estimation.diagnostics` (statsmodels' Ljung-Box;
+whiteness tests of :mod:`valve_env.valveid.diagnostics` (statsmodels' Ljung-Box;
 the cumulated periodogram with its Kolmogorov-Smirnov band) on each output's
 standardised one-step residuals and warns (:class:`MisspecificationWarning`) when
 either rejects at ``alpha``: the model does not explain the data's dynamics, so its
 inverse-Hessian standard errors are not to be trusted (docs/uncertainty.md).
 
-**The output-error likelihood's** (the diagnosis's named effects, :class:`valve_env.diagnosis.fitting.Model`):
+**The output-error likelihood's** (the diagnosis's named effects, :class:`valve_env.valveid.fitting.Model`):
 :func:`sandwich_std` (its inverse Hessian and HAC sandwich, from the same
-:mod:`valve_env.estimation.covariance`), :func:`effect_misspecification` (the same whiteness check on its
+:mod:`valve_env.ident.uncertainty`), :func:`effect_misspecification` (the same whiteness check on its
 standardised one-step errors) and :func:`robust_finding` (what a named effect's JSON carries beside its sd).
-Their reported sd is the bootstrap's (:mod:`valve_env.estimation.bootstrap`).
+Their reported sd is the bootstrap's (:mod:`valve_env.valveid.bootstrap`).
 """
 
 from __future__ import annotations
@@ -40,15 +40,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from valve_env.estimation.covariance import hac_meat, newey_west_lags
-from valve_env.estimation.diagnostics import residual_report
-from valve_env.estimation.filters import FilterResult, run_filter
-from valve_env.estimation.fit import MLEstimator, NotFittedError
-from valve_env.estimation.model import dnat_dwork
+from valve_env.ident.kalman import FilterResult, run_filter
+from valve_env.ident.mle import MLEstimator, NotFittedError
+from valve_env.ident.sde import dnat_dwork
+from valve_env.ident.uncertainty import hac_meat, newey_west_lags
+from valve_env.valveid.diagnostics import residual_report
 
 if TYPE_CHECKING:
-    from valve_env.diagnosis.fitting import FitResult, Model
-    from valve_env.estimation.data import RunData
+    from valve_env.valveid.data import RunData
+    from valve_env.valveid.fitting import FitResult, Model
 
 LOG2PI = float(np.log(2.0 * np.pi))
 
@@ -106,7 +106,7 @@ def score_contributions(est: MLEstimator, step: float = 1e-4) -> pd.DataFrame:
 
 
 def _from_work(theta: float, q: Any) -> float:
-    from valve_env.estimation.model import from_work
+    from valve_env.ident.sde import from_work
 
     return from_work(theta, q)
 
@@ -205,11 +205,11 @@ def sandwich_std(model: Model, data: RunData, fit: FitResult, fixed: tuple[str, 
     estimate ``fit`` (a fit of ``model`` to ``data``): ``std_hessian`` (the inverse Hessian over the
     identified directions) and ``std_robust`` (the Newey-West HAC sandwich of the per-sample scores of
     the output-error likelihood, the residual model's parameters held as a working covariance), both
-    from :func:`valve_env.estimation.covariance.hessian_sandwich_parts`, the one implementation of the
+    from :func:`valve_env.ident.uncertainty.hessian_sandwich_parts`, the one implementation of the
     standard errors (docs/estimation.md). ``fixed`` parameters have neither (stiction's band is
     measured from the slips, not fitted: its sd is the bootstrap's alone). ``lags``: the HAC window."""
-    from valve_env.diagnosis.fitting import NOISE_NAMES
-    from valve_env.estimation.covariance import hessian_sandwich_parts
+    from valve_env.ident.uncertainty import hessian_sandwich_parts
+    from valve_env.valveid.fitting import NOISE_NAMES
 
     free = [i for i, n in enumerate(model.names) if n not in fixed]
     z_all = model.to_work(fit.params)
@@ -254,14 +254,14 @@ STICK_MIN_SLIPS = 4
 
 
 def stuck_travel(x: np.ndarray, demand: np.ndarray, stroke: float, rest_sd: float = 3.0) -> np.ndarray:
-    """For each slip of the measured opening ``x`` (:func:`valve_env.diagnosis.stiction.slips`), the demanded
+    """For each slip of the measured opening ``x`` (:func:`valve_env.valveid.stiction.slips`), the demanded
     opening's travel while the stem was stuck over the slip's size (mm / mm; one value per slip).
 
     The stuck interval runs back from the slip while the opening stays within ``rest_sd`` noise sd of the
     plateau's level; the travel is the demand's, midway between the samples around the slip (where the
     slip's size is measured), beyond its extreme over that interval, in the slip's direction. ``demand``
     is the opening the fitted valve demands at the samples (its stick-slip switched off)."""
-    from valve_env.diagnosis.stiction import noise_sd, slips
+    from valve_env.valveid.stiction import noise_sd, slips
 
     x = np.asarray(x, dtype=float)
     c = np.asarray(demand, dtype=float)
@@ -321,8 +321,8 @@ def effect_misspecification(model: Model, data: RunData, fit: FitResult, *, alph
                             warn: bool = True, bootstrap_sd: bool = False) -> dict[str, object]:
     """The misspecification check of a finding: the whiteness of its standardised one-step prediction
     errors (Ljung-Box at ``nlags`` and the cumulated periodogram, level ``alpha``;
-    :func:`valve_env.estimation.robust.whiteness_check`, the base fit's check), with a
-    :class:`~valve_env.estimation.robust.MisspecificationWarning` when it rejects: the effect's model
+    :func:`valve_env.valveid.robust.whiteness_check`, the base fit's check), with a
+    :class:`~valve_env.valveid.robust.MisspecificationWarning` when it rejects: the effect's model
     (with its Ornstein-Uhlenbeck model error) does not explain the opening's dynamics, and its sd (the
     bootstrap's world is that model) is not to be trusted. Its rates on the studies' runs are in
     docs/uncertainty.md. ``bootstrap_sd``: the finding's reported sd is the bootstrap's (the warning then
@@ -352,7 +352,7 @@ def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = 
     errors and the misspecification check"):
     ``std_hessian`` and ``std_robust`` of its effect parameters (:func:`sandwich_std`), ``robust_lags``
     and ``misspecification`` (:func:`effect_misspecification`, which warns)."""
-    from valve_env.diagnosis.effects import EFFECTS
+    from valve_env.valveid.effects import EFFECTS
 
     names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
     sw = sandwich_std(model, data, fit)

@@ -8,11 +8,11 @@ docs/estimation.md, "Temperature pre-processing"):
   (Student-t process noise for the kinks of the heating, the noise levels by variational EM; its
   measurement noise sd is the channel's ``s_T``/``s_M``). Smooth level and rate at every sample,
   zero phase. The output-error likelihood of the diagnosis
-  (:mod:`valve_env.diagnosis.engine`) drives its fine-grid valve simulation with it, after removing
+  (:mod:`valve_env.valveid.oe`) drives its fine-grid valve simulation with it, after removing
   reversals smaller than 5 noise sd (``monotone_path``).
 * :func:`denoise_temperature`: relaxed total-variation denoising (:func:`relaxed_tv`, Condat's
   exact algorithm with the extreme blocks re-estimated). Piecewise-linear-free of spurious
-  reversals by construction; the EKF's valve model (:mod:`valve_env.estimation.valve_model`) takes
+  reversals by construction; the EKF's valve model (:mod:`valve_env.valveid.valve_model`) takes
   its rate over each sample interval as the Dahl driver, which a smoother's small wiggles (each a
   reversal of the friction) would bias.
 """

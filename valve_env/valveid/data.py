@@ -6,8 +6,8 @@
 A run is read and validated once, by :func:`valve_env.data_io.load_run` (a file) or
 :func:`valve_env.data_io.validate_run` (a DataFrame): docs/reference.md, section 2. The EKF
 likelihood takes the validated DataFrame itself (its model's ``prepare`` adds the denoised inputs,
-:mod:`valve_env.estimation.temperature`); the output-error likelihood takes a :class:`RunData`:
-the raw channels with the smoothed temperatures (:func:`~valve_env.estimation.temperature.smooth_temperature`).
+:mod:`valve_env.valveid.temperature`); the output-error likelihood takes a :class:`RunData`:
+the raw channels with the smoothed temperatures (:func:`~valve_env.valveid.temperature.smooth_temperature`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from valve_env.estimation.temperature import ChannelNoise, channel_noise, smooth_temperature
+from valve_env.valveid.temperature import ChannelNoise, channel_noise, smooth_temperature
 
 
 @dataclass(frozen=True)
@@ -25,7 +25,7 @@ class RunData:
     """A measured run prepared for the output-error likelihood: raw channels and latent (smoothed)
     temperatures with their rates and noise sd. Frozen: a changed run is a new one
     (``dataclasses.replace``), so that the likelihood may keep a run's valve paths by its identity
-    (:meth:`valve_env.diagnosis.fitting.Model._valve_path`); its arrays are not to be written in place."""
+    (:meth:`valve_env.valveid.fitting.Model._valve_path`); its arrays are not to be written in place."""
 
     t: np.ndarray
     T_raw: np.ndarray
@@ -63,7 +63,7 @@ class RunData:
 
     def remeasure(self, T: np.ndarray, M: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Latent tank and medium temperatures measured again as this run's channels were
-        (:meth:`valve_env.estimation.temperature.ChannelNoise.remeasure`; white noise of ``s_T``/``s_M``
+        (:meth:`valve_env.valveid.temperature.ChannelNoise.remeasure`; white noise of ``s_T``/``s_M``
         where the run carries no channel record)."""
         def one(level: np.ndarray, noise: ChannelNoise | None, sd: float) -> np.ndarray:
             if noise is None:

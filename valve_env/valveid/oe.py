@@ -2,7 +2,7 @@
 
 Three pieces, each a small state-space computation:
 
-1. **Latent temperatures** (:func:`valve_env.estimation.temperature.smooth_temperature`, the
+1. **Latent temperatures** (:func:`valve_env.valveid.temperature.smooth_temperature`, the
    estimation's temperature pre-processing): each channel is an integrated random walk observed
    with white noise, smoothed by Rauch-Tung-Striebel (two-sided, zero phase: a lag found later is
    in the valve, not in the pre-processing). A raw finite difference of the channel is never used
@@ -28,7 +28,6 @@ import math
 import numpy as np
 from numba import njit
 
-from valve_env.estimation.temperature import monotone_path
 from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.physics import valve as phys
 from valve_env.physics.stickslip import initial_state as stick_initial_state
@@ -42,6 +41,7 @@ from valve_env.physics.trajectory import (
     sensed_temperature,
     stem_step,
 )
+from valve_env.valveid.temperature import monotone_path
 
 _demanded_opening = njit(cache=True)(phys.demanded_opening)
 _dahl_update = njit(cache=True)(phys.dahl_update)
@@ -230,7 +230,7 @@ def stick_simulate_sj(x_sub: np.ndarray, sub_idx: np.ndarray, S: float, J: float
     computed (its deviation from the cleaned path included, as in the base model's opening) and a
     stuck one keeps the deviation it had when it stuck, so that ``S = 0`` is the base model. The
     diagnosis's stem is its ``J = S`` case (:func:`stick_simulate`); the (S, J) profile of the band
-    (valve_env.estimation.stick_profile) uses ``J < S``."""
+    (valve_env.valveid.stick_profile) uses ``J < S``."""
     n = sub_idx.shape[0]
     out = np.empty(n)
     c = stick_demand(x_sub, sub_idx, stroke) if S > 0.0 else x_sub
