@@ -9,9 +9,10 @@ import warnings
 import pytest
 
 from valve_env.experiment import simulate_experiment
+from valve_env.ident.tests import MisspecificationWarning
 from valve_env.valveid.diagnose import check_run, prepare
 from valve_env.valveid.fitting import Model
-from valve_env.valveid.robust import MisspecificationWarning, robust_finding
+from valve_env.valveid.robust import robust_finding
 
 
 @pytest.fixture(scope="module")

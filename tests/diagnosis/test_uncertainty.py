@@ -210,7 +210,7 @@ def test_residual_blocks_keep_the_memory_of_the_residuals() -> None:
     blocks, and a resample keeps the slow correlation (the fitted OU model error forgot it)."""
     from statsmodels.tsa.stattools import acf
 
-    from valve_env.valveid.bootstrap import block_resample, residual_block_length
+    from valve_env.ident.bootstrap import block_resample, residual_block_length
 
     rng = np.random.default_rng(4)
     n = 3000
@@ -231,7 +231,7 @@ def test_residual_blocks_keep_the_memory_of_the_residuals() -> None:
 def test_failed_refits_are_set_aside_and_honest_spreads_kept() -> None:
     """A replicate whose refit ran away (here: beta at its bound, the drift far off) is set aside;
     many draws of honest, normal re-estimates lose none; a spread that is mostly ties is left alone."""
-    from valve_env.valveid.bootstrap import screen_refits
+    from valve_env.ident.bootstrap import screen_refits
 
     def failed_refits(reps: np.ndarray) -> np.ndarray:
         return screen_refits(reps)[0]
@@ -274,7 +274,7 @@ def test_split_replicates_are_not_bias_corrected() -> None:
     """Half of the refits ran away to one far value (a bound): the re-estimates have split, none is
     set aside, and the estimate is not moved by a 'bias' that is the gap between the two groups; a
     clear bias of honest replicates is still corrected."""
-    from valve_env.valveid.bootstrap import screen_refits, summarise
+    from valve_env.ident.bootstrap import screen_refits, summarise
 
     rng = np.random.default_rng(11)
     est = 6e-5
@@ -304,7 +304,7 @@ def test_scattered_runaways_are_not_bias_corrected() -> None:
     split (the runaways widen the robust sd itself), but the re-estimates are far from normal, so the
     estimate is not moved by their mean and the sd (RMS error about the estimate) shows the spread.
     Normal re-estimates with a clear bias are still corrected (the check refuses about 1 draw in 1000)."""
-    from valve_env.valveid.bootstrap import screen_refits, summarise
+    from valve_env.ident.bootstrap import screen_refits, summarise
 
     rng = np.random.default_rng(12)
     est = 6e-5

@@ -7,13 +7,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from valve_env.valveid.diagnostics import (
-    cumulated_periodogram,
-    paper_figure,
-    phase_diagram,
-    residual_report,
-    whiteness_figure,
-)
+from valve_env.ident.tests import cumulated_periodogram, residual_report
+from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
 
 
 def test_white_noise_passes_and_ar1_fails(tmp_path: Path) -> None:

@@ -10,8 +10,8 @@ import pytest
 
 from valve_env.ident.examples import Ornstein2D
 from valve_env.ident.mle import IdentifiabilityWarning, MLEstimator
+from valve_env.ident.tests import MisspecificationWarning
 from valve_env.valveid.robust import (
-    MisspecificationWarning,
     misspecification_check,
     newey_west_lags,
     robust_std,

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from valve_env.experiment import simulate_experiment
+from valve_env.ident.tests import MisspecificationWarning
 from valve_env.studies.independent import stick_force, stick_reset, stick_sj
 from valve_env.valveid.diagnose import check_run, prepare
 from valve_env.valveid.fitting import Model
 from valve_env.valveid.robust import (
     STICK_TOL,
-    MisspecificationWarning,
     effect_misspecification,
     stick_slip_check,
     stuck_travel,

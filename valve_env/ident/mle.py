@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -35,6 +35,7 @@ import scipy.optimize
 
 from valve_env.ident.kalman import Arrays, FilterResult, rts_smooth, run_filter, to_arrays
 from valve_env.ident.sde import Parameter, SDEModel, dnat_dwork, from_work, to_work, work_bounds
+from valve_env.ident.tests import lr_pvalue
 from valve_env.ident.uncertainty import fd_hessian, identified_directions
 
 
@@ -240,22 +241,10 @@ class MLEstimator(Estimator):
 
     def _minimize(self, th0: np.ndarray, arr: Arrays, base: np.ndarray, free: list[int],
                   bounds: list[tuple[float | None, float | None]]) -> scipy.optimize.OptimizeResult:
-        """L-BFGS-B, restarted from its end point (fresh curvature memory) while that still
-        improves: scipy's L-BFGS-B can stop on a failed line search far from the optimum."""
-        x = np.asarray(th0, dtype=float)
-        best: scipy.optimize.OptimizeResult | None = None
-        for _ in range(self.max_restarts + 1):
-            r = scipy.optimize.minimize(self._nll_work, x, args=(arr, base, free), method="L-BFGS-B", bounds=bounds,
-                                        options={"maxiter": self.maxiter, "ftol": self.tol, "gtol": 1e-6,
-                                                 "eps": 1e-7, "maxls": 40})
-            improved = best is None or r.fun < best.fun - 1e-9 * (1.0 + abs(best.fun))
-            if best is None or r.fun < best.fun:
-                best = r
-            if not improved or np.allclose(r.x, x, rtol=0.0, atol=1e-9):
-                break
-            x = np.asarray(r.x, dtype=float)
-        assert best is not None
-        return best
+        """:func:`minimise` of the negative log-likelihood on the working scale, with restarts."""
+        return minimise(lambda th: self._nll_work(th, arr, base, free), th0, bounds,
+                        {"maxiter": self.maxiter, "ftol": self.tol, "gtol": 1e-6, "eps": 1e-7, "maxls": 40},
+                        restarts=self.max_restarts)
 
     def _uncertainty(self, theta: np.ndarray, arr: Arrays, base: np.ndarray, free: list[int],
                      qs: list[Parameter], bounds: list[tuple[float | None, float | None]]) -> None:
@@ -417,6 +406,33 @@ class MLEstimator(Estimator):
                 "identifiability": self.identifiability_, "corr": self.corr_.to_dict()}
 
 
+def minimise(f: Callable[[np.ndarray], float], x0: np.ndarray, bounds: Any, options: dict[str, Any], *,
+             restarts: int = 0) -> scipy.optimize.OptimizeResult:
+    """The optimiser of every maximum-likelihood fit: scipy's L-BFGS-B (bounded, finite-difference
+    gradient) with ``options``, restarted from its end point (fresh curvature memory) up to ``restarts``
+    times while that still improves: L-BFGS-B can stop on a failed line search far from the optimum."""
+    x = np.asarray(x0, dtype=float)
+    best: scipy.optimize.OptimizeResult | None = None
+    for _ in range(restarts + 1):
+        r = scipy.optimize.minimize(f, x, method="L-BFGS-B", bounds=bounds, options=options)
+        improved = best is None or r.fun < best.fun - 1e-9 * (1.0 + abs(best.fun))
+        if best is None or r.fun < best.fun:
+            best = r
+        if not improved or np.allclose(r.x, x, rtol=0.0, atol=1e-9):
+            break
+        x = np.asarray(r.x, dtype=float)
+    assert best is not None
+    return best
+
+
+def past_kink(f: Callable[[np.ndarray], float], x0: np.ndarray, max_fevals: int) -> scipy.optimize.OptimizeResult:
+    """Nelder-Mead (no gradient) from ``x0``, where L-BFGS-B stopped on a failed line search at a kink of
+    the likelihood (along which a finite-difference gradient points downhill in no usable direction):
+    the fit's caller restarts :func:`minimise` from its end point and keeps the better."""
+    return scipy.optimize.minimize(f, x0, method="Nelder-Mead",
+                                   options={"maxfev": max_fevals, "xatol": 1e-4, "fatol": 0.01})
+
+
 def _states_frame(model: SDEModel, t: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
     out: dict[str, np.ndarray] = {"time_s": t}
     for j, name in enumerate(model.states):
@@ -438,8 +454,6 @@ def _clip_work(theta: np.ndarray, qs: list[Parameter]) -> np.ndarray:
 
 def likelihood_ratio(restricted: MLEstimator, full: MLEstimator) -> tuple[float, int, float]:
     """Likelihood-ratio statistic 2 (l_full - l_restricted), its degrees of freedom and the chi^2 p-value."""
-    from scipy.stats import chi2
-
     stat = max(0.0, 2.0 * (full.loglik_ - restricted.loglik_))
     df = max(full.n_free_ - restricted.n_free_, 1)
-    return stat, df, float(chi2.sf(stat, df))
+    return stat, df, lr_pvalue(stat, df)

@@ -72,21 +72,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
-from arch.bootstrap import optimal_block_length
-from scipy.stats import shapiro
-from statsmodels.robust.scale import qn_scale
 
+from valve_env.ident.bootstrap import (
+    Summary,
+    block_resample,
+    replicates,
+    residual_block_length,
+    screen_refits,
+    summarise,
+)
 from valve_env.valveid.effects import EFFECTS
 from valve_env.valveid.fitting import FitResult, Model, RunData
 from valve_env.valveid.stiction import band_draws, band_spread, jump_band, resting_noise_sd
 
 #: Name of the method, as written into the JSON.
 METHOD = "model-based bootstrap (residual blocks)"
-#: A re-estimate farther than this many robust sd (Qn) from the median is a failed refit.
-GROSS_Z = 6.0
 #: Whether a named effect's estimate and sd take the pre-processing bracket (:func:`apply_bootstrap`).
 BRACKET = True
 #: The bracket's second pre-processing (:func:`denoised_run`) and the weight of the difference in the sd.
@@ -95,8 +97,6 @@ BRACKET_WEIGHT = 0.5
 #: Whether the refit on the bracket's denoiser is corrected by its replicates' clear bias (else that bias enters
 #: its sd only; :func:`bootstrap`)
 BRACKET_CORRECT = False
-#: Re-estimates whose Shapiro-Wilk p-value is below this are too far from normal to bias-correct by their mean.
-NORMAL_P = 1e-3
 #: stiction's band as the breakaway travel S where the slips are shorter (:func:`breakaway_band`)
 BREAKAWAY = True
 #: the least median of the demand's travel while stuck over the slip, and the least S / J of the stick-slip
@@ -175,23 +175,6 @@ def _ou_path(t: np.ndarray, s_e: float, tau_e: float, rng: np.random.Generator) 
     for k in range(1, n):
         out[k] = phi[k - 1] * out[k - 1] + sd[k - 1] * z[k]
     return out
-
-
-def residual_block_length(resid: np.ndarray) -> int:
-    """Block length for a circular block bootstrap of ``resid``: Politis and White's (2004)
-    selection (with Patton, Politis and White's 2009 correction), within 1 .. n / 4."""
-    n = resid.shape[0]
-    L = float(optimal_block_length(resid)["circular"].iloc[0])
-    return int(min(max(round(L), 1) if math.isfinite(L) else 1, max(n // 4, 1)))
-
-
-def block_resample(resid: np.ndarray, block: int, rng: np.random.Generator) -> np.ndarray:
-    """A circular block bootstrap draw of ``resid``: blocks of ``block`` consecutive values from
-    random starts, wrapping around the end (every value is equally likely)."""
-    n = resid.shape[0]
-    starts = rng.integers(0, n, size=n // block + 1)
-    idx = (starts[:, None] + np.arange(block)[None, :]).ravel()[:n] % n
-    return resid[idx]
 
 
 def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np.random.Generator,
@@ -301,34 +284,6 @@ def _mean_substep(t: np.ndarray, step: float) -> float:
     return best
 
 
-def gross_refits(reps: np.ndarray, z: float = GROSS_Z) -> np.ndarray:
-    """Mask of the replicates (rows of ``reps``, one column per parameter) whose re-estimate of some
-    parameter lies more than ``z`` robust sd (Rousseeuw and Croux's Qn scale) from the median of that
-    parameter's re-estimates, or is not finite (nothing where the Qn scale is zero: re-estimates that
-    mostly agree exactly)."""
-    bad = np.zeros(reps.shape[0], dtype=bool)
-    if reps.shape[0] < 4:
-        return bad
-    for col in reps.T:
-        s = float(qn_scale(col))
-        if math.isfinite(s) and s > 0:
-            bad |= np.abs(col - np.median(col)) > z * s
-        bad |= ~np.isfinite(col)
-    return bad
-
-
-def screen_refits(reps: np.ndarray, z: float = GROSS_Z) -> tuple[np.ndarray, bool]:
-    """The failed refits among the replicates (rows of ``reps``) and whether the re-estimates split.
-
-    The gross replicates (:func:`gross_refits`) are the failed refits, unless more than half of them
-    are gross: then the re-estimates have split into groups, none of them a majority (e.g. half of the
-    refits ran away to a bound), nothing is set aside, and ``split`` is true (no bias correction,
-    see :func:`summarise`)."""
-    bad = gross_refits(reps, z)
-    split = bool(bad.sum() > reps.shape[0] // 2)
-    return (np.zeros(reps.shape[0], dtype=bool) if split else bad), split
-
-
 def _refit(model: Model, rep: RunData, values: dict[str, float], names: list[str]) -> dict[str, float]:
     """Re-estimate on a replicate, as :meth:`Model.fit` estimates: stiction's band from the jumps of
     the opening (:func:`valve_env.valveid.stiction.jump_band`, no valve model needed), the smooth
@@ -362,16 +317,15 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     rng = np.random.default_rng(seed)
     if names is None:
         names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
-    reps = np.empty((B, len(names)))
     stuck = "stiction" in model.effects
     x_true = world_opening(model, data, fit.params, truth_step_s, curved)
     s_x = resting_noise_sd(data.x, float(model.valve.stroke), fit.params.get("band_mm")) if stuck else None
     block = None if stuck else residual_block_length(data.x - x_true)
     denoiser = replicate_denoiser(model, names)
-    for b in range(B):
-        rep = replicate_run(model, data, fit.params, rng, truth_step_s, s_x, x_true, block)
-        pr = _refit(model, rep if denoiser == "irw" else denoised_run(rep, denoiser), fit.params, names)
-        reps[b] = [pr[k] for k in names]
+    rows, _ = replicates(
+        B, rng, lambda r: replicate_run(model, data, fit.params, r, truth_step_s, s_x, x_true, block),
+        lambda rep: _refit(model, rep if denoiser == "irw" else denoised_run(rep, denoiser), fit.params, names))
+    reps = np.array([[pr[k] for k in names] for pr in rows], dtype=float).reshape(B, len(names))
     est = {k: float(fit.params[k]) for k in names}
     # failed refits (a refit that ran away) are set aside; the band's re-estimates need no refit
     refitted = [i for i, k in enumerate(names) if k != "band_mm"]
@@ -603,48 +557,3 @@ def breakaway_evident(travel_over_slip: float, ratio: float, ratio_sd: float) ->
     valves (docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S")."""
     return bool(math.isfinite(travel_over_slip) and travel_over_slip >= BREAKAWAY_TRAVEL
                 and ratio >= BREAKAWAY_RATIO and ratio - 1.0 >= ratio_sd)
-
-
-class Summary(NamedTuple):
-    """Each parameter's summary of its re-estimates (:func:`summarise`), by name."""
-
-    std: dict[str, float]
-    bias: dict[str, float]
-    interval_95: dict[str, tuple[float, float]]
-    corrected: dict[str, float]
-    bias_corrected: dict[str, bool]
-    spread: dict[str, float]
-    #: Shapiro-Wilk p-value of the re-estimates (1 where they do not vary)
-    normality_p: dict[str, float]
-
-
-def summarise(names: list[str], est: dict[str, float], reps: dict[str, np.ndarray], bias_z: float = 2.0,
-              no_correction: set[str] | frozenset[str] = frozenset(), normal_p: float = NORMAL_P) -> Summary:
-    """The summary of each parameter's re-estimates ``reps[k]`` about its estimate ``est[k]``
-    (module docstring, step 4). Parameters in ``no_correction`` are never bias-corrected: their sd
-    is the root-mean-square error about the estimate. Nor are parameters whose re-estimates are far
-    from normal (Shapiro-Wilk p below ``normal_p``; 0 switches the check off): the mean of a
-    heavy-tailed or split set of re-estimates is not a reliable centre to correct by."""
-    out = Summary({}, {}, {}, {}, {}, {}, {})
-    for k in names:
-        r = np.asarray(reps[k], dtype=float)
-        m_i, sd_i = float(r.mean()), float(r.std(ddof=1))
-        out.spread[k] = sd_i
-        out.bias[k] = bias = m_i - est[k]
-        se = sd_i / math.sqrt(r.size)
-        out.normality_p[k] = p = float(shapiro(r).pvalue) if r.size >= 3 and np.ptp(r) > 0 else 1.0
-        corrected = bool(se > 0 and abs(bias) > bias_z * se and k not in no_correction and p >= normal_p)
-        out.bias_corrected[k] = corrected
-        if corrected:
-            # a bias the replicates show clearly (e.g. the band's jumps overshoot a little): corrected,
-            # and the sd includes the uncertainty of the correction (the mean of B replicates)
-            out.corrected[k] = est[k] - bias
-            out.std[k] = float(math.sqrt(sd_i**2 + se**2))
-        else:
-            # no clear bias, or none to trust: root-mean-square error about the estimate (spread and bias together)
-            out.corrected[k] = est[k]
-            out.std[k] = float(math.sqrt(sd_i**2 + bias**2))
-        lo, hi = np.percentile(r, [2.5, 97.5])
-        # basic bootstrap interval (reflected about the estimate)
-        out.interval_95[k] = (float(2 * est[k] - hi), float(2 * est[k] - lo))
-    return out

@@ -58,10 +58,12 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
+from valve_env.ident.bootstrap import NORMAL_P
+from valve_env.ident.tests import delta_bic, ljung_box, lr_pvalue
 from valve_env.params import ValveParams
+from valve_env.valveid.bootstrap import METHOD
 from valve_env.valveid.effects import EFFECTS, check_effects
 from valve_env.valveid.estimator import ValveEstimator
 from valve_env.valveid.fitting import FitResult, Model, RunData
@@ -309,11 +311,8 @@ class Diagnosis:
 # --------------------------------------------------------------------------- the procedure
 def _p_value(lr: float, effects: tuple[str, ...]) -> float:
     """p-value of the LR statistic for adding ``effects`` (one parameter each)."""
-    lr = max(lr, 0.0)
     k = sum(len(EFFECTS[e].parameters) for e in effects)
-    if all(EFFECTS[e].boundary for e in effects) and k == 1:
-        return float(0.5 * stats.chi2.sf(lr, 1)) if lr > 0 else 1.0
-    return float(stats.chi2.sf(lr, k))
+    return lr_pvalue(lr, k, boundary=all(EFFECTS[e].boundary for e in effects))
 
 
 def _held_out(model: Model, data: RunData, values: dict[str, float], a: int, b: int) -> tuple[float, float, float]:
@@ -428,7 +427,7 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
     v_rms, v_ll, v_sim = _held_out(model, valid, fit.params, *vr)
     f = Finding(
         effect=effect, estimator=est, reference=ref_effects, lr_stat=lr, p_value=p, delta_aic=2 * k - lr,
-        delta_bic=k * math.log(n) - lr, rms_before_mm=ref_fit.rms_mm, rms_after_mm=fit.rms_mm,
+        delta_bic=delta_bic(lr, k, n), rms_before_mm=ref_fit.rms_mm, rms_after_mm=fit.rms_mm,
         validation_rms_before_mm=ref_val[0], validation_rms_after_mm=v_rms,
         validation_loglik_gain=v_ll - ref_val[1], validation_sim_rms_before_mm=ref_val[2],
         validation_sim_rms_after_mm=v_sim,
@@ -632,7 +631,6 @@ def _better_base(base_model: Model, train: RunData, base: FitResult, step: list[
 def _bootstrap_finding(f: Finding, B: int) -> None:
     """Replace the effect parameters' std of an accepted finding by the model-based bootstrap's
     (:meth:`valve_env.valveid.estimator.ValveEstimator.bootstrap`, the estimation's facility)."""
-    from valve_env.valveid.bootstrap import METHOD, NORMAL_P
 
     f.estimator.bootstrap(B)
     b, source = f.estimator.bootstrap_, f.estimator.std_from_
@@ -852,15 +850,13 @@ def _rest_fraction(x: np.ndarray, xs: np.ndarray, sel: np.ndarray, s_w: float) -
 def residual_diagnostics(model: Model, data: RunData, fit: FitResult, window_h: float = 1.0) -> dict[str, Any]:
     """What the model gets wrong and where: residual statistics, autocorrelation, misfit over time and
     over the phase diagram, and the correlation of the residual with each effect's signature."""
-    from statsmodels.stats.diagnostic import acorr_ljungbox
-
     xs, Tg, _ = model.simulate(data, fit.params)
     r = data.x - xs
     nu, S = model.prediction_errors(data, fit.params)
     z = nu / np.sqrt(S)
     lags = min(20, len(z) // 5)
     acf = [float(np.corrcoef(r[:-k], r[k:])[0, 1]) for k in range(1, lags + 1)]
-    lb = acorr_ljungbox(z, lags=[lags], return_df=True)
+    lb = ljung_box(z, lags)
     t_h = (data.t - data.t[0]) / 3600.0
     edges = np.arange(0.0, t_h[-1] + window_h, window_h)
     by_time = []

@@ -1,16 +1,11 @@
-"""Residual diagnostics and figures (the seed paper's Fig. 5-7).
-
-Statistics from statsmodels where it has them (autocorrelation with bands,
-Ljung-Box, cross-correlation); the cumulated periodogram with its
-Kolmogorov-Smirnov band follows Holst, Holst, Madsen & Melgaard (1992) and
-CTSM's validation tools. Figures use matplotlib's Agg backend.
+"""The fit's figures (the seed paper's Fig. 5-7): measured, predicted and simulated opening, the phase
+diagram and the whiteness of the residuals (the statistics are :mod:`valve_env.ident.tests`'). Figures use
+matplotlib's Agg backend.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from valve_env.plotting import headless
 
@@ -18,87 +13,9 @@ headless()
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-from statsmodels.stats.diagnostic import acorr_ljungbox  # noqa: E402
-from statsmodels.tsa.stattools import acf, ccf  # noqa: E402
+from statsmodels.tsa.stattools import acf  # noqa: E402
 
-#: 95 % Kolmogorov-Smirnov constant for the cumulated periodogram band.
-KS_95 = 1.36
-
-
-@dataclass
-class ResidualReport:
-    """Whiteness checks of one residual series (NaN removed)."""
-
-    n: int
-    lags: np.ndarray
-    acf: np.ndarray
-    acf_band: float
-    ljung_box: pd.DataFrame
-    freq: np.ndarray
-    cpgram: np.ndarray
-    cpgram_band: float
-    cpgram_max_dev: float
-    ccf: dict[str, np.ndarray] = field(default_factory=dict)
-    ccf_band: float = 0.0
-
-    @property
-    def white(self) -> bool:
-        """Ljung-Box at the largest lag and the cumulated periodogram both pass at 5 %."""
-        return bool(self.ljung_box["lb_pvalue"].iloc[-1] > 0.05 and self.cpgram_max_dev < self.cpgram_band)
-
-    def summary(self) -> dict[str, Any]:
-        lb = self.ljung_box.iloc[-1]
-        return {
-            "n": self.n,
-            "acf_outside_band": int(np.sum(np.abs(self.acf[1:]) > self.acf_band)),
-            "acf_lags": int(len(self.acf) - 1),
-            "ljung_box_lag": int(self.ljung_box.index[-1]),
-            "ljung_box_stat": float(lb["lb_stat"]),
-            "ljung_box_pvalue": float(lb["lb_pvalue"]),
-            "cpgram_max_dev": float(self.cpgram_max_dev),
-            "cpgram_band": float(self.cpgram_band),
-            "white": self.white,
-        }
-
-
-def cumulated_periodogram(e: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Normalised cumulated periodogram at the Fourier frequencies (cycles/sample, 0..0.5]
-    and the half-width of its 95 % Kolmogorov-Smirnov band around the white-noise line."""
-    e = np.asarray(e, dtype=float)
-    e = e - e.mean()
-    n = len(e)
-    I = np.abs(np.fft.rfft(e)) ** 2
-    I = I[1:]
-    freq = np.arange(1, len(I) + 1) / n
-    c = np.cumsum(I)
-    c = c / c[-1] if c[-1] > 0 else np.linspace(0, 1, len(c))
-    m = len(I)
-    return freq, c, KS_95 / np.sqrt(max(m - 1, 1))
-
-
-def residual_report(e: np.ndarray, inputs: pd.DataFrame | None = None, nlags: int = 40) -> ResidualReport:
-    """ACF with the +-1.96/sqrt(n) band, Ljung-Box up to ``nlags``, cumulated periodogram with
-    its KS band, and the cross-correlation of the residuals with each input column."""
-    e = np.asarray(e, dtype=float)
-    ok = np.isfinite(e)
-    x = e[ok]
-    n = len(x)
-    if n < 10:
-        raise ValueError(f"too few residuals ({n}) for diagnostics")
-    nl = int(min(nlags, n // 2 - 1))
-    r = acf(x, nlags=nl, fft=True)
-    lb = acorr_ljungbox(x, lags=[lag for lag in (5, 10, 20, nl) if lag <= nl] or [nl], return_df=True)
-    freq, cp, band = cumulated_periodogram(x)
-    dev = float(np.max(np.abs(cp - freq / 0.5)))
-    out = ResidualReport(n=n, lags=np.arange(nl + 1), acf=r, acf_band=1.96 / np.sqrt(n), ljung_box=lb, freq=freq,
-                         cpgram=cp, cpgram_band=band, cpgram_max_dev=dev, ccf_band=1.96 / np.sqrt(n))
-    if inputs is not None:
-        for col in inputs.columns:
-            u = np.asarray(inputs[col], dtype=float)[ok]
-            if np.nanstd(u) > 0:
-                out.ccf[col] = ccf(x, u, adjusted=False)[: nl + 1]
-    return out
+from valve_env.ident.tests import ResidualReport  # noqa: E402
 
 
 # --------------------------------------------------------------------------- figures
@@ -180,5 +97,4 @@ def whiteness_figure(rep: ResidualReport, path: str | Path, title: str = "") -> 
     return path
 
 
-__all__ = ["ResidualReport", "residual_report", "cumulated_periodogram", "paper_figure", "phase_diagram",
-           "whiteness_figure", "KS_95"]
+__all__ = ["paper_figure", "phase_diagram", "whiteness_figure"]

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from valve_env.ident.bootstrap import replicates
 from valve_env.ident.mle import MLEstimator
 from valve_env.ident.sde import SDEModel
 from valve_env.valveid.temperature import channel_noise
@@ -120,24 +121,24 @@ def temperature_bootstrap(est: MLEstimator, data: pd.DataFrame, *, B: int = 16, 
     rng = np.random.default_rng(seed)
     init = {k: float(v) for k, v in est.params_.items()}
     fixed = {k: est.params_[k] for k in est.fixed}
-    rows: list[dict[str, float]] = []
-    failed = 0
-    for _ in range(B):
+
+    def draw(rng: np.random.Generator) -> pd.DataFrame:
         d = raw.copy()
         d["T_tank_C"] = nT.remeasure(T_s, sT, rng) if T_noise_C is None else T_s + sT * rng.standard_normal(len(d))
         d["T_med_C"] = nM.remeasure(M_s, sM, rng) if T_med_noise_C is None else M_s + sM * rng.standard_normal(len(d))
+        return d
+
+    def refit(d: pd.DataFrame) -> dict[str, float] | None:
         m = ValveModel(model.valve, init=init, clip_width_mm=model.clip_width_mm, sign_eps=model.sign_eps,
                        tv_factor=model.tv_factor, denoiser=model.denoiser)
         try:
             r = MLEstimator(m, n_starts=1, seed=None, fixed=fixed, hessian=False, method=est.method,
                             n_sub=est.n_sub, foh=est.foh).fit(d)
         except (ValueError, np.linalg.LinAlgError):
-            failed += 1
-            continue
-        if not np.isfinite(r.nll_):
-            failed += 1
-            continue
-        rows.append({k: r.params_[k] for k in free})
+            return None
+        return {k: r.params_[k] for k in free} if np.isfinite(r.nll_) else None
+
+    rows, failed = replicates(B, rng, draw, refit)
     reps = pd.DataFrame(rows, columns=free)
     qs = {q.name: q for q in model.parameters}
     std_h = {k: float(est.std_.get(k, np.nan)) for k in free}

@@ -23,7 +23,6 @@ numbers are the back-end's, unchanged.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Mapping
 from typing import Any
@@ -32,6 +31,7 @@ import pandas as pd
 
 from valve_env.data_io import load_run, validate_run
 from valve_env.ident.mle import Estimator
+from valve_env.ident.tests import bic
 from valve_env.params import ValveParams
 from valve_env.valveid.data import RunData
 
@@ -141,7 +141,7 @@ class ValveEstimator(Estimator):
         self.n_obs_ = int(res.n)
         self.n_free_ = int(res.n_free)
         self.aic_ = -2.0 * self.loglik_ + 2.0 * self.n_free_
-        self.bic_ = -2.0 * self.loglik_ + math.log(max(self.n_obs_, 1)) * self.n_free_
+        self.bic_ = bic(self.loglik_, self.n_free_, self.n_obs_)
         self.converged_ = bool(res.converged)
         self.rms_ = {"x_mm": float(res.rms_mm)}
 

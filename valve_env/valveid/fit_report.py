@@ -11,8 +11,9 @@ import numpy as np
 import pandas as pd
 
 from valve_env.ident.mle import MLEstimator
+from valve_env.ident.tests import residual_report
 from valve_env.params import ValveParams
-from valve_env.valveid.diagnostics import paper_figure, phase_diagram, residual_report, whiteness_figure
+from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
 from valve_env.valveid.valve_model import ValveModel
 
 #: The parameters handed to the environment (ValveParams fields).

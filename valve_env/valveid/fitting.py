@@ -31,8 +31,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares, minimize
+from scipy.optimize import least_squares
 
+from valve_env.ident.mle import minimise, past_kink
 from valve_env.ident.sde import Parameter, dnat_dwork, from_work, to_work, work_bounds
 from valve_env.ident.uncertainty import hessian_sandwich_sd
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
@@ -386,8 +387,7 @@ class Model:
         if fit.converged or "ABNORMAL" not in fit.message:
             return fit
         free, z0, _, at, nll = self._objective(data, fit.params, fixed, clip=True)
-        res = minimize(nll, z0, method="Nelder-Mead",
-                       options={"maxfev": KINK_FEVALS * len(free), "xatol": 1e-4, "fatol": 0.01})
+        res = past_kink(nll, z0, KINK_FEVALS * len(free))
         if -float(res.fun) <= fit.loglik + 0.05:
             return fit
         moved = at(res.x)
@@ -537,8 +537,7 @@ class Model:
     def _fit_smooth(self, data: RunData, start: dict[str, float], fixed: dict[str, float], maxiter: int,
                     with_std: bool) -> FitResult:
         free, z0, bounds, at, nll = self._objective(data, start, fixed)
-        res = minimize(nll, z0, method="L-BFGS-B", bounds=bounds,
-                       options={"maxiter": maxiter, "ftol": 1e-8, "gtol": 1e-5, "eps": 1e-7})
+        res = minimise(nll, z0, bounds, {"maxiter": maxiter, "ftol": 1e-8, "gtol": 1e-5, "eps": 1e-7})
         vals = at(res.x)
         std = {n: float("nan") for n in self.names}
         if with_std:

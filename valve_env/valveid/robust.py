@@ -43,18 +43,14 @@ import pandas as pd
 from valve_env.ident.kalman import FilterResult, run_filter
 from valve_env.ident.mle import MLEstimator, NotFittedError
 from valve_env.ident.sde import dnat_dwork
+from valve_env.ident.tests import ROBUST_ADVICE, MisspecificationWarning, whiteness_check
 from valve_env.ident.uncertainty import hac_meat, newey_west_lags
-from valve_env.valveid.diagnostics import residual_report
 
 if TYPE_CHECKING:
     from valve_env.valveid.data import RunData
     from valve_env.valveid.fitting import FitResult, Model
 
 LOG2PI = float(np.log(2.0 * np.pi))
-
-
-class MisspecificationWarning(UserWarning):
-    """The residuals say the model does not fit the data (not white)."""
 
 
 def step_nll(res: FilterResult) -> np.ndarray:
@@ -162,43 +158,6 @@ def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float =
                            alpha=alpha, nlags=nlags, warn=warn, label=est.model.name)
 
 
-#: what a rejected check means where the reported sd is the sandwich's (the base fit's)
-ROBUST_ADVICE = "trust the robust standard errors, not the inverse Hessian's"
-
-
-def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nlags: int = 40, warn: bool = True,
-                    label: str = "model", advice: str = ROBUST_ADVICE) -> dict[str, Any]:
-    """The misspecification check of :func:`misspecification_check` on given standardised one-step
-    residuals (one array per output, NaN where unobserved); ``label`` names the model in the warning,
-    ``advice`` ends it (what to make of the reported sd, which depends on where it comes from).
-    Used by the base fit and by the diagnosis's named effects
-    (:func:`effect_misspecification`)."""
-    from scipy.stats import kstwobign
-
-    out: dict[str, Any] = {"alpha": alpha, "outputs": {}}
-    bad: list[str] = []
-    c_alpha = float(kstwobign.isf(alpha))
-    for name, e in residuals.items():
-        rep = residual_report(np.asarray(e, dtype=float), nlags=nlags)
-        lb = rep.ljung_box.iloc[-1]
-        band = c_alpha / np.sqrt(max(len(rep.cpgram) - 1, 1))
-        entry = {"ljung_box_lag": int(rep.ljung_box.index[-1]), "ljung_box_stat": float(lb["lb_stat"]),
-                 "ljung_box_p": float(lb["lb_pvalue"]), "cpgram_max_dev": float(rep.cpgram_max_dev),
-                 "cpgram_band": float(band), "acf_lag1": float(rep.acf[1]) if len(rep.acf) > 1 else float("nan")}
-        entry["white"] = bool(entry["ljung_box_p"] > alpha and entry["cpgram_max_dev"] < band)
-        out["outputs"][name] = entry
-        if not entry["white"]:
-            bad.append(f"{name} (Ljung-Box p = {entry['ljung_box_p']:.2g} at lag {entry['ljung_box_lag']}, "
-                       f"cumulated periodogram {entry['cpgram_max_dev']:.3f} against its band {band:.3f})")
-    out["misspecified"] = bool(bad)
-    out["message"] = ("the one-step residuals of " + "; ".join(bad) + " are not white at the "
-                      f"{alpha:g} level: the model does not explain the data's dynamics; {advice}") if bad else ""
-    if bad and warn:
-        warnings.warn(f"{label}: {out['message']}", MisspecificationWarning, stacklevel=3)
-    return out
-
-
-# --------------------------------------------------------------------------- misspecification-robust sd and check
 def sandwich_std(model: Model, data: RunData, fit: FitResult, fixed: tuple[str, ...] = ("band_mm",)
                  ) -> dict[str, object]:
     """The two likelihood-based sds of a finding's parameters, side by side, at its maximum-likelihood
@@ -364,6 +323,6 @@ def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = 
             "misspecification": effect_misspecification(model, data, fit, warn=warn, bootstrap_sd=bootstrap_sd)}
 
 
-__all__ = ["MisspecificationWarning", "RobustResult", "effect_misspecification", "misspecification_check",
+__all__ = ["RobustResult", "effect_misspecification", "misspecification_check",
            "newey_west_lags", "robust_finding", "robust_std", "sandwich_std", "score_contributions", "step_nll",
-           "stick_slip_check", "stuck_travel", "whiteness_check"]
+           "stick_slip_check", "stuck_travel"]
