@@ -10,7 +10,6 @@ Public API (imported lazily, so that ``thermovalve`` starts fast):
   (``.cause``, ``.selected``, ``.findings``, ``.to_json()``, ``.summary()``); :class:`DiagnosisError`
 * :func:`write_report` (markdown + PNG figures)
 * :data:`EFFECTS` (the effect library), :func:`effect_model` (the effects as SDE models for the estimator)
-* :func:`run_bench` (speed of a 24 h diagnosis)
 * :func:`jump_band` (stiction's band from the jumps of the opening), :func:`band_sampling` (that
   estimator's sampling distribution on a known opening)
 
@@ -31,7 +30,6 @@ _LAZY = {
     "write_report": "valve_env.valveid.report",
     "EFFECTS": "valve_env.valveid.effects",
     "effect_model": "valve_env.valveid.sde_effects",
-    "run_bench": "valve_env.valveid.bench",
     "jump_band": "valve_env.valveid.stiction",
     "band_sampling": "valve_env.valveid.stiction",
 }
