@@ -14,7 +14,7 @@ from valve_env.physics import trajectory
 from valve_env.physics.valve import setpoint_pressure
 from valve_env.valvefile import read_valve, valve_text
 from valve_env.valveid import oe as engine
-from valve_env.valveid.effects import EFFECTS as DIAGNOSIS_EFFECTS
+from valve_env.valveid.diagnose import EFFECTS as DIAGNOSIS_EFFECTS
 from valve_env.valveid.sde_effects import HOOKS, effect_model
 
 NAMES = list(REGISTRY)

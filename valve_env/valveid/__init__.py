@@ -9,7 +9,7 @@ Public API (imported lazily, so that ``thermovalve`` starts fast):
 * :func:`diagnose` (a DataFrame), :func:`diagnose_files` (CSV paths) -> :class:`Diagnosis`
   (``.cause``, ``.selected``, ``.findings``, ``.to_json()``, ``.summary()``); :class:`DiagnosisError`
 * :func:`write_report` (markdown + PNG figures)
-* :data:`EFFECTS` (the effect library), :func:`effect_model` (the effects as SDE models for the estimator)
+* :func:`effect_model` (the effects as SDE models for the estimator)
 * :func:`jump_band` (stiction's band from the jumps of the opening), :func:`band_sampling` (that
   estimator's sampling distribution on a known opening)
 
@@ -28,7 +28,6 @@ _LAZY = {
     "DiagnosisError": "valve_env.valveid.diagnose",
     "Finding": "valve_env.valveid.diagnose",
     "write_report": "valve_env.valveid.report",
-    "EFFECTS": "valve_env.valveid.effects",
     "effect_model": "valve_env.valveid.sde_effects",
     "jump_band": "valve_env.valveid.stiction",
     "band_sampling": "valve_env.valveid.stiction",

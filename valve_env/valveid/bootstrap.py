@@ -75,6 +75,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.ident.bootstrap import (
     Summary,
     block_resample,
@@ -83,9 +84,11 @@ from valve_env.ident.bootstrap import (
     screen_refits,
     summarise,
 )
-from valve_env.valveid.effects import EFFECTS
 from valve_env.valveid.fitting import FitResult, Model, RunData
+from valve_env.valveid.robust import stick_slip_check
+from valve_env.valveid.stick_profile import sj_filter_loglik, sj_profile
 from valve_env.valveid.stiction import band_draws, band_spread, jump_band, resting_noise_sd
+from valve_env.valveid.temperature import denoise_temperature
 
 #: Name of the method, as written into the JSON.
 METHOD = "model-based bootstrap (residual blocks)"
@@ -382,7 +385,6 @@ def denoised_run(data: RunData, denoiser: str = BRACKET_DENOISER) -> RunData:
     IRW-RTS smoother; the raw channels, the opening and the noise levels stay."""
     from dataclasses import replace
 
-    from valve_env.valveid.temperature import denoise_temperature
 
     T, vT = denoise_temperature(data.T_raw, data.t, denoiser=denoiser)
     M, vM = denoise_temperature(data.M_raw, data.t, denoiser=denoiser)
@@ -499,8 +501,6 @@ def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> 
     profile's reading (:meth:`~valve_env.valveid.stick_profile.SJProfile.to_json`), the
     open-loop profile's (``open_loop``, for information) and the check's
     ``travel_over_slip_median``."""
-    from valve_env.valveid.robust import stick_slip_check
-    from valve_env.valveid.stick_profile import sj_filter_loglik, sj_profile
 
     k = "band_mm"
     J, sd_J = float(sm.corrected[k]), float(sm.std[k])

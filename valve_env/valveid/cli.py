@@ -97,9 +97,10 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from valve_env.cli import progress_bar
+    from valve_env.effects import REGISTRY as EFFECTS
+    from valve_env.effects import check_effects
     from valve_env.outputs import OutputSet, json_text
     from valve_env.valveid.diagnose import diagnose, read_run
-    from valve_env.valveid.effects import EFFECTS, check_effects
 
     check_range("--holdout", args.holdout, 0.05, 0.5)
     check_range("--alpha", args.alpha, 0.0, 0.5, lo_open=True, hi_open=True)

@@ -60,14 +60,18 @@ import numpy as np
 import pandas as pd
 
 from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
+from valve_env.effects import REGISTRY as EFFECTS
+from valve_env.effects import check_effects
 from valve_env.ident.bootstrap import NORMAL_P
 from valve_env.ident.tests import delta_bic, ljung_box, lr_pvalue
 from valve_env.params import ValveParams
-from valve_env.valveid.bootstrap import METHOD
-from valve_env.valveid.effects import EFFECTS, check_effects
+from valve_env.valveid.bootstrap import METHOD, denoised_run, world_opening
 from valve_env.valveid.estimator import ValveEstimator
 from valve_env.valveid.fitting import FitResult, Model, RunData
 from valve_env.valveid.preprocess import preprocess_run
+from valve_env.valveid.robust import robust_finding
+from valve_env.valveid.stiction import MIN_JUMPS, resting_noise_sd, slips
+from valve_env.valveid.temperature import smooth_temperature
 
 MIN_SAMPLES = 200
 MIN_DURATION_S = 1.9 * 3600.0  # a 2 h record, less a few samples lost at its ends
@@ -485,8 +489,6 @@ def _null_world(train: RunData) -> RunData:
     channel's truth (docs/diagnosis.md, "Measured data of any convention")."""
     from dataclasses import replace
 
-    from valve_env.valveid.bootstrap import denoised_run
-    from valve_env.valveid.temperature import smooth_temperature
 
     if not train.quantised:
         return denoised_run(train)
@@ -537,9 +539,6 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     of 0 on every development run tried, false findings included (docs/diagnosis.md, "Measured data of any
     convention"). Returns the observed statistic, the copies' statistics and the Monte Carlo p-value
     (1 + k) / (1 + copies), k the copies at or above the observed one."""
-    from valve_env.valveid.bootstrap import world_opening
-    from valve_env.valveid.fitting import Model
-    from valve_env.valveid.stiction import resting_noise_sd
 
     ref_model = Model(ref_fit.effects, valve)
     stick_model = Model(stick_fit.effects, valve)
@@ -573,7 +572,6 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
 def slip_sizes(x: np.ndarray, stroke: float) -> tuple[int, float | None]:
     """The number of slips of the opening ``x`` (:func:`valve_env.valveid.stiction.slips`) and their median
     size (mm; None without slips)."""
-    from valve_env.valveid.stiction import slips
 
     sz = slips(np.asarray(x, dtype=float), stroke)
     return int(sz.size), (float(np.median(sz)) if sz.size else None)
@@ -600,7 +598,6 @@ def record_shows_band(parts: tuple[np.ndarray, ...], stroke: float, band: float,
     :data:`valve_env.valveid.stiction.MIN_JUMPS` of them (the count from which the fit takes the band from the
     slips alone, :func:`valve_env.valveid.stiction.jump_band`), whose median lies within ``tol`` (relative) of
     ``band``."""
-    from valve_env.valveid.stiction import MIN_JUMPS, slips
 
     sz = np.concatenate([slips(np.asarray(x, dtype=float), stroke) for x in parts])
     return band_shown(int(sz.size), float(np.median(sz)) if sz.size else None, band, MIN_JUMPS, tol)
@@ -792,7 +789,6 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         best = step[0]
         if best.accepted:
             # sandwich beside the Hessian, and the misspecification check (at the ML estimate)
-            from valve_env.valveid.robust import robust_finding
 
             best.robust = robust_finding(best.estimator.backend_, train, best.fit,
                                          bootstrap_sd=bootstrap_B > 0)

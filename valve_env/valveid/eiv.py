@@ -51,6 +51,8 @@ import pandas as pd
 from valve_env.ident.bootstrap import replicates
 from valve_env.ident.mle import MLEstimator
 from valve_env.ident.sde import SDEModel
+from valve_env.valveid.eiv_model import valve_eiv_model
+from valve_env.valveid.robust import misspecification_check, robust_std
 from valve_env.valveid.temperature import channel_noise
 from valve_env.valveid.valve_model import ValveModel
 
@@ -231,8 +233,6 @@ def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: i
     """
     import time
 
-    from valve_env.valveid.eiv_model import valve_eiv_model
-    from valve_env.valveid.robust import misspecification_check, robust_std
 
     if model not in ("eiv", "base"):
         raise ValueError(f"model must be 'eiv' or 'base', got {model!r}")

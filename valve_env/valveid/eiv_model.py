@@ -50,6 +50,7 @@ from typing import Any
 import numba as nb
 import numpy as np
 
+from valve_env.ident.kalman import _alloc
 from valve_env.ident.sde import Parameter, SDEModel, with_overrides
 from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.valveid.valve_model import (
@@ -66,9 +67,11 @@ from valve_env.valveid.valve_model import (
     ValveModel,
     _valve_vector,
     clip_weight,
+    denoise_temperature,
     nb_dahl_relax,
     nb_demanded_opening,
     nb_stiffness,
+    noise_sd,
     smooth_sign,
 )
 
@@ -356,7 +359,6 @@ class ValveEIVModel(InputErrorModel):
         assert isinstance(self.base, ValveModel)
         if not self.base.is_base:
             return None
-        from valve_env.ident.kalman import _alloc
 
         res = _alloc(len(arr.t), 2, 2)
         pp = np.ascontiguousarray(p, dtype=np.float64)
@@ -389,7 +391,6 @@ def denoising_error(T_C: np.ndarray, t: np.ndarray, *, tv_factor: float = 4.5, B
     ``tau_d = -dt / ln rho`` (dt the median sample interval). The raw measurement cannot tell this
     error itself (the denoised signal was fitted to it), so the error state's size is fixed from
     this calibration rather than estimated (docs/uncertainty.md)."""
-    from valve_env.valveid.valve_model import denoise_temperature, noise_sd
 
     T_C = np.asarray(T_C, dtype=float)
     t = np.asarray(t, dtype=float)

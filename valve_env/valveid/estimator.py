@@ -30,10 +30,15 @@ from typing import Any
 import pandas as pd
 
 from valve_env.data_io import load_run, validate_run
-from valve_env.ident.mle import Estimator
+from valve_env.effects import check_effects
+from valve_env.ident.mle import Estimator, MLEstimator
 from valve_env.ident.tests import bic
 from valve_env.params import ValveParams
+from valve_env.valveid.bootstrap import apply_bootstrap, bootstrap
 from valve_env.valveid.data import RunData
+from valve_env.valveid.fitting import Model
+from valve_env.valveid.sde_effects import effect_model
+from valve_env.valveid.valve_model import base_valve_model
 
 #: the likelihood back-ends, by name
 LIKELIHOODS: tuple[str, ...] = ("ekf", "output_error")
@@ -49,7 +54,6 @@ class ValveEstimator(Estimator):
     def __init__(self, effects: tuple[str, ...] | list[str] = (), *, likelihood: str = "ekf",
                  valve: ValveParams | None = None, fixed: Mapping[str, float] | None = None,
                  start: Mapping[str, float] | None = None, **options: Any) -> None:
-        from valve_env.valveid.effects import check_effects
 
         if likelihood not in LIKELIHOODS:
             raise ValueError(f"unknown likelihood {likelihood!r}; choose one of {', '.join(LIKELIHOODS)}")
@@ -89,7 +93,6 @@ class ValveEstimator(Estimator):
         the bias is clear). ``params``: default the effects' parameters, or the base model's
         ``sigma``, ``F_hmax``, ``p_bset`` without effects. Returns ``self``; ``bootstrap_`` holds the
         replicates and their summary, ``std_from_`` where each sd came from."""
-        from valve_env.valveid.bootstrap import apply_bootstrap, bootstrap
 
         self._check()
         if self.likelihood != "output_error":
@@ -110,9 +113,6 @@ class ValveEstimator(Estimator):
         self.std_ = {k: v for k, v in self.result_.std.items() if k not in self.fixed}
 
     def _fit_ekf(self, df: pd.DataFrame) -> None:
-        from valve_env.ident.mle import MLEstimator
-        from valve_env.valveid.sde_effects import effect_model
-        from valve_env.valveid.valve_model import base_valve_model
 
         model = effect_model(self.effects, valve=self.valve) if self.effects else base_valve_model(self.valve)
         est = MLEstimator(model, fixed=self.fixed, **self.options).fit(df)
@@ -128,7 +128,6 @@ class ValveEstimator(Estimator):
         self.rms_ = dict(est.rms_)
 
     def _fit_output_error(self, run: RunData) -> None:
-        from valve_env.valveid.fitting import Model
 
         model = Model(tuple(self.effects), self.valve)
         res = model.fit(run, start=self.start or None, fixed=self.fixed or None, **self.options)

@@ -14,6 +14,8 @@ from valve_env.ident.mle import MLEstimator
 from valve_env.ident.tests import residual_report
 from valve_env.params import ValveParams
 from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
+from valve_env.valveid.preprocess import describe
+from valve_env.valveid.robust import misspecification_check, robust_std
 from valve_env.valveid.valve_model import ValveModel
 
 #: The parameters handed to the environment (ValveParams fields).
@@ -80,7 +82,6 @@ def uncertainty_summary(est: MLEstimator) -> dict[str, Any]:
     :func:`valve_env.valveid.robust.robust_std`), ``robust_lags``, ``std_method`` (which of them
     ``std`` holds) and ``misspecification`` (:func:`~valve_env.valveid.robust.misspecification_check`,
     which also warns)."""
-    from valve_env.valveid.robust import misspecification_check, robust_std
 
     rob = robust_std(est)
     return {"std_hessian": {k: _f(est.std_.get(k, float("nan"))) for k in VALVE_FIELDS},
@@ -184,7 +185,6 @@ def write_report(est: MLEstimator, data: pd.DataFrame, outdir: str | Path, summa
              "(the paper: residual sd 2.4e-3 mm).", ""]
     pre = summary.get("preprocessing") or []
     if pre:
-        from valve_env.valveid.preprocess import describe
 
         parts += ["## Pre-processing: the record as measured", ""] + [f"- {x}" for x in describe(pre)] + [""]
     if summary.get("identifiability"):

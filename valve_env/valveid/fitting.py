@@ -33,12 +33,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+from valve_env.effects import ENGINE_INDEX, N_EFFECT_PARAMS, EffectParameter
+from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.ident.mle import minimise, past_kink
 from valve_env.ident.sde import Parameter, dnat_dwork, from_work, to_work, work_bounds
 from valve_env.ident.uncertainty import hessian_sandwich_sd
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
 from valve_env.valveid.data import RunData
-from valve_env.valveid.effects import EFFECTS, ENGINE_INDEX, N_EFFECT_PARAMS, EffectParameter
 from valve_env.valveid.oe import (
     BAND_SPREAD,
     LANDING_SD,

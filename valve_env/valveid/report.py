@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.params import ValveParams
 from valve_env.valveid.diagnose import Diagnosis
-from valve_env.valveid.effects import EFFECTS
 from valve_env.valveid.fitting import Model, RunData
+from valve_env.valveid.preprocess import describe
 
 UNITS = {"sigma": "N/K", "F_hmax": "N", "p_bset": "MPa", "s_w": "mm", "s_e": "mm", "tau_e": "s", "tau_s": "s",
          "beta": "-", "band_mm": "mm", "rate_MPa_per_h": "MPa/h"}
@@ -197,7 +198,6 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
 
     pre = {k: v for k, v in (d.preprocessing or {}).items() if v}
     if pre:
-        from valve_env.valveid.preprocess import describe
 
         L += ["## Pre-processing: the record as measured", ""]
         for which, notes in pre.items():

@@ -40,11 +40,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.ident.kalman import FilterResult, run_filter
 from valve_env.ident.mle import MLEstimator, NotFittedError
-from valve_env.ident.sde import dnat_dwork
+from valve_env.ident.sde import dnat_dwork, from_work
 from valve_env.ident.tests import ROBUST_ADVICE, MisspecificationWarning, whiteness_check
-from valve_env.ident.uncertainty import hac_meat, newey_west_lags
+from valve_env.ident.uncertainty import hac_meat, hessian_sandwich_parts, newey_west_lags
+from valve_env.valveid.fitting import NOISE_NAMES
+from valve_env.valveid.stiction import noise_sd, slips
 
 if TYPE_CHECKING:
     from valve_env.valveid.data import RunData
@@ -102,7 +105,6 @@ def score_contributions(est: MLEstimator, step: float = 1e-4) -> pd.DataFrame:
 
 
 def _from_work(theta: float, q: Any) -> float:
-    from valve_env.ident.sde import from_work
 
     return from_work(theta, q)
 
@@ -167,8 +169,6 @@ def sandwich_std(model: Model, data: RunData, fit: FitResult, fixed: tuple[str, 
     from :func:`valve_env.ident.uncertainty.hessian_sandwich_parts`, the one implementation of the
     standard errors (docs/estimation.md). ``fixed`` parameters have neither (stiction's band is
     measured from the slips, not fitted: its sd is the bootstrap's alone). ``lags``: the HAC window."""
-    from valve_env.ident.uncertainty import hessian_sandwich_parts
-    from valve_env.valveid.fitting import NOISE_NAMES
 
     free = [i for i, n in enumerate(model.names) if n not in fixed]
     z_all = model.to_work(fit.params)
@@ -220,7 +220,6 @@ def stuck_travel(x: np.ndarray, demand: np.ndarray, stroke: float, rest_sd: floa
     plateau's level; the travel is the demand's, midway between the samples around the slip (where the
     slip's size is measured), beyond its extreme over that interval, in the slip's direction. ``demand``
     is the opening the fitted valve demands at the samples (its stick-slip switched off)."""
-    from valve_env.valveid.stiction import noise_sd, slips
 
     x = np.asarray(x, dtype=float)
     c = np.asarray(demand, dtype=float)
@@ -311,7 +310,6 @@ def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = 
     errors and the misspecification check"):
     ``std_hessian`` and ``std_robust`` of its effect parameters (:func:`sandwich_std`), ``robust_lags``
     and ``misspecification`` (:func:`effect_misspecification`, which warns)."""
-    from valve_env.valveid.effects import EFFECTS
 
     names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
     sw = sandwich_std(model, data, fit)

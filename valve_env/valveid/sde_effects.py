@@ -33,9 +33,8 @@ from typing import Any
 import numba as nb
 import numpy as np
 
-from valve_env.effects import REGISTRY
+from valve_env.effects import REGISTRY, check_effects
 from valve_env.ident.sde import Parameter
-from valve_env.valveid.effects import check_effects
 from valve_env.valveid.valve_model import (
     N_BASE_CONSTANTS,
     N_BASE_PARAMS,

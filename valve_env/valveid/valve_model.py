@@ -47,6 +47,7 @@ import numpy as np
 import pandas as pd
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
+from valve_env.ident.kalman import _alloc
 from valve_env.ident.sde import CompiledFunctions, Parameter, SDEModel, with_overrides
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, N_VALVE, ValveParams
 from valve_env.physics import valve as phys
@@ -499,7 +500,6 @@ class ValveModel(SDEModel):
         for a subclass that changes the hooks or adds states (then the generic kernel runs)."""
         if not self.is_base:
             return None
-        from valve_env.ident.kalman import _alloc
 
         res = _alloc(len(arr.t), 1, 1)
         pp = _f(p)
