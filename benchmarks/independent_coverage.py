@@ -6,7 +6,7 @@ loader, so no tool sees the truth), on runs of the independent simulator
 (:mod:`valve_env.studies.independent`) and, for comparison, of the project's own
 generator (:mod:`valve_env.experiment`):
 
-* ``base``: ``thermovalve fit --ml`` (``valve_env.valveid.fit_report.fit_run``) and
+* ``base``: ``thermovalve fit --ml`` (``valve_env.valveid.fit.fit_run``) and
   ``thermovalve fit``, the default (:func:`valve_env.valveid.eiv.fit_eiv`) on runs
   without effects at 0.01 degC of temperature noise (``--T-noise -1``: drawn per run
   from 0.001-0.02 degC): sigma, F_hmax, p_bset, z = (estimate - truth) / sd, 1-sd and
@@ -125,7 +125,7 @@ def run_base(case: dict[str, Any]) -> dict[str, Any]:
     bias-corrected result is the previous "after") and the EIV fit with the temperature error as a
     filter state (``fit_eiv(model="eiv")``)."""
     from valve_env.valveid.eiv import fit_eiv
-    from valve_env.valveid.fit_report import fit_run
+    from valve_env.valveid.fit import fit_run
     from valve_env.valveid.robust import robust_std, score_contributions
 
     df, truth, _ = _simulate(case)

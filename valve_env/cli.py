@@ -45,7 +45,6 @@ from valve_env.plugins import CLI_GROUP, missing_extra, plugins
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.bench",
     "valve_env.valveid.cli",
-    "valve_env.valveid.fit_cli",
     "valve_env.evaluation.cli",
     "valve_env.loops.cli",
     "valve_env.tasks.cli",

@@ -1,23 +1,35 @@
-"""The human report of a diagnosis: markdown with PNG figures (matplotlib, Agg backend).
+"""The human reports of the valve's identification: markdown with PNG figures (matplotlib, Agg backend).
+:func:`write_report` writes either:
 
-Written for a valve engineer who has two minutes: the verdict first (the cause
-and its evidence), then the misfit before, the candidates, the extended
-model's parameters with their uncertainties, the gain, and the residuals after.
+* a diagnosis (``thermovalve diagnose``), written for a valve engineer who has two minutes: the verdict
+  first (the cause and its evidence), then the misfit before, the candidates, the extended model's
+  parameters with their uncertainties, the gain, and the residuals after;
+* a fit (``thermovalve fit --report DIR``), like the seed paper: Table 4, Fig. 5-7, the correlation of
+  the estimates and the whiteness of the residuals, every number that of the one reported fit.
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from valve_env.effects import REGISTRY as EFFECTS
+from valve_env.ident.mle import MLEstimator
+from valve_env.ident.tests import residual_report
 from valve_env.params import ValveParams
 from valve_env.valveid.diagnose import Diagnosis
+from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
+from valve_env.valveid.fit import PAPER_TABLE4, VALVE_FIELDS, fit_summary
 from valve_env.valveid.fitting import Model, RunData
 from valve_env.valveid.preprocess import describe
 
+#: the fit report's parameter labels and units
+_LABELS = {"sigma": ("sigma", "N/K"), "F_hmax": ("F_h,max", "N"), "p_bset": ("p_b,set", "MPa"),
+           "s_F": ("s_F (friction diffusion)", "N/sqrt(s)"), "s_x": ("s_x (observation sd)", "mm")}
 UNITS = {"sigma": "N/K", "F_hmax": "N", "p_bset": "MPa", "s_w": "mm", "s_e": "mm", "tau_e": "s", "tau_s": "s",
          "beta": "-", "band_mm": "mm", "rate_MPa_per_h": "MPa/h"}
 MEANING = {"sigma": "Dahl stiffness", "F_hmax": "maximum friction force", "p_bset": "bellows pressure at the set point",
@@ -266,17 +278,160 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
     return "\n".join(L)
 
 
-#: the figures :func:`write_report` writes beside ``<stem>.md``
+#: the figures :func:`write_report` writes beside a diagnosis' ``<stem>.md``
 FIGURE_SUFFIXES: tuple[str, ...] = ("_fit.png", "_phase.png", "_residuals.png")
+#: the files :func:`write_report` writes into a fit's report directory (``validation.png`` too with validation data)
+FIT_REPORT_FILES: tuple[str, ...] = ("report.md", "fit.png", "phase.png", "whiteness.png")
 
 
-def write_report(d: Diagnosis, path: str | Path) -> Path:
-    """Write ``path`` (markdown) and its PNG figures beside it; returns the path."""
+def write_report(result: Diagnosis | MLEstimator, path: str | Path, *, data: pd.DataFrame | None = None,
+                 summary: dict[str, Any] | None = None, validation: pd.DataFrame | None = None,
+                 name: str = "run") -> Path:
+    """The report of ``result``; returns the markdown file's path.
+
+    A :class:`Diagnosis`: ``path`` is the markdown file, its figures go beside it (:data:`FIGURE_SUFFIXES`).
+    A fitted :class:`MLEstimator` of the base valve model: ``path`` is a directory (:data:`FIT_REPORT_FILES`),
+    ``data`` the run it was fitted to, ``summary`` the ``thermovalve fit`` JSON (default :func:`fit_summary`),
+    ``validation`` an independent run (paper Fig. 7), ``name`` the run's name in the titles."""
+    if not isinstance(result, Diagnosis):
+        if data is None:
+            raise ValueError("the report of a fit needs the run it was fitted to (data=...)")
+        return _write_fit_report(result, data, path, summary, validation, name)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    figs = write_figures(d, path.parent, path.stem)
-    path.write_text(render_markdown(d, figs, d.train.name))
+    figs = write_figures(result, path.parent, path.stem)
+    path.write_text(render_markdown(result, figs, result.train.name))
     return path
 
 
-__all__ = ["write_report", "write_figures", "render_markdown", "FIGURE_SUFFIXES"]
+def table4_markdown(est: MLEstimator) -> str:
+    """A parameter table like the paper's Table 4, with the paper's values beside ours."""
+    lines = ["| variable | estimate | std.dev. | t | unit | paper estimate | paper std.dev. |",
+             "|---|---|---|---|---|---|---|"]
+    for k in (*VALVE_FIELDS, "s_F", "s_x"):
+        label, unit = _LABELS[k]
+        sd = est.std_.get(k, float("nan"))
+        t = est.tstat_.get(k, float("nan"))
+        pe, ps = PAPER_TABLE4.get(k, (float("nan"), float("nan")))
+        lines.append(f"| {label} | {est.params_[k]:.4g} | {_fmt_spec(sd)} | {_fmt_spec(t, '.1f')} | {unit} | "
+                     f"{_fmt_spec(pe)} | {_fmt_spec(ps)} |")
+    return "\n".join(lines)
+
+
+def _fmt_spec(v: float, spec: str = ".3g") -> str:
+    return "-" if not math.isfinite(v) else format(v, spec)
+
+
+def reported_table(summary: dict[str, Any]) -> str:
+    """The reported fit's parameters (``summary``, the ``thermovalve fit`` JSON) beside the paper's
+    Table 4: the same numbers the console and the JSON give."""
+    lines = ["| variable | estimate | std.dev. | t = estimate / std.dev. | unit | paper estimate | paper std.dev. |",
+             "|---|---|---|---|---|---|---|"]
+    rows = [(k, summary["params"][k], summary["std"].get(k)) for k in VALVE_FIELDS]
+    rows += [(k, summary["noise_params"][k], summary.get("noise_std", {}).get(k)) for k in ("s_F", "s_x")]
+    for k, v, sd in rows:
+        label, unit = _LABELS[k]
+        if k in ("s_F", "s_x") and "errors in variables" in summary.get("model", ""):
+            label += ", of the ML fit the errors-in-variables fit starts from"
+        sdv = float(sd) if sd is not None else float("nan")
+        t = v / sdv if math.isfinite(sdv) and sdv > 0 else float("nan")
+        pe, ps = PAPER_TABLE4.get(k, (float("nan"), float("nan")))
+        lines.append(f"| {label} | {v:.4g} | {_fmt_spec(sdv)} | {_fmt_spec(t, '.1f')} | {unit} | {_fmt_spec(pe)} "
+                     f"| {_fmt_spec(ps)} |")
+    return "\n".join(lines)
+
+
+def _at_reported(est: MLEstimator, summary: dict[str, Any]) -> MLEstimator:
+    """``est`` moved to the reported parameters (the errors-in-variables estimate differs from the ML
+    point estimate it starts from), so that every figure shows the fit the report reports."""
+    import copy
+
+    moved = copy.copy(est)
+    values = {**est.params_, **{k: float(v) for k, v in summary["params"].items()}}
+    moved.p_ = est.model.param_vector(values)
+    moved.params_ = values
+    return moved
+
+
+def _write_fit_report(est: MLEstimator, data: pd.DataFrame, outdir: str | Path, summary: dict[str, Any] | None = None,
+                      validation: pd.DataFrame | None = None, name: str = "run") -> Path:
+    """Figures (paper Fig. 5-7 style, whiteness checks) and a markdown report in ``outdir``, rendered
+    from ``summary`` (the ``thermovalve fit`` JSON, :func:`fit_summary` or :func:`eiv_summary`):
+    the parameters, their sd, the verdicts and the figures are those of the one reported fit."""
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = summary or fit_summary(est, data, validation)
+    fit_label = summary["model"]
+    rep_est = _at_reported(est, summary)
+    d = est.model.prepare(data)
+    pred = rep_est.predict(d)
+    sim = rep_est.simulate(d)
+    res = rep_est.residuals(d, standardised=False)["x_mm"].to_numpy()
+    t = d["time_s"].to_numpy()
+    short = "errors-in-variables fit" if "errors in variables" in fit_label else "ML fit"
+    paper_figure(t, d["x_mm"].to_numpy(), pred["x_mm"].to_numpy(), sim["x_mm"].to_numpy(), res,
+                 out / "fit.png", title=f"{name}: estimation (paper Fig. 6), {short}")
+    phase_diagram(d["T_tank_s"].to_numpy(), d["x_mm"].to_numpy(), out / "phase.png",
+                  simulated=sim["x_mm"].to_numpy(), title=f"{name}: opening vs temperature (paper Fig. 5), {short}")
+    inputs = d[["T_tank_C", "T_med_C", "dp_mbar", "ps_bar"]]
+    rep = residual_report(res, inputs)
+    whiteness_figure(rep, out / "whiteness.png", title=f"{name}: residual whiteness, {short}")
+    mis = summary.get("misspecification") or {}
+    parts = [f"# Valve fit: {name}", "",
+             f"**The fit:** {fit_label}. **Standard deviations:** {summary['std_method']}. Every number and "
+             f"figure below is of this fit (the `fit` JSON holds the same).", "",
+             "## Parameters (cf. the paper's Table 4)", "", reported_table(summary), "",
+             f"log-likelihood {summary['loglik']:.2f}, n = {summary['n']}, "
+             f"one-step RMS {summary['rms_mm']:.3g} mm, simulation RMS {summary['rms_sim_mm']:.3g} mm "
+             "(the paper: residual sd 2.4e-3 mm).", ""]
+    pre = summary.get("preprocessing") or []
+    if pre:
+
+        parts += ["## Pre-processing: the record as measured", ""] + [f"- {x}" for x in describe(pre)] + [""]
+    if summary.get("identifiability"):
+        parts += ["**Identifiability:**", ""] + [f"- {m}" for m in summary["identifiability"]] + [""]
+    parts += ["## Correlation of the estimates (ML point estimate, inverse Hessian)", "", _corr_md(est), "",
+              "## Residual diagnostics", "",
+              f"**Misspecification check** (the verdict the JSON gives, `misspecification`): "
+              f"{'misspecified' if mis.get('misspecified') else 'not misspecified'}"
+              + (f": {mis['message']}" if mis.get("message") else "") + ".", "",
+              "The whiteness statistics of the one-step residuals (5 % level), for reading the figure; the "
+              "misspecification verdict above weighs them against the noise model:", "",
+              _diag_md(rep), "",
+              "![fit](fit.png)", "", "![phase](phase.png)", "", "![whiteness](whiteness.png)", ""]
+    if validation is not None:
+        dv = est.model.prepare(validation)
+        pv = rep_est.predict(dv)
+        sv = rep_est.simulate(dv)
+        rv = rep_est.residuals(dv, standardised=False)["x_mm"].to_numpy()
+        paper_figure(dv["time_s"].to_numpy(), dv["x_mm"].to_numpy(), pv["x_mm"].to_numpy(), sv["x_mm"].to_numpy(),
+                     rv, out / "validation.png", title=f"{name}: cross-validation (paper Fig. 7), {short}")
+        v = summary.get("validation", {})
+        parts += ["## Cross-validation (paper Fig. 7)", "",
+                  f"one-step RMS {v.get('rms_mm', float('nan')):.3g} mm, simulation RMS "
+                  f"{v.get('rms_sim_mm', float('nan')):.3g} mm on {v.get('n', 0)} samples.", "",
+                  "![validation](validation.png)", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(parts))
+    return path
+
+
+def _corr_md(est: MLEstimator) -> str:
+    names = list(est.corr_.columns)
+    lines = ["| | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for i, r in enumerate(names):
+        row = " | ".join(_fmt_spec(float(est.corr_.to_numpy()[i, j]), ".2f") for j in range(len(names)))
+        lines.append(f"| {r} | {row} |")
+    return "\n".join(lines)
+
+
+def _diag_md(rep: Any) -> str:
+    s = rep.summary()
+    return (f"- autocorrelation: {s['acf_outside_band']} of {s['acf_lags']} lags outside the 95 % band\n"
+            f"- Ljung-Box (lag {s['ljung_box_lag']}): Q = {s['ljung_box_stat']:.1f}, p = {s['ljung_box_pvalue']:.3g}\n"
+            f"- cumulated periodogram: max deviation {s['cpgram_max_dev']:.3f} (95 % KS band {s['cpgram_band']:.3f})\n"
+            f"- all three within their 5 % bands: {'yes' if s['white'] else 'no'}")
+
+
+__all__ = ["write_report", "write_figures", "render_markdown", "table4_markdown", "reported_table",
+           "FIGURE_SUFFIXES", "FIT_REPORT_FILES"]
