@@ -1,7 +1,7 @@
 """Hide an effect in generated data and require the diagnosis to find it (docs/diagnosis.md, "Method").
 
 Short records (10 h of 10 s data) keep the default run fast; the >= 50-run
-confusion-matrix study is benchmarks/diagnosis_confusion.py (and test_slow.py).
+confusion-matrix study is studies/diagnosis_confusion.py (and test_slow.py).
 """
 
 from __future__ import annotations

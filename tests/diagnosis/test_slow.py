@@ -5,15 +5,16 @@ never a timed assertion here."""
 
 from __future__ import annotations
 
+import importlib
+
 import pytest
 
-from tests.diagnosis.studies import load_study
 from valve_env.experiment import random_cases
 
 
 @pytest.fixture(scope="module")
 def confusion_seed11() -> dict:
-    study = load_study("diagnosis_confusion")
+    study = importlib.import_module("studies.diagnosis_confusion")
     results = study.run_study(random_cases(50, seed=11), workers=1, progress=False)
     return study.confusion(results)
 

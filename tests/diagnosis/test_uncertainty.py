@@ -1,16 +1,16 @@
 """Honest uncertainty of the named effect's parameters (docs/diagnosis.md, "Parameter uncertainty: the coverage
 study"): the stick band estimator, the
 stick-slip filter's bias, and the model-based bootstrap. The >= 30-run coverage study is
-benchmarks/diagnosis_coverage.py (slow test below)."""
+studies/diagnosis_coverage.py (slow test below)."""
 
 from __future__ import annotations
 
+import importlib
 import math
 
 import numpy as np
 import pytest
 
-from tests.diagnosis.studies import load_study
 from valve_env.experiment import random_cases, simulate_experiment
 from valve_env.params import I_STROKE, ValveParams
 from valve_env.valveid.bootstrap import bootstrap
@@ -135,7 +135,7 @@ SMOOTH = ("sensor_lag", "medium_temperature", "setpoint_drift")
 
 @pytest.fixture(scope="module")
 def coverage_303() -> dict:  # type: ignore[type-arg]
-    study = load_study("diagnosis_coverage")
+    study = importlib.import_module("studies.diagnosis_coverage")
     results = study.run_study(random_cases(40, seed=303, classes=study.EFFECT_CLASSES), workers=2, progress=False)
     return study.coverage(results)  # type: ignore[no-any-return]
 

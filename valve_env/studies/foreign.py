@@ -13,7 +13,7 @@ cause, or the truth where the original missed it; or ``none`` where the conventi
 (:attr:`Convention.loses_information`);
 or a one-line refusal where refusal is the right answer (:data:`MAY_REFUSE`). Anything else raised
 is a failure. The default test suite runs :func:`corpus_cases` ``("default")`` (35 transformed
-runs), the slow suite ``("full")`` (285); ``benchmarks/foreign_data.py`` prints the table.
+runs), the slow suite ``("full")`` (285); ``studies/foreign_data.py`` prints the table.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ conditions on the *smoothed* temperatures as if they were exact. Their smoothing
 error in the input (errors in variables) that moves the estimates coherently over the record;
 the likelihood cannot see it, and neither can a HAC sandwich of its scores. For stiction the
 likelihood is not even smooth in the band. The coverage study
-(``benchmarks/diagnosis_coverage.py``) measured fewer than half of the estimates within one
+(``studies/diagnosis_coverage.py``) measured fewer than half of the estimates within one
 reported (Hessian/HAC) sd.
 
 The bootstrap repeats what produced the estimate, in a world where the fitted model is the

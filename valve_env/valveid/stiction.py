@@ -170,7 +170,7 @@ def band_sampling(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: 
 
     With the true opening of a generated run (``true_x_mm``) this is the estimator's own spread and
     bias for that run, which no method that sees only the measured opening can know: the yardstick
-    the bootstrap's sd and bias correction are measured against (``benchmarks/diagnosis_coverage.py``);
+    the bootstrap's sd and bias correction are measured against (``studies/diagnosis_coverage.py``);
     with a simulated opening it tells how precisely a planned experiment measures the band."""
     x_true = np.asarray(x_true, dtype=float)
     if not (math.isfinite(noise_sd_mm) and noise_sd_mm >= 0):

@@ -1,7 +1,7 @@
 """Temperature pre-processing: the noisy temperature channels turned into the valve's driver.
 
 The one module that owns it (docs/estimation.md, "Architecture"). Two methods, each used by one
-likelihood, kept both for a measured reason (``benchmarks/temperature_preprocessing.py``,
+likelihood, kept both for a measured reason (``studies/temperature_preprocessing.py``,
 docs/estimation.md, "Temperature pre-processing"):
 
 * :func:`smooth_temperature`: a robust integrated-random-walk Rauch-Tung-Striebel smoother

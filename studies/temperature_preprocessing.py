@@ -23,9 +23,9 @@ the true opening; per method and noise level this prints
   (:class:`valve_env.valveid.fitting.Model`) and by the EKF
   (:class:`valve_env.ident.mle.MLEstimator`, ``ekf_*``).
 
-    python benchmarks/temperature_preprocessing.py --seeds 900 901 902 903 904 905
-    python benchmarks/temperature_preprocessing.py --noise 0.01 --fit
-    python benchmarks/temperature_preprocessing.py --survey 20261231 --cases 30
+    python studies/temperature_preprocessing.py --seeds 900 901 902 903 904 905
+    python studies/temperature_preprocessing.py --noise 0.01 --fit
+    python studies/temperature_preprocessing.py --survey 20261231 --cases 30
 
 ``--survey SEED`` is the collapse survey instead (docs/estimation.md, "Temperature
 pre-processing"): the smoother on both temperature channels of the diagnosis study's randomised runs

@@ -23,7 +23,7 @@ generator (:mod:`valve_env.experiment`):
 Study seeds (chosen before any run, never tuned on): base 20261127 (the EIV
 study; 20261123 before it), effects 20261124; the project generator's runs use
 20261128 (20261125 before) and 20261126. Tuning seeds: 7300 / 7301. The named effects' study
-(docs/uncertainty.md, "The studies (`benchmarks/independent_coverage.py`)"): held out 20261201 (effects,
+(docs/uncertainty.md, "The studies (`studies/independent_coverage.py`)"): held out 20261201 (effects,
 independent), 20261202 (effects, project), 20261205 (base, independent, 0.001-0.02 degC); 4242 for
 development. The named effects' pre-processing bracket: development 7700, 7702
 (independent), 7701 (project); held out 20261125 (effects, independent) and 20261126 (effects,
@@ -38,11 +38,11 @@ effect's replicates refitted on TV (each record carries the bootstrap's ``boot_b
 303 (project), 20270413 (independent); held out 20270614, 20270615 (project), 20270613 (independent).
 Run i of a study uses ``numpy.random.default_rng([seed, i])``.
 
-    python benchmarks/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
+    python studies/independent_coverage.py --study base --runs 30 --eiv-B 8 --workers 2 \
         --json out/held_ind.json
-    python benchmarks/independent_coverage.py --study effects --runs 2 --workers 2 --json out/indep_effects.json
-    python benchmarks/independent_coverage.py --study effects --only stiction --runs 2 --seed 777 --json out/s.json
-    python benchmarks/independent_coverage.py --study base --generator project --runs 20 --json out/held_proj.json
+    python studies/independent_coverage.py --study effects --runs 2 --workers 2 --json out/indep_effects.json
+    python studies/independent_coverage.py --study effects --only stiction --runs 2 --seed 777 --json out/s.json
+    python studies/independent_coverage.py --study base --generator project --runs 20 --json out/held_proj.json
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The foreign-data corpus (valve_env.studies.foreign): every case diagnosed, judged, and tabulated.
 
-    python benchmarks/foreign_data.py --size default --workers 2      # the default suite's 35 cases
-    python benchmarks/foreign_data.py --size full --workers 2         # the slow suite's corpus
+    python studies/foreign_data.py --size default --workers 2      # the default suite's 35 cases
+    python studies/foreign_data.py --size full --workers 2         # the slow suite's corpus
 
 Prints one line per case (class, convention, outcome, verdict, CPU seconds) and the counts: runs,
 tracebacks (always 0, or the script stops with the traceback), refusals, right outcomes. With --json

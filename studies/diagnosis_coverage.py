@@ -12,7 +12,7 @@ For honest uncertainties about 68 % of the |z| lie within 1 and 95 % within 2, t
 of z (the bias, in sd) is near 0 and the RMS of z (the ratio of the actual to the
 reported spread) near 1. Prints a table and writes JSON.
 
-    python benchmarks/diagnosis_coverage.py --runs 40 --seed 101 --workers 2 --json out/coverage.json
+    python studies/diagnosis_coverage.py --runs 40 --seed 101 --workers 2 --json out/coverage.json
 
 Seeds 1, 7 and 11 were used while developing the method; use others for the study.
 """
@@ -205,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     results = run_study(cases, a.workers)
     c = coverage(results)
-    cmd = f"python benchmarks/diagnosis_coverage.py --runs {a.runs} --seed {a.seed} --workers {a.workers}"
+    cmd = f"python studies/diagnosis_coverage.py --runs {a.runs} --seed {a.seed} --workers {a.workers}"
     print(f"\n{cmd} ({platform.machine()}, Python {platform.python_version()}), "
           f"{time.perf_counter() - t0:.0f} s; diagnosis median {c['seconds_median']:.1f} s, "
           f"max {c['seconds_max']:.1f} s\n")

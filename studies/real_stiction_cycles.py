@@ -1,7 +1,7 @@
 """Period and controller-output swing of real sticky control loops (docs/tasks.md, plausibility of
 ThermoValveStickyValve-v0's limit cycle).
 
-    python benchmarks/real_stiction_cycles.py DIR
+    python studies/real_stiction_cycles.py DIR
 
 DIR holds the labelled plant loops of StictionGPT (Xue et al. 2025; see that folder's SOURCE.md):
 ``DIR/stiction/*.txt``, tab-separated historian exports (5 header lines; columns time, OP %, PV, SP).
@@ -37,7 +37,7 @@ def cycles(directory: Path) -> pd.DataFrame:
 
 def main(argv: list[str]) -> int:
     if len(argv) != 1 or not (Path(argv[0]) / "stiction").is_dir():
-        print("usage: python benchmarks/real_stiction_cycles.py DIR (with DIR/stiction/*.txt)", file=sys.stderr)
+        print("usage: python studies/real_stiction_cycles.py DIR (with DIR/stiction/*.txt)", file=sys.stderr)
         return 2
     df = cycles(Path(argv[0]))
     print(df.groupby("loop").median().round(2))

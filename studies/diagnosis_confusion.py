@@ -7,7 +7,7 @@ and writes it to --out (out/diagnosis_confusion.md; --docs for the project's rec
 docs/diagnosis_confusion.md) and, with --json, every run as JSON. An existing output is
 replaced only with --force (checked before the runs start).
 
-    python benchmarks/diagnosis_confusion.py --runs 60 --seed 1 --workers 1 [--docs --force]
+    python studies/diagnosis_confusion.py --runs 60 --seed 1 --workers 1 [--docs --force]
 
 Targets: at least 95 % correct names, no more than 5 % false findings on `none` runs.
 """
@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     results = run_study(cases, a.workers)
     c = confusion(results)
-    cmd = f"python benchmarks/diagnosis_confusion.py --runs {a.runs} --seed {a.seed} --workers {a.workers}"
+    cmd = f"python studies/diagnosis_confusion.py --runs {a.runs} --seed {a.seed} --workers {a.workers}"
     if a.bootstrap != 16:
         cmd += f" --bootstrap {a.bootstrap}"
     if a.classes:

@@ -1,6 +1,6 @@
 """The iae-reversals trade-off of the stiction compensators on a sticky-valve task (docs/controllers.md).
 
-    python benchmarks/sticky_frontier.py [--task ThermoValveStickyValve-v0] [--seed 0 --episodes 10]
+    python studies/sticky_frontier.py [--task ThermoValveStickyValve-v0] [--seed 0 --episodes 10]
                                          [--plot out/sticky_frontier.png] [--force]
 
 Runs ``pi`` and each compensator over a grid of its own settings (keyword arguments of

@@ -1,7 +1,7 @@
 """A PI loop on a sticky valve limit-cycles: period and amplitude in the stem and the outlet, and the rise
 in reversals and travel, against the same loop on a valve without stiction.
 
-    python benchmarks/stiction_limit_cycle.py [--seeds 101,102,103] [--bands 0.02,0.04,0.1] [--json OUT.json]
+    python studies/stiction_limit_cycle.py [--seeds 101,102,103] [--bands 0.02,0.04,0.1] [--json OUT.json]
 
 ThermoValve-v0 (the PI trims the valve's temperature setting; the project's tuned gains,
 configs/controllers.yaml), a day of the EU tapping cycle M, seeded; stiction's band 0.02, 0.04 and
