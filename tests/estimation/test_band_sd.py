@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from valve_env.studies.independent import stick_sj
-from valve_env.valveid.stiction import band_spread, jump_band, noise_sd, slips_sd
+from valve_env.valveid.stiction import band_spread, jump_band, slips_sd
+from valve_env.valveid.temperature import noise_sd
 
 STROKE = 4.0
 

@@ -87,8 +87,8 @@ from valve_env.ident.bootstrap import (
 from valve_env.valveid.fitting import FitResult, Model, RunData
 from valve_env.valveid.robust import stick_slip_check
 from valve_env.valveid.stick_profile import sj_filter_loglik, sj_profile
-from valve_env.valveid.stiction import band_draws, band_spread, jump_band, resting_noise_sd
-from valve_env.valveid.temperature import denoise_temperature
+from valve_env.valveid.stiction import band_draws, band_spread, jump_band
+from valve_env.valveid.temperature import denoise_temperature, noise_sd
 
 #: Name of the method, as written into the JSON.
 METHOD = "model-based bootstrap (residual blocks)"
@@ -187,7 +187,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
 
     ``x_true``: the bootstrap world's true opening, if already simulated (:func:`world_opening`).
     ``x_noise_sd``: with stiction, the sd of the white noise on the opening (default:
-    :func:`valve_env.valveid.stiction.resting_noise_sd` of ``data``).
+    :func:`valve_env.valveid.temperature.noise_sd` of ``data``' opening).
     ``resid_block``: without stiction, the opening's noise is the residuals ``data.x - x_true``
     resampled in circular blocks of this length (default: :func:`residual_block_length`); 0
     draws the fitted noise model instead (white ``s_w`` plus the Ornstein-Uhlenbeck ``s_e``,
@@ -200,7 +200,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
         # resting steps, the slips set apart (the filter's s_w and s_e also absorb its misfit and would
         # overstate it; so would the median of all steps, slips included, at coarse sampling)
         if x_noise_sd is None:
-            x_noise_sd = resting_noise_sd(data.x, float(model.valve.stroke), values.get("band_mm"))
+            x_noise_sd = noise_sd(data.x)
         y = x_true + x_noise_sd * rng.standard_normal(n)
     elif resid_block == 0:
         y = x_true + values["s_w"] * rng.standard_normal(n) + _ou_path(data.t, values["s_e"], values["tau_e"], rng)
@@ -322,7 +322,7 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
         names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
     stuck = "stiction" in model.effects
     x_true = world_opening(model, data, fit.params, truth_step_s, curved)
-    s_x = resting_noise_sd(data.x, float(model.valve.stroke), fit.params.get("band_mm")) if stuck else None
+    s_x = noise_sd(data.x) if stuck else None
     block = None if stuck else residual_block_length(data.x - x_true)
     denoiser = replicate_denoiser(model, names)
     rows, _ = replicates(

@@ -70,8 +70,8 @@ from valve_env.valveid.estimator import ValveEstimator
 from valve_env.valveid.fitting import FitResult, Model, RunData
 from valve_env.valveid.preprocess import preprocess_run
 from valve_env.valveid.robust import robust_finding
-from valve_env.valveid.stiction import MIN_JUMPS, resting_noise_sd, slips
-from valve_env.valveid.temperature import smooth_temperature
+from valve_env.valveid.stiction import MIN_JUMPS, slips
+from valve_env.valveid.temperature import noise_sd, smooth_temperature
 
 MIN_SAMPLES = 200
 MIN_DURATION_S = 1.9 * 3600.0  # a 2 h record, less a few samples lost at its ends
@@ -533,7 +533,8 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     (:func:`~valve_env.valveid.bootstrap.world_opening`), and each copy adds white noise of the run's
     measured sd to both temperature channels (smoothed again like a measured run, so that the smoothed
     temperatures lead the world's at its kinks as the run's lead the water) and to the opening (the resting
-    steps' sd, :func:`valve_env.valveid.stiction.resting_noise_sd`). Under the null the stick-slip filter's
+    steps' sd, :func:`valve_env.valveid.temperature.noise_sd`, whose second differences set the slips apart
+    as outliers). Under the null the stick-slip filter's
     gain comes from that misfit; copies driven by the run's smoothed
     temperatures, with the fitted noise model or the residuals resampled in blocks, lack it and gave a null
     of 0 on every development run tried, false findings included (docs/diagnosis.md, "Measured data of any
@@ -557,7 +558,7 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     # whose steps would make the world's valve slip, so there the smoother's level stands for them
     world = _null_world(train)
     x_w = world_opening(ref_model, world, ref)
-    sd = resting_noise_sd(train.x, float(valve.stroke), None)
+    sd = noise_sd(train.x)
     n = len(train)
     null = np.empty(copies)
     for i in range(copies):

@@ -47,7 +47,8 @@ from valve_env.ident.sde import dnat_dwork, from_work
 from valve_env.ident.tests import ROBUST_ADVICE, MisspecificationWarning, whiteness_check
 from valve_env.ident.uncertainty import hac_meat, hessian_sandwich_parts, newey_west_lags
 from valve_env.valveid.fitting import NOISE_NAMES
-from valve_env.valveid.stiction import noise_sd, slips
+from valve_env.valveid.stiction import slips
+from valve_env.valveid.temperature import noise_sd
 
 if TYPE_CHECKING:
     from valve_env.valveid.data import RunData

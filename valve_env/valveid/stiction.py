@@ -21,27 +21,13 @@ import math
 
 import numpy as np
 
-from valve_env.valveid.valve_model import noise_sd as _smooth_noise_sd
+from valve_env.valveid.temperature import noise_sd
 
 
 def _away_from_stops(x: np.ndarray, stroke: float, edge_mm: float) -> np.ndarray:
     """Mask of the steps of ``x`` whose both ends lie more than ``edge_mm`` from the end stops."""
     lo, hi = edge_mm, stroke - edge_mm
     return (x[:-1] > lo) & (x[1:] > lo) & (x[:-1] < hi) & (x[1:] < hi)
-
-
-def noise_sd(x: np.ndarray) -> float:
-    """sd of the white noise on the opening: the robust second-difference estimate of
-    :func:`valve_env.valveid.valve_model.noise_sd` (the stem moves smoothly between slips, which
-    are outliers of the second differences)."""
-    return _smooth_noise_sd(np.asarray(x, dtype=float))
-
-
-def resting_noise_sd(x: np.ndarray, stroke: float, band: float | None = None) -> float:
-    """sd of the white noise on the opening of a sticking stem (the replicate noise of the bootstrap):
-    :func:`noise_sd`, whose second differences set the slips apart as outliers whatever the band (kept
-    with its arguments for the callers)."""
-    return noise_sd(x)
 
 
 def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0, plateau: int = 3,
@@ -189,5 +175,5 @@ def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int
                      for _ in range(draws)])
 
 
-__all__ = ["MIN_JUMPS", "band_sampling", "band_spread", "jump_band", "noise_sd", "resting_noise_sd", "slips",
+__all__ = ["MIN_JUMPS", "band_sampling", "band_spread", "jump_band", "slips",
            "slips_sd"]
