@@ -3,8 +3,8 @@
 
 Times full diagnoses (every candidate, hold-out validation, forward selection and the model-based
 bootstrap of each named effect, at the bootstrap size ``thermovalve diagnose`` uses by default) of
-generated 24 h runs at 10 s: no effect, a sensor lag and stiction
-(:func:`valve_env.diagnosis.bench.run_bench`). Numba's compilation is timed apart, first.
+generated 24 h runs at 10 s: no effect, a sensor lag and stiction (:func:`valve_env.bench.bench_diagnosis`,
+which ``thermovalve bench`` runs too). Numba's compilation is timed apart, first.
 
     python benchmarks/diagnosis_speed.py [--seed 2024] [--bootstrap B]
 
@@ -21,7 +21,8 @@ import sys
 
 
 def main(argv: list[str] | None = None) -> int:
-    from valve_env.diagnosis.bench import TARGET_S, default_bootstrap_b, run_bench
+    from valve_env.bench import DIAGNOSIS_TARGET_S as TARGET_S
+    from valve_env.bench import bench_diagnosis, default_bootstrap_b
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seed", type=int, default=2024)
@@ -32,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermovalve: error: --bootstrap must be >= 0, got {a.bootstrap}", file=sys.stderr)
         return 2
     load0 = os.getloadavg()[0]
-    r = run_bench(seed=a.seed, bootstrap_B=a.bootstrap)
+    r = bench_diagnosis(seed=a.seed, bootstrap_B=a.bootstrap)
     load1 = os.getloadavg()[0]
     print(f"diagnosis of {r['hours']:g} h at {r['dt_s']:g} s ({r['samples']} samples), bootstrap B = "
           f"{r['bootstrap_B']}, seed {a.seed}; numba warm-up {r['warmup_compile_s']:.1f} s; "

@@ -80,9 +80,13 @@ def test_year_harness_takes_any_predict_controller() -> None:
     assert np.isfinite(res["mean_return"])
 
 
-def test_external_figures_are_never_silently_missing() -> None:
-    res = bench._external("valve_env.no_such_module_for_bench")
-    assert "not available" in res and "no_such_module_for_bench" in res["not available"]
+def test_identification_figures_are_never_silently_missing() -> None:
+    def no_such_figure() -> dict[str, float]:
+        raise ImportError("no module named valve_env.no_such_module_for_bench")
+
+    res = bench._guarded(no_such_figure)
+    assert "not available" in res and "no_such_figure" in res["not available"]
+    assert "no_such_module_for_bench" in res["not available"]
 
 
 class _SlowResetVecEnv:

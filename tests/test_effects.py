@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from valve_env import experiment, simulator
-from valve_env.diagnosis import engine
-from valve_env.diagnosis.effects import EFFECTS as DIAGNOSIS_EFFECTS
-from valve_env.diagnosis.sde_effects import HOOKS, effect_model
 from valve_env.effects import ENGINE_INDEX, REGISTRY, parse_effects
 from valve_env.physics import trajectory
 from valve_env.physics.valve import setpoint_pressure
 from valve_env.valvefile import read_valve, valve_text
+from valve_env.valveid import oe as engine
+from valve_env.valveid.diagnose import EFFECTS as DIAGNOSIS_EFFECTS
+from valve_env.valveid.sde_effects import HOOKS, effect_model
 
 NAMES = list(REGISTRY)
 
@@ -132,14 +132,10 @@ def test_each_effect_moves_the_kpis_the_way_physics_expects() -> None:
 
 
 def test_a_pi_loop_limit_cycles_on_a_sticky_valve() -> None:
-    """benchmarks/stiction_limit_cycle.py in brief: with only the standing losses to cover, the PI holds a
+    """studies/stiction_limit_cycle.py in brief: with only the standing losses to cover, the PI holds a
     frictionless valve still near its seat; at a 2 % band (0.04 mm) the stem hunts in a regular cycle of
     about the band, with several times the reversals and travel."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from stiction_limit_cycle import oscillation, run_day
+    from studies.stiction_limit_cycle import oscillation, run_day
 
     base = run_day(0.0, 101, "none")
     sticky = run_day(0.04, 101, "none")

@@ -1,5 +1,5 @@
-"""No import cycles inside ``valve_env`` outside the identification packages, and the core imports
-neither the RL add-on nor its extra (docs/architecture.md, "What each package may import").
+"""No import cycles inside ``valve_env``, the generic identification core knows no valve, and the core
+imports neither the RL add-on nor its extra (docs/architecture.md, "What each package may import").
 
 **The graph** is read from the source with :mod:`ast`, nothing imported: every module of valve_env (a
 file; a package is its ``__init__.py``) -> every valve_env module it imports, at module level and inside
@@ -8,19 +8,18 @@ the module ``a.b`` when b is one, else to ``a``, where the name lives) and the r
 (``from . import x``, ``from ..y import z``). The parent packages that Python imports on the way are not
 edges (every module would depend on valve_env/__init__.py otherwise). Imports by a string at run time
 are not edges either: importlib.import_module over a table (valve_env.cli's SUBCOMMAND_MODULES,
-valve_env.diagnosis's lazy attributes), Gymnasium entry points and the plug-in entry points.
+valve_env.valveid's lazy attributes), Gymnasium entry points and the plug-in entry points.
 
 **Two levels, two rules.** Between modules: no cycle at all. Between units (each sub-package of
 valve_env and each top-level module is one node; the root valve_env/__init__.py, the registration, is its
 own): no cycle except the known ones below.
 
 **The known cycles are a ratchet.** :data:`KNOWN_UNIT_CYCLES` lists, explicitly, the strongly connected
-components that remain among the identification packages (valve_env.estimation, valve_env.diagnosis,
-valve_env.loops, valve_env.studies) until a redesign of the identification packages removes them
-(docs/architecture.md, "The target"). The test
-fails on any cycle not in that list, and also when a listed cycle has gone or changed, so the list stays
-true: whoever breaks a cycle deletes its entry in the same commit.
+components allowed among the identification packages (none today). The test fails on any cycle not in
+that list, and also when a listed cycle has gone or changed, so the list stays true: whoever breaks a
+cycle deletes its entry in the same commit.
 """
+
 
 from __future__ import annotations
 
@@ -33,14 +32,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "valve_env"
-IDENTIFICATION = ("valve_env.estimation", "valve_env.diagnosis", "valve_env.loops", "valve_env.studies")
+IDENTIFICATION = ("valve_env.ident", "valve_env.valveid", "valve_env.loops", "valve_env.studies")
 
-#: the unit-level cycles that remain in the identification packages (see the module docstring)
-KNOWN_UNIT_CYCLES: frozenset[frozenset[str]] = frozenset({
-    # estimation/bootstrap.py imports diagnosis.fitting at module level, diagnosis/fitting.py imports
-    # estimation.model; 12 imports one way, 10 the other
-    frozenset({"valve_env.diagnosis", "valve_env.estimation"}),
-})
+#: the unit-level cycles allowed in the identification packages (see the module docstring)
+KNOWN_UNIT_CYCLES: frozenset[frozenset[str]] = frozenset()
 
 #: what the core may never import: the RL add-on and what only its extra installs
 FORBIDDEN = ("agents", "torch", "stable_baselines3", "sb3_contrib", "dask", "distributed", "tensorboard")
@@ -214,3 +209,15 @@ def test_the_core_imports_neither_the_rl_add_on_nor_its_extra(
     _, tops = graph
     bad = {m: sorted(t & set(FORBIDDEN)) for m, t in tops.items() if t & set(FORBIDDEN)}
     assert not bad, f"the core imports the RL add-on or its extra: {bad}"
+
+
+def test_the_identification_core_knows_no_valve(
+        graph: tuple[dict[str, set[str]], dict[str, set[str]]]) -> None:
+    """valve_env.ident (SDE models, Kalman filters, the estimator, uncertainty, bootstrap, tests) imports
+    nothing of valve_env outside itself: the valve, the loops and the CLI sit on top of it."""
+    edges, _ = graph
+    core = {m: sorted(t for t in targets if not t.startswith("valve_env.ident"))
+            for m, targets in edges.items() if m.startswith("valve_env.ident")}
+    assert len(core) >= 6, sorted(core)
+    bad = {m: t for m, t in core.items() if t}
+    assert not bad, f"the identification core imports the valve or the loops: {bad}"

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from valve_env.cli import main
-from valve_env.diagnosis.diagnose import check_run, diagnose, prepare
-from valve_env.diagnosis.engine import monotone_path
-from valve_env.diagnosis.fitting import Model
 from valve_env.effects import ENGINE_INDEX, REGISTRY
 from valve_env.experiment import _valve_path, simulate_experiment
 from valve_env.params import ValveParams
 from valve_env.physics.trajectory import sensed_temperature
 from valve_env.valvefile import read_valve, valve_text
+from valve_env.valveid.diagnose import check_run, diagnose, prepare
+from valve_env.valveid.fitting import Model
+from valve_env.valveid.oe import monotone_path
 
 
 def _replay(cfg, df, params: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:

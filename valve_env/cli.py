@@ -44,8 +44,7 @@ from valve_env.plugins import CLI_GROUP, missing_extra, plugins
 
 SUBCOMMAND_MODULES: tuple[str, ...] = (
     "valve_env.bench",
-    "valve_env.diagnosis.cli",
-    "valve_env.estimation.cli",
+    "valve_env.valveid.cli",
     "valve_env.evaluation.cli",
     "valve_env.loops.cli",
     "valve_env.tasks.cli",

@@ -6,8 +6,13 @@ knows an effect reads it from :data:`REGISTRY`:
 
 * the data generator (:mod:`valve_env.experiment`: validation of ``effects=``, the random
   sizes of the diagnosis studies),
-* the diagnosis (:mod:`valve_env.diagnosis.effects`, the engine's effect vector
-  :data:`ENGINE_INDEX`, the estimator's SDE models in :mod:`valve_env.diagnosis.sde_effects`),
+* the valve's identification (:mod:`valve_env.valveid`: the output-error engine's effect vector
+  :data:`ENGINE_INDEX`, the estimator's SDE models in :mod:`valve_env.valveid.sde_effects`, the
+  diagnosis' candidates, checked by :func:`check_effects`). The likelihood-ratio test of an effect
+  whose null value lies on the edge of its parameter space (``boundary``: tau = 0, beta = 0,
+  band = 0) takes the 50:50 mixture of chi-square(0) and chi-square(1) (Self and Liang 1987);
+  the diagnosis fits an effect's ``parameters``, not its ``extra`` ones (stiction's slip jump
+  is held at the band, J = S),
 * the environments (the ``valve: effects:`` mapping of a config, :func:`parse_effects`,
   packed for the simulator kernel by :mod:`valve_env.simulator`),
 * the valve file (:mod:`valve_env.valvefile`).
@@ -207,6 +212,17 @@ def effect_names() -> list[str]:
     return list(REGISTRY)
 
 
+def check_effects(names: list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """Validate effect names (ValueError naming an unknown one); duplicates dropped, order kept."""
+    out = []
+    for name in names:
+        if name not in REGISTRY:
+            raise ValueError(f"unknown effect {name!r}; known: {', '.join(REGISTRY)}")
+        if name not in out:
+            out.append(name)
+    return tuple(out)
+
+
 def check_parameters(name: str, pars: Any, where: str = "effects", fill_defaults: bool = True) -> dict[str, float]:
     """The checked parameters of effect ``name`` from a mapping (ConfigError naming an unknown effect or
     parameter, a missing mapping, a value that is None, NaN, a bool, not a number or out of range).
@@ -323,5 +339,6 @@ def draw(name: str, rng: np.random.Generator) -> dict[str, float]:
     return out
 
 
-__all__ = ["Effect", "EffectParameter", "Effects", "REGISTRY", "ENGINE_INDEX", "N_EFFECT_PARAMS", "effect_names",
+__all__ = ["Effect", "EffectParameter", "Effects", "REGISTRY", "ENGINE_INDEX", "N_EFFECT_PARAMS", "check_effects",
+           "effect_names",
            "check_parameters", "parse_effects", "draw"]

@@ -9,17 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from valve_env.controllers.tuning import (
-    GAINS_PATH,
-    ModelFit,
-    StepResponse,
-    fit_fopdt,
-    fit_ipdt,
-    fopdt_response,
-    load_gains,
-    simc_pi,
-    tune,
-)
+from valve_env.controllers.process import ModelFit, StepResponse, fit_fopdt, fit_ipdt, fopdt_response, simc_pi
+from valve_env.controllers.tuning import GAINS_PATH, load_gains, tune
 
 # The stored gains are rounded to 6 significant digits; the fit is
 # deterministic, so agreement is to the fit's tolerance.

@@ -1,4 +1,6 @@
-"""The diagnosis study scripts of ``benchmarks/`` (not a package), loaded by path for the slow tests."""
+"""A script of ``benchmarks/`` loaded by path: ``env_loop_study``, which ``benchmarks/loop_drift_study.py``
+imports by path too, stays a script there until the loop diagnosis moves onto the identification core. The
+research harnesses are modules of ``studies/`` and the tests import them (``import studies.NAME``)."""
 
 from __future__ import annotations
 

@@ -1,11 +1,10 @@
-"""benchmarks/diagnosis_confusion.py's summary: the per-effect relative error counts every correctly named run,
+"""studies/diagnosis_confusion.py's summary: the per-effect relative error counts every correctly named run,
 the z-scores only those with an sd (with --bootstrap 0 a stiction band has none)."""
 
 from __future__ import annotations
 
+import importlib
 import math
-
-from tests.diagnosis.studies import load_study
 
 
 def _run(truth: str, cause: str, true: float, est: float, sd: float) -> dict:
@@ -14,7 +13,7 @@ def _run(truth: str, cause: str, true: float, est: float, sd: float) -> dict:
 
 
 def test_relative_error_counts_runs_without_an_sd() -> None:
-    study = load_study("diagnosis_confusion")
+    study = importlib.import_module("studies.diagnosis_confusion")
     runs = [_run("stiction", "stiction", 0.02, 0.021, 0.001),  # 5 % off, z 1
             _run("stiction", "stiction", 0.02, 0.016, math.nan),  # 20 % off, no sd
             _run("stiction", "stiction", 0.02, 0.019, math.nan),  # 5 % off, no sd

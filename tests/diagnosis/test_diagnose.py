@@ -1,7 +1,7 @@
 """Hide an effect in generated data and require the diagnosis to find it (docs/diagnosis.md, "Method").
 
 Short records (10 h of 10 s data) keep the default run fast; the >= 50-run
-confusion-matrix study is benchmarks/diagnosis_confusion.py (and test_slow.py).
+confusion-matrix study is studies/diagnosis_confusion.py (and test_slow.py).
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from valve_env.diagnosis.diagnose import Diagnosis, DiagnosisError, diagnose
 from valve_env.experiment import simulate_experiment
+from valve_env.valveid.diagnose import Diagnosis, DiagnosisError, diagnose
 
 HOURS = 10.0
 
@@ -95,8 +95,8 @@ def test_accepted_candidates_ranked_by_held_out_gain() -> None:
     """A drift run (seed 1313's study, run 23: 30 s sampling, 16 h) where a small spurious lag has the
     larger in-sample likelihood ratio but the drift the larger gain on the held-out part: the drift is
     named. Ranked by delta BIC the lag was named first."""
-    from valve_env.diagnosis.diagnose import rank_key
     from valve_env.experiment import STUDY_CLASSES, random_cases, simulate_case
+    from valve_env.valveid.diagnose import rank_key
 
     case = random_cases(40, 1313, STUDY_CLASSES[1:])[23]
     assert case["truth"] == "setpoint_drift"
@@ -227,8 +227,8 @@ def test_null_guard_stops_a_false_stiction_finding(monkeypatch: pytest.MonkeyPat
     guard stopped it. With the Student-t smoother the candidate is not significant at all (p = 0.49): the run is `none`
     with the guard and without it; where a significant stiction finding is still rejected, the guard's record says why.
     """
-    from valve_env.diagnosis import diagnose as dg
     from valve_env.experiment import random_cases, simulate_case
+    from valve_env.valveid import diagnose as dg
 
     df = simulate_case(random_cases(24, 31, classes=("none",))[21])
     d = diagnose(df, effects=["stiction"], bootstrap_B=0)
@@ -252,9 +252,9 @@ def _staircase(jumps: int, band: float, rng: np.random.Generator, base: float = 
 def test_record_shows_band_pools_the_parts_and_needs_four_slips() -> None:
     """Round 13 (docs/diagnosis.md): the whole record's slips confirm a band where the training and held-out
     parts pooled hold at least stiction.MIN_JUMPS slips whose median is the band within 50 %."""
-    from valve_env.diagnosis.diagnose import record_shows_band, slips_show_band
-    from valve_env.diagnosis.stiction import MIN_JUMPS
     from valve_env.params import ValveParams
+    from valve_env.valveid.diagnose import record_shows_band, slips_show_band
+    from valve_env.valveid.stiction import MIN_JUMPS
 
     rng = np.random.default_rng(5)
     stroke = float(ValveParams().stroke)
@@ -273,9 +273,9 @@ def test_stiction_fit_carries_on_past_a_kink_where_the_line_search_fails() -> No
     start: L-BFGS-B's line search failed at a kink of the stick-slip filter's likelihood (``ABNORMAL``), LR 255
     and a held-out gain of +0.01, so stiction was not validated; a fit at a band 3 % larger reached LR 355.
     Nelder-Mead from where L-BFGS-B stopped carries the fit on."""
-    from valve_env.diagnosis.diagnose import _fit, _held_out, check_run, prepare
     from valve_env.experiment import random_cases, simulate_case
     from valve_env.params import ValveParams
+    from valve_env.valveid.diagnose import _fit, _held_out, check_run, prepare
 
     full = prepare(check_run(simulate_case(random_cases(60, 20270705)[28]), "r"), "r")
     valve = ValveParams()
@@ -319,7 +319,7 @@ def test_the_first_steps_null_guard_runs_once_on_the_step_that_is_kept(monkeypat
     (19 simulated copies, smoothed like a measured run) is applied only to the step that is kept, once per
     stiction finding that would be named, against the base fit the step was tested on (docs/diagnosis.md,
     "Speed")."""
-    from valve_env.diagnosis import diagnose as dg
+    from valve_env.valveid import diagnose as dg
 
     calls: list[float] = []
     real_null = dg.stiction_null

@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from valve_env.diagnosis.engine import monotone_path, ou_loglik, stick_demand, stick_loglik
-from valve_env.diagnosis.fitting import Model, RunData
-from valve_env.estimation.temperature import smooth_temperature
 from valve_env.experiment import simulate_experiment
+from valve_env.valveid.fitting import Model, RunData
+from valve_env.valveid.oe import monotone_path, ou_loglik, stick_demand, stick_loglik
+from valve_env.valveid.temperature import smooth_temperature
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +100,7 @@ def test_stick_filter_nests_the_base_model(run) -> None:  # type: ignore[no-unty
     m = Model(("stiction",))
     vals = {**m.default_start(d), "band_mm": 0.0, "s_e": 2e-3, "tau_e": 300.0, "s_w": 2.4e-3}
     vp, e = m._vectors(vals)
-    from valve_env.diagnosis.engine import simulate_valve
+    from valve_env.valveid.oe import simulate_valve
 
     x, _, _, x_sub, idx = simulate_valve(d.t, d.T, d.M, d.dp, d.ps, vp, e, 2.5, m.delta(d), True)
     mask = np.ones(len(d), dtype=np.bool_)
@@ -143,7 +143,7 @@ def test_slips_show_band_needs_slips_of_the_fitted_band() -> None:
     """Stiction's significance needs the training opening to slip by the fitted band: a stick-slip
     staircase shows its band (and not a third or three times it); a smooth noisy ramp, like a run
     without stiction, shows none."""
-    from valve_env.diagnosis.diagnose import slip_sizes, slips_show_band
+    from valve_env.valveid.diagnose import slip_sizes, slips_show_band
 
     rng = np.random.default_rng(1)
     stroke, band, s_w, n = 1.0, 0.03, 0.002, 3000
@@ -173,7 +173,7 @@ def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
     stiction is refitted with the band held at the slips' median; that finding replaces the first only if it
     is significant and the held-out opening's slips show the band too; otherwise the first stays, with the
     slips' band's statistic recorded."""
-    from valve_env.diagnosis import diagnose as dg
+    from valve_env.valveid import diagnose as dg
 
     calls: list[dict] = []
 

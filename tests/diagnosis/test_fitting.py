@@ -1,12 +1,12 @@
-"""Tests of valve_env.diagnosis.fitting: the maximum-likelihood fit of the base model and its effects."""
+"""Tests of valve_env.valveid.fitting: the maximum-likelihood fit of the base model and its effects."""
 
 from __future__ import annotations
 
 import pytest
 
-from valve_env.diagnosis.diagnose import check_run, prepare
-from valve_env.diagnosis.fitting import Model
 from valve_env.experiment import simulate_experiment
+from valve_env.valveid.diagnose import check_run, prepare
+from valve_env.valveid.fitting import Model
 
 
 def test_a_warm_start_is_kept_by_the_grid_scan_and_the_refit_does_not_lose() -> None:

@@ -1,5 +1,5 @@
 """A named effect's misspecification-robust sd and its misspecification check
-(valve_env.estimation.robust.robust_finding; docs/uncertainty.md, "Sandwich standard errors and the
+(valve_env.valveid.robust.robust_finding; docs/uncertainty.md, "Sandwich standard errors and the
 misspecification check")."""
 
 from __future__ import annotations
@@ -8,10 +8,11 @@ import warnings
 
 import pytest
 
-from valve_env.diagnosis.diagnose import check_run, prepare
-from valve_env.diagnosis.fitting import Model
-from valve_env.estimation.robust import MisspecificationWarning, robust_finding
 from valve_env.experiment import simulate_experiment
+from valve_env.ident.tests import MisspecificationWarning
+from valve_env.valveid.diagnose import check_run, prepare
+from valve_env.valveid.fitting import Model
+from valve_env.valveid.robust import robust_finding
 
 
 @pytest.fixture(scope="module")

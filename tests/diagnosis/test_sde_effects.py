@@ -12,8 +12,8 @@ import sys
 
 SCRIPT = r"""
 import json, math
-from valve_env.diagnosis.sde_effects import effect_model
-from valve_env.estimation.fit import negloglik
+from valve_env.valveid.sde_effects import effect_model
+from valve_env.ident.mle import negloglik
 from valve_env.experiment import simulate_experiment
 df = simulate_experiment(seed=3, duration_h=1.5, dt_s=10.0, effects={"sensor_lag": {"tau_s": 60.0}})
 m = effect_model(["setpoint_drift", "sensor_lag", "medium_temperature", "stiction"])

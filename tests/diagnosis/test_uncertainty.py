@@ -1,23 +1,23 @@
 """Honest uncertainty of the named effect's parameters (docs/diagnosis.md, "Parameter uncertainty: the coverage
 study"): the stick band estimator, the
 stick-slip filter's bias, and the model-based bootstrap. The >= 30-run coverage study is
-benchmarks/diagnosis_coverage.py (slow test below)."""
+studies/diagnosis_coverage.py (slow test below)."""
 
 from __future__ import annotations
 
+import importlib
 import math
 
 import numpy as np
 import pytest
 
-from tests.diagnosis.studies import load_study
-from valve_env.diagnosis.diagnose import check_run, prepare
-from valve_env.diagnosis.engine import ou_loglik, simulate_valve, stick_loglik, stick_simulate
-from valve_env.diagnosis.fitting import Model
-from valve_env.diagnosis.stiction import jump_band
-from valve_env.estimation.bootstrap import bootstrap
 from valve_env.experiment import random_cases, simulate_experiment
 from valve_env.params import I_STROKE, ValveParams
+from valve_env.valveid.bootstrap import bootstrap
+from valve_env.valveid.diagnose import check_run, prepare
+from valve_env.valveid.fitting import Model
+from valve_env.valveid.oe import ou_loglik, simulate_valve, stick_loglik, stick_simulate
+from valve_env.valveid.stiction import jump_band
 
 
 @pytest.mark.parametrize(("band", "dt", "seed"), [(0.012, 5.0, 1), (0.025, 10.0, 2), (0.035, 30.0, 3)])
@@ -44,7 +44,7 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
     Bad noise levels and draw counts are refused."""
     from scipy.stats import shapiro
 
-    from valve_env.diagnosis.stiction import band_sampling
+    from valve_env.valveid.stiction import band_sampling
 
     band = 0.025
     df = simulate_experiment(seed=631, duration_h=24.0, dt_s=10.0, effects={"stiction": {"band_mm": band}},
@@ -135,7 +135,7 @@ SMOOTH = ("sensor_lag", "medium_temperature", "setpoint_drift")
 
 @pytest.fixture(scope="module")
 def coverage_303() -> dict:  # type: ignore[type-arg]
-    study = load_study("diagnosis_coverage")
+    study = importlib.import_module("studies.diagnosis_coverage")
     results = study.run_study(random_cases(40, seed=303, classes=study.EFFECT_CLASSES), workers=2, progress=False)
     return study.coverage(results)  # type: ignore[no-any-return]
 
@@ -210,7 +210,7 @@ def test_residual_blocks_keep_the_memory_of_the_residuals() -> None:
     blocks, and a resample keeps the slow correlation (the fitted OU model error forgot it)."""
     from statsmodels.tsa.stattools import acf
 
-    from valve_env.estimation.bootstrap import block_resample, residual_block_length
+    from valve_env.ident.bootstrap import block_resample, residual_block_length
 
     rng = np.random.default_rng(4)
     n = 3000
@@ -231,7 +231,7 @@ def test_residual_blocks_keep_the_memory_of_the_residuals() -> None:
 def test_failed_refits_are_set_aside_and_honest_spreads_kept() -> None:
     """A replicate whose refit ran away (here: beta at its bound, the drift far off) is set aside;
     many draws of honest, normal re-estimates lose none; a spread that is mostly ties is left alone."""
-    from valve_env.estimation.bootstrap import screen_refits
+    from valve_env.ident.bootstrap import screen_refits
 
     def failed_refits(reps: np.ndarray) -> np.ndarray:
         return screen_refits(reps)[0]
@@ -257,8 +257,8 @@ def test_curved_world_passes_through_the_samples_and_turns_between_them() -> Non
     """The optional curved bootstrap world: a dense grid holding every sample time, splines through the
     smoothed temperatures there, and a peak between two samples higher than both (straight lines
     would peak on a sample)."""
-    from valve_env.diagnosis.fitting import RunData
-    from valve_env.estimation.bootstrap import curved_world
+    from valve_env.valveid.bootstrap import curved_world
+    from valve_env.valveid.fitting import RunData
 
     t = np.arange(0.0, 600.0, 30.0)
     T = 50.0 + 5.0 * np.sin(2 * np.pi * (t + 7.0) / 600.0)  # its peak falls between samples
@@ -274,7 +274,7 @@ def test_split_replicates_are_not_bias_corrected() -> None:
     """Half of the refits ran away to one far value (a bound): the re-estimates have split, none is
     set aside, and the estimate is not moved by a 'bias' that is the gap between the two groups; a
     clear bias of honest replicates is still corrected."""
-    from valve_env.estimation.bootstrap import screen_refits, summarise
+    from valve_env.ident.bootstrap import screen_refits, summarise
 
     rng = np.random.default_rng(11)
     est = 6e-5
@@ -304,7 +304,7 @@ def test_scattered_runaways_are_not_bias_corrected() -> None:
     split (the runaways widen the robust sd itself), but the re-estimates are far from normal, so the
     estimate is not moved by their mean and the sd (RMS error about the estimate) shows the spread.
     Normal re-estimates with a clear bias are still corrected (the check refuses about 1 draw in 1000)."""
-    from valve_env.estimation.bootstrap import screen_refits, summarise
+    from valve_env.ident.bootstrap import screen_refits, summarise
 
     rng = np.random.default_rng(12)
     est = 6e-5

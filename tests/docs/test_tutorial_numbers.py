@@ -241,8 +241,8 @@ def test_the_identified_valve_file_puts_the_lag_in_the_env(lag_run: dict) -> Non
 
 
 def test_a_quantised_record_is_noted_and_still_diagnosed(lag_run: dict) -> None:
-    from valve_env.diagnosis.diagnose import diagnose
     from valve_env.studies.conventions import apply_convention
+    from valve_env.valveid.diagnose import diagnose
 
     q = diagnose(apply_convention(lag_run["measured"], "quantised_0.1"), bootstrap_B=0).to_json()
     notes = {n["channel"]: n for n in q["preprocessing"]["run"] if n["what"] == "noise_level"}

@@ -1,5 +1,5 @@
-"""Stiction's band sd from the slips' own spread (valve_env.diagnosis.stiction.slips_sd,
-band_spread; valve_env.estimation.bootstrap; docs/diagnosis.md, "Parameter uncertainty: the coverage study")."""
+"""Stiction's band sd from the slips' own spread (valve_env.valveid.stiction.slips_sd,
+band_spread; valve_env.valveid.bootstrap; docs/diagnosis.md, "Parameter uncertainty: the coverage study")."""
 
 from __future__ import annotations
 
@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from valve_env.diagnosis.stiction import band_spread, jump_band, noise_sd, slips_sd
 from valve_env.studies.independent import stick_sj
+from valve_env.valveid.stiction import band_spread, jump_band, slips_sd
+from valve_env.valveid.temperature import noise_sd
 
 STROKE = 4.0
 

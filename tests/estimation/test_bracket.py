@@ -1,5 +1,5 @@
-"""The pre-processing bracket of a named smooth effect (valve_env.estimation.bootstrap.apply_bootstrap),
-and the effects study's alternative bracket rules (benchmarks/independent_coverage.py).
+"""The pre-processing bracket of a named smooth effect (valve_env.valveid.bootstrap.apply_bootstrap),
+and the effects study's alternative bracket rules (studies/independent_coverage.py).
 
 docs/uncertainty.md, "Errors in variables and robust uncertainty": the TV refit is the estimate and half the
 IRW-TV difference enters its sd in quadrature; the study prints the coverage of two other rules beside it (the whole
@@ -8,6 +8,7 @@ Stiction's band is not bracketed: it passes through apply_bootstrap exactly as t
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 from pathlib import Path
@@ -15,9 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.diagnosis.studies import load_study
-from valve_env.diagnosis.fitting import FitResult, Model
-from valve_env.estimation import bootstrap as bs
+from valve_env.valveid import bootstrap as bs
+from valve_env.valveid.fitting import FitResult, Model
 
 
 def _fit(effects: tuple[str, ...], params: dict[str, float], std: dict[str, float]) -> FitResult:
@@ -75,7 +75,7 @@ def test_effects_study_pools_runs_and_prints_the_other_bracket_rules(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Two runs whose TV refit is 2 % low (reported z -2.83): with the whole IRW-TV difference z is -1.79,
     about the midpoint -2.12; the second file's run (TV 0.1 % low) is pooled with the first."""
-    ic = load_study("independent_coverage")
+    ic = importlib.import_module("studies.independent_coverage")
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     a.write_text(json.dumps({"study": "effects", "results": [_run(0.0990, 0.0980, 0.0005, 0.0004)]}))
     b.write_text(json.dumps({"study": "effects", "results": [_run(0.1002, 0.0999, 0.0005, 0.0004)]}))
@@ -130,9 +130,9 @@ def test_bootstrap_refits_replicates_on_tv_and_corrects_the_refit(monkeypatch: p
     kept. The replicates' clear bias (TV low by 0.002 in the world) is not a correction (``BRACKET_CORRECT`` off:
     the world's temperatures are the smoothed ones, not the real ones) but part of the sd, their RMS error about
     the world's truth; switched on, it corrects the refit."""
-    from valve_env.diagnosis.diagnose import check_run, prepare
-    from valve_env.estimation.temperature import denoise_temperature
     from valve_env.experiment import simulate_experiment
+    from valve_env.valveid.diagnose import check_run, prepare
+    from valve_env.valveid.temperature import denoise_temperature
 
     df = simulate_experiment(seed=31, duration_h=4.0, dt_s=20.0, effects={"medium_temperature": {"beta": 0.1}},
                              T_noise_C=0.008, x_noise_mm=2.5e-3)
@@ -165,7 +165,7 @@ def test_effects_study_prints_the_corrected_refit_beside_the_reported() -> None:
     """``tv_corrected`` (the rejected ``BRACKET_CORRECT``): a TV refit 0.0990 whose 16 TV-refitted replicates lie
     0.0008 low with spread 0.0004 (a clear bias, 8 se) becomes 0.0998 +- hypot(0.0004 x sqrt(17/16), 0.0005); a
     run without TV-refitted replicates has no such rule (nan); the bootstrap's own sd is read about the TV refit."""
-    ic = load_study("independent_coverage")
+    ic = importlib.import_module("studies.independent_coverage")
     r = {**_run(0.1000, 0.0990, 0.0009, 0.0002), "boot_bias": -0.0008, "boot_spread": 0.0004, "boot_B": 16,
          "replicates_prepared": "tv"}
     est, truth, sd = ic._tv_corrected(r)

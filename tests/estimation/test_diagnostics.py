@@ -7,13 +7,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from valve_env.estimation.diagnostics import (
-    cumulated_periodogram,
-    paper_figure,
-    phase_diagram,
-    residual_report,
-    whiteness_figure,
-)
+from valve_env.ident.tests import cumulated_periodogram, residual_report
+from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
 
 
 def test_white_noise_passes_and_ar1_fails(tmp_path: Path) -> None:
@@ -58,10 +53,10 @@ def test_figures(tmp_path: Path) -> None:
     assert (tmp_path / "fit.png").stat().st_size > 0 and (tmp_path / "phase.png").stat().st_size > 0
 
 
-def test_run_bench_returns_flat_figures() -> None:
-    from valve_env.estimation.bench import run_bench
+def test_bench_fit_returns_flat_figures() -> None:
+    from valve_env.bench import bench_fit
 
-    out = run_bench(hours=2.0, min_time_s=0.1, generic=False)
+    out = bench_fit(hours=2.0, min_time_s=0.1, generic=False)
     assert all(isinstance(v, float) for v in out.values())
     assert out["estimator_nll_evals_per_s"] > 0 and out["estimator_fit_wall_s"] > 0
     assert out["estimator_n_samples"] == 721.0

@@ -1,4 +1,4 @@
-"""Errors in variables for the base fit (valve_env.estimation.eiv): the temperature-noise
+"""Errors in variables for the base fit (valve_env.valveid.eiv): the temperature-noise
 bootstrap adds to the Hessian's variance, vanishes without temperature noise, reports its bias."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import warnings
 import numpy as np
 import pytest
 
-from valve_env.estimation.eiv import temperature_bootstrap
-from valve_env.estimation.fit import MLEstimator
-from valve_env.estimation.valve_model import ValveModel
 from valve_env.experiment import simulate_experiment
+from valve_env.ident.mle import MLEstimator
+from valve_env.valveid.eiv import temperature_bootstrap
+from valve_env.valveid.valve_model import ValveModel
 
 NAMES = ("sigma", "F_hmax", "p_bset")
 
@@ -66,7 +66,7 @@ def test_quantised_copies_shift_the_grid() -> None:
     """A channel whose noise lies below its 0.1 K step: plain copies are one fixed staircase; copies with
     ``shift_grid`` put the steps elsewhere, keep the step and stay centred on the level. A noisy
     channel's copies do not change."""
-    from valve_env.estimation.temperature import channel_noise
+    from valve_env.valveid.temperature import channel_noise
 
     t = np.arange(2000) * 10.0
     level = 60.0 + 0.8 * np.sin(t / 3000.0)
@@ -93,7 +93,7 @@ def test_quantised_record_is_bias_corrected() -> None:
     """On a record whose temperatures are rounded to 0.1 K, the errors-in-variables fit brackets its
     estimate by the temperature bootstrap's bias correction (half of it applied, its square / 12 added to
     the variance) and says so; the same run with noisy channels is not corrected."""
-    from valve_env.estimation.eiv import fit_eiv
+    from valve_env.valveid.eiv import fit_eiv
     from valve_env.params import ValveParams
 
     df = simulate_experiment(seed=43, duration_h=4.0, dt_s=10.0, T_noise_C=0.01)
@@ -120,7 +120,7 @@ def test_quantised_record_is_bias_corrected() -> None:
 
 def test_quantisation_note() -> None:
     """The console and report.md say what the bracket did: half the bootstrap's correction, per parameter."""
-    from valve_env.estimation.report import quantisation_note
+    from valve_env.valveid.report import quantisation_note
 
     assert quantisation_note({"eiv": {"bias_correction": None}}) is None
     assert quantisation_note({}) is None

@@ -1,4 +1,4 @@
-"""Errors in variables inside the likelihood (valve_env.estimation.eiv_model): the input-error model
+"""Errors in variables inside the likelihood (valve_env.valveid.eiv_model): the input-error model
 reduces to ctsmTMB's Ornstein2D references (tests/data/ctsmtmb_ornstein, GPL-3) when its error state is
 off, the valve version's fast kernel agrees with the generic EKF, and it reduces to the base valve model."""
 
@@ -13,11 +13,11 @@ import pandas as pd
 import pytest
 from scipy.stats import norm
 
-from valve_env.estimation.eiv_model import InputErrorModel, ValveEIVModel, denoising_error, valve_eiv_model
-from valve_env.estimation.examples import Ornstein2D
-from valve_env.estimation.filters import run_filter, to_arrays
-from valve_env.estimation.fit import IdentifiabilityWarning, MLEstimator, negloglik
-from valve_env.estimation.valve_model import ValveModel
+from valve_env.ident.examples import Ornstein2D
+from valve_env.ident.kalman import run_filter, to_arrays
+from valve_env.ident.mle import IdentifiabilityWarning, MLEstimator, negloglik
+from valve_env.valveid.eiv_model import InputErrorModel, ValveEIVModel, denoising_error, valve_eiv_model
+from valve_env.valveid.valve_model import ValveModel
 
 
 def _ornstein(ornstein_dir: Path) -> tuple[pd.DataFrame, dict]:

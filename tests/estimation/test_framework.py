@@ -15,29 +15,34 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from valve_env.diagnosis.fitting import Model
-from valve_env.estimation import covariance, model, temperature
-from valve_env.estimation.base import Estimator
-from valve_env.estimation.estimator import ValveEstimator
-from valve_env.estimation.fit import MLEstimator
 from valve_env.experiment import simulate_experiment
+from valve_env.ident import sde as model
+from valve_env.ident import uncertainty as covariance
+from valve_env.ident.mle import Estimator, MLEstimator
+from valve_env.valveid import temperature
+from valve_env.valveid.estimator import ValveEstimator
+from valve_env.valveid.fitting import Model
 
 PKG = Path(__file__).resolve().parents[2] / "valve_env"
+#: the valve layer's modules of the diagnosis (forward selection, the output-error model and engine)
+DIAGNOSIS = tuple(f"valveid/{m}.py" for m in ("diagnose", "effects", "fitting", "sde_effects", "stiction", "report",
+                                               "cli", "bench", "oe", "__init__"))
 
 #: each shared piece, its one owner, and the names no other module of the package may define
 OWNERS: dict[str, tuple[str, ...]] = {
-    "estimation/model.py": ("to_work", "from_work", "dnat_dwork", "work_bounds"),
-    "estimation/covariance.py": ("fd_hessian", "identified_directions", "identified_inverse", "_identified_inverse",
+    "ident/sde.py": ("to_work", "from_work", "dnat_dwork", "work_bounds"),
+    "ident/uncertainty.py": ("fd_hessian", "identified_directions", "identified_inverse", "_identified_inverse",
                                  "hac_meat", "score_matrix", "hessian_sandwich_sd"),
-    "estimation/temperature.py": ("smooth_temperature", "_irw_pass", "tv_denoise", "relaxed_tv",
+    "valveid/temperature.py": ("smooth_temperature", "_irw_pass", "tv_denoise", "relaxed_tv",
                                   "denoise_temperature", "noise_sd"),
     "data_io.py": ("load_run", "validate_run"),
-    "estimation/data.py": ("RunData",),
-    "estimation/bootstrap.py": ("bootstrap", "apply_bootstrap", "BootstrapResult", "replicate_run", "world_opening",
-                                "curved_world", "residual_block_length", "block_resample", "gross_refits",
-                                "screen_refits", "denoised_run", "bracketed", "preprocessing_refit"),
-    "estimation/robust.py": ("sandwich_std", "effect_misspecification", "robust_finding", "whiteness_check",
-                             "misspecification_check"),
+    "valveid/data.py": ("RunData",),
+    "valveid/bootstrap.py": ("bootstrap", "apply_bootstrap", "BootstrapResult", "replicate_run", "world_opening",
+                             "curved_world", "denoised_run", "bracketed", "preprocessing_refit"),
+    "ident/bootstrap.py": ("replicates", "residual_block_length", "block_resample", "gross_refits", "screen_refits"),
+    "ident/tests.py": ("lr_pvalue", "delta_bic", "ljung_box", "residual_report", "cumulated_periodogram",
+                       "whiteness_check"),
+    "valveid/robust.py": ("sandwich_std", "effect_misspecification", "robust_finding", "misspecification_check"),
 }
 #: a method of this name may exist elsewhere only as a thin wrapper that calls the owner's function
 WRAPPERS = {"to_work", "from_work", "work_bounds", "noise_sd", "bootstrap"}
@@ -101,18 +106,18 @@ def test_no_second_copy_of_a_shared_piece_is_defined() -> None:
 
 
 def test_the_diagnosis_imports_the_shared_pieces_from_their_owner() -> None:
-    fitting = _imports(_tree("diagnosis/fitting.py"))
+    fitting = _imports(_tree("valveid/fitting.py"))
     for name in ("to_work", "from_work", "dnat_dwork", "work_bounds", "Parameter"):
-        assert fitting.get(name) == "valve_env.estimation.model", name
-    assert fitting.get("hessian_sandwich_sd") == "valve_env.estimation.covariance"
-    assert fitting.get("RunData") == "valve_env.estimation.data"
-    assert _imports(_tree("estimation/data.py")).get("smooth_temperature") == "valve_env.estimation.temperature"
-    diagnose = _imports(_tree("diagnosis/diagnose.py"))
+        assert fitting.get(name) == "valve_env.ident.sde", name
+    assert fitting.get("hessian_sandwich_sd") == "valve_env.ident.uncertainty"
+    assert fitting.get("RunData") == "valve_env.valveid.data"
+    assert _imports(_tree("valveid/data.py")).get("smooth_temperature") == "valve_env.valveid.temperature"
+    diagnose = _imports(_tree("valveid/diagnose.py"))
     assert diagnose.get("load_run") == diagnose.get("validate_run") == "valve_env.data_io"
-    assert _imports(_tree("estimation/fit.py")).get("identified_directions") == "valve_env.estimation.covariance"
+    assert _imports(_tree("ident/mle.py")).get("identified_directions") == "valve_env.ident.uncertainty"
     # no module of the diagnosis inverts a Hessian, computes a HAC meat or reads a CSV itself
     for rel in _modules():
-        if not rel.startswith("diagnosis/"):
+        if rel not in DIAGNOSIS:
             continue
         src = (PKG / rel).read_text(encoding="utf-8")
         for banned in ("np.linalg.inv(", "np.linalg.pinv(", "np.linalg.eigh(", "S_hac", "read_csv("):
@@ -166,9 +171,9 @@ def test_hac_meat_is_newey_west() -> None:
 
 def test_one_temperature_module_serves_both_likelihoods() -> None:
     """The EKF's inputs (TV) and the output error's latent temperatures (IRW-RTS) both come from
-    valve_env.estimation.temperature; each is closer to the truth than the raw channel."""
-    from valve_env.estimation.data import RunData
-    from valve_env.estimation.valve_model import prepare_inputs
+    valve_env.valveid.temperature; each is closer to the truth than the raw channel."""
+    from valve_env.valveid.data import RunData
+    from valve_env.valveid.valve_model import prepare_inputs
 
     df = simulate_experiment(seed=3, duration_h=3.0, dt_s=10.0, T_noise_C=0.01)
     truth = df["true_T_tank_C"].to_numpy()
@@ -190,8 +195,8 @@ def test_both_estimators_share_the_interface() -> None:
 
 def test_valve_estimator_wraps_each_likelihood_without_changing_its_numbers() -> None:
     """fit returns self with the back-end's own numbers, for the EKF and for the output error."""
-    from valve_env.estimation.data import RunData
-    from valve_env.estimation.valve_model import base_valve_model
+    from valve_env.valveid.data import RunData
+    from valve_env.valveid.valve_model import base_valve_model
 
     df = simulate_experiment(seed=11, duration_h=4.0, dt_s=20.0, T_noise_C=0.005, x_noise_mm=2.0e-3)
     ekf = ValveEstimator(n_starts=1, hessian=False)
@@ -211,8 +216,8 @@ def test_one_hac_meat_serves_both_sandwiches() -> None:
     output error's (covariance.hessian_sandwich_parts) both take it; no other module calls statsmodels'
     S_hac_simple."""
     users = sorted(rel for rel in _modules() if "S_hac" in (PKG / rel).read_text(encoding="utf-8"))
-    assert users == ["estimation/covariance.py"]
-    assert _imports(_tree("estimation/robust.py")).get("hac_meat") == "valve_env.estimation.covariance"
+    assert users == ["ident/uncertainty.py"]
+    assert _imports(_tree("valveid/robust.py")).get("hac_meat") == "valve_env.ident.uncertainty"
     rng = np.random.default_rng(1)
     G = rng.standard_normal((300, 3)) + 0.3
     assert np.array_equal(covariance.hac_meat(G, 0, demean=False), G.T @ G)  # Huber-White's outer product
@@ -225,9 +230,9 @@ def test_the_diagnosis_fits_and_bootstraps_through_the_estimator() -> None:
     """diagnose.py makes every fit with ValveEstimator(...).fit(...) and reaches the bootstrap through
     the estimator's bootstrap method (the estimation's facility), not by calling the diagnosis's
     fitting.Model or the bootstrap function itself."""
-    tree = _tree("diagnosis/diagnose.py")
+    tree = _tree("valveid/diagnose.py")
     imports = _imports(tree)
-    assert imports.get("ValveEstimator") == "valve_env.estimation.estimator"
+    assert imports.get("ValveEstimator") == "valve_env.valveid.estimator"
     assert "bootstrap" not in imports
     fits = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute)
             and n.func.attr == "fit"]
@@ -240,23 +245,21 @@ def test_the_diagnosis_fits_and_bootstraps_through_the_estimator() -> None:
 
 
 def test_the_bootstrap_has_one_home_in_the_estimation() -> None:
-    """The bootstrap (a standard error) lives in valve_env/estimation/bootstrap.py, the named effects' sandwich
+    """The bootstrap (a standard error) lives in valve_env/valveid/bootstrap.py, the named effects' sandwich
     and misspecification check in estimation/robust.py: the diagnosis imports them from there, keeps no module
     of its own for them, and does no resampling, robust scale or normality test itself."""
-    from valve_env import diagnosis
-    from valve_env.estimation import bootstrap as home
 
-    assert not (PKG / "diagnosis" / "uncertainty.py").exists()
-    diagnose = _imports(_tree("diagnosis/diagnose.py"))
-    assert diagnose.get("METHOD") == diagnose.get("NORMAL_P") == "valve_env.estimation.bootstrap"
-    assert diagnose.get("robust_finding") == "valve_env.estimation.robust"
-    estimator = _imports(_tree("estimation/estimator.py"))
-    assert estimator.get("bootstrap") == estimator.get("apply_bootstrap") == "valve_env.estimation.bootstrap"
-    assert diagnosis.bootstrap is home.bootstrap  # the package's public name is the estimation's function
+    assert not (PKG / "valveid" / "uncertainty.py").exists()
+    diagnose = _imports(_tree("valveid/diagnose.py"))
+    assert diagnose.get("METHOD") == "valve_env.valveid.bootstrap"
+    assert diagnose.get("NORMAL_P") == "valve_env.ident.bootstrap"
+    assert diagnose.get("robust_finding") == "valve_env.valveid.robust"
+    estimator = _imports(_tree("valveid/estimator.py"))
+    assert estimator.get("bootstrap") == estimator.get("apply_bootstrap") == "valve_env.valveid.bootstrap"
     for rel in _modules():
-        if rel.startswith("diagnosis/"):
+        if rel in DIAGNOSIS:
             imported = _imports(_tree(rel))
-            assert not any(m.endswith("uncertainty") for m in imported.values()), rel
+            assert not any(m.endswith("valveid.uncertainty") for m in imported.values()), rel
             src = (PKG / rel).read_text(encoding="utf-8")
             for banned in ("optimal_block_length(", "qn_scale(", "shapiro(", "block_resample(", "whiteness_check("):
                 assert banned not in src, f"{rel} uses {banned}"
@@ -265,7 +268,7 @@ def test_the_bootstrap_has_one_home_in_the_estimation() -> None:
 def test_valve_estimator_takes_the_framework_container() -> None:
     """A prepared RunData (e.g. a training slice) is an input of the output-error estimator, with the
     same numbers as the DataFrame it came from; the EKF refuses it."""
-    from valve_env.estimation.data import RunData
+    from valve_env.valveid.data import RunData
 
     df = simulate_experiment(seed=12, duration_h=3.0, dt_s=20.0, T_noise_C=0.005, x_noise_mm=2.0e-3)
     a = ValveEstimator(likelihood="output_error", with_std=False).fit(df)
@@ -283,8 +286,8 @@ def test_valve_estimator_bootstrap_is_the_diagnosis_bootstrap() -> None:
     """fit(...).bootstrap(B) returns self and sets what the diagnosis reports for a named effect: the
     TV refit's estimate (the pre-processing bracket), the sd at least the inverse Hessian's and at
     least half the IRW-TV difference; without effects it bootstraps the base parameters, unbracketed."""
-    from valve_env.estimation import bootstrap as uncertainty
-    from valve_env.estimation.data import RunData
+    from valve_env.valveid import bootstrap as uncertainty
+    from valve_env.valveid.data import RunData
 
     df = simulate_experiment(seed=5, duration_h=4.0, dt_s=20.0, effects={"sensor_lag": {"tau_s": 60.0}},
                              T_noise_C=0.005, x_noise_mm=2.0e-3)

@@ -11,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from valve_env.estimation.examples import Ornstein1D, Ornstein2D
-from valve_env.estimation.filters import run_filter, to_arrays
-from valve_env.estimation.fit import IdentifiabilityWarning, MLEstimator, negloglik
+from valve_env.ident.examples import Ornstein1D, Ornstein2D
+from valve_env.ident.kalman import run_filter, to_arrays
+from valve_env.ident.mle import IdentifiabilityWarning, MLEstimator, negloglik
 
 
 def _load(ornstein_dir: Path) -> tuple[pd.DataFrame, dict]:

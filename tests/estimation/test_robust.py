@@ -1,4 +1,4 @@
-"""Sandwich standard errors and the misspecification check (valve_env.estimation.robust)."""
+"""Sandwich standard errors and the misspecification check (valve_env.valveid.robust)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from valve_env.estimation.examples import Ornstein2D
-from valve_env.estimation.fit import IdentifiabilityWarning, MLEstimator
-from valve_env.estimation.robust import (
-    MisspecificationWarning,
+from valve_env.ident.examples import Ornstein2D
+from valve_env.ident.mle import IdentifiabilityWarning, MLEstimator
+from valve_env.ident.tests import MisspecificationWarning
+from valve_env.valveid.robust import (
     misspecification_check,
     newey_west_lags,
     robust_std,

@@ -1,6 +1,6 @@
 """Stiction's breakaway travel S beside its slip J, the (S, J) profiles of the
-open-loop and of the stick-slip filter's likelihood (valve_env.estimation.stick_profile;
-valve_env.estimation.bootstrap.breakaway_band; docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S")."""
+open-loop and of the stick-slip filter's likelihood (valve_env.valveid.stick_profile;
+valve_env.valveid.bootstrap.breakaway_band; docs/diagnosis.md, "What ``band_mm`` is on a valve with J < S")."""
 
 from __future__ import annotations
 
@@ -9,11 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from valve_env.diagnosis.diagnose import check_run, prepare
-from valve_env.diagnosis.engine import stick_loglik, stick_simulate
-from valve_env.diagnosis.fitting import FitResult, Model
-from valve_env.diagnosis.stiction import jump_band
-from valve_env.estimation.bootstrap import (
+from valve_env.studies.independent import COLUMNS, IndependentRun, simulate_independent
+from valve_env.valveid.bootstrap import (
     BREAKAWAY_RATIO,
     BREAKAWAY_READ,
     BREAKAWAY_READ_SE,
@@ -22,10 +19,13 @@ from valve_env.estimation.bootstrap import (
     breakaway_evident,
     calibrated_ratio,
 )
-from valve_env.estimation.data import RunData
-from valve_env.estimation.robust import stick_slip_check
-from valve_env.estimation.stick_profile import sj_filter_loglik, sj_profile, spring_rate, stick_simulate_sj
-from valve_env.studies.independent import COLUMNS, IndependentRun, simulate_independent
+from valve_env.valveid.data import RunData
+from valve_env.valveid.diagnose import check_run, prepare
+from valve_env.valveid.fitting import FitResult, Model
+from valve_env.valveid.oe import stick_loglik, stick_simulate
+from valve_env.valveid.robust import stick_slip_check
+from valve_env.valveid.stick_profile import sj_filter_loglik, sj_profile, spring_rate, stick_simulate_sj
+from valve_env.valveid.stiction import jump_band
 
 S_TRUE = 0.035
 

@@ -1,4 +1,4 @@
-"""The misspecification check of a stick-slip effect (valve_env.estimation.robust.stick_slip_check;
+"""The misspecification check of a stick-slip effect (valve_env.valveid.robust.stick_slip_check;
 docs/uncertainty.md, "Sandwich standard errors and the misspecification check")."""
 
 from __future__ import annotations
@@ -8,17 +8,17 @@ import warnings
 import numpy as np
 import pytest
 
-from valve_env.diagnosis.diagnose import check_run, prepare
-from valve_env.diagnosis.fitting import Model
-from valve_env.estimation.robust import (
+from valve_env.experiment import simulate_experiment
+from valve_env.ident.tests import MisspecificationWarning
+from valve_env.studies.independent import stick_force, stick_reset, stick_sj
+from valve_env.valveid.diagnose import check_run, prepare
+from valve_env.valveid.fitting import Model
+from valve_env.valveid.robust import (
     STICK_TOL,
-    MisspecificationWarning,
     effect_misspecification,
     stick_slip_check,
     stuck_travel,
 )
-from valve_env.experiment import simulate_experiment
-from valve_env.studies.independent import stick_force, stick_reset, stick_sj
 
 STROKE = 4.0
 

@@ -15,9 +15,9 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from valve_env.estimation.fit import MLEstimator
-from valve_env.estimation.valve_model import ValveModel
+from valve_env.ident.mle import MLEstimator
 from valve_env.params import ValveParams
+from valve_env.valveid.valve_model import ValveModel
 
 TRUE = {k: getattr(ValveParams(), k) for k in ("sigma", "F_hmax", "p_bset")}
 

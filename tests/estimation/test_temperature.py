@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from valve_env.estimation.temperature import smooth_temperature
+from valve_env.valveid.temperature import smooth_temperature
 
 NOISE = 0.002  # K, the generated channel's white measurement noise
 

@@ -13,10 +13,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from valve_env.estimation.filters import run_filter, to_arrays
-from valve_env.estimation.fit import IdentifiabilityWarning, MLEstimator, likelihood_ratio, negloglik
-from valve_env.estimation.model import Parameter
-from valve_env.estimation.valve_model import (
+from valve_env.ident.kalman import run_filter, to_arrays
+from valve_env.ident.mle import IdentifiabilityWarning, MLEstimator, likelihood_ratio, negloglik
+from valve_env.ident.sde import Parameter
+from valve_env.params import ValveParams
+from valve_env.physics.valve import dahl_update, demanded_opening, opening
+from valve_env.valveid.valve_model import (
     N_BASE_PARAMS,
     N_BASE_STATES,
     U_T,
@@ -26,8 +28,6 @@ from valve_env.estimation.valve_model import (
     tank_temperature,
     tv_denoise,
 )
-from valve_env.params import ValveParams
-from valve_env.physics.valve import dahl_update, demanded_opening, opening
 
 
 # --- the documented extension example (docs/estimation.md) -------------------------------

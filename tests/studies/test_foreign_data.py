@@ -21,10 +21,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from valve_env.cli import main
-from valve_env.estimation.temperature import RESOLUTION_FLOOR_C, channel_noise, quantum, smooth_temperature
 from valve_env.experiment import simulate_experiment
 from valve_env.studies.conventions import CONVENTIONS, apply_convention, drop_rows, quantise, stepped
 from valve_env.studies.foreign import CLASSES, acceptable, corpus_cases, run_case
+from valve_env.valveid.temperature import RESOLUTION_FLOOR_C, channel_noise, quantum, smooth_temperature
 
 
 # --------------------------------------------------------------------------- the noise level of any channel

@@ -337,7 +337,8 @@ class TwoMovePosition(TwoMove):
                  replace_band: float = 0.4, tau_c_factor: float = 1.0, Kc: float | None = None,
                  Ti_s: float | None = None, supply_C: float = _SCEN.supply_C, dp_mbar: float = _SCEN.dp_mbar,
                  tank: TankParams | None = None, **kw: Any) -> None:
-        from valve_env.controllers.tuning import ModelFit, load_gains, simc_pi
+        from valve_env.controllers.process import ModelFit, simc_pi
+        from valve_env.controllers.tuning import load_gains
 
         kw.setdefault("error_band_K", 0.0)  # no error gate: the position PI decides (two_move's is 0.05 K)
         super().__init__(env_id, band_mm, **kw)
@@ -447,7 +448,8 @@ class PIWear(PIController):
 
     def __init__(self, env_id: str = "ThermoValve-v0", e_lim_K: float | None = None, h_max: int | None = None,
                  Kp: float | None = None, Ti_s: float | None = None, **kw: Any) -> None:
-        from valve_env.controllers.tuning import ModelFit, load_gains, simc_pi
+        from valve_env.controllers.process import ModelFit, simc_pi
+        from valve_env.controllers.tuning import load_gains
 
         Controller.__init__(self, env_id)  # the env id check first: only setting loops have the FOPDT model
         stored = _stored(env_id, self.name)

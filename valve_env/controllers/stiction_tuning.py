@@ -203,7 +203,7 @@ class DFTuning:
 
 def simc_family(model: StemLoopModel, tau_c_s: float) -> tuple[float, float]:
     """SIMC's PI (Skogestad 2003) on the stored FOPDT model for the closed-loop time constant tau_c."""
-    from valve_env.controllers.tuning import ModelFit, simc_pi
+    from valve_env.controllers.process import ModelFit, simc_pi
 
     g = simc_pi(ModelFit("fopdt", model.K, model.tau_s, model.theta_s, 0.0), tau_c_s, 0.0)
     return g.Kp, g.Ti_s

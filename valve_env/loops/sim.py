@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from valve_env.controllers.process import ModelFit, simc_pi
 from valve_env.loops.io import LoopData
 from valve_env.physics.stickslip import initial_state, stick_slip_step
 
@@ -53,15 +54,6 @@ class SimTruth:
     extra: dict[str, float] = field(default_factory=dict)
 
 
-def simc_pi(p: Process, tau_c: float) -> tuple[float, float]:
-    """SIMC PI settings (Skogestad 2003): gain (% per PV unit) and integral time (s)."""
-    if p.integrating:
-        kc = 1.0 / (p.gain * (tau_c + p.delay_s))
-        return kc, 4.0 * (tau_c + p.delay_s)
-    kc = max(p.tau_s, 1.0) / (p.gain * (tau_c + p.delay_s))
-    return kc, min(max(p.tau_s, 1.0), 4.0 * (tau_c + p.delay_s))
-
-
 def simulate_loop(process: str | Process, S: float = 0.0, J: float | None = None, seed: int = 0,
                   hours: float = 2.0, dt: float = 10.0, tau_c_s: float | None = None,
                   external_amp: float = 0.0, external_period_s: float = 600.0,
@@ -71,7 +63,9 @@ def simulate_loop(process: str | Process, S: float = 0.0, J: float | None = None
     J = S if J is None else J
     rng = np.random.default_rng(seed)
     tau_c = tau_c_s if tau_c_s is not None else max(p.delay_s, 0.5 * p.tau_s, 60.0 if p.integrating else 10.0)
-    kc, ti = simc_pi(p, tau_c)
+    # SIMC (valve_env.controllers.process), no sampling correction at the 1 s step; a lag under 1 s counts as 1 s
+    g = simc_pi(ModelFit("ipdt" if p.integrating else "fopdt", p.gain, max(p.tau_s, 1.0), p.delay_s, 0.0), tau_c, 0.0)
+    kc, ti = g.Kp, g.Ti_s
     n_fast = int(round(hours * 3600.0))
     h = 1.0
     nd = int(round(p.delay_s / h))
@@ -122,4 +116,4 @@ def simulate_loop(process: str | Process, S: float = 0.0, J: float | None = None
     return loop, SimTruth(p.name, S, J, tau_c, external_amp, label, {"kc": kc, "ti_s": ti})
 
 
-__all__ = ["Process", "PROCESSES", "SimTruth", "simc_pi", "simulate_loop"]
+__all__ = ["Process", "PROCESSES", "SimTruth", "simulate_loop"]

@@ -7,7 +7,7 @@ drifted set pressure, the force balance's opening and the stick-slip of the stem
 (:func:`valve_env.physics.stickslip.stick_slip_step`). The simulator kernel (single and
 batched environments, :mod:`valve_env.simulator`), the data generator
 (:mod:`valve_env.experiment`) and the diagnosis's simulation
-(:mod:`valve_env.diagnosis.engine`) call these; none keeps a copy. The effects and their
+(:mod:`valve_env.valveid.oe`) call these; none keeps a copy. The effects and their
 parameters are declared in :mod:`valve_env.effects` (docs/reference.md, "Named effects").
 
 Units: degC, s, mm, N, MPa; differential pressure in mbar, static pressure in bar.

@@ -15,7 +15,7 @@ without noise) it takes the simulator's ``true_*`` columns. The truth columns ar
 the result unless ``keep_truth``.
 
 :data:`CONVENTIONS` lists them by name; ``tests/studies/test_foreign_data.py`` (the foreign-data
-corpus) and ``benchmarks/foreign_data.py`` (confusion and coverage on each) run on them.
+corpus) and ``studies/foreign_data.py`` (confusion and coverage on each) run on them.
 """
 
 from __future__ import annotations

@@ -6,14 +6,14 @@ with one effect hidden (or none), recorded under one convention: a measurement c
 a longer interval, spikes, extra columns), or a generation convention of :data:`GENERATIONS`
 (jittered sampling, a 1 s or 60 s logger, a 2 h or 7 day record, a medium temperature held constant
 or by a thermostat in noiseless steps). The case is written as a CSV file and read back the way a
-user's file is (:func:`valve_env.diagnosis.diagnose.read_run`), then diagnosed.
+user's file is (:func:`valve_env.valveid.diagnose.read_run`), then diagnosed.
 
 The outcome is judged against the same run without the convention (:func:`acceptable`): the same
 cause, or the truth where the original missed it; or ``none`` where the convention leaves less evidence
 (:attr:`Convention.loses_information`);
 or a one-line refusal where refusal is the right answer (:data:`MAY_REFUSE`). Anything else raised
 is a failure. The default test suite runs :func:`corpus_cases` ``("default")`` (35 transformed
-runs), the slow suite ``("full")`` (285); ``benchmarks/foreign_data.py`` prints the table.
+runs), the slow suite ``("full")`` (285); ``studies/foreign_data.py`` prints the table.
 """
 
 from __future__ import annotations
@@ -133,7 +133,7 @@ def run_case(case: dict[str, Any], bootstrap_B: int = 0) -> dict[str, Any]:
     ``"refused"``), ``cause``, ``message`` (a refusal's one line) and ``seconds`` (CPU). A refusal is a
     :class:`~valve_env.data_io.DataError` (one line); anything else raised propagates: that is a failure."""
     from valve_env.data_io import DataError
-    from valve_env.diagnosis.diagnose import diagnose, read_run
+    from valve_env.valveid.diagnose import diagnose, read_run
 
     df = simulate(case)
     t0 = time.process_time()

@@ -1,0 +1,159 @@
+"""Pre-processing of a validated measured run: the conventions of measured data (docs/reference.md, section 2).
+
+    df, notes = preprocess_run(load_run("run.csv"))
+
+A run that :func:`valve_env.data_io.validate_run` accepts may still be recorded the way real
+channels are: quantised, held constant or stored on change, without noise, with jittered or
+missing samples, one long gap, or a few isolated spikes. Both identification paths (``fit`` and
+``diagnose``) pass the validated run through :func:`preprocess_run` before any likelihood, so that
+each convention is handled once, here, and reported:
+
+* **temperature channels** (``T_tank_C``, ``T_med_C``): the noise level the smoothers and the
+  bootstrap use comes from :func:`~valve_env.valveid.temperature.channel_noise` (never 0 or NaN:
+  the quantisation sd q / sqrt(12) of a quantised or held channel, a resolution floor for a
+  noiseless one). The data are not changed; the note says which level was used and why.
+* **isolated spikes** (one sample far from both neighbours, which agree) in the temperature and
+  pressure channels: replaced by the mean of the two neighbours, and each one named by its row. More
+  than :data:`MAX_SPIKE_FRACTION` of a channel's samples is not "a few": the run is refused in one
+  line naming the first rows.
+* **irregular sampling and gaps**: the likelihoods integrate over each interval as it is, so the
+  data are not changed; the note gives the interval's spread, the rows missing against the median
+  interval and the longest gap (nothing is filled in).
+
+Every note is a JSON-ready dict with ``what`` (``noise_level``, ``spikes_replaced``,
+``irregular_sampling``, ``gap``), the ``channel`` where it applies, and ``why``. The ``fit`` and
+``diagnose`` JSON carry them under ``preprocessing``, and their reports print them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from valve_env.data_io import DataError
+from valve_env.valveid.temperature import channel_noise, noise_sd
+
+#: the temperature channels whose noise level the likelihoods need
+TEMPERATURE_CHANNELS: tuple[str, ...] = ("T_tank_C", "T_med_C")
+#: the channels searched for isolated spikes; the opening is left to the likelihood (a slip of a
+#: sticky stem is a step, and two slips within two samples would look like a spike)
+SPIKE_CHANNELS: tuple[str, ...] = ("T_tank_C", "T_med_C", "dp_mbar", "ps_bar")
+#: a spike departs from the mean of its neighbours by more than this many noise sd ...
+SPIKE_SD = 12.0
+#: ... and by more than this (in the channel's unit: K for temperatures; relative for the pressures)
+SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
+#: the most spikes a channel may have (a share of its samples) before the run is refused
+MAX_SPIKE_FRACTION = 0.005
+#: an interval longer than this many median intervals is a gap worth a note
+GAP_FACTOR = 5.0
+
+
+def find_spikes(y: np.ndarray, threshold: float) -> np.ndarray:
+    """Rows (0-based) of isolated one-sample spikes: ``y[i]`` departs from the mean of its two
+    neighbours by more than ``threshold`` on the same side of both, while the neighbours agree to within
+    half that departure (a step, whose neighbours differ by its size, is not a spike)."""
+    y = np.asarray(y, dtype=float)
+    if y.size < 3:
+        return np.array([], dtype=int)
+    left, mid, right = y[:-2], y[1:-1], y[2:]
+    dev = mid - 0.5 * (left + right)
+    same_side = np.sign(mid - left) == np.sign(mid - right)
+    agree = np.abs(right - left) < 0.5 * np.abs(dev)
+    return np.flatnonzero((np.abs(dev) > threshold) & same_side & agree) + 1
+
+
+def _spike_threshold(channel: str, y: np.ndarray) -> float:
+    if channel in TEMPERATURE_CHANNELS:
+        sd = channel_noise(_without_spikes(y)).sd
+        return max(SPIKE_SD * math.sqrt(1.5) * sd, SPIKE_MIN[channel])
+    level = float(np.median(np.abs(y)))
+    return max(SPIKE_SD * math.sqrt(1.5) * noise_sd(y), SPIKE_MIN[channel] * level)
+
+
+def _without_spikes(y: np.ndarray) -> np.ndarray:
+    """A rough copy without gross one-sample outliers (3-point median where a sample departs from it
+    by more than 1 unit), for the noise level the spike threshold rests on."""
+    if y.size < 3:
+        return y
+    med = np.median(np.stack([y[:-2], y[1:-1], y[2:]]), axis=0)
+    out = y.copy()
+    far = np.abs(y[1:-1] - med) > 1.0
+    out[1:-1][far] = med[far]
+    return out
+
+
+def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame, list[dict[str, Any]]]:
+    """The validated run with isolated spikes replaced, and the notes of what was found and done
+    (see the module doc). Raises :class:`~valve_env.data_io.DataError` (one line) where a channel
+    holds more than a few spikes. ``df`` is not changed."""
+    out = df.copy()
+    notes: list[dict[str, Any]] = []
+    n = len(out)
+    for ch in SPIKE_CHANNELS:
+        if ch not in out.columns:
+            continue
+        y = out[ch].to_numpy(dtype=float)
+        rows = find_spikes(y, _spike_threshold(ch, y))
+        if rows.size == 0:
+            continue
+        if rows.size > max(3, int(MAX_SPIKE_FRACTION * n)):
+            first = ", ".join(str(int(r) + 1) for r in rows[:5])
+            raise DataError(f"{source}: column {ch} has {rows.size} isolated spikes (rows {first}, ...): more than "
+                            f"a few ({MAX_SPIKE_FRACTION:.1%} of the rows); remove them or clean the channel")
+        y = y.copy()
+        y[rows] = 0.5 * (y[rows - 1] + y[rows + 1])
+        out[ch] = y
+        notes.append({"what": "spikes_replaced", "channel": ch, "rows": [int(r) + 1 for r in rows],
+                      "why": f"{rows.size} isolated one-sample spike(s) (row numbers as in the file, 1 = first data "
+                             "row), each replaced by the mean of its two neighbours"})
+    for ch in TEMPERATURE_CHANNELS:
+        if ch in out.columns:
+            notes.append({"what": "noise_level", **channel_noise(out[ch].to_numpy(dtype=float)).describe(ch)})
+    t = out["time_s"].to_numpy(dtype=float)
+    if n > 2:
+        dt = np.diff(t)
+        med = float(np.median(dt))
+        cv = float(np.std(dt) / med) if med > 0 else 0.0
+        missing = int(max(0, round((t[-1] - t[0]) / med) + 1 - n)) if med > 0 else 0
+        if cv > 0.01 or missing > 0:
+            notes.append({"what": "irregular_sampling", "median_interval_s": med, "interval_cv": round(cv, 4),
+                          "rows_missing": missing,
+                          "why": "the likelihoods integrate over each interval as it is; nothing is interpolated"})
+        big = np.flatnonzero(dt > GAP_FACTOR * med)
+        if big.size:
+            i = int(big[np.argmax(dt[big])])
+            notes.append({"what": "gap", "after_row": i + 1, "seconds": float(dt[i]), "count": int(big.size),
+                          "why": f"{big.size} interval(s) longer than {GAP_FACTOR:g} median intervals, the longest "
+                                 f"{dt[i]:.0f} s after row {i + 1}; the model is simulated across it from the "
+                                 "interpolated temperatures, nothing is filled in"})
+    out.attrs["preprocessing"] = notes
+    return out, notes
+
+
+def describe(notes: list[dict[str, Any]]) -> list[str]:
+    """One line per note, for the reports."""
+    lines = []
+    for nt in notes:
+        what = nt["what"]
+        if what == "noise_level":
+            lines.append(f"{nt['channel']}: noise sd {nt['noise_sd_C']:.3g} degC from {nt['why']}"
+                         + (f"; {nt['held_fraction']:.0%} of consecutive samples equal" if nt["held_fraction"] > 0.5
+                            else ""))
+        elif what == "spikes_replaced":
+            rows = nt["rows"]
+            lines.append(f"{nt['channel']}: {len(rows)} isolated spike(s) replaced by the mean of their neighbours "
+                         f"(rows {', '.join(map(str, rows[:10]))}{', ...' if len(rows) > 10 else ''})")
+        elif what == "irregular_sampling":
+            lines.append(f"sampling: median interval {nt['median_interval_s']:.3g} s, spread {nt['interval_cv']:.1%}, "
+                         f"{nt['rows_missing']} row(s) missing against it; nothing interpolated")
+        elif what == "gap":
+            lines.append(f"gap: {nt['seconds']:.0f} s after row {nt['after_row']} ({nt['count']} gap(s) in all); "
+                         "nothing filled in")
+    return lines
+
+
+__all__ = ["preprocess_run", "describe", "find_spikes", "SPIKE_CHANNELS", "TEMPERATURE_CHANNELS", "MAX_SPIKE_FRACTION",
+           "GAP_FACTOR"]

@@ -1,0 +1,179 @@
+"""The stick band measured from the slips of the opening (a moment estimator).
+
+Under the (S, J) stick-slip model of the stem (:mod:`valve_env.physics.stickslip`; J = S, the
+diagnosis's model) a stem that has come to rest, where the demanded opening stopped or reversed,
+stays put until the demand has moved the band away, then slips onto the demand and follows it. In
+the sampled opening each slip is a plateau followed by a jump of the band plus the motion of the
+rest of that sampling interval. :func:`jump_band` finds these (a flat stretch, a jump that
+persists) and measures each slip as the jump from the plateau's level to the level of the following
+samples' straight line half an interval after the plateau's last sample (which removes the motion
+within the interval on average); the band is the median over the slips. The same estimator reads
+the staircase of a stem that re-sticks right after every slip (each step a plateau and a jump of the
+band). The likelihood of the stick-slip filter is rough in the band and the band trades off against
+the Dahl friction's F_hmax (both make hysteresis), which traps the joint fit; the slips measure the
+band directly, without the valve model. Used by :class:`valve_env.valveid.fitting.Model` for
+``band_mm``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from valve_env.valveid.temperature import noise_sd
+
+
+def _away_from_stops(x: np.ndarray, stroke: float, edge_mm: float) -> np.ndarray:
+    """Mask of the steps of ``x`` whose both ends lie more than ``edge_mm`` from the end stops."""
+    lo, hi = edge_mm, stroke - edge_mm
+    return (x[:-1] > lo) & (x[1:] > lo) & (x[:-1] < hi) & (x[1:] < hi)
+
+
+def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0, plateau: int = 3,
+          after: int = 3, edge_mm: float = 0.02, flat: float = 3.5, persist: float = 3.0,
+          ramp: float = 1.0, events: list[tuple[int, float, float, float]] | None = None) -> np.ndarray:
+    """The sizes (mm) of the slips of a sticking stem in the measured opening ``x`` (module docstring).
+
+    A slip is a step larger than ``z`` noise sd of a difference after ``plateau`` samples that span
+    less than ``flat`` noise sd, whose next ``after`` samples lie beyond the plateau's level by
+    ``persist`` sd of the difference of the two means and do not step back, all away from the end
+    stops by ``edge_mm``. Its size is the distance from the plateau's mean to the next samples'
+    straight line half an interval after the plateau. A slip after which the stem moves on by more
+    than ``ramp`` times its size per sample is not measured: where the demand moves fast after the
+    slip (a step of the tank temperature), the jump cannot be told from the motion that follows it
+    within the interval, and the straight line through the next samples, which slow down, measured it
+    at a third to a half of the band (two of 14 slips of a generated day, seed 631); the bootstrap
+    world's smoothed temperatures make fewer such fast slips, so these slips also set its bias apart
+    from the estimator's. ``s_w``: the noise sd (default :func:`noise_sd`). ``events``: if given, each slip is appended
+    to it as (index of the plateau's last sample, direction +-1, plateau level mm, size mm)."""
+    x = np.asarray(x, dtype=float)
+    s = max(noise_sd(x) if s_w is None else float(s_w), 1e-6)
+    n = x.size
+    d = np.diff(x)
+    thr = z * math.sqrt(2.0) * s
+    lift = persist * s * math.sqrt(1.0 / plateau + 1.0 / after)
+    tpost = np.arange(1, after + 1, dtype=float)
+    out: list[float] = []
+    k = plateau - 1
+    while k < n - 1 - after:
+        dk = d[k]
+        if abs(dk) <= thr:
+            k += 1
+            continue
+        pre = x[k - plateau + 1:k + 1]
+        post = x[k + 1:k + 1 + after]
+        sg = 1.0 if dk > 0 else -1.0
+        lev0 = float(pre.mean())
+        ok = (np.ptp(pre) <= flat * s and min(pre.min(), post.min()) > edge_mm
+              and max(pre.max(), post.max()) < stroke - edge_mm and sg * (post.mean() - lev0) > lift
+              and not np.any(sg * np.diff(post) < -thr))
+        if not ok:
+            k += 1
+            continue
+        slope, icpt = np.polyfit(tpost, post, 1)
+        size = sg * (icpt + 0.5 * slope - lev0)
+        if abs(slope) > ramp * size:
+            k += 1
+            continue
+        out.append(size)
+        if events is not None:  # (last sample of the plateau, direction, plateau level, size)
+            events.append((k, sg, lev0, size))
+        k += after
+    return np.array(out)
+
+
+#: the fewest slips that measure the band on their own (:func:`jump_band`; fewer leave the band to the likelihood)
+MIN_JUMPS = 4
+
+
+def jump_band(x: np.ndarray, stroke: float, s_w: float | None = None, min_jumps: int = MIN_JUMPS,
+              **options: float) -> tuple[float, int]:
+    """Band (mm) from the slips of the measured opening (the median of :func:`slips`, which takes
+    ``options``); (nan, n) with fewer than ``min_jumps`` slips."""
+    sz = slips(x, stroke, s_w, **options)  # type: ignore[arg-type]
+    if sz.size < min_jumps:
+        return float("nan"), int(sz.size)
+    return float(np.median(sz)), int(sz.size)
+
+
+def slips_sd(sizes: np.ndarray, rng: np.random.Generator, resamples: int = 999) -> float:
+    """sd (mm) of the median of the slip ``sizes`` (the band of :func:`jump_band`) from the slips' own spread:
+    the standard error of a nonparametric bootstrap of the sizes (``scipy.stats.bootstrap``, the median
+    re-taken on ``resamples`` resamples, drawn from ``rng``) times the small-sample factor
+    ``t(0.975, n - 1) / z(0.975)`` of ``n`` slips (1.62 for 4, 1.07 for 20), the widening a Student t
+    interval gives a sd estimated from few values. nan with fewer than 2 slips.
+
+    The bootstrap of a median from few values is coarse (its resampled medians take few distinct values);
+    the factor keeps 2 sd from being an over-confident interval there (docs/diagnosis.md, "Parameter
+    uncertainty: the coverage study")."""
+    from scipy import stats
+
+    sz = np.asarray(sizes, dtype=float)
+    sz = sz[np.isfinite(sz)]
+    if sz.size < 2:
+        return float("nan")
+    if np.ptp(sz) == 0:
+        return 0.0
+    res = stats.bootstrap((sz,), np.median, n_resamples=resamples, method="percentile", random_state=rng)
+    return float(res.standard_error * stats.t.ppf(0.975, sz.size - 1) / stats.norm.ppf(0.975))
+
+
+def band_spread(x: np.ndarray, stroke: float, s_w: float, draws: int, rng: np.random.Generator,
+                band: float) -> tuple[float, dict[str, float], np.ndarray]:
+    """The sampling sd (mm) of :func:`jump_band`'s band measured on the opening ``x``, its parts, and the
+    added-noise re-estimates: (sd, parts, draws). The sd is the larger of two (docs/diagnosis.md,
+    "Parameter uncertainty: the coverage study"):
+
+    * ``noise_sd_mm``: the sd of the band re-estimated on ``draws`` copies of ``x`` with fresh white noise
+      of its sd ``s_w`` added (:func:`band_draws`; a copy with too few slips counts as ``band``): which noisy
+      steps pass for a slip, and the noise on each slip's plateau and landing;
+    * ``slips_sd_mm``: the sd of the median from the slips' own spread (:func:`slips_sd`), from 2 slips on.
+      With fewer than :func:`jump_band`'s ``min_jumps`` the band is the likelihood's, not their median, but the
+      slips are still the only measurement of how far apart its events lie, and with 2-3 slips the added-noise
+      copies find too few slips and keep the band (a spread of 0: a 2-slip run of project seed 20270332 reported
+      6.6e-5 mm for a band 18 % off); the small-sample factor makes it wide there (6.5 for 2 slips).
+      The slips differ by more than their noise: by where within its sampling interval each slip falls and
+      how fast the demand moves on (a stem that moves with the demand after a slip is measured anywhere in
+      that interval's travel), and a stem that re-sticks after every slip by its overshoot. The
+      added-noise copies keep each slip where it fell and do not see this.
+
+    Each slip's size already holds its noise, so the two are not added: where the noise makes most of the
+    slips' spread the first is the larger (it also sees the detection), else the second."""
+    r = band_draws(x, s_w, stroke, max(draws, 2), rng)
+    r = np.where(np.isfinite(r), r, band)
+    noise = float(np.std(r, ddof=1))
+    sz = slips(x, stroke, s_w)
+    between = slips_sd(sz, rng)  # nan with fewer than 2 slips
+    sd = max(noise, between) if math.isfinite(between) else noise
+    return sd, {"noise_sd_mm": noise, "slips_sd_mm": between, "n_slips": int(sz.size)}, r
+
+
+def band_sampling(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int = 200,
+                  seed: int = 0) -> np.ndarray:
+    """The band estimator's sampling distribution on a known opening: :func:`jump_band` of
+    ``x_true`` plus fresh white noise of ``noise_sd_mm``, ``draws`` times (nan where too few jumps).
+
+    With the true opening of a generated run (``true_x_mm``) this is the estimator's own spread and
+    bias for that run, which no method that sees only the measured opening can know: the yardstick
+    the bootstrap's sd and bias correction are measured against (``studies/diagnosis_coverage.py``);
+    with a simulated opening it tells how precisely a planned experiment measures the band."""
+    x_true = np.asarray(x_true, dtype=float)
+    if not (math.isfinite(noise_sd_mm) and noise_sd_mm >= 0):
+        raise ValueError(f"noise_sd_mm must be finite and >= 0, got {noise_sd_mm}")
+    if draws < 2:
+        raise ValueError(f"draws must be at least 2, got {draws}")
+    return band_draws(x_true, noise_sd_mm, stroke, draws, np.random.default_rng(seed))
+
+
+def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int,
+               rng: np.random.Generator) -> np.ndarray:
+    """``draws`` band estimates (:func:`jump_band`) of ``x_true`` plus white noise of ``noise_sd_mm``
+    from ``rng``, nan where too few jumps: :func:`band_sampling` without its checks, and the band's
+    extra replicates of the bootstrap (:func:`valve_env.valveid.bootstrap.bootstrap`)."""
+    return np.array([jump_band(x_true + noise_sd_mm * rng.standard_normal(x_true.shape[0]), stroke)[0]
+                     for _ in range(draws)])
+
+
+__all__ = ["MIN_JUMPS", "band_sampling", "band_spread", "jump_band", "slips",
+           "slips_sd"]
