@@ -33,7 +33,7 @@ demo: install-core
 	$(PY) -m valve_env.cli demo --out $(OUT)/demo --force
 
 test: install
-	$(PY) -m pytest -n 2 -q
+	$(PY) -m pytest -n 2 -q --durations=25
 
 test-slow: install
 	$(PY) -m pytest -n 2 -q -m slow
