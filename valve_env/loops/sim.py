@@ -122,4 +122,77 @@ def simulate_loop(process: str | Process, S: float = 0.0, J: float | None = None
     return loop, SimTruth(p.name, S, J, tau_c, external_amp, label, {"kc": kc, "ti_s": ti})
 
 
-__all__ = ["Process", "PROCESSES", "SimTruth", "simc_pi", "simulate_loop"]
+#: the kinds of valve and disturbance of :func:`random_case` and how often each is drawn: a sticky valve (stick-slip,
+#: band S and slip jump J < S), a smooth one, one with a deadband but no stick (J = 0: hysteresis, no stick-slip),
+#: a smooth valve under an external sinusoidal load, and a sticky one under the same load
+CASE_KINDS: tuple[tuple[str, float], ...] = (("stiction", 0.35), ("smooth", 0.2), ("hysteresis", 0.15),
+                                            ("external", 0.2), ("stiction_external", 0.1))
+
+
+def _logu(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def random_case(seed: int, kind: str | None = None) -> dict:
+    """The parameters of one simulated loop of wide variety (docs/loops.md, "Simulated loops"), from ``seed``
+    alone: a self-regulating process (lag 1-600 s, dead time 0-60 s) or, one time in three, an integrating one
+    (dead time 0-60 s); SIMC tuning with a closed-loop time constant of 0.25-3 times the SIMC default (aggressive
+    to sluggish); a band ``S_ref`` of 0.3-5 % of OP drawn for every loop, which scales the measurement noise (1-20 %
+    of the PV's move for ``S_ref``) and the load drift (0.1-1 % of ``S_ref`` per sqrt(s)), so that both are
+    distributed alike with and without stiction; 0-3 set-point steps; records of 1.5-4 h sampled at 5 or 10 s,
+    or 2-4 h at 30 s (at least 240 samples); and the valve and disturbance of ``kind`` (drawn from
+    :data:`CASE_KINDS` when None): stick-slip with S = ``S_ref`` and J/S 0.2-0.95; a deadband of 0.2-2 % without
+    stick; an external sinusoid of 0.2-2 ``S_ref`` (% of valve travel) at a period of 3-60 min. The label is
+    ``stiction`` for the sticky kinds, else ``none``."""
+    rng = np.random.default_rng([seed, 38])
+    if kind is None:
+        names, w = zip(*CASE_KINDS, strict=True)
+        kind = str(rng.choice(names, p=np.asarray(w) / sum(w)))
+    integrating = bool(rng.uniform() < 1.0 / 3.0)
+    delay = float(rng.uniform(0.0, 60.0))
+    tau = 0.0 if integrating else _logu(rng, 1.0, 600.0)
+    gain = _logu(rng, 2e-4, 5e-3) if integrating else _logu(rng, 0.3, 3.0)
+    default = max(delay, 0.5 * tau, 60.0 if integrating else 10.0)
+    tau_c = default * _logu(rng, 0.25, 3.0)
+    # the band a sticky valve of this loop has; drawn for every kind, so that noise and load, scaled by it, are
+    # distributed alike with and without stiction
+    S_ref = _logu(rng, 0.3, 5.0)
+    pv_per_pct = gain * (tau_c + delay) if integrating else gain  # the PV's move for 1 % of valve, settled
+    proc = Process("integrating" if integrating else "self-regulating", gain=gain, tau_s=tau, delay_s=delay,
+                   integrating=integrating, noise_sd=pv_per_pct * S_ref * _logu(rng, 0.01, 0.2),
+                   load_sd=S_ref * _logu(rng, 0.001, 0.01))
+    dt = float(rng.choice([5.0, 10.0, 10.0, 30.0]))
+    case = {"kind": kind, "process": proc, "tau_c_s": tau_c,
+            "dt": dt, "hours": float(rng.uniform(2.0 if dt >= 30.0 else 1.5, 4.0)),
+            "sp_steps": int(rng.integers(0, 4)), "S": 0.0, "J": 0.0, "external_amp": 0.0,
+            "external_period_s": 600.0, "seed": int(seed), "op0": float(rng.uniform(20.0, 80.0))}
+    jump = float(rng.uniform(0.2, 0.95))
+    hyst = _logu(rng, 0.2, 2.0)
+    ext_amp = S_ref * _logu(rng, 0.2, 2.0)
+    ext_period = _logu(rng, 180.0, 3600.0)
+    if kind in ("stiction", "stiction_external"):
+        case["S"] = S_ref
+        case["J"] = S_ref * jump
+    elif kind == "hysteresis":
+        case["S"] = hyst
+    if kind in ("external", "stiction_external"):
+        case["external_amp"] = ext_amp
+        case["external_period_s"] = ext_period
+    case["label"] = "stiction" if kind.startswith("stiction") else "none"
+    return case
+
+
+def simulate_case(case: dict) -> tuple[LoopData, SimTruth]:
+    """The record of a :func:`random_case`."""
+    loop, truth = simulate_loop(case["process"], S=case["S"], J=case["J"], seed=case["seed"], hours=case["hours"],
+                                dt=case["dt"], tau_c_s=case["tau_c_s"], external_amp=case["external_amp"],
+                                external_period_s=case["external_period_s"], sp_steps=case["sp_steps"],
+                                op0=case["op0"])
+    truth.label = case["label"]
+    truth.extra["kind"] = case["kind"]
+    loop.tag = f"sim-{case['kind']}-{case['process'].name}-seed{case['seed']}"
+    return loop, truth
+
+
+__all__ = ["CASE_KINDS", "Process", "PROCESSES", "SimTruth", "random_case", "simc_pi", "simulate_case",
+           "simulate_loop"]
