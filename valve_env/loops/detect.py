@@ -41,6 +41,10 @@ def features(loop: LoopData) -> tuple[dict[str, float], dict[str, dict[str, Any]
         "horch_signed": h["phase_signed_deg"] / 180.0,
         "horch_ratio": h["ratio"],
         "horch_dpv_phase": hi["statistic"] / 180.0,
+        # Horch's zero crossings against the oscillation: an oscillation's CCF crosses zero about a quarter period either
+        # side of lag 0; a noise-driven loop's CCF changes sign at once on one side (the controller's integral action)
+        "horch_asym": min(h["tau_r"], h["tau_l"]) / max(h["tau_r"], h["tau_l"], 1e-9),
+        "horch_half_cycles": math.log(max(h["tau_r"] + h["tau_l"], 0.5) / max(el["period_samples"], 1.0)),
         "he_si": he["statistic"],
         "he_si_pv": he_pv["statistic"],
         "kano_rho": ka["statistic"],
@@ -59,7 +63,8 @@ def features(loop: LoopData) -> tuple[dict[str, float], dict[str, dict[str, Any]
 
 #: the features that describe an oscillation's shape; the rule also weighs each by how clearly the control error
 #: oscillates (the first ACF peak, clipped to 0-1: :func:`terms`), as the shape tests read only an oscillating loop
-SHAPE_FEATURES: tuple[str, ...] = ("horch_phase", "horch_signed", "horch_ratio", "horch_dpv_phase", "he_si",
+SHAPE_FEATURES: tuple[str, ...] = ("horch_phase", "horch_signed", "horch_ratio", "horch_dpv_phase", "horch_asym",
+                                   "horch_half_cycles", "he_si",
                                    "he_si_pv", "kano_rho", "bic_ngi", "bic_nli", "bic_peak", "ellipse_signed",
                                    "ellipse_abs", "log_cycles")
 

@@ -65,13 +65,18 @@ def simc_pi(p: Process, tau_c: float) -> tuple[float, float]:
 def simulate_loop(process: str | Process, S: float = 0.0, J: float | None = None, seed: int = 0,
                   hours: float = 2.0, dt: float = 10.0, tau_c_s: float | None = None,
                   external_amp: float = 0.0, external_period_s: float = 600.0,
-                  sp_steps: int = 2, op0: float = 50.0) -> tuple[LoopData, SimTruth]:
-    """One loop record (``hours`` at ``dt``) and its truth. ``S, J`` in % of OP (J defaults to S)."""
+                  sp_steps: int = 2, op0: float = 50.0, ti_factor: float = 1.0,
+                  load_tau_s: float | None = None) -> tuple[LoopData, SimTruth]:
+    """One loop record (``hours`` at ``dt``) and its truth. ``S, J`` in % of OP (J defaults to S). ``ti_factor``
+    multiplies the SIMC integral time (a detuned PI: > 1); ``load_tau_s`` makes the load a mean-reverting
+    (Ornstein-Uhlenbeck) process with that time constant instead of a random walk (None), with the same increments
+    over times short beside it."""
     p = PROCESSES[process] if isinstance(process, str) else process
     J = S if J is None else J
     rng = np.random.default_rng(seed)
     tau_c = tau_c_s if tau_c_s is not None else max(p.delay_s, 0.5 * p.tau_s, 60.0 if p.integrating else 10.0)
     kc, ti = simc_pi(p, tau_c)
+    ti *= ti_factor
     n_fast = int(round(hours * 3600.0))
     h = 1.0
     nd = int(round(p.delay_s / h))
@@ -80,8 +85,14 @@ def simulate_loop(process: str | Process, S: float = 0.0, J: float | None = None
     step_size = 4.0 * max(p.noise_sd, 0.02)
     for t_step in np.sort(rng.uniform(0.15, 0.85, sp_steps)) * n_fast:
         sp_val[int(t_step):] += step_size * rng.choice([-1.0, 1.0])
-    load = np.cumsum(rng.normal(0.0, p.load_sd, n_fast))  # % of valve equivalent
-    load -= load[0]
+    steps = rng.normal(0.0, p.load_sd, n_fast)  # % of valve equivalent
+    if load_tau_s is None:
+        load = np.cumsum(steps)
+        load -= load[0]
+    else:
+        from scipy.signal import lfilter
+
+        load = lfilter([1.0], [1.0, -math.exp(-h / load_tau_s)], steps)
     ext = external_amp * np.sin(2 * np.pi * np.arange(n_fast) / external_period_s + rng.uniform(0, 2 * np.pi))
     y = 0.0  # deviation of PV
     op = op0
@@ -137,8 +148,10 @@ def random_case(seed: int, kind: str | None = None) -> dict:
     """The parameters of one simulated loop of wide variety (docs/loops.md, "Simulated loops"), from ``seed``
     alone: a self-regulating process (lag 1-600 s, dead time 0-60 s) or, one time in three, an integrating one
     (dead time 0-60 s); SIMC tuning with a closed-loop time constant of 0.25-3 times the SIMC default (aggressive
-    to sluggish); a band ``S_ref`` of 0.3-5 % of OP drawn for every loop, which scales the measurement noise (1-20 %
-    of the PV's move for ``S_ref``) and the load drift (0.1-1 % of ``S_ref`` per sqrt(s)), so that both are
+    to sluggish), and for half the loops an integral time 1-10 times SIMC's (detuned, as many plant loops are:
+    slow limit cycles); a band ``S_ref`` of 0.3-5 % of OP drawn for every loop, which scales the measurement noise
+    (1-20 % of the PV's move for ``S_ref``) and the load (increments 0.1-1 % of ``S_ref`` per sqrt(s), mean-reverting
+    with a time constant of 5-60 min: a load wanders, it does not drift without bound), so that both are
     distributed alike with and without stiction; 0-3 set-point steps; records of 1.5-4 h sampled at 5 or 10 s,
     or 2-4 h at 30 s (at least 240 samples); and the valve and disturbance of ``kind`` (drawn from
     :data:`CASE_KINDS` when None): stick-slip with S = ``S_ref`` and J/S 0.2-0.95; a deadband of 0.2-2 % without
@@ -165,7 +178,9 @@ def random_case(seed: int, kind: str | None = None) -> dict:
     case = {"kind": kind, "process": proc, "tau_c_s": tau_c,
             "dt": dt, "hours": float(rng.uniform(2.0 if dt >= 30.0 else 1.5, 4.0)),
             "sp_steps": int(rng.integers(0, 4)), "S": 0.0, "J": 0.0, "external_amp": 0.0,
-            "external_period_s": 600.0, "seed": int(seed), "op0": float(rng.uniform(20.0, 80.0))}
+            "external_period_s": 600.0, "seed": int(seed), "op0": float(rng.uniform(20.0, 80.0)),
+            "ti_factor": _logu(rng, 1.0, 10.0) if rng.uniform() < 0.5 else 1.0,
+            "load_tau_s": _logu(rng, 300.0, 3600.0)}
     jump = float(rng.uniform(0.2, 0.95))
     hyst = _logu(rng, 0.2, 2.0)
     ext_amp = S_ref * _logu(rng, 0.2, 2.0)
@@ -187,7 +202,7 @@ def simulate_case(case: dict) -> tuple[LoopData, SimTruth]:
     loop, truth = simulate_loop(case["process"], S=case["S"], J=case["J"], seed=case["seed"], hours=case["hours"],
                                 dt=case["dt"], tau_c_s=case["tau_c_s"], external_amp=case["external_amp"],
                                 external_period_s=case["external_period_s"], sp_steps=case["sp_steps"],
-                                op0=case["op0"])
+                                op0=case["op0"], ti_factor=case["ti_factor"], load_tau_s=case["load_tau_s"])
     truth.label = case["label"]
     truth.extra["kind"] = case["kind"]
     loop.tag = f"sim-{case['kind']}-{case['process'].name}-seed{case['seed']}"
