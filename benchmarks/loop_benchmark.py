@@ -124,6 +124,7 @@ def sim_loops(seed0: int, n: int) -> None:
     if clash:
         raise SystemExit(f"seeds {clash[0]}.. were used to fit or choose the rule: evaluate on other seeds")
     named: dict[str, list[bool]] = defaultdict(list)
+    classical: dict[str, dict[str, list[bool]]] = defaultdict(lambda: defaultdict(list))  # detector -> kind -> verdicts
     band_all: list[tuple[float, float, float, bool]] = []  # (truth S, band, sd, detected)
     cpu: list[float] = []
     per720: list[float] = []
@@ -137,19 +138,24 @@ def sim_loops(seed0: int, n: int) -> None:
         cpu.append(dt_cpu)
         per720.append(dt_cpu / loop.n * 720.0)
         named[case["kind"]].append(d.cause == "stiction")
+        for k, f in DETECTORS.items():
+            classical[k][case["kind"]].append(bool(f(loop)["stiction"]))
         if sticky and "stiction" in d.result:
             st = d.result["stiction"]
             band_all.append((case["S"], st["band_pct"], st["std_pct"], bool(st["detected"])))
-    print(f"\nsimulated loops of wide variety, seeds {seed0}..{seed0 + n - 1} (valve_env.loops.sim.random_case):")
+    print(f"\nsimulated loops of wide variety, seeds {seed0}..{seed0 + n - 1} (valve_env.loops.sim.random_case): "
+          "share named stiction per kind")
+    methods = {"combined": named, **classical}
+    print(f"  {'kind':18s} {'n':>4s} " + " ".join(f"{m[:11]:>11s}" for m in methods))
     for k in sorted(named):
-        v = named[k]
-        print(f"  {k:18s} n={len(v):4d} named stiction {sum(v):4d} ({100 * np.mean(v):5.1f} %)")
-    sticky = [x for k in ("stiction", "stiction_external") for x in named[k]]
-    clean = [x for k in ("smooth", "hysteresis", "external") for x in named[k]]
-    print(f"  sticky caught {sum(sticky)}/{len(sticky)} ({100 * np.mean(sticky):.1f} %); valves without stick named "
-          f"{sum(clean)}/{len(clean)} ({100 * np.mean(clean):.1f} %; smooth and external only: "
-          f"{sum(named['smooth']) + sum(named['external'])}/{len(named['smooth']) + len(named['external'])}); "
-          f"balanced accuracy {50 * (np.mean(sticky) + 1 - np.mean(clean)):.1f} %")
+        print(f"  {k:18s} {len(named[k]):4d} " + " ".join(f"{100 * np.mean(v[k]):10.1f}%" for v in methods.values()))
+    for m, v in methods.items():
+        sticky = [x for k in ("stiction", "stiction_external") for x in v[k]]
+        clean = [x for k in ("smooth", "hysteresis", "external") for x in v[k]]
+        print(f"  {m:12s} sticky caught {sum(sticky)}/{len(sticky)} ({100 * np.mean(sticky):.1f} %); valves without "
+              f"stick named {sum(clean)}/{len(clean)} ({100 * np.mean(clean):.1f} %; smooth and external only: "
+              f"{sum(v['smooth']) + sum(v['external'])}/{len(v['smooth']) + len(v['external'])}); balanced accuracy "
+              f"{50 * (np.mean(sticky) + 1 - np.mean(clean)):.1f} %")
     for what, rows in (("all sticky loops (band fitted on request)", band_all),
                        ("sticky loops detected", [b for b in band_all if b[3]])):
         if not rows:
