@@ -16,6 +16,9 @@ Prints, in one run:
 
     python benchmarks/loop_benchmark.py --data /work/shared/data/plant_loops --sim-n 0
     python benchmarks/loop_benchmark.py --sim-seed 900000 --sim-n 200
+    python benchmarks/loop_benchmark.py --sim-n 0 --standard-seed 8500 --standard-n 40
+
+``--standard-n`` adds the four-process set of the unit tests' generator (sticky loops with their smooth twins).
 """
 
 from __future__ import annotations
@@ -170,17 +173,49 @@ def sim_loops(seed0: int, n: int) -> None:
           f"{np.mean(per720):.2f} s, max {np.max(per720):.2f} s")
 
 
+def standard_loops(seed0: int, n: int) -> None:
+    """The four-process set of the unit tests' generator (``sim.simulate_loop``: flow, pressure, temperature, level
+    in turn; S ~ U(1, 4) % of OP, J/S ~ U(0.3, 1); 2 h at 10 s), each sticky loop with its smooth twin (seed
+    + 10000): detection, and the band fitted on every sticky loop."""
+    from valve_env.loops.sim import simulate_loop
+
+    rng = np.random.default_rng(seed0)
+    procs = ["flow", "pressure", "temperature", "level"]
+    found = twins = 0
+    rows = []
+    for i in range(n):
+        S = float(rng.uniform(1.0, 4.0))
+        J = S * float(rng.uniform(0.3, 1.0))
+        loop, _ = simulate_loop(procs[i % 4], S=S, J=J, seed=seed0 + i)
+        d = diagnose(loop, quantify=True)
+        found += d.cause == "stiction"
+        st = d.result["stiction"]
+        rows.append((S, st["band_pct"], st["std_pct"]))
+        smooth, _ = simulate_loop(procs[i % 4], S=0.0, seed=seed0 + 10_000 + i)
+        twins += diagnose(smooth).cause == "stiction"
+    S, B, SD = (np.array([r[k] for r in rows]) for k in range(3))
+    err = np.abs(B - S)
+    print(f"\nfour-process set, seeds {seed0}..{seed0 + n - 1} (S ~ U(1, 4) %, J/S ~ U(0.3, 1)): sticky named "
+          f"{found}/{n}, smooth twins named {twins}/{n}; band (fitted on every sticky loop) within 20 % of the truth "
+          f"{int(np.sum(err <= 0.2 * S))}/{n}, 1-sd coverage {int(np.sum(err <= SD))}/{n}, 2-sd coverage "
+          f"{int(np.sum(err <= 2 * SD))}/{n}; median |error| {100 * np.median(err / S):.0f} %")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, default=None, help="the plant_loops folder (index.csv, stiction/, "
                     "non_stiction/)")
     ap.add_argument("--sim-seed", type=int, default=900000)
     ap.add_argument("--sim-n", type=int, default=100)
+    ap.add_argument("--standard-seed", type=int, default=8500)
+    ap.add_argument("--standard-n", type=int, default=0, help="loops of the four-process set (0: none)")
     args = ap.parse_args(argv)
     if args.data is not None:
         real_loops(args.data)
     if args.sim_n > 0:
         sim_loops(args.sim_seed, args.sim_n)
+    if args.standard_n > 0:
+        standard_loops(args.standard_seed, args.standard_n)
     return 0
 
 

@@ -5,17 +5,16 @@
 Simulates the loops of ``valve_env.loops.sim.random_case`` for the training seeds, computes every detector's
 statistic (``valve_env.loops.detect.features``), fits an L2-penalised logistic regression (scipy) on the
 standardised terms (``valve_env.loops.detect.terms``: the features, the shape features weighted by the
-oscillation's clarity, and their squares), and chooses the decision threshold on the validation seeds: the one with the best balanced
-accuracy among those naming at most ``--max-false-alarm`` of the validation loops without stiction. Prints the
-coefficients and the validation figures per kind of loop; ``--write`` writes ``valve_env/loops/detector_coefs.py``
-(the frozen rule: it is replaced only with ``--write``). No real
-loop is read. The seeds of the final evaluation (benchmarks/loop_benchmark.py --sim-seed) must be neither of these.
+oscillation's clarity, and their squares), and chooses the decision threshold on the validation seeds: the one
+with the best balanced accuracy among those naming at most ``--max-false-alarm`` of the validation loops without
+stiction. Prints the coefficients and the validation figures per kind of loop; ``--write`` writes
+``valve_env/loops/detector_coefs.py`` (the frozen rule: it is replaced only with ``--write``). No real loop is
+read. The seeds of the final evaluation (benchmarks/loop_benchmark.py --sim-seed) must be neither of these.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -111,16 +110,21 @@ def main(argv: list[str] | None = None) -> int:
     if a.write:
         training = {"train_seeds": a.train_seeds, "validation_seeds": a.val_seeds, "l2": a.l2,
                     "max_false_alarm": a.max_false_alarm, "n_train": len(tr)}
+        from pprint import pformat
+
+        def const(name: str, value: object) -> str:
+            return f"{name} = {pformat(value, width=118 - len(name), compact=True)}\n"
+
         text = ('"""The stiction detector\'s combining rule (valve_env.loops.detect), fitted on simulated loops '
                 "only by\n"
-                f"``python benchmarks/loop_train_detector.py --train-seeds {a.train_seeds} --val-seeds {a.val_seeds} "
+                f"``python benchmarks/loop_train_detector.py --train-seeds {a.train_seeds} --val-seeds {a.val_seeds}\n"
                 f"--l2 {a.l2:g} --max-false-alarm {a.max_false_alarm:g} --write``. Generated: do not edit.\"\"\"\n\n"
-                f"FEATURES = {tuple(FEATURES)!r}\n"
-                f"MEANS = {tuple(round(float(v), 6) for v in mu)!r}\n"
-                f"SCALES = {tuple(round(float(v), 6) for v in sd)!r}\n"
-                f"COEFS = {tuple(round(float(v), 6) for v in b)!r}\n"
-                f"THRESHOLD = {th!r}\n"
-                f"TRAINING: dict = {json.dumps(training)}\n")
+                + const("FEATURES", tuple(FEATURES))
+                + const("MEANS", tuple(round(float(v), 6) for v in mu))
+                + const("SCALES", tuple(round(float(v), 6) for v in sd))
+                + const("COEFS", tuple(round(float(v), 6) for v in b))
+                + const("THRESHOLD", th)
+                + "TRAINING: dict = " + pformat(training, width=100, compact=True) + "\n")
         atomic_write_text(OUT, text)
         print(f"wrote {OUT}")
     return 0

@@ -41,8 +41,9 @@ def features(loop: LoopData) -> tuple[dict[str, float], dict[str, dict[str, Any]
         "horch_signed": h["phase_signed_deg"] / 180.0,
         "horch_ratio": h["ratio"],
         "horch_dpv_phase": hi["statistic"] / 180.0,
-        # Horch's zero crossings against the oscillation: an oscillation's CCF crosses zero about a quarter period either
-        # side of lag 0; a noise-driven loop's CCF changes sign at once on one side (the controller's integral action)
+        # Horch's zero crossings against the oscillation: an oscillation's CCF crosses zero about a quarter period
+        # either side of lag 0; a noise-driven loop's CCF changes sign at once on one side (the controller's integral
+        # action)
         "horch_asym": min(h["tau_r"], h["tau_l"]) / max(h["tau_r"], h["tau_l"], 1e-9),
         "horch_half_cycles": math.log(max(h["tau_r"] + h["tau_l"], 0.5) / max(el["period_samples"], 1.0)),
         "he_si": he["statistic"],
