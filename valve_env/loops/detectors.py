@@ -14,7 +14,7 @@
   CCF's half period ``tau_r + tau_l`` is shorter than 5 samples (a noise-driven loop, no resolved
   cycle), the verdict is none. Also reported: ``ratio = |r(0)| / max |r|`` (the even-ness of the CCF) and
   the signed phase ``180 (tau_r - tau_l) / (tau_r + tau_l)`` (positive: the far zero crossing lies at
-  positive lags, where PV follows OP; used by the grey-box decision, docs/loops.md "Decision").
+  positive lags, where PV follows OP; a feature of the combined detection, docs/loops.md "Detection").
 * :func:`he_curve_fit` - He, Q.P., Wang, J., Pottmann, M., Qin, S.J. (2007). A curve fitting method
   for detecting valve stiction in oscillating control loops. *Ind. Eng. Chem. Res.* 46(13),
   4549-4560. Each half cycle of the mean-removed controller output is fitted by a half sine and

@@ -111,7 +111,7 @@ def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, subst
 
 def seated(x: np.ndarray, seat: float) -> np.ndarray:
     """The valve position ``x`` (% of OP) on its seat at ``seat``: a control valve closes on its seat, so below it the
-    flow is nil whatever the stem's input or stiction (docs/loops.md, "Loops from the environment");
+    flow is nil whatever the stem's input or stiction (a model option, not used by valve_env.loops.diagnose);
     for a sticky valve the seat is the stick-slip's end stop (:func:`valve_path`'s ``seat``). ``seat`` -inf (or any
     non-finite value) is no seat."""
     return np.maximum(x, seat) if np.isfinite(seat) else x
@@ -356,7 +356,7 @@ def disturbance_basis(n: int, dt: float, knot_s: float, period_s: float = math.i
     """Hat functions (linear B-splines) with knots every ``knot_s``: a slow load disturbance (one
     column, a constant, when ``knot_s`` is infinite or longer than the record); with a finite ``period_s``, also a
     sine and a cosine of that period: a periodic load at the record's oscillation period, the same for every valve
-    candidate (docs/loops.md, "Decision", condition 4)."""
+    candidate (a model option; the diagnosis does not use it)."""
     t = np.arange(n) * dt
     if not np.isfinite(knot_s) or knot_s >= t[-1]:
         B = np.ones((n, 1))
@@ -387,7 +387,7 @@ class Settings:
     n_grid: int = 16
     disturbance_knot_s: float = 1200.0
     #: the period of a sinusoidal load in the disturbance basis of every candidate, s (inf: none; set by
-    #: valve_env.loops.diagnose for an oscillating record: docs/loops.md, "Decision", condition 4)
+    #: a model option, not used by valve_env.loops.diagnose)
     load_period_s: float = math.inf
     #: the valve's steps per recorded sample, driven by the mean-preserving sub-sample OP (:func:`subsample_op`) and
     #: averaged back over each sample, as the historian averages OP; 1 is the sample-rate valve (nested). The
@@ -396,7 +396,7 @@ class Settings:
     substeps: int = 1
     band_substeps: int = 4
     #: the valve's seat, % of OP: every candidate's valve position is clipped from below at it (:func:`seated`;
-    #: docs/loops.md, "Loops from the environment"); -inf is no seat (the unseated model)
+    #: a model option, not used by valve_env.loops.diagnose); -inf is no seat (the unseated model)
     seat: float = -math.inf
 
     @property
@@ -548,10 +548,11 @@ def _fit_path(op: np.ndarray, pv: np.ndarray, S: float, J: float, d0: float, s: 
 def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int | None = None,
               k0: int | None = None, extra_S: tuple[float, ...] = (),
               j_fractions: tuple[float, ...] = J_FRACTIONS, memo: FitMemo | None = None) -> ValveFit:
-    """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J); ``extra_S`` are
-    bands added to the grid (the LR scan's best band); ``j_fractions`` the J / S values of the stiction valve
-    (J profiled out at each S). ``memo`` (a dict kept for one record, or None) holds the process fits of every valve
-    path fitted so far, so that a path fitted again is looked up (:func:`_fit_path`); the fit is the same."""
+    """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J); ``extra_S`` are bands
+    added to the grid (the dense search's best band, :func:`scan_valve`); ``j_fractions`` the J / S values of the
+    stiction valve (J profiled out at each S). ``memo`` (a dict kept for one record, or None) holds the process fits
+    of every valve path fitted so far, so that a path fitted again is looked up (:func:`_fit_path`); the fit is the
+    same."""
     if valve == "linear":
         pf = _fit_path(op, pv, 0.0, 0.0, 1.0, s, k1, k0, memo)
         return ValveFit("linear", 0.0, 0.0, pf, pf.n_params + seat_params(s.seat), seat=s.seat)
@@ -588,7 +589,8 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
                     s.substeps, s.seat)
 
 
-#: the LR scan's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md, "Decision")
+#: the dense band search's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md,
+#: "Model")
 SCAN_J_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)
 SCAN_S_FRACTIONS: tuple[float, float, int] = (0.01, 3.0, 24)
 
@@ -715,7 +717,7 @@ def _sparse_basis(basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class Scan:
     """The LR scan: the white-noise least-squares LR statistic of the stick-slip valve (backlash included,
     J = 0) against the linear valve, each with its best process structure (lag, delay), and the grid point
-    that attains it. The statistic ignores the noise's colour; the parametric bootstrap calibrates it."""
+    that attains it: the seed of the band's maximum-likelihood fit (docs/loops.md, "Model"), not a test."""
 
     lr: float
     S: float
@@ -726,7 +728,7 @@ class Scan:
 def resolution(op: np.ndarray) -> float:
     """The record's resolution of a band, % of OP: the median OP move per sample. The valve slips between two
     samples; a band narrower than one sample's move holds the valve for less than a sample, which the record
-    cannot show (docs/loops.md, "Decision"; the same move is the band's sampling offset, "Band uncertainty").
+    cannot show (the same move is the band's sampling offset, docs/loops.md "Model").
     It is the record's: a sub-sample OP (:func:`subsample_op`) interpolates the record and adds no information
     about where between two samples the valve slipped."""
     return float(np.median(np.abs(np.diff(op))))
@@ -755,8 +757,8 @@ def scan_paths(op: np.ndarray, substeps: int = 1,
 def _cached_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) -> tuple[np.ndarray, np.ndarray,
                                                                                           np.ndarray]:
     """The disturbance basis of a record of ``n`` samples (:func:`disturbance_basis`), dense and in the sparse form
-    of :func:`_sparse_basis` (columns, values): the same for every fit and scan of the record and of its bootstrap
-    replicates, so built once (read-only: the fits hold it)."""
+    of :func:`_sparse_basis` (columns, values): the same for every fit and scan of the record,
+    so built once (read-only: the fits hold it)."""
     basis = disturbance_basis(n, dt, knot_s, period_s)
     idx, val = _sparse_basis(basis)
     for arr in (basis, idx, val):
