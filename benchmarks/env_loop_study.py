@@ -36,6 +36,8 @@ def parse_env_args(description: str, argv: list[str] | None) -> tuple[argparse.N
     ap.add_argument("--warmup-h", type=float, default=WARMUP_H, help="warm-up before the record, h")
     ap.add_argument("--f-hmax", type=float, default=None,
                     help="the valve's Dahl friction F_hmax, N, on both stems (default: the paper's 1.31)")
+    ap.add_argument("--rule", choices=("horch", "learned"), default="horch",
+                    help="loop-diagnose's detection rule (default horch; the acceptance is the learned rule's)")
     a = ap.parse_args(argv)
     if not (a.hours > 0.0 and a.warmup_h >= 0.0):
         ap.error(f"--hours must be > 0 and --warmup-h >= 0, got {a.hours:g} and {a.warmup_h:g}")
@@ -57,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
             loop = record_env_loop(band, seed=seed, hours=a.hours, warmup_h=a.warmup_h, env_id=a.env_id, Kp=a.kp,
                                    Ti_s=a.ti, F_hmax=a.f_hmax)
             t1 = time.process_time()
-            res = diagnose(loop).result
+            res = diagnose(loop, rule=a.rule).result
             t2 = time.process_time()
             cause = str(res["cause"])
             named[band] += cause == "stiction"

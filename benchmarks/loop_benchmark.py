@@ -1,11 +1,12 @@
-"""Loop-diagnosis benchmark (docs/loops.md, "Figures"): every detector and the combined method side by side.
+"""Loop-diagnosis benchmark (docs/loops.md, "Figures"): every detector, loop-diagnose and the learned rule side by side.
 
 Prints, in one run:
 * on the real loops (``--data``: the plant_loops folder with ``index.csv``, label / file / loop_tag): each
   detector's verdict (Horch as published, Horch's integrating variant on the level loops by tag, He et al., Kano et
-  al., Choudhury et al.'s bicoherence test) and the combined method's (``thermovalve loop-diagnose``'s cause), the
-  balanced accuracy overall and per loop tag, and the time per loop. The combined rule is fitted on simulated loops
-  only, so this leave-one-tag-out table is a plain evaluation per tag: nothing is fitted on any real loop. A file
+  al., Choudhury et al.'s bicoherence test), ``thermovalve loop-diagnose``'s cause (its default rule: Horch's test)
+  and the learned rule's verdict (``--rule learned``), the balanced accuracy overall and per loop tag, and the time
+  per loop. The learned rule is fitted on simulated loops only, so this leave-one-tag-out table is a plain
+  evaluation per tag: nothing is fitted on any real loop. A file
   the reader refuses counts as "not stiction" for every method;
 * on simulated loops of wide variety (``valve_env.loops.sim.random_case``, seeds ``--sim-seed`` ..
   ``+ --sim-n``; never the training seeds 0-1199 or the validation seeds 100000-100399 of
@@ -66,7 +67,7 @@ def tag_balanced_accuracy(truth: list[bool], pred: list[bool], tags: list[str]) 
 
 def real_loops(data: Path) -> None:
     rows = list(csv.DictReader(open(data / "index.csv")))
-    names = ["combined", "horch", "horch_L", "he", "kano", "bicoherence"]
+    names = ["diagnose", "learned", "horch", "horch_L", "he", "kano", "bicoherence"]
     pred: dict[str, list[bool]] = defaultdict(list)
     truth: list[bool] = []
     tags: list[str] = []
@@ -74,7 +75,8 @@ def real_loops(data: Path) -> None:
     cpu: list[float] = []
     sizes: list[int] = []
     print(f"real loops: {len(rows)} files, {len({r['loop_tag'] for r in rows})} loop tags")
-    print(f"{'file':36s} {'label':8s} {'combined':34s} " + " ".join(f"{d[:7]:>7s}" for d in names[1:]) + "  cpu_s")
+    print(f"{'file':36s} {'label':8s} {'loop-diagnose':34s} " + " ".join(f"{d[:7]:>7s}" for d in names[1:])
+          + "  cpu_s")
     for r in rows:
         truth.append(r["label"] == "stiction")
         tags.append(r["loop_tag"])
@@ -91,8 +93,9 @@ def real_loops(data: Path) -> None:
         cpu.append(time.process_time() - c0)
         sizes.append(loop.n)
         R = d.result
-        pred["combined"].append(d.cause == "stiction")
+        pred["diagnose"].append(d.cause == "stiction")
         det = {k: bool(f(loop)["stiction"]) for k, f in DETECTORS.items()}
+        det["learned"] = bool(R.get("detection", {}).get("learned_stiction", False))
         det["horch_L"] = bool(horch(loop, integrating=is_level_tag(r["loop_tag"]))["stiction"])
         for k in names[1:]:
             pred[k].append(det[k])
@@ -127,6 +130,7 @@ def sim_loops(seed0: int, n: int) -> None:
     if clash:
         raise SystemExit(f"seeds {clash[0]}.. were used to fit or choose the rule: evaluate on other seeds")
     named: dict[str, list[bool]] = defaultdict(list)
+    learned: dict[str, list[bool]] = defaultdict(list)
     classical: dict[str, dict[str, list[bool]]] = defaultdict(lambda: defaultdict(list))  # detector -> kind -> verdicts
     band_all: list[tuple[float, float, float, bool]] = []  # (truth S, band, sd, detected)
     cpu: list[float] = []
@@ -141,6 +145,7 @@ def sim_loops(seed0: int, n: int) -> None:
         cpu.append(dt_cpu)
         per720.append(dt_cpu / loop.n * 720.0)
         named[case["kind"]].append(d.cause == "stiction")
+        learned[case["kind"]].append(bool(d.result.get("detection", {}).get("learned_stiction", False)))
         for k, f in DETECTORS.items():
             classical[k][case["kind"]].append(bool(f(loop)["stiction"]))
         if sticky and "stiction" in d.result:
@@ -148,7 +153,7 @@ def sim_loops(seed0: int, n: int) -> None:
             band_all.append((case["S"], st["band_pct"], st["std_pct"], bool(st["detected"])))
     print(f"\nsimulated loops of wide variety, seeds {seed0}..{seed0 + n - 1} (valve_env.loops.sim.random_case): "
           "share named stiction per kind")
-    methods = {"combined": named, **classical}
+    methods = {"diagnose": named, "learned": learned, **classical}
     print(f"  {'kind':18s} {'n':>4s} " + " ".join(f"{m[:11]:>11s}" for m in methods))
     for k in sorted(named):
         print(f"  {k:18s} {len(named[k]):4d} " + " ".join(f"{100 * np.mean(v[k]):10.1f}%" for v in methods.values()))

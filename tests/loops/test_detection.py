@@ -77,5 +77,22 @@ def test_rule_on_unseen_simulated_loops(kind: str, named: bool) -> None:
     """On simulated loops of evaluation seeds (never fitted on), a third or more of the sticky loops are named (the
     benchmark's rate is about 60 %: half the generator's sticky loops do not limit-cycle in their record) and at most
     one smooth one in twelve."""
-    hits = [detect(simulate_case(random_case(seed, kind=kind))[0])["stiction"] for seed in range(920000, 920012)]
+    hits = [detect(simulate_case(random_case(seed, kind=kind))[0], rule="learned")["stiction"]
+            for seed in range(920000, 920012)]
     assert (sum(hits) >= 4) if named else (sum(hits) <= 1)
+
+
+def test_the_default_rule_is_horchs_test_and_the_learned_one_is_reported_beside_it() -> None:
+    """loop-diagnose decides by Horch's test as published; the learned rule's probability and verdict are in the
+    detection beside it; an unknown rule is refused."""
+    from valve_env.loops.detectors import horch
+
+    for seed in (920000, 920001, 920002):
+        for kind in ("stiction", "smooth"):
+            loop = simulate_case(random_case(seed, kind=kind))[0]
+            d = detect(loop)
+            assert d["rule"]["name"] == "horch" and d["stiction"] == horch(loop)["stiction"]
+            learned = detect(loop, rule="learned")
+            assert learned["stiction"] == d["learned_stiction"] == (d["probability"] > d["threshold"])
+    with pytest.raises(ValueError, match="rule must be one of"):
+        detect(loop, rule="vote")

@@ -68,7 +68,7 @@ def _diagnosis_via_csv(band_mm: float, seed: int, tmp_path: Path) -> Diagnosis:
     loop = record_env_loop(band_mm, seed=seed)
     path = tmp_path / f"env-{band_mm:g}-{seed}.csv"
     path.write_text(loop.to_csv_text())
-    return diagnose(read_loop(path))
+    return diagnose(read_loop(path), rule="learned")  # the environment's loops: the learned rule (docs/loops.md)
 
 
 def _diagnose_via_csv(band_mm: float, seed: int, tmp_path: Path) -> str:
@@ -88,7 +88,7 @@ def test_env_acceptance_mid_stroke(tmp_path: Path) -> None:
     for seed in range(700, 712):
         for band in (STICKY_MM, 0.0):
             loop = record_env_loop(band, seed=seed, env_id="ThermoValveStickyCirculation-v0", Kp=5.0, Ti_s=1500.0)
-            named = diagnose(loop).cause == "stiction"
+            named = diagnose(loop, rule="learned").cause == "stiction"
             sticky += named and band > 0
             smooth += named and band == 0
     assert sticky >= 11 and smooth <= 1

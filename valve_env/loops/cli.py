@@ -12,16 +12,20 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "loop-diagnose",
         help="diagnose a control loop's record: stiction (with its band) or another cause",
-        description="Detect valve stiction with the published shape tests (Horch, He, Kano, Choudhury's bicoherence, "
-        "the OP-PV ellipse) combined by a rule learned on simulated loops, and quantify the band (S and J, % of OP) "
-        "with a grey-box loop model fitted by maximum likelihood. Reads the loop CSV (time_s, sp, pv, op[, mv, mode]) "
-        "or a plant-historian export.",
+        description="Detect valve stiction with Horch's cross-correlation test (the published shape tests of He, "
+        "Kano, Choudhury's bicoherence and the OP-PV ellipse reported beside it; --rule learned combines them by a "
+        "rule learned on simulated loops), and quantify the band (S and J, % of OP) with a grey-box loop model "
+        "fitted by maximum likelihood. Reads the loop CSV (time_s, sp, pv, op[, mv, mode]) or a plant-historian "
+        "export.",
     )
     p.add_argument("loop", metavar="LOOP.csv", help="loop record (loop CSV or historian export)")
     p.add_argument("--json", dest="json_out", metavar="OUT.json", required=True, help="where to write the result")
     p.add_argument("--report", metavar="DIR", default=None, help="write report.md and figures into DIR")
     p.add_argument("--quantify", action="store_true",
                    help="fit the stick-slip band even when stiction is not detected (the cause is unchanged)")
+    p.add_argument("--rule", choices=("horch", "learned"), default="horch",
+                   help="the detection's decision: horch (default; Horch's test as published) or learned (the "
+                   "shape tests combined by a logistic regression fitted on simulated loops; docs/loops.md)")
     add_force(p)
     p.set_defaults(func=_cmd)
 
@@ -43,7 +47,7 @@ def _cmd(args: argparse.Namespace) -> int:
         for name in (*FIGURES, "report.md"):
             outs.add(report_dir / name, "report file")
     loop = read_loop(args.loop)
-    diag = diagnose(loop, quantify=True if args.quantify else None)
+    diag = diagnose(loop, quantify=True if args.quantify else None, rule=args.rule)
     with outs:
         outs.write_text(json_path, json_text(diag.result))
         if report_dir is not None:

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from valve_env.loops.detect import detect
+from valve_env.loops.detect import DEFAULT_RULE, detect
 from valve_env.loops.detectors import oscillation
 from valve_env.loops.io import MIN_SAMPLES, LoopData
 from valve_env.loops.model import (
@@ -168,17 +168,18 @@ def _insufficient(loop: LoopData, reason: str) -> Diagnosis:
     return Diagnosis(result, {}, Settings(dt=loop.dt), loop)
 
 
-def diagnose(loop: LoopData, quantify: bool | None = None, settings: Settings | None = None) -> Diagnosis:
+def diagnose(loop: LoopData, quantify: bool | None = None, settings: Settings | None = None,
+             rule: str = DEFAULT_RULE) -> Diagnosis:
     """Diagnose one loop record (module doc); returns the docs/reference.md section 10 result and the fits behind it.
     ``quantify`` True fits the band whatever the detection says; None (the default) fits it when stiction is
-    detected; False never."""
+    detected; False never. ``rule``: the detection's decision rule (:data:`valve_env.loops.detect.RULES`)."""
     if loop.n < MIN_SAMPLES:
         return _insufficient(loop, f"too short a record ({loop.n} samples; at least {MIN_SAMPLES} needed)")
     osc = oscillation(loop.pv - loop.sp, loop.dt)
     if osc["oscillating"] and loop.n * loop.dt < MIN_PERIODS * osc["period_s"]:
         return _insufficient(loop, f"the record ({loop.n * loop.dt:g} s) holds fewer than {MIN_PERIODS:g} periods of "
                                    f"its oscillation (period {osc['period_s']:.0f} s)")
-    det = detect(loop)
+    det = detect(loop, rule)
     stiction = det["stiction"]
     need_fit = stiction if quantify is None else quantify
     fits: dict[str, ValveFit] = {}

@@ -143,9 +143,12 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
         save("profile.png", _text_figure(plt, "no band fitted (stiction not detected; --quantify fits it)"))
 
     det = R["detection"]
+    rule = det.get("rule", {})
     lines += ["## Detection", "",
-              f"The combined rule (a logistic regression fitted on simulated loops only) gives a probability of "
-              f"stiction of {det['probability']:.2f} against its threshold {det['threshold']:.2f}.", "",
+              f"The decision: {rule.get('kind', '')} (`--rule {rule.get('name', '')}`): "
+              f"{'stiction' if det['stiction'] else 'no stiction'}. The learned rule (a logistic regression fitted "
+              f"on simulated loops only) gives a probability of stiction of {det['probability']:.2f} against its "
+              f"threshold {det['threshold']:.2f}.", "",
               "| detector | statistic | its own verdict |", "|---|---|---|"]
     for name, key in _DETECTORS:
         d = det["detectors"][key]
