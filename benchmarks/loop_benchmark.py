@@ -1,17 +1,25 @@
-"""Loop-diagnosis benchmark (docs/loops.md, "Figures").
+"""Loop-diagnosis benchmark (docs/loops.md, "Figures"): every detector, loop-diagnose and the learned rule side by side.
 
 Prints, in one run:
-* on the real loops of the chosen split set (benchmarks/plant_loops_split.csv; --set dev, heldout
-  or all): balanced accuracy (stiction vs not) of the grey-box method and of each classical
-  detector, overall and per loop tag, with the time per loop;
-* on simulated loops (valve_env.loops.sim, seeds --sim-seed .. +--sim-n; run whenever --sim-n > 0, with or
-  without --data): the share of bands within 20 % of the truth, the 1-sd and 2-sd coverage, how many bands
-  the record resolves, and the false-alarm rate on smooth valves; and (unless --no-external) the external-oscillation
-  set: the same smooth and sticky valves under a sinusoidal load, with how many are named stiction and the causes.
-  Without --data no real loop is read.
+* on the real loops (``--data``: the plant_loops folder with ``index.csv``, label / file / loop_tag): each
+  detector's verdict (Horch as published, Horch's integrating variant on the level loops by tag, He et al., Kano et
+  al., Choudhury et al.'s bicoherence test), ``thermovalve loop-diagnose``'s cause (its default rule: Horch's test)
+  and the learned rule's verdict (``--rule learned``), the balanced accuracy overall and per loop tag, and the time
+  per loop. The learned rule is fitted on simulated loops only, so this leave-one-tag-out table is a plain
+  evaluation per tag: nothing is fitted on any real loop. A file
+  the reader refuses counts as "not stiction" for every method;
+* on simulated loops of wide variety (``valve_env.loops.sim.random_case``, seeds ``--sim-seed`` ..
+  ``+ --sim-n``; never the training seeds 0-1199 or the validation seeds 100000-100399 of
+  benchmarks/loop_train_detector.py): stiction named per kind of loop (sticky, smooth, deadband without stick,
+  external oscillation, sticky under an external oscillation) and the false-alarm rate; the band (fitted on every
+  sticky loop, ``quantify=True``): within 20 % of the truth and the 1-sd and 2-sd coverage, over all sticky loops and
+  over those detected; CPU time per loop.
 
-    python benchmarks/loop_benchmark.py --data /path/to/plant_loops --set dev
-    python benchmarks/loop_benchmark.py --data /path/to/plant_loops --set heldout --sim-seed 1000
+    python benchmarks/loop_benchmark.py --data /work/shared/data/plant_loops --sim-n 0
+    python benchmarks/loop_benchmark.py --sim-seed 900000 --sim-n 200
+    python benchmarks/loop_benchmark.py --sim-n 0 --standard-seed 8500 --standard-n 40
+
+``--standard-n`` adds the four-process set of the unit tests' generator (sticky loops with their smooth twins).
 """
 
 from __future__ import annotations
@@ -29,9 +37,11 @@ import numpy as np
 from valve_env.loops.detectors import DETECTORS, horch
 from valve_env.loops.diagnose import diagnose
 from valve_env.loops.io import LoopDataError, read_loop
-from valve_env.loops.sim import simulate_loop
+from valve_env.loops.sim import random_case, simulate_case
 
-SPLIT = Path(__file__).with_name("plant_loops_split.csv")
+#: the seeds benchmarks/loop_train_detector.py fitted and chose the rule on (never evaluation seeds)
+TRAINING_SEEDS = range(0, 1200)
+VALIDATION_SEEDS = range(100000, 100400)
 
 
 def is_level_tag(tag: str) -> bool:
@@ -40,176 +50,177 @@ def is_level_tag(tag: str) -> bool:
     return bool(m and m.group(1).startswith("L"))
 
 
-def horch_by_tag(loop, tag: str) -> dict:
-    """Horch's test as published: the integrating variant (PV increments) on the level loops by their tag."""
-    return horch(loop, integrating=is_level_tag(tag))
-
-
 def balanced_accuracy(truth: list[bool], pred: list[bool]) -> float:
     t, p = np.asarray(truth), np.asarray(pred)
     parts = [float(np.mean(p[t == v] == v)) for v in (True, False) if np.any(t == v)]
     return float(np.mean(parts)) if parts else float("nan")
 
 
-def real_loops(data: Path, which: str) -> None:
-    rows = [r for r in csv.DictReader(open(SPLIT)) if which == "all" or r["set"] == which]
-    dets = {**DETECTORS, "horch_L": None}
-    names = ["greybox", *dets]
+def tag_balanced_accuracy(truth: list[bool], pred: list[bool], tags: list[str]) -> float:
+    """Balanced accuracy with every loop tag weighted alike within its class (a tag's share of its files correct)."""
+    per: dict[bool, list[float]] = defaultdict(list)
+    for tag in sorted(set(tags)):
+        idx = [i for i, t in enumerate(tags) if t == tag]
+        per[truth[idx[0]]].append(float(np.mean([pred[i] == truth[i] for i in idx])))
+    return float(np.mean([np.mean(v) for v in per.values()]))
+
+
+def real_loops(data: Path) -> None:
+    rows = list(csv.DictReader(open(data / "index.csv")))
+    names = ["diagnose", "learned", "horch", "horch_L", "he", "kano", "bicoherence"]
     pred: dict[str, list[bool]] = defaultdict(list)
     truth: list[bool] = []
     tags: list[str] = []
-    times: list[float] = []
+    wall: list[float] = []
     cpu: list[float] = []
     sizes: list[int] = []
-    print(f"real loops, set {which}: {len(rows)} files")
-    print(f"{'file':40s} {'label':13s} {'greybox':22s} " + " ".join(f"{d:>7s}" for d in dets) + "  time_s")
+    print(f"real loops: {len(rows)} files, {len({r['loop_tag'] for r in rows})} loop tags")
+    print(f"{'file':36s} {'label':8s} {'loop-diagnose':34s} " + " ".join(f"{d[:7]:>7s}" for d in names[1:])
+          + "  cpu_s")
     for r in rows:
+        truth.append(r["label"] == "stiction")
+        tags.append(r["loop_tag"])
         try:
             loop = read_loop(data / r["label"] / r["file"])
-        except LoopDataError as exc:  # counted as "not stiction" for every method: a miss if it is sticky
-            truth.append(r["label"] == "stiction")
-            tags.append(r["loop_tag"])
+        except LoopDataError as exc:
             for k in names:
                 pred[k].append(False)
-            print(f"{r['file'][:40]:40s} {r['label']:13s} UNREADABLE: {str(exc).split(': ', 1)[-1]}")
+            print(f"{r['file'][:36]:36s} {r['label'][:8]:8s} REFUSED: {str(exc).split(': ', 1)[-1]}")
             continue
         t0, c0 = time.perf_counter(), time.process_time()
         d = diagnose(loop)
-        times.append(time.perf_counter() - t0)
+        wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
         sizes.append(loop.n)
-        truth.append(r["label"] == "stiction")
-        tags.append(r["loop_tag"])
-        pred["greybox"].append(d.cause == "stiction")
-        det = {k: f(loop)["stiction"] for k, f in DETECTORS.items()}
-        det["horch_L"] = horch_by_tag(loop, r["loop_tag"])["stiction"]
-        for k, v in det.items():
-            pred[k].append(v)
-        band = f" {d.result['stiction']['band_pct']:.2f}%" if "stiction" in d.result else ""
-        print(f"{r['file'][:40]:40s} {r['label']:13s} {(d.cause + band)[:22]:22s} "
-              + " ".join(f"{int(v):7d}" for v in det.values()) + f"  {times[-1]:.2f}")
-    print(f"\nbalanced accuracy, set {which} ({sum(truth)} stiction, {len(truth) - sum(truth)} not):")
+        R = d.result
+        pred["diagnose"].append(d.cause == "stiction")
+        det = {k: bool(f(loop)["stiction"]) for k, f in DETECTORS.items()}
+        det["learned"] = bool(R.get("detection", {}).get("learned_stiction", False))
+        det["horch_L"] = bool(horch(loop, integrating=is_level_tag(r["loop_tag"]))["stiction"])
+        for k in names[1:]:
+            pred[k].append(det[k])
+        p = R["detection"]["probability"] if "detection" in R else float("nan")
+        what = f"{d.cause} p={p:.2f}" + (f" S={R['stiction']['band_pct']:.2f}%" if "stiction" in R else "")
+        print(f"{r['file'][:36]:36s} {r['label'][:8]:8s} {what[:34]:34s} "
+              + " ".join(f"{int(det[k]):7d}" for k in names[1:]) + f"  {cpu[-1]:.2f}")
+    n_st = sum(truth)
+    print(f"\nbalanced accuracy over files ({n_st} stiction, {len(truth) - n_st} not) and with every loop tag "
+          "weighted alike within its class:")
     for k in names:
-        print(f"  {k:8s} {100 * balanced_accuracy(truth, pred[k]):5.1f} %")
-    print("per loop tag (share correct):")
+        print(f"  {k:12s} files {100 * balanced_accuracy(truth, pred[k]):5.1f} %   tags "
+              f"{100 * tag_balanced_accuracy(truth, pred[k], tags):5.1f} %   sticky caught "
+              f"{sum(p and t for p, t in zip(pred[k], truth, strict=True))}/{n_st}, clean kept "
+              f"{sum((not p) and (not t) for p, t in zip(pred[k], truth, strict=True))}/{len(truth) - n_st}")
+    print("leave one loop tag out (the rule is fitted on simulated loops only: each tag is an evaluation), "
+          "files correct per tag:")
     for tag in sorted(set(tags)):
         idx = [i for i, t in enumerate(tags) if t == tag]
         lab = "stiction" if truth[idx[0]] else "non_stiction"
-        print(f"  {tag:28s} {lab:13s} n={len(idx):2d} " + " ".join(
+        print(f"  {tag:24s} {lab:12s} n={len(idx):2d} " + " ".join(
             f"{k}={sum(pred[k][i] == truth[i] for i in idx)}/{len(idx)}" for k in names))
     per720 = np.asarray(cpu) / np.asarray(sizes) * 720.0  # the speed goal's record: 2 h at 10 s
-    print(f"time per loop: wall mean {np.mean(times):.2f} s, max {np.max(times):.2f} s; CPU mean {np.mean(cpu):.2f} s, "
-          f"max {np.max(cpu):.2f} s (records of {np.mean(sizes):.0f} samples on average, 10 s sampling); CPU per "
-          f"720 samples mean {np.mean(per720):.2f} s, max {np.max(per720):.2f} s")
+    print(f"time per loop (the whole diagnosis): wall mean {np.mean(wall):.2f} s, max {np.max(wall):.2f} s; CPU mean "
+          f"{np.mean(cpu):.2f} s, max {np.max(cpu):.2f} s (records of {np.mean(sizes):.0f} samples on average); CPU "
+          f"per 720 samples mean {np.mean(per720):.2f} s, max {np.max(per720):.2f} s")
 
 
-#: the external-oscillation set's load (docs/loops.md, "Decision", condition 4): a sinusoid added to the
-#: process input (``sim.simulate_loop``'s ``external_amp``, % of valve travel, like the load random walk), its period
-#: and amplitude drawn uniformly from these ranges, s and %
-EXTERNAL_PERIOD_S = (300.0, 1200.0)
-EXTERNAL_AMP = (0.5, 2.0)
+def sim_loops(seed0: int, n: int) -> None:
+    seeds = range(seed0, seed0 + n)
+    clash = [s for s in seeds if s in TRAINING_SEEDS or s in VALIDATION_SEEDS]
+    if clash:
+        raise SystemExit(f"seeds {clash[0]}.. were used to fit or choose the rule: evaluate on other seeds")
+    named: dict[str, list[bool]] = defaultdict(list)
+    learned: dict[str, list[bool]] = defaultdict(list)
+    classical: dict[str, dict[str, list[bool]]] = defaultdict(lambda: defaultdict(list))  # detector -> kind -> verdicts
+    band_all: list[tuple[float, float, float, bool]] = []  # (truth S, band, sd, detected)
+    cpu: list[float] = []
+    per720: list[float] = []
+    for sd in seeds:
+        case = random_case(sd)
+        loop, truth = simulate_case(case)
+        c0 = time.process_time()
+        sticky = case["label"] == "stiction"
+        d = diagnose(loop, quantify=True if sticky else None)
+        dt_cpu = time.process_time() - c0
+        cpu.append(dt_cpu)
+        per720.append(dt_cpu / loop.n * 720.0)
+        named[case["kind"]].append(d.cause == "stiction")
+        learned[case["kind"]].append(bool(d.result.get("detection", {}).get("learned_stiction", False)))
+        for k, f in DETECTORS.items():
+            classical[k][case["kind"]].append(bool(f(loop)["stiction"]))
+        if sticky and "stiction" in d.result:
+            st = d.result["stiction"]
+            band_all.append((case["S"], st["band_pct"], st["std_pct"], bool(st["detected"])))
+    print(f"\nsimulated loops of wide variety, seeds {seed0}..{seed0 + n - 1} (valve_env.loops.sim.random_case): "
+          "share named stiction per kind")
+    methods = {"diagnose": named, "learned": learned, **classical}
+    print(f"  {'kind':18s} {'n':>4s} " + " ".join(f"{m[:11]:>11s}" for m in methods))
+    for k in sorted(named):
+        print(f"  {k:18s} {len(named[k]):4d} " + " ".join(f"{100 * np.mean(v[k]):10.1f}%" for v in methods.values()))
+    for m, v in methods.items():
+        sticky = [x for k in ("stiction", "stiction_external") for x in v[k]]
+        clean = [x for k in ("smooth", "hysteresis", "external") for x in v[k]]
+        print(f"  {m:12s} sticky caught {sum(sticky)}/{len(sticky)} ({100 * np.mean(sticky):.1f} %); valves without "
+              f"stick named {sum(clean)}/{len(clean)} ({100 * np.mean(clean):.1f} %; smooth and external only: "
+              f"{sum(v['smooth']) + sum(v['external'])}/{len(v['smooth']) + len(v['external'])}); balanced accuracy "
+              f"{50 * (np.mean(sticky) + 1 - np.mean(clean)):.1f} %")
+    for what, rows in (("all sticky loops (band fitted on request)", band_all),
+                       ("sticky loops detected", [b for b in band_all if b[3]])):
+        if not rows:
+            continue
+        S, B, SD = (np.array([b[i] for b in rows]) for i in range(3))
+        err = np.abs(B - S) / S
+        print(f"  band, {what}: {len(rows)}; within 20 % of the truth {int(np.sum(err <= 0.2))} "
+              f"({100 * np.mean(err <= 0.2):.1f} %); 1-sd coverage {100 * np.mean(np.abs(B - S) <= SD):.1f} %, "
+              f"2-sd coverage {100 * np.mean(np.abs(B - S) <= 2 * SD):.1f} %; median |error| "
+              f"{100 * np.median(err):.0f} %")
+    print(f"  CPU per loop mean {np.mean(cpu):.2f} s, max {np.max(cpu):.2f} s; per 720 samples mean "
+          f"{np.mean(per720):.2f} s, max {np.max(per720):.2f} s")
 
 
-def sim_cases(seed0: int, n: int) -> list[dict]:
-    """The simulated benchmark loops of seeds ``seed0 .. seed0 + n - 1``: process, band S and jump J of the
-    sticky loop (its seed), the seed of its smooth twin, and the external-oscillation set's sinusoid (period and
-    amplitude, drawn from their own stream, so the sticky loops and twins do not depend on it)."""
+def standard_loops(seed0: int, n: int) -> None:
+    """The four-process set of the unit tests' generator (``sim.simulate_loop``: flow, pressure, temperature, level
+    in turn; S ~ U(1, 4) % of OP, J/S ~ U(0.3, 1); 2 h at 10 s), each sticky loop with its smooth twin (seed
+    + 10000): detection, and the band fitted on every sticky loop."""
+    from valve_env.loops.sim import simulate_loop
+
     rng = np.random.default_rng(seed0)
-    ext = np.random.default_rng([seed0, 21])
     procs = ["flow", "pressure", "temperature", "level"]
-    out = []
+    found = twins = 0
+    rows = []
     for i in range(n):
         S = float(rng.uniform(1.0, 4.0))
         J = S * float(rng.uniform(0.3, 1.0))
-        out.append({"process": procs[i % len(procs)], "S": S, "J": J, "seed": seed0 + i,
-                    "smooth_seed": seed0 + 10_000 + i, "ext_period_s": float(ext.uniform(*EXTERNAL_PERIOD_S)),
-                    "ext_amp": float(ext.uniform(*EXTERNAL_AMP))})
-    return out
-
-
-def sim_record(c: dict, kind: str):
-    """One simulated record of a case of :func:`sim_cases`: ``kind`` sticky, smooth (the twin), ext_smooth or
-    ext_sticky (the same records under the case's external sinusoid)."""
-    sticky = kind in ("sticky", "ext_sticky")
-    ext = kind.startswith("ext_")
-    loop, _ = simulate_loop(c["process"], S=c["S"] if sticky else 0.0, J=c["J"] if sticky else None,
-                            seed=c["seed"] if sticky else c["smooth_seed"],
-                            external_amp=c["ext_amp"] if ext else 0.0,
-                            external_period_s=c["ext_period_s"] if ext else 600.0)
-    return loop
-
-
-def _sim_one(job: tuple[dict, str]) -> dict:
-    """One simulated record of a case (:func:`sim_record`), diagnosed."""
-    loop = sim_record(*job)
-    t0 = time.process_time()
-    d = diagnose(loop)
-    return {"cause": d.cause, "stiction": d.result.get("stiction"), "cpu": time.process_time() - t0}
-
-
-def sim_loops(seed0: int, n: int, external: bool = True, jobs: int = 1) -> None:
-    hits = cover = cover1 = found = resolved = 0
-    kinds = ["sticky", "smooth"] + (["ext_smooth", "ext_sticky"] if external else [])
-    cases = sim_cases(seed0, n)
-    work = [(c, k) for c in cases for k in kinds]
-    if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(jobs) as ex:
-            res = list(ex.map(_sim_one, work))
-    else:
-        res = [_sim_one(w) for w in work]
-    out = {(c["seed"], k): r for (c, k), r in zip(work, res, strict=True)}
-    print(f"\nsimulated loops, seeds {seed0}..{seed0 + n - 1}: sticky valve, S ~ U(1, 4) %, J/S ~ U(0.3, 1)"
-          + (f"; external set: sinusoid of period U{EXTERNAL_PERIOD_S} s, amplitude U{EXTERNAL_AMP} % of valve"
-             if external else ""))
-    for c in cases:
-        proc, S, J = c["process"], c["S"], c["J"]
-        r = out[(c["seed"], "sticky")]
-        st = r["stiction"]
-        line = f"  {proc:12s} S={S:5.2f} J={J:5.2f}: {r['cause']}"
-        if st is not None:
-            found += 1
-            err = abs(st["band_pct"] - S) / S
-            hits += err <= 0.2
-            cover += abs(st["band_pct"] - S) <= 2 * st["std_pct"]
-            cover1 += abs(st["band_pct"] - S) <= st["std_pct"]
-            resolved += st["band_resolved"]
-            line += (f" band {st['band_pct']:.2f} +/- {st['std_pct']:.2f} (error {100 * err:.0f} %"
-                     f"{'' if st['band_resolved'] else ', not resolved'})")
-        if external:
-            line += (f" | external {c['ext_period_s']:.0f} s x {c['ext_amp']:.2f}: smooth "
-                     f"{out[(c['seed'], 'ext_smooth')]['cause']}, sticky {out[(c['seed'], 'ext_sticky')]['cause']}")
-        print(line)
-    times = [out[(c["seed"], "sticky")]["cpu"] for c in cases]
-    false_alarm = sum(out[(c["seed"], "smooth")]["cause"] == "stiction" for c in cases)
-    print(f"named stiction on {found}/{n} sticky loops; band within 20 % of the truth: {hits}/{found}; "
-          f"1-sd coverage: {cover1}/{found}; 2-sd coverage: {cover}/{found}; bands resolved (at least one sample's "
-          f"OP move, crossed back by the fitted valve): {resolved}/{found}; smooth valves called stiction: "
-          f"{false_alarm}/{n}; CPU time per sticky loop mean {np.mean(times):.2f} s, max {np.max(times):.2f} s")
-    if external:
-        for k, what in (("ext_smooth", "smooth valves"), ("ext_sticky", "sticky valves")):
-            causes = [out[(c["seed"], k)]["cause"] for c in cases]
-            hist = ", ".join(f"{v} {causes.count(v)}" for v in sorted(set(causes)))
-            print(f"external oscillation, {what}: named stiction {causes.count('stiction')}/{n} (causes: {hist})")
-        cpu = [r["cpu"] for r in res]
-        print(f"CPU time per loop, all {len(res)} records: mean {np.mean(cpu):.2f} s, max {np.max(cpu):.2f} s")
+        loop, _ = simulate_loop(procs[i % 4], S=S, J=J, seed=seed0 + i)
+        d = diagnose(loop, quantify=True)
+        found += d.cause == "stiction"
+        st = d.result["stiction"]
+        rows.append((S, st["band_pct"], st["std_pct"]))
+        smooth, _ = simulate_loop(procs[i % 4], S=0.0, seed=seed0 + 10_000 + i)
+        twins += diagnose(smooth).cause == "stiction"
+    S, B, SD = (np.array([r[k] for r in rows]) for k in range(3))
+    err = np.abs(B - S)
+    print(f"\nfour-process set, seeds {seed0}..{seed0 + n - 1} (S ~ U(1, 4) %, J/S ~ U(0.3, 1)): sticky named "
+          f"{found}/{n}, smooth twins named {twins}/{n}; band (fitted on every sticky loop) within 20 % of the truth "
+          f"{int(np.sum(err <= 0.2 * S))}/{n}, 1-sd coverage {int(np.sum(err <= SD))}/{n}, 2-sd coverage "
+          f"{int(np.sum(err <= 2 * SD))}/{n}; median |error| {100 * np.median(err / S):.0f} %")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", type=Path, default=None, help="the plant_loops folder (stiction/, non_stiction/)")
-    ap.add_argument("--set", choices=("dev", "heldout", "all"), default="dev")
-    ap.add_argument("--sim-seed", type=int, default=0)
-    ap.add_argument("--sim-n", type=int, default=20)
-    ap.add_argument("--no-external", action="store_true",
-                    help="skip the simulated external-oscillation set (smooth, sticky valves under a sinusoidal load)")
-    ap.add_argument("--jobs", type=int, default=1, help="worker processes for the simulated loops")
+    ap.add_argument("--data", type=Path, default=None, help="the plant_loops folder (index.csv, stiction/, "
+                    "non_stiction/)")
+    ap.add_argument("--sim-seed", type=int, default=900000)
+    ap.add_argument("--sim-n", type=int, default=100)
+    ap.add_argument("--standard-seed", type=int, default=8500)
+    ap.add_argument("--standard-n", type=int, default=0, help="loops of the four-process set (0: none)")
     args = ap.parse_args(argv)
     if args.data is not None:
-        real_loops(args.data, args.set)
+        real_loops(args.data)
     if args.sim_n > 0:
-        sim_loops(args.sim_seed, args.sim_n, not args.no_external, args.jobs)
+        sim_loops(args.sim_seed, args.sim_n)
+    if args.standard_n > 0:
+        standard_loops(args.standard_seed, args.standard_n)
     return 0
 
 

@@ -46,7 +46,6 @@ def test_loop_csv_round_trip(tmp_path: Path) -> None:
     ({"pv": np.where(np.arange(300) == 17, np.nan, 50.0)}, "column pv has 1 NaN"),
     ({"time_s": np.r_[np.arange(100) * 10.0, np.arange(200) * 10.0]}, "time is not strictly increasing at sample 101"),
     ({"op": np.full(300, 42.0)}, "constant OP"),
-    ({"op": 1040.0 + 5.0 * np.cos(np.arange(300) / 30.0)}, "OP runs from 1035 to 1045"),
 ])
 def test_bad_records_name_the_problem(tmp_path: Path, override: dict, needle: str) -> None:
     p = _write_csv(tmp_path / "bad.csv", **override)
@@ -55,9 +54,24 @@ def test_bad_records_name_the_problem(tmp_path: Path, override: dict, needle: st
     assert "\n" not in str(exc.value)
 
 
-def test_too_short_and_missing_column(tmp_path: Path) -> None:
-    with pytest.raises(LoopDataError, match="too short a record"):
-        read_loop(_write_csv(tmp_path / "short.csv", n=50))
+def test_op_in_engineering_units_is_scaled_by_its_range(tmp_path: Path) -> None:
+    """An OP beyond -10..110 % (a DCS exporting engineering units) is mapped onto 0-100 % by its observed range,
+    with a note naming the range; an OP within it is read as it is."""
+    op = 1040.0 + 5.0 * np.cos(np.arange(300) / 30.0)
+    loop = read_loop(_write_csv(tmp_path / "eu.csv", op=op))
+    assert loop.op_scaled_from == pytest.approx((op.min(), op.max()))
+    assert loop.op.min() == pytest.approx(0.0) and loop.op.max() == pytest.approx(100.0)
+    np.testing.assert_allclose(loop.op, 100.0 * (op - op.min()) / np.ptp(op), atol=0.1)  # the CSV holds 6 digits
+    assert any("scaled by its observed range" in n and "1035" in n for n in loop.notes)
+    plain = read_loop(_write_csv(tmp_path / "pct.csv"))
+    assert plain.op_scaled_from is None and plain.notes == []
+
+
+def test_short_record_is_read_and_missing_column_refused(tmp_path: Path) -> None:
+    """A well-formed short record is read (the diagnosis names it insufficient_data); a malformed file is refused."""
+    assert read_loop(_write_csv(tmp_path / "short.csv", n=50)).n == 50
+    with pytest.raises(LoopDataError, match="a record needs at least two"):
+        read_loop(_write_csv(tmp_path / "one.csv", n=1))
     p = tmp_path / "nocol.csv"
     p.write_text("time_s,sp,pv\n0,1,2\n")
     with pytest.raises(LoopDataError, match="missing column"):
@@ -71,9 +85,8 @@ def test_manual_mode_dropped_with_a_note(tmp_path: Path) -> None:
     assert loop.n == 340
     assert loop.time_s[0] == 0.0
     assert any("manual mode" in note for note in loop.notes)
-    mode[150:] = 0.0
-    with pytest.raises(LoopDataError, match="too short a record in automatic mode"):
-        read_loop(_write_csv(tmp_path / "m2.csv", n=400, mode=mode))
+    mode[150:] = 0.0  # a short automatic stretch is kept (the diagnosis names it insufficient_data)
+    assert read_loop(_write_csv(tmp_path / "m2.csv", n=400, mode=mode)).n == 90
 
 
 def _write_historian(path: Path, rows: list[tuple[str, float, float, float, int]]) -> Path:

@@ -1,6 +1,6 @@
 """The valve between the recorded samples (docs/loops.md, "Model"): a historian records interval means of OP, so the
 band's fit drives the valve with a mean-preserving sub-sample OP and feeds the process the valve's interval mean; one
-substep is the sample-rate valve (nested), which the decision keeps."""
+substep is the sample-rate valve (nested)."""
 
 from __future__ import annotations
 
@@ -66,19 +66,17 @@ def test_substeps_fit_an_interval_mean_record_better_near_its_band() -> None:
 
 def test_sub_sample_valve_recovers_the_flow_band() -> None:
     """The band's fit with the valve between the samples recovers the flow loop's band (within 20 %, closer than the
-    sample-rate valve's); the decision (the sample-rate fits) is the same either way."""
+    sample-rate valve's); the linear valve's fit is the same either way."""
     loop, _ = simulate_loop(FLOW["process"], S=FLOW["S"], J=FLOW["J"], seed=FLOW["seed"])
     base = select_noise_order(loop)
     err = {}
     findings = []
     for m in (1, 4):
-        d = diagnose(loop, replace(base, band_substeps=m))
-        assert d.cause == "stiction" and d.band_fit is not None
+        d = diagnose(loop, quantify=True, settings=replace(base, band_substeps=m))
+        assert d.band_fit is not None
         st = d.result["stiction"]
         err[m] = abs(st["band_pct"] - FLOW["S"]) / FLOW["S"]
-        assert d.band_fit.substeps == st["valve_substeps"] == m and d.fits["stiction"].substeps == 1
-        if m == 1:
-            assert d.band_fit is d.fits["stiction"]
-        findings.append(d.result["findings"])
+        assert d.band_fit.substeps == st["valve_substeps"] == m
+        findings.append(d.result["findings"][0])
     assert findings[0] == findings[1]
     assert err[4] < 0.2 and err[4] < err[1]

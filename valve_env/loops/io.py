@@ -13,8 +13,11 @@ are merged with a note: exact duplicates dropped, differing rows averaged
 (:func:`merge_repeated_timestamps`); time that goes backwards stays an error.
 
 Every problem with a record raises :class:`LoopDataError` whose message is one line naming the
-problem (NaN, non-increasing time, constant OP, too short a record, ...). Samples in manual mode
-are dropped with a note when enough automatic data remains (the longest automatic stretch is kept).
+problem (NaN, non-increasing time, constant OP, ...). A well-formed record that is merely short is read:
+the diagnosis names it ``insufficient_data`` (valve_env.loops.diagnose). Samples in manual mode are dropped
+with a note (the longest automatic stretch is kept). An OP outside the range a controller output in % can
+take (some DCS exports give OP in engineering units) is scaled by its observed range onto 0-100 %, with a
+note (:attr:`LoopData.op_scaled_from`).
 """
 
 from __future__ import annotations
@@ -28,12 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-#: the shortest record, in samples, that is diagnosed (about 40 min at 10 s)
+#: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
+#: ``insufficient_data``
 MIN_SAMPLES = 240
 #: OP whose range is below this (in %) is constant
 MIN_OP_RANGE_PCT = 1e-3
-#: the widest controller output a record may carry, %: 0-100 % and the overdrive some DCSs allow beyond it
-#: (Honeywell TDC/Experion: OP limits -6.9 to 106.9 %); anything further is not an output in % (docs/loops.md)
+#: the widest controller output read as %: 0-100 % and the overdrive some DCSs allow beyond it (Honeywell
+#: TDC/Experion: OP limits -6.9 to 106.9 %); an OP beyond it is in engineering units and is scaled by its observed
+#: range (docs/loops.md, "Input formats")
 OP_RANGE_PCT = (-10.0, 110.0)
 
 
@@ -53,6 +58,9 @@ class LoopData:
     tag: str = ""
     source: str = ""
     notes: list[str] = field(default_factory=list)
+    #: the observed OP range (min, max) in the export's units when OP was scaled onto 0-100 % by it; None when OP was
+    #: read as % (docs/loops.md, "Input formats")
+    op_scaled_from: tuple[float, float] | None = None
 
     @property
     def dt(self) -> float:
@@ -159,7 +167,7 @@ def _is_historian(path: Path) -> bool:
         return False
 
 
-def read_loop(path: str | Path, min_samples: int = MIN_SAMPLES) -> LoopData:
+def read_loop(path: str | Path) -> LoopData:
     """Read either format (detected from the first line), check it, drop manual-mode samples and
     return a :class:`LoopData` on a uniform grid."""
     p = Path(path)
@@ -168,7 +176,7 @@ def read_loop(path: str | Path, min_samples: int = MIN_SAMPLES) -> LoopData:
     if p.is_dir():
         raise LoopDataError(f"{p}: is a directory")
     cols, tag = read_historian(p) if _is_historian(p) else read_loop_csv(p)
-    return check_loop(cols, tag=tag, source=str(p), min_samples=min_samples)
+    return check_loop(cols, tag=tag, source=str(p))
 
 
 def _longest_true_run(mask: np.ndarray) -> tuple[int, int]:
@@ -206,14 +214,13 @@ def merge_repeated_timestamps(cols: dict[str, np.ndarray]) -> tuple[dict[str, np
     return out, note
 
 
-def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
-               min_samples: int = MIN_SAMPLES) -> LoopData:
+def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> LoopData:
     """Validate raw columns (``time_s, sp, pv, op`` and optional ``mv, mode``); see the module doc."""
     where = source or "loop"
     notes: list[str] = []
     n = cols["time_s"].size
     if n < 2:
-        raise LoopDataError(f"{where}: too short a record ({n} samples; at least {min_samples} needed)")
+        raise LoopDataError(f"{where}: {n} sample(s): a record needs at least two")
     for c in ("time_s", "sp", "pv", "op", "mv", "mode"):
         if c in cols:
             bad = np.flatnonzero(~np.isfinite(cols[c]))
@@ -237,17 +244,14 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
             raise LoopDataError(f"{where}: the loop is never in automatic mode (mode column never 1)")
         if not auto.all():
             a, b = _longest_true_run(auto)
-            if b - a < min_samples:
-                raise LoopDataError(f"{where}: too short a record in automatic mode ({b - a} samples in the "
-                                    f"longest automatic stretch; at least {min_samples} needed)")
             notes.append(f"dropped {n - (b - a)} sample(s) outside the longest automatic-mode stretch "
                          f"(samples {a + 1}-{b} kept; {int((~auto).sum())} in manual mode)")
             keep[:] = False
             keep[a:b] = True
     t = cols["time_s"][keep]
     t = t - t[0]
-    if t.size < min_samples:
-        raise LoopDataError(f"{where}: too short a record ({t.size} samples; at least {min_samples} needed)")
+    if t.size < 2:
+        raise LoopDataError(f"{where}: {t.size} sample(s) in automatic mode: a record needs at least two")
     data = {c: cols[c][keep] for c in ("sp", "pv", "op", "mv") if c in cols}
     step = np.diff(t)
     h = float(np.median(step))
@@ -258,9 +262,15 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
                      f"{step.max():g} s)")
         t = grid
     op = data["op"]
-    if float(op.min()) < OP_RANGE_PCT[0] or float(op.max()) > OP_RANGE_PCT[1]:
-        raise LoopDataError(f"{where}: OP runs from {float(op.min()):.4g} to {float(op.max()):.4g}: a controller "
-                            f"output in % lies within {OP_RANGE_PCT[0]:g} to {OP_RANGE_PCT[1]:g} %")
+    scaled: tuple[float, float] | None = None
+    if float(np.ptp(op)) > 0 and (float(op.min()) < OP_RANGE_PCT[0] or float(op.max()) > OP_RANGE_PCT[1]):
+        scaled = (float(op.min()), float(op.max()))
+        op = 100.0 * (op - scaled[0]) / (scaled[1] - scaled[0])
+        notes.append(f"OP runs from {scaled[0]:.6g} to {scaled[1]:.6g}, outside {OP_RANGE_PCT[0]:g} to "
+                     f"{OP_RANGE_PCT[1]:g} %: read as engineering units and scaled by its observed range "
+                     f"({scaled[0]:.6g} -> 0 %, {scaled[1]:.6g} -> 100 %); bands are in % of that range")
+        if "mv" in data and (float(data["mv"].min()) < OP_RANGE_PCT[0] or float(data["mv"].max()) > OP_RANGE_PCT[1]):
+            data["mv"] = 100.0 * (data["mv"] - scaled[0]) / (scaled[1] - scaled[0])
     if float(np.ptp(op)) < MIN_OP_RANGE_PCT:
         raise LoopDataError(f"{where}: constant OP (range {float(np.ptp(op)):.3g} %): nothing to diagnose")
     if float(np.ptp(data["pv"])) == 0.0:
@@ -268,7 +278,7 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "",
     if not math.isfinite(h) or h <= 0:
         raise LoopDataError(f"{where}: bad sampling interval {h!r}")
     return LoopData(time_s=t, sp=data["sp"], pv=data["pv"], op=op, mv=data.get("mv"), tag=tag, source=source,
-                    notes=notes)
+                    notes=notes, op_scaled_from=scaled)
 
 
 __all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "read_loop", "read_loop_csv", "read_historian",

@@ -34,7 +34,6 @@ import numpy as np
 from numba import njit
 from scipy.linalg import solve_banded
 from scipy.optimize import minimize_scalar
-from scipy.signal import lfilter
 
 from valve_env.physics.stickslip import stick_slip_path
 
@@ -112,7 +111,7 @@ def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, subst
 
 def seated(x: np.ndarray, seat: float) -> np.ndarray:
     """The valve position ``x`` (% of OP) on its seat at ``seat``: a control valve closes on its seat, so below it the
-    flow is nil whatever the stem's input or stiction (docs/loops.md, "Loops from the environment");
+    flow is nil whatever the stem's input or stiction (a model option, not used by valve_env.loops.diagnose);
     for a sticky valve the seat is the stick-slip's end stop (:func:`valve_path`'s ``seat``). ``seat`` -inf (or any
     non-finite value) is no seat."""
     return np.maximum(x, seat) if np.isfinite(seat) else x
@@ -357,7 +356,7 @@ def disturbance_basis(n: int, dt: float, knot_s: float, period_s: float = math.i
     """Hat functions (linear B-splines) with knots every ``knot_s``: a slow load disturbance (one
     column, a constant, when ``knot_s`` is infinite or longer than the record); with a finite ``period_s``, also a
     sine and a cosine of that period: a periodic load at the record's oscillation period, the same for every valve
-    candidate (docs/loops.md, "Decision", condition 4)."""
+    candidate (a model option; the diagnosis does not use it)."""
     t = np.arange(n) * dt
     if not np.isfinite(knot_s) or knot_s >= t[-1]:
         B = np.ones((n, 1))
@@ -369,21 +368,6 @@ def disturbance_basis(n: int, dt: float, knot_s: float, period_s: float = math.i
         ph = 2.0 * np.pi * t / period_s
         B = np.column_stack([B, np.sin(ph), np.cos(ph)])
     return np.ascontiguousarray(B)
-
-
-def dominant_period(r: np.ndarray, dt: float, near_s: float, factor: float = 1.5, pad: int = 8) -> float:
-    """The period (s) of the largest peak of the periodogram of ``r`` (its linear trend removed; zero-padded
-    ``pad`` times, so the peak is located to a fraction of a Fourier bin) between ``near_s / factor`` and
-    ``near_s * factor`` (and at least two samples): the least-squares period of a sinusoid near an oscillation's
-    period ``near_s`` (docs/loops.md, "Decision", condition 4)."""
-    z = r - np.polyval(np.polyfit(np.arange(r.size), r, 1), np.arange(r.size))
-    m = pad * r.size
-    power = np.abs(np.fft.rfft(z, m)) ** 2
-    freq = np.fft.rfftfreq(m, dt)
-    ok = (freq >= 1.0 / (near_s * factor)) & (freq <= min(factor / near_s, 0.5 / dt))
-    if not ok.any():
-        return float(near_s)
-    return float(1.0 / freq[ok][int(np.argmax(power[ok]))])
 
 
 @dataclass(frozen=True)
@@ -403,7 +387,7 @@ class Settings:
     n_grid: int = 16
     disturbance_knot_s: float = 1200.0
     #: the period of a sinusoidal load in the disturbance basis of every candidate, s (inf: none; set by
-    #: valve_env.loops.diagnose for an oscillating record: docs/loops.md, "Decision", condition 4)
+    #: a model option, not used by valve_env.loops.diagnose)
     load_period_s: float = math.inf
     #: the valve's steps per recorded sample, driven by the mean-preserving sub-sample OP (:func:`subsample_op`) and
     #: averaged back over each sample, as the historian averages OP; 1 is the sample-rate valve (nested). The
@@ -412,7 +396,7 @@ class Settings:
     substeps: int = 1
     band_substeps: int = 4
     #: the valve's seat, % of OP: every candidate's valve position is clipped from below at it (:func:`seated`;
-    #: docs/loops.md, "Loops from the environment"); -inf is no seat (the unseated model)
+    #: a model option, not used by valve_env.loops.diagnose); -inf is no seat (the unseated model)
     seat: float = -math.inf
 
     @property
@@ -491,29 +475,11 @@ def fit_process(pv: np.ndarray, x: np.ndarray, s: Settings, k1: int | None = Non
                       (float(r1), float(r2)), float(rss), k1 - k0, n_params)
 
 
-def refit_gain(pv: np.ndarray, x: np.ndarray, pf: ProcessFit, s: Settings, k0: int, k1: int) -> ProcessFit:
-    """Keep the fitted lag and delay, re-estimate gain, disturbance and noise on samples ``k0..k1-1``
-    (the held-out check)."""
-    w = _filtered(np.ascontiguousarray(x, dtype=float), pf.a, pf.delay, pf.integrating)
-    rss, theta, r1, r2 = _oe_fit(np.ascontiguousarray(pv, dtype=float), w, pf.basis, k0, k1, s.noise_order,
-                                 s.n_iter)
-    return ProcessFit(pf.a, pf.delay, pf.integrating, float(theta[0]), np.asarray(theta[1:]), pf.basis,
-                      (float(r1), float(r2)), float(rss), k1 - k0, pf.n_params)
-
-
 def simulate(x: np.ndarray, pf: ProcessFit) -> np.ndarray:
     """The fitted process's free-run output for the valve path ``x`` plus the fitted slow disturbance
     (no noise): the fitted loop's simulation against the data, for the report."""
     w = _filtered(np.ascontiguousarray(x, dtype=float), pf.a, pf.delay, pf.integrating)
     return pf.K * w + pf.basis @ pf.weights
-
-
-def load_sinusoid(pf: ProcessFit, s: Settings) -> np.ndarray:
-    """The fitted sinusoidal load of :func:`disturbance_basis` (the basis's last two columns when ``s`` has a
-    finite ``load_period_s``; zeros otherwise)."""
-    if not math.isfinite(s.load_period_s):
-        return np.zeros(pf.basis.shape[0])
-    return pf.basis[:, -2:] @ pf.weights[-2:]
 
 
 def residuals(pv: np.ndarray, x: np.ndarray, pf: ProcessFit, k0: int) -> np.ndarray:
@@ -582,10 +548,11 @@ def _fit_path(op: np.ndarray, pv: np.ndarray, S: float, J: float, d0: float, s: 
 def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int | None = None,
               k0: int | None = None, extra_S: tuple[float, ...] = (),
               j_fractions: tuple[float, ...] = J_FRACTIONS, memo: FitMemo | None = None) -> ValveFit:
-    """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J); ``extra_S`` are
-    bands added to the grid (the LR scan's best band); ``j_fractions`` the J / S values of the stiction valve
-    (J profiled out at each S). ``memo`` (a dict kept for one record, or None) holds the process fits of every valve
-    path fitted so far, so that a path fitted again is looked up (:func:`_fit_path`); the fit is the same."""
+    """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J); ``extra_S`` are bands
+    added to the grid (the dense search's best band, :func:`scan_valve`); ``j_fractions`` the J / S values of the
+    stiction valve (J profiled out at each S). ``memo`` (a dict kept for one record, or None) holds the process fits
+    of every valve path fitted so far, so that a path fitted again is looked up (:func:`_fit_path`); the fit is the
+    same."""
     if valve == "linear":
         pf = _fit_path(op, pv, 0.0, 0.0, 1.0, s, k1, k0, memo)
         return ValveFit("linear", 0.0, 0.0, pf, pf.n_params + seat_params(s.seat), seat=s.seat)
@@ -622,7 +589,8 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int |
                     s.substeps, s.seat)
 
 
-#: the LR scan's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md, "Decision")
+#: the dense band search's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md,
+#: "Model")
 SCAN_J_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)
 SCAN_S_FRACTIONS: tuple[float, float, int] = (0.01, 3.0, 24)
 
@@ -749,7 +717,7 @@ def _sparse_basis(basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class Scan:
     """The LR scan: the white-noise least-squares LR statistic of the stick-slip valve (backlash included,
     J = 0) against the linear valve, each with its best process structure (lag, delay), and the grid point
-    that attains it. The statistic ignores the noise's colour; the parametric bootstrap calibrates it."""
+    that attains it: the seed of the band's maximum-likelihood fit (docs/loops.md, "Model"), not a test."""
 
     lr: float
     S: float
@@ -760,7 +728,7 @@ class Scan:
 def resolution(op: np.ndarray) -> float:
     """The record's resolution of a band, % of OP: the median OP move per sample. The valve slips between two
     samples; a band narrower than one sample's move holds the valve for less than a sample, which the record
-    cannot show (docs/loops.md, "Decision"; the same move is the band's sampling offset, "Band uncertainty").
+    cannot show (the same move is the band's sampling offset, docs/loops.md "Model").
     It is the record's: a sub-sample OP (:func:`subsample_op`) interpolates the record and adds no information
     about where between two samples the valve slipped."""
     return float(np.median(np.abs(np.diff(op))))
@@ -789,8 +757,8 @@ def scan_paths(op: np.ndarray, substeps: int = 1,
 def _cached_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) -> tuple[np.ndarray, np.ndarray,
                                                                                           np.ndarray]:
     """The disturbance basis of a record of ``n`` samples (:func:`disturbance_basis`), dense and in the sparse form
-    of :func:`_sparse_basis` (columns, values): the same for every fit and scan of the record and of its bootstrap
-    replicates, so built once (read-only: the fits hold it)."""
+    of :func:`_sparse_basis` (columns, values): the same for every fit and scan of the record,
+    so built once (read-only: the fits hold it)."""
     basis = disturbance_basis(n, dt, knot_s, period_s)
     idx, val = _sparse_basis(basis)
     for arr in (basis, idx, val):
@@ -828,123 +796,6 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
     return Scan(float(lr), S, J, d0)
 
 
-#: the seat levels tried (quantiles of the recorded OP: the share of the record the valve would spend closed)
-SEAT_QUANTILES: tuple[float, ...] = tuple(float(q) for q in np.round(np.arange(0.05, 0.951, 0.05), 3))
-
-
-#: the seat's second stage (docs/loops.md, "Loops from the environment"; :func:`scan_seats`): about each of the
-#: ``SEAT_FINE_TOP`` first-stage levels whose best nonlinear path fits best, seat
-#: levels in quantile steps of ``SEAT_FINE_STEP`` within ``SEAT_FINE_SPAN`` of it (the first stage's own step: the
-#: neighbourhoods reach the levels half-way to the next), crossed with bands in geometric steps of ``SEAT_FINE_RATIO``
-#: over the scan's range, scored under that level's process structure (lag and delay); the ``SEAT_FINE_KEEP`` best of
-#: each neighbourhood are scored again over every structure
-SEAT_FINE_TOP = 3
-SEAT_FINE_STEP = 0.005
-SEAT_FINE_SPAN = 0.05
-SEAT_FINE_RATIO = 1.02
-SEAT_FINE_KEEP = 4
-
-
-@dataclass(frozen=True)
-class Seats:
-    """The seat of each kind of valve (docs/loops.md, "Loops from the environment"), % of OP (-inf:
-    no seat): the linear valve's and the nonlinear valves' (backlash and stick-slip, whose stem rests on the seat and
-    breaks away from it), each the level of :data:`SEAT_QUANTILES` (or none) that the LR scan's best path of that
-    kind fits best, a level kept only where it gains more than a parameter's BIC cost (``log n``) over no seat (the
-    nonlinear valves' level then searched again, jointly with the band, by :func:`scan_seats`' second stage); the
-    scan's LR statistics of each kind seated against unseated; and, for a seated nonlinear valve, the band of the
-    search's best path (``S``; 0 when there is no seat), whose seat is ``nonlinear``."""
-
-    linear: float
-    nonlinear: float
-    lr_linear: float
-    lr_nonlinear: float
-    S: float = 0.0
-
-
-def scan_seats(op: np.ndarray, pv: np.ndarray, s: Settings) -> Seats:
-    """The seats of :class:`Seats`: the LR scan (:func:`scan_paths`, :func:`scan_valve`'s kernel: white-noise least
-    squares, each path with its best process structure) repeated with the valve on each seat level; then, for a
-    seated nonlinear valve, a second stage searching band and seat together: a valve that rests on its seat is a
-    relay whose likelihood is a narrow ridge in (band, seat), which the first stage's grid can rank below a wrong
-    level. About each of the ``SEAT_FINE_TOP`` best first-stage
-    levels, seat levels ``SEAT_FINE_STEP`` apart (quantiles, within ``SEAT_FINE_SPAN``) are crossed with bands
-    ``SEAT_FINE_RATIO`` apart under that level's best path's process structure (:func:`_scan_rss_paths`'
-    ``structure``), and the ``SEAT_FINE_KEEP`` best of each neighbourhood are scored again over every structure."""
-    op = np.ascontiguousarray(op, dtype=float)
-    pv = np.ascontiguousarray(pv, dtype=float)
-    levels = [-math.inf] + [float(c) for c in np.quantile(op, SEAT_QUANTILES)]
-    lin, nonlin, best_path = [], [], []
-    for c in levels:
-        xs, params = scan_paths(op, s.substeps, c)
-        rss = _scan_rss_paths(pv, xs, s)
-        k = int(np.argmin(rss[1:])) + 1
-        lin.append(float(rss[0]))
-        nonlin.append(float(rss[k]))
-        best_path.append((params[k], xs[k]))
-    n = pv.size - s.k0
-
-    def best(rss: list[float]) -> tuple[int, float]:
-        i = int(np.argmin(rss))
-        return i, n * math.log(rss[0] / rss[i])
-
-    (i_lin, lr_lin), (i_nl, lr_nl) = best(lin), best(nonlin)
-    c_lin = levels[i_lin] if lr_lin > math.log(n) else -math.inf
-    if lr_nl <= math.log(n):
-        return Seats(c_lin, -math.inf, lr_lin, lr_nl)
-    r = op_scale(op)
-    lo = max(SCAN_S_FRACTIONS[0] * r, resolution(op))
-    hi = max(SCAN_S_FRACTIONS[1] * r, 2.0 * lo)
-    bands = np.geomspace(lo, hi, int(math.ceil(math.log(hi / lo) / math.log(SEAT_FINE_RATIO))) + 1)
-    grid = [(float(S), float(f * S), d0) for S in bands for f in SCAN_J_FRACTIONS for d0 in DIRECTIONS]
-    best_rss, c_nl, S_nl = nonlin[i_nl], levels[i_nl], best_path[i_nl][0][0]
-    tops = [int(i) for i in np.argsort(nonlin) if i > 0][:SEAT_FINE_TOP]  # the seated levels, best first
-    for i in tops:
-        pf = fit_process(pv, best_path[i][1], s)
-        q0 = SEAT_QUANTILES[i - 1]
-        cands = []
-        for q in np.arange(max(q0 - SEAT_FINE_SPAN, 0.0), min(q0 + SEAT_FINE_SPAN, 1.0) + 1e-9, SEAT_FINE_STEP):
-            c = float(np.quantile(op, q))
-            rss = _scan_rss_paths(pv, np.array([valve_path(op, S, J, d0, s.substeps, c) for S, J, d0 in grid]), s, pf)
-            k = int(np.argmin(rss))
-            cands.append((float(rss[k]), c, grid[k]))
-        cands.sort(key=lambda t: t[0])
-        for _, c, (S, J, d0) in cands[:SEAT_FINE_KEEP]:
-            rss_full = float(_scan_rss_paths(pv, valve_path(op, S, J, d0, s.substeps, c)[None, :], s)[0])
-            if rss_full < best_rss:
-                best_rss, c_nl, S_nl = rss_full, c, S
-    return Seats(c_lin, c_nl, lr_lin, n * math.log(nonlin[0] / best_rss), S_nl)
-
-
-def simulate_noise(pf: ProcessFit, n: int, rng: np.random.Generator, burn: int = 200) -> np.ndarray:
-    """A draw of the fitted AR noise (innovation variance ``rss / n``), ``n`` samples."""
-    sd = math.sqrt(pf.rss / pf.n)
-    e = rng.normal(0.0, sd, n + burn)
-    # v[k] = rho0 v[k-1] + rho1 v[k-2] + e[k] from v[0] = v[1] = 0 (the first two draws unused)
-    v = lfilter([1.0], [1.0, -pf.rho[0], -pf.rho[1]], e[2:])
-    return v[burn - 2:]
-
-
-def bootstrap_lr(op: np.ndarray, lin: ProcessFit, s: Settings, n_boot: int, seed: int = 0,
-                 paths: tuple[np.ndarray, list[tuple[float, float, float]]] | None = None,
-                 stop_at: float = math.inf) -> np.ndarray:
-    """Parametric bootstrap of the scan's LR statistic under the linear valve (docs/loops.md, "Decision"):
-    up to ``n_boot`` records of the fitted linear loop (the recorded OP, the fitted process and slow
-    disturbance, fresh AR noise of the fitted order and variance), each scanned like the record. Stops after
-    the first replicate at or above ``stop_at`` (the observed statistic: the test's decision is then settled,
-    Besag & Clifford 1991)."""
-    rng = np.random.default_rng(seed)
-    mean = simulate(seated(op, s.seat), lin)
-    paths = scan_paths(op, s.substeps, s.seat) if paths is None else paths
-    out: list[float] = []
-    for _ in range(n_boot):
-        out.append(scan_valve(mean + simulate_noise(lin, op.size, rng), paths, s).lr)
-        if out[-1] >= stop_at:
-            break
-    return np.asarray(out)
-
-
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
-           "refit_gain", "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
-           "scan_paths", "resolution", "bootstrap_lr", "simulate_noise", "subsample_op", "disturbance_basis",
-           "dominant_period", "load_sinusoid", "seated", "scan_seats", "Seats", "SEAT_QUANTILES", "seat_params"]
+           "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
+           "scan_paths", "resolution", "subsample_op", "disturbance_basis", "seated", "seat_params"]

@@ -1,18 +1,54 @@
-"""The loop-diagnosis report: OP-PV phase plot, the fitted loop's simulation against the data,
-residual diagnostics (statsmodels ACF and Ljung-Box), the band's profile likelihood
-(docs/loops.md, "Report")."""
+"""The loop-diagnosis report (docs/loops.md, "Report"): one story, one band and one model name in the headline, the
+table and the figures; the OP-PV phase plot, the fitted loop's simulation against the data, the residual diagnostics
+(statsmodels ACF and Ljung-Box) and the band's profile likelihood."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from valve_env.loops.diagnose import Diagnosis
-from valve_env.loops.model import residuals, simulate
+from valve_env.loops.diagnose import MODEL, Diagnosis
+from valve_env.loops.model import ValveFit, fit_valve, residuals, simulate
 from valve_env.outputs import OutputSet
 
 FIGURES = ("phase.png", "simulation.png", "residuals.png", "profile.png")
+
+#: the detectors' lines in the report: name, the result's key, the statistic's description
+_DETECTORS = (("Horch (OP-PV cross-correlation phase, deg)", "horch"),
+              ("Horch, integrating variant (OP-dPV, deg)", "horch_dpv"),
+              ("He et al. (stiction index of OP)", "he"),
+              ("Kano et al. (stuck-time share)", "kano"),
+              ("Choudhury et al. (peak squared bicoherence)", "bicoherence"),
+              ("OP-PV ellipse (normalised area)", "ellipse"))
+
+
+def _headline(R: dict[str, Any]) -> str:
+    if R["cause"] == "insufficient_data":
+        return f"**Cause: insufficient_data** ({R['reason']})"
+    det = R["detection"]
+    line = f"**Cause: {R['cause']}** (detection: probability of stiction {det['probability']:.2f}"
+    line += f", threshold {det['threshold']:.2f})"
+    if "stiction" in R:
+        line += f"; {R['stiction']['label']}"
+    return line
+
+
+def _model_fit(diag: Diagnosis) -> tuple[str, ValveFit]:
+    """The model the figures show: the stick-slip fit when a band was fitted, else the linear valve (fitted here if
+    the diagnosis did not need it)."""
+    if MODEL in diag.fits:
+        return diag.result["stiction"]["label"], diag.fits[MODEL]
+    lin = diag.fits.get("linear") or fit_valve(diag.loop.op, diag.loop.pv, "linear", diag.settings)
+    return "linear valve", lin
+
+
+def _text_figure(plt: Any, text: str) -> Any:
+    fig, ax = plt.subplots(figsize=(5, 1.2))
+    ax.axis("off")
+    ax.text(0.5, 0.5, text, ha="center", va="center", fontsize=9)
+    return fig
 
 
 def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path]:
@@ -25,39 +61,54 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
     from statsmodels.tsa.stattools import acf
 
     loop, s, R = diag.loop, diag.settings, diag.result
-    best = R["stiction"]["model"] if R["cause"] == "stiction" else "linear"
-    fit = diag.fits[best]
-    lin = diag.fits["linear"]
-    t_min = loop.time_s / 60.0
     paths = {name: directory / name for name in (*FIGURES, "report.md")}
+
+    def save(name: str, fig: Any) -> None:
+        outs.stage(paths[name], lambda p: fig.savefig(p, dpi=90, format="png"))
+        plt.close(fig)
+
+    lines = [f"# Loop diagnosis: {loop.tag}", "", f"Source: `{loop.source}`, {loop.n} samples at {loop.dt:g} s.", "",
+             _headline(R), ""]
+    for note in R["notes"]:
+        lines.append(f"- note: {note}")
+    if R["notes"]:
+        lines.append("")
 
     fig, ax = plt.subplots(figsize=(5, 4.5))
     ax.plot(loop.op, loop.pv, lw=0.5, color="C0")
-    ax.set_xlabel("OP, %")
+    ax.set_xlabel("OP, %" + (" of its observed range" if loop.op_scaled_from else ""))
     ax.set_ylabel("PV")
-    ax.set_title(f"{loop.tag}: OP-PV phase plot")
+    ax.set_title(f"{loop.tag}: OP-PV phase plot", fontsize=9)
     fig.tight_layout()
-    outs.stage(paths["phase.png"], lambda p: fig.savefig(p, dpi=90, format="png"))
-    plt.close(fig)
+    save("phase.png", fig)
 
+    if R["cause"] == "insufficient_data":
+        for name in ("simulation.png", "residuals.png", "profile.png"):
+            save(name, _text_figure(plt, f"not computed: {R['reason']}"))
+        lines += ["![phase](phase.png)", ""]
+        outs.write_text(paths["report.md"], "\n".join(lines))
+        return list(paths.values())
+
+    label, fit = _model_fit(diag)
+    lin = diag.fits.get("linear") or (fit if fit.valve == "linear" else None)
+    t_min = loop.time_s / 60.0
     fig, axs = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
     axs[0].plot(t_min, loop.op, lw=0.7, label="OP (data)")
-    if best != "linear":
-        axs[0].plot(t_min, fit.path(loop.op), lw=0.9, label=f"valve position ({best}, S = {fit.S:.3g} %)")
+    if fit.valve != "linear":
+        axs[0].plot(t_min, fit.path(loop.op), lw=0.9, label=f"valve position: {label}")
     if loop.mv is not None:
         axs[0].plot(t_min, loop.mv, lw=0.7, ls=":", label="MV (measured)")
     axs[0].set_ylabel("%")
     axs[0].legend(fontsize=7)
     axs[1].plot(t_min, loop.pv, lw=0.5, color="0.5", label="PV (data)")
     axs[1].plot(t_min, loop.sp, lw=0.8, color="k", label="SP")
-    axs[1].plot(t_min, simulate(loop.op, lin.process), lw=0.9, label="linear valve, simulated")
-    if best != "linear":
-        axs[1].plot(t_min, simulate(fit.path(loop.op), fit.process), lw=0.9, label=f"{best} valve, simulated")
+    if lin is not None and fit.valve != "linear":
+        axs[1].plot(t_min, simulate(loop.op, lin.process), lw=0.8, ls="--", label="linear valve, simulated")
+    axs[1].plot(t_min, simulate(fit.path(loop.op), fit.process), lw=0.9, label=f"{label}, simulated")
     axs[1].set_xlabel("time, min")
     axs[1].legend(fontsize=7)
     fig.tight_layout()
-    outs.stage(paths["simulation.png"], lambda p: fig.savefig(p, dpi=90, format="png"))
-    plt.close(fig)
+    save("simulation.png", fig)
 
     e = residuals(loop.pv, fit.path(loop.op), fit.process, s.k0)
     nl = min(40, e.size // 4)
@@ -67,63 +118,76 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
     axs[0].bar(np.arange(1, nl + 1), r[1:], width=0.6)
     axs[0].axhline(1.96 / np.sqrt(e.size), ls="--", color="k", lw=0.7)
     axs[0].axhline(-1.96 / np.sqrt(e.size), ls="--", color="k", lw=0.7)
-    axs[0].set_title("residual ACF")
+    axs[0].set_title(f"residual ACF: {label}", fontsize=8)
     axs[0].set_xlabel("lag, samples")
     axs[1].hist(e, bins=40, color="C0")
-    axs[1].set_title("residual histogram")
+    axs[1].set_title("residual histogram", fontsize=8)
     fig.tight_layout()
-    outs.stage(paths["residuals.png"], lambda p: fig.savefig(p, dpi=90, format="png"))
-    plt.close(fig)
+    save("residuals.png", fig)
 
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    for name in ("backlash", "stiction"):
-        prof = np.array(diag.fits[name].profile)
-        ax.semilogx(prof[:, 0], diag.neff_factor * 2 * (prof[:, 1] - lin.loglik), ".-", label=name)
-    ax.axhline(0.0, color="k", lw=0.7)
-    ax.set_xlabel("band S, % of OP")
-    ax.set_ylabel("adjusted LR vs linear")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    outs.stage(paths["profile.png"], lambda p: fig.savefig(p, dpi=90, format="png"))
-    plt.close(fig)
+    if fit.valve != "linear" and fit.profile:
+        prof = np.array(fit.profile)
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        ax.semilogx(prof[:, 0], 2 * (prof[:, 1] - prof[:, 1].max()), ".-")
+        st = R["stiction"]
+        ax.axvline(st["band_fitted_pct"], color="C1", lw=0.8, label=f"fitted S {st['band_fitted_pct']:.3g} % "
+                   f"(+ sampling offset {st['sampling_offset_pct']:.2g} % = band {st['band_pct']:.3g} %)")
+        ax.axhline(-3.84, color="k", lw=0.7, ls="--")
+        ax.set_xlabel("band S, % of OP")
+        ax.set_ylabel("2 (ln L(S) - max ln L)")
+        ax.set_title(label, fontsize=8)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        save("profile.png", fig)
+    else:
+        save("profile.png", _text_figure(plt, "no band fitted (stiction not detected; --quantify fits it)"))
 
-    lines = [f"# Loop diagnosis: {loop.tag}", "", f"Source: `{loop.source}`, {loop.n} samples at {loop.dt:g} s.", "",
-             f"**Cause: {R['cause']}**", ""]
+    det = R["detection"]
+    rule = det.get("rule", {})
+    lines += ["## Detection", "",
+              f"The decision: {rule.get('kind', '')} (`--rule {rule.get('name', '')}`): "
+              f"{'stiction' if det['stiction'] else 'no stiction'}. The learned rule (a logistic regression fitted "
+              f"on simulated loops only) gives a probability of stiction of {det['probability']:.2f} against its "
+              f"threshold {det['threshold']:.2f}.", "",
+              "| detector | statistic | its own verdict |", "|---|---|---|"]
+    for name, key in _DETECTORS:
+        d = det["detectors"][key]
+        verdict = d.get("verdict", "stiction" if d.get("stiction") else "no stiction")
+        if key == "ellipse":
+            verdict = "(no published threshold)"
+        lines.append(f"| {name} | {d['statistic']:.3g} | {verdict} |")
+    osc = R["oscillation"]
+    lines += ["", "Oscillation of the control error (Thornhill et al.): " + (
+        f"regular, period {osc['period_s']:.0f} s (regularity {osc['regularity']:.2g})" if osc["oscillating"]
+        else "none detected") + (f"; the linear loop model from OP explains {100 * osc['linear_sim_r2']:.0f} % of the "
+                                 "PV's variance" if osc.get("linear_sim_r2") is not None else "") + ".", ""]
     if "stiction" in R:
         st = R["stiction"]
-        lines += [f"Band S = {st['band_pct']:.3g} % of OP (sd {st['std_pct']:.2g} %, 95 % interval "
-                  f"{st['ci95_pct'][0]:.3g}-{st['ci95_pct'][1]:.3g} %), slip jump J = {st['jump_pct']:.3g} %, "
-                  f"{st['kind']}.", ""]
-        if not st["band_resolved"] and st["band_fitted_pct"] < st["sampling_offset_pct"]:
-            lines += [f"The fitted band ({st['band_fitted_pct']:.3g} %) is below one sample's OP move "
-                      f"({st['sampling_offset_pct']:.3g} %): the record does not resolve it (the limit cycle is "
-                      "about as fast as the sampling), so the band is a rough figure; its sd says so.", ""]
-        elif not st["band_resolved"]:
-            lines += ["The fitted valve never crosses its band back in this record (it only moves on in its first "
-                      "direction): the record shows the slip jump and that the band exceeds every push back, not the "
-                      "band itself, so the band is a rough figure.", ""]
-    for note in R["notes"]:
-        lines.append(f"- note: {note}")
-    lines += ["", "| candidate | loglik | params | LR | LR adjusted | p | delta BIC | S % | J % | process |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
-    for f in R["findings"]:
-        lines.append(f"| {f['candidate']} | {f['loglik']:.1f} | {f['n_params']} | {f['lr_stat']:.1f} | "
-                     f"{f['lr_stat_adjusted']:.1f} | {f['p_value']:.3g} | {f['delta_bic']:.1f} | {f['S_pct']:.3g} | "
-                     f"{f['J_pct']:.3g} | {f['process']} |")
-    d = R["decision"]
-    sh = d["shape"]
-    basis = "justifies stiction" if d["by_likelihood"] else "does not justify stiction"
-    lines += ["", f"n_eff/n of the linear residuals: {d['neff_factor']:.3f}; held-out log-likelihood gain of "
-              f"{d['best_nonlinear']} over linear: {d['heldout_loglik_gain']:.1f}.", "",
-              f"The likelihood comparison {basis}. OP-{'dPV' if sh['integrating'] else 'PV'} cross-correlation (Horch, "
-              "reported, not part of the decision): "
-              f"signed phase {sh['phase_signed_deg']:.0f} deg (tau_r {sh['tau_r']:.1f}, tau_l {sh['tau_l']:.1f} "
-              f"samples), |r(0)|/max|r| = {sh['ratio']:.2f}.", "",
-              f"Oscillation: {R['oscillation']}", "",
-              "Ljung-Box on the residuals of the chosen model: " + ", ".join(
-                  f"lag {int(k)}: Q = {row.lb_stat:.1f}, p = {row.lb_pvalue:.2g}" for k, row in lb.iterrows()), "",
-              "![phase](phase.png)", "", "![simulation](simulation.png)", "", "![residuals](residuals.png)", "",
-              "![profile](profile.png)", ""]
+        lines += ["## Band (grey-box model)", "",
+                  f"Model: {st['label']}.", "",
+                  "| quantity | value |", "|---|---|",
+                  f"| model | {st['label']} |",
+                  f"| band S, % of OP | {st['band_pct']:.3g} |",
+                  f"| sd of S, % | {st['std_pct']:.2g} |",
+                  f"| 95 % interval of S, % | {st['ci95_pct'][0]:.3g} to {st['ci95_pct'][1]:.3g} |",
+                  f"| slip jump J, % of OP | {st['jump_pct']:.3g} |",
+                  f"| fitted S before the sampling offset, % | {st['band_fitted_pct']:.3g} |",
+                  f"| sampling offset (one sample's OP move), % | {st['sampling_offset_pct']:.2g} |",
+                  f"| band resolved by the record | {'yes' if st['band_resolved'] else 'no'} |",
+                  f"| detected by the shape tests | {'yes' if st['detected'] else 'no (fitted on request)'} |", ""]
+    if R["findings"]:
+        lines += ["Likelihood of each model fitted (reported; the decision is the detection's):", "",
+                  "| model | log-likelihood | parameters | LR vs linear | p | delta BIC | process |",
+                  "|---|---|---|---|---|---|---|"]
+        for f in R["findings"]:
+            name = R["stiction"]["label"] if f["candidate"] == MODEL else "linear valve"
+            lines.append(f"| {name} | {f['loglik']:.1f} | {f['n_params']} | {f['lr_stat']:.1f} | {f['p_value']:.3g} | "
+                         f"{f['delta_bic']:.1f} | {f['process']} |")
+        lines.append("")
+    lines += [f"Residuals of the {label}: Ljung-Box " + ", ".join(
+        f"lag {int(k)}: Q = {row.lb_stat:.1f}, p = {row.lb_pvalue:.2g}" for k, row in lb.iterrows()) + ".", "",
+        "![phase](phase.png)", "", "![simulation](simulation.png)", "", "![residuals](residuals.png)", "",
+        "![profile](profile.png)", ""]
     outs.write_text(paths["report.md"], "\n".join(lines))
     return list(paths.values())
 

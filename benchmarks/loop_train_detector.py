@@ -1,0 +1,134 @@
+"""Fit the stiction detector's combining rule on simulated loops only (docs/loops.md, "Detection").
+
+    python benchmarks/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --write
+
+Simulates the loops of ``valve_env.loops.sim.random_case`` for the training seeds, computes every detector's
+statistic (``valve_env.loops.detect.features``), fits an L2-penalised logistic regression (scipy) on the
+standardised terms (``valve_env.loops.detect.terms``: the features, the shape features weighted by the
+oscillation's clarity, and their squares), and chooses the decision threshold on the validation seeds: the one
+with the best balanced accuracy among those naming at most ``--max-false-alarm`` of the validation loops without
+stiction. Prints the coefficients and the validation figures per kind of loop; ``--write`` writes
+``valve_env/loops/detector_coefs.py`` (the frozen rule: it is replaced only with ``--write``). No real loop is
+read. The seeds of the final evaluation (benchmarks/loop_benchmark.py --sim-seed) must be neither of these.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+from valve_env.cli import int_list
+from valve_env.loops.detect import SHAPE_FEATURES, design_row, features, terms
+from valve_env.loops.detector_coefs import FEATURES
+from valve_env.loops.sim import random_case, simulate_case
+from valve_env.outputs import atomic_write_text
+
+OUT = Path(__file__).resolve().parents[1] / "valve_env" / "loops" / "detector_coefs.py"
+
+
+def feature_table(seeds: list[int]) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    X, y, kinds = [], [], []
+    for s in seeds:
+        case = random_case(s)
+        loop, truth = simulate_case(case)
+        f, _ = features(loop)
+        X.append(design_row(f, FEATURES))
+        y.append(truth.label == "stiction")
+        kinds.append(case["kind"])
+    return np.array(X), np.array(y, dtype=float), kinds
+
+
+def fit_logistic(Z: np.ndarray, y: np.ndarray, l2: float) -> np.ndarray:
+    """Coefficients (intercept first) of the logistic regression of ``y`` on ``Z`` with penalty ``l2 |b|^2 / 2``
+    (not on the intercept)."""
+    A = np.column_stack([np.ones(len(Z)), Z])
+
+    def nll(b: np.ndarray) -> tuple[float, np.ndarray]:
+        eta = A @ b
+        p = 1.0 / (1.0 + np.exp(-eta))
+        val = float(np.sum(np.logaddexp(0.0, eta) - y * eta) + 0.5 * l2 * np.sum(b[1:] ** 2))
+        g = A.T @ (p - y)
+        g[1:] += l2 * b[1:]
+        return val, g
+
+    return minimize(nll, np.zeros(A.shape[1]), jac=True, method="L-BFGS-B").x
+
+
+def prob(b: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-(b[0] + Z @ b[1:])))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--train-seeds", default="0-1199")
+    ap.add_argument("--val-seeds", default="100000-100399")
+    ap.add_argument("--l2", type=float, default=10.0)
+    ap.add_argument("--max-false-alarm", type=float, default=0.04)
+    ap.add_argument("--cache", type=Path, default=None, help="an .npz to keep the feature tables in (read if present)")
+    ap.add_argument("--write", action="store_true", help="write valve_env/loops/detector_coefs.py")
+    a = ap.parse_args(argv)
+    tr, va = int_list(a.train_seeds), int_list(a.val_seeds)
+    t0 = time.perf_counter()
+    if a.cache is not None and a.cache.exists():
+        c = np.load(a.cache, allow_pickle=False)
+        Xt, yt, kt, Xv, yv, kv = c["Xt"], c["yt"], list(c["kt"]), c["Xv"], c["yv"], list(c["kv"])
+    else:
+        Xt, yt, kt = feature_table(tr)
+        Xv, yv, kv = feature_table(va)
+        if a.cache is not None:
+            np.savez(a.cache, Xt=Xt, yt=yt, kt=np.array(kt), Xv=Xv, yv=yv, kv=np.array(kv))
+    print(f"features of {len(tr)} training and {len(va)} validation loops in {time.perf_counter() - t0:.0f} s")
+    Xt, Xv = terms(Xt), terms(Xv)
+    lin = [*FEATURES, *(f"{k}*osc" for k in SHAPE_FEATURES)]
+    names = [*lin, *(f"({k})^2" for k in lin)]
+    mu, sd = Xt.mean(axis=0), Xt.std(axis=0)
+    sd[sd == 0] = 1.0
+    b = fit_logistic((Xt - mu) / sd, yt, a.l2)
+    pt, pv = prob(b, (Xt - mu) / sd), prob(b, (Xv - mu) / sd)
+    best = (-1.0, 0.5)
+    for th in np.round(np.arange(0.05, 0.99, 0.01), 2):
+        fa = float(np.mean(pv[yv == 0] > th))
+        ba = 0.5 * (float(np.mean(pv[yv == 1] > th)) + 1.0 - fa)
+        if fa <= a.max_false_alarm and ba > best[0]:
+            best = (ba, float(th))
+    th = best[1]
+    print(f"coefficients (standardised features; intercept {b[0]:+.3f}):")
+    for name, v in zip(names, b[1:], strict=True):
+        print(f"  {name:16s} {v:+.3f}")
+    for label, P, Y, K in (("training", pt, yt, kt), ("validation", pv, yv, kv)):
+        sens, fa = float(np.mean(P[Y == 1] > th)), float(np.mean(P[Y == 0] > th))
+        print(f"{label}: threshold {th:.2f}: stiction named on {100 * sens:.1f} % of sticky loops, "
+              f"{100 * fa:.1f} % of the others; balanced accuracy {50 * (sens + 1 - fa):.1f} %")
+        for k in sorted(set(K)):
+            m = np.array([kk == k for kk in K])
+            print(f"    {k:18s} n={int(m.sum()):4d} named stiction {100 * float(np.mean(P[m] > th)):5.1f} %")
+    if a.write:
+        training = {"train_seeds": a.train_seeds, "validation_seeds": a.val_seeds, "l2": a.l2,
+                    "max_false_alarm": a.max_false_alarm, "n_train": len(tr)}
+        from pprint import pformat
+
+        def const(name: str, value: object) -> str:
+            return f"{name} = {pformat(value, width=118 - len(name), compact=True)}\n"
+
+        text = ('"""The stiction detector\'s combining rule (valve_env.loops.detect), fitted on simulated loops '
+                "only by\n"
+                f"``python benchmarks/loop_train_detector.py --train-seeds {a.train_seeds} --val-seeds {a.val_seeds}\n"
+                f"--l2 {a.l2:g} --max-false-alarm {a.max_false_alarm:g} --write``. Generated: do not edit.\"\"\"\n\n"
+                + const("FEATURES", tuple(FEATURES))
+                + const("MEANS", tuple(round(float(v), 6) for v in mu))
+                + const("SCALES", tuple(round(float(v), 6) for v in sd))
+                + const("COEFS", tuple(round(float(v), 6) for v in b))
+                + const("THRESHOLD", th)
+                + "TRAINING: dict = " + pformat(training, width=100, compact=True) + "\n")
+        atomic_write_text(OUT, text)
+        print(f"wrote {OUT}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
