@@ -31,10 +31,13 @@ def iqm(scores: np.ndarray) -> float:
 
 
 def _bootstrap(scores: np.ndarray) -> object:
-    """rliable's ``StratifiedBootstrap`` of a (runs x tasks) matrix. rliable 1.2 hands its
-    ``random_state`` to arch's ``IIDBootstrap``, which arch 7 renamed ``seed`` (an arch 7 bootstrap
-    takes the stray keyword for data and refuses it): this subclass makes the same object through
-    the renamed keyword; the resampling (runs within each task) is rliable's ``update_indices``."""
+    """rliable's ``StratifiedBootstrap`` of a (runs x tasks) matrix, through a compatibility shim.
+    rliable 1.2.0 hands ``random_state=`` to arch's ``IIDBootstrap``, which arch (7 and 8: the
+    project pins 8.0) names ``seed``: arch takes the stray keyword for a data array and refuses it
+    (TypeError), so rliable's own constructor cannot run. This subclass sets up the same object
+    without that keyword; the resampling (runs within each task, rliable's ``update_indices``, from
+    NumPy's global generator) and ``conf_int`` are rliable's and arch's own. rliable is installed
+    with ``--no-deps`` for the same reason (it declares arch<8; Makefile ``install``)."""
     from arch.bootstrap import IIDBootstrap
     from rliable import library as rly
 
