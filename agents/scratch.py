@@ -6,7 +6,7 @@ report: the interquartile mean over training seeds with a 95 % stratified-bootst
 
     python -m agents.scratch train    [--algos ppo,sac,td3] [--tasks A,B] [--seeds 0,1,2] [--out out/scratch]
     python -m agents.scratch evaluate [--out out/scratch] [--episodes 5] [--seed 5000] [--oracle-cache ...]
-    python -m agents.scratch curves   [--out out/scratch]
+    python -m agents.scratch curves   [--out out/scratch] [--figure docs/figures/curves_scratch.png]
 
 ``train`` runs ``python -m agents.train`` once per (algo, task, training seed), one process at a
 time, into ``<out>/runs/<task>/<algo>_s<seed>/`` (its resolved ``config.yml``, ``command.txt``,
@@ -154,6 +154,9 @@ def evaluate_runs(out: str | Path, episodes: int, seed: int, cache: Sequence[str
                "gap_score": gap_scores(cost)["run"], "score": normalised_scores(cost)["run"],
                "tdis_Kh": float(df["tdis_Kh"].mean()), "pi_cost": cost["pi"],
                "oracle_cost": cost.get(ORACLE, float("nan")), "n_timesteps": int(meta["num_timesteps"]),
+               # the checkpoint scored: 0 = the untrained policy (its mean action is the middle of the
+               # setting's range, 60 degC) was the best on the evaluation seeds 10000+
+               "best_checkpoint_step": (meta.get("best_eval") or {}).get("timesteps"),
                "train_wall_s": spent.get("wall_s", meta.get("wall_time_s")), "train_cpu_s": spent.get("cpu_s"),
                "eval_seeds": f"{seeds[0]}-{seeds[-1]}", "run_dir": str(d)}
         (d / "scores.json").write_text(json.dumps(row, indent=1) + "\n")  # the run's own score file
@@ -173,10 +176,50 @@ def summary_markdown(runs: Any, summary: Any, meta: dict[str, Any]) -> str:
              "(the run's best checkpoint on the evaluation seeds 10000+). Gap score 0 = pi, 1 = oracle; cost = "
              "-return. IQM over the training runs with 95 % stratified-bootstrap intervals (rliable).", ""]
     lines += markdown(summary)
+    step0 = ", ".join(f"{a} {int((g['best_checkpoint_step'] == 0).sum())} of {len(g)}" for a, g in runs.groupby("algo"))
+    lines += ["", f"Runs whose best checkpoint was the untrained policy (step 0; a constant setting of 60 degC): "
+              f"{step0}."]
     lines += ["", f"Training: {len(runs)} runs, {meta['cpu_min']:.1f} CPU-minutes "
-              f"({meta['wall_min']:.1f} min wall, one process at a time under nice -n 10 on a shared 2-core machine).",
+              f"({meta['wall_min']:.1f} min wall, one or two processes at a time under nice -n 10 on a shared 2-core "
+              "machine).",
               ""]
     return "\n".join(lines) + "\n"
+
+
+def plot_curves(out: str | Path, path: Any) -> None:
+    """Learning curves of the from-scratch runs, one panel per task: each run's deterministic evaluations
+    on its evaluation seeds 10000+ (agents.curves.read_run: the policy at step 0, at the budget's middle
+    and at its end), thin lines per training seed, the mean over the seeds per algo thick."""
+    import numpy as np
+
+    from agents.curves import read_run
+    from valve_env.plotting import headless
+
+    headless()
+    import matplotlib.pyplot as plt
+
+    runs = run_dirs(out)
+    tasks = list(dict.fromkeys(t for t, _, _, _ in runs))
+    fig, axes = plt.subplots(1, len(tasks), figsize=(3.6 * len(tasks), 3.3), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        for i, algo in enumerate(ALGOS):
+            curves = [read_run(d)["evals"] for t, a, _, d in runs if t == task and a == algo]
+            curves = [c for c in curves if c is not None]
+            for steps, ret in curves:
+                ax.plot(steps / 1e3, ret, color=f"C{i}", alpha=0.3, lw=0.8)
+            if curves:
+                n = min(len(c[0]) for c in curves)
+                mean = np.mean([c[1][:n] for c in curves], axis=0)
+                ax.plot(curves[0][0][:n] / 1e3, mean, "o-", color=f"C{i}", label=f"{algo} ({len(curves)} seeds)")
+        ax.set_yscale("symlog", linthresh=1.0)  # returns from -1 to -10000 on one axis
+        ax.set_title(task.replace("ThermoValve", ""), fontsize=8)
+        ax.set_xlabel("env steps (thousands)", fontsize=7)
+        ax.set_ylabel("evaluation return (seeds 10000+, symlog)", fontsize=7)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -195,9 +238,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     e.add_argument("--seed", type=int, default=EVAL_SEED)
     e.add_argument("--oracle-cache", default="out/benchmark/episodes.csv,out/benchmark_*/episodes.csv")
     e.add_argument("--force", action="store_true", help="replace an earlier summary")
+    c = sub.add_parser("curves", help="the learning curves of the runs (one figure, a panel per task)")
+    c.add_argument("--out", default=str(DEFAULT_OUT))
+    c.add_argument("--figure", default=None, help="the figure's path (default <out>/curves_scratch.png)")
+    c.add_argument("--force", action="store_true")
     args = p.parse_args(argv)
     if args.cmd == "evaluate":
         return evaluate_main(args)
+    if args.cmd == "curves":
+        from valve_env.outputs import OutputError, OutputSet
+
+        try:
+            if not run_dirs(args.out):
+                raise ValueError(f"no finished run under {Path(args.out) / 'runs'}")
+            outs = OutputSet(force=args.force)
+            fig = outs.add(args.figure or Path(args.out) / "curves_scratch.png")
+        except (ValueError, OutputError) as exc:
+            print(f"python -m agents.scratch: error: {exc}", file=sys.stderr)
+            return 2
+        outs.stage(fig, lambda tmp: plot_curves(args.out, tmp))
+        outs.commit()
+        print(outs.summary())
+        return 0
     try:
         algos = [a for a in args.algos.split(",") if a]
         tasks = [x for x in args.tasks.split(",") if x]

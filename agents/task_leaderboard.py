@@ -287,6 +287,10 @@ def scratch_markdown(summary: pd.DataFrame, eng: Sequence[Mapping[str, Any]], me
             lines.append(f"| {task} | **{e['agent']}** engineered ({e['hand_written']}) | 1 shipped | "
                          f"{_f(e['gap_score'])} [{_f(e['gap_score_lo'])}, {_f(e['gap_score_hi'])}] (over episodes) | "
                          f"{_f(e['cost'])} |")
+    if meta.get("scratch_step0"):
+        lines += ["", "Runs whose best checkpoint on the evaluation seeds was the untrained policy (step 0: its mean "
+                  "action is the middle of the setting's range, 60 degC, a constant setting): "
+                  f"{meta['scratch_step0']}."]
     lines += ["", "An engineered agent is one shipped run: its interval is the benchmark's paired bootstrap over "
               "the held-out episodes (valve_env.tasks.benchmark.gap_score_ci), not a spread over training seeds.", ""]
     return lines
@@ -564,6 +568,9 @@ def run(args: argparse.Namespace) -> int:
         meta.update({"scratch": str(args.scratch), "scratch_budget": int(scratch_runs["n_timesteps"].max()),
                      "scratch_train_seeds": ", ".join(map(str, sorted(scratch_runs["seed"].unique()))),
                      "scratch_runs": len(scratch_runs),
+                     "scratch_step0": ", ".join(
+                         f"{a} {int((g['best_checkpoint_step'] == 0).sum())} of {len(g)}"
+                         for a, g in scratch_runs.groupby("algo")) if "best_checkpoint_step" in scratch_runs else "",
                      "scratch_cpu_min": float(scratch_runs["train_cpu_s"].fillna(0).sum()) / 60.0,
                      "scratch_wall_min": float(scratch_runs["train_wall_s"].fillna(0).sum()) / 60.0})
     text = markdown(boards, gen, meta, scratch)
