@@ -123,11 +123,31 @@ def oracle_episodes(cache: Sequence[str | Path], task: str, seeds: Sequence[int]
     return None
 
 
-def run_task(task: str, controllers: Mapping[str, Any], episodes: int, seed: int) -> dict[str, pd.DataFrame]:
+def reused_episodes(reuse: Sequence[str | Path], task: str, name: str, seeds: Sequence[int]) -> pd.DataFrame | None:
+    """A built-in controller's rows for ``task`` and exactly ``seeds`` from an earlier board's
+    ``task_episodes.csv`` (``--reuse``), or None."""
+    for p in reuse:
+        df = pd.read_csv(p)
+        sub = df[(df["task"] == task) & (df["controller"] == name) & df["seed"].isin(list(seeds))]
+        sub = sub.drop_duplicates("seed", keep="last")
+        if len(sub) == len(seeds):
+            return sub.drop(columns=["task", "controller"]).sort_values("seed").reset_index(drop=True)
+    return None
+
+
+def run_task(task: str, controllers: Mapping[str, Any], episodes: int, seed: int,
+             reuse: Sequence[str | Path] = (), builtin: Sequence[str] = ()) -> dict[str, pd.DataFrame]:
+    """Each controller's episodes; a built-in one's (``builtin``: not an agent or a base law) are taken
+    from ``reuse`` (earlier boards' task_episodes.csv) when they hold the same task and seeds."""
     from valve_env.evaluation.evaluator import run_episodes
 
     out = {}
+    seeds = list(range(seed, seed + episodes))
     for name, ctrl in controllers.items():
+        if name in builtin and (old := reused_episodes(reuse, task, name, seeds)) is not None:
+            out[name] = old
+            print(f"[task-leaderboard] {task} {name}: reused", file=sys.stderr, flush=True)
+            continue
         t0 = time.perf_counter()
         out[name] = run_episodes(ctrl, task, episodes, seed)
         print(f"[task-leaderboard] {task} {name}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
@@ -425,15 +445,17 @@ def plot(boards: Mapping[str, Any], path: Any) -> None:
 
 
 def build(tasks: Sequence[str], episodes: int, seed: int, cache: Sequence[str], zoo: str | Path | None = None,
-          generalisation: bool = True) -> tuple[dict[str, Any], list[dict[str, Any]], pd.DataFrame]:
+          generalisation: bool = True, reuse: Sequence[str | Path] = ()
+          ) -> tuple[dict[str, Any], list[dict[str, Any]], pd.DataFrame]:
     from agents.loader import available_agents
     from valve_env.tasks import TASK_IDS
+    from valve_env.tasks.benchmark import known_controllers
 
     seeds = list(range(seed, seed + episodes))
     boards: dict[str, Any] = {}
     frames = []
     for task in tasks:
-        per_ep = run_task(task, task_controllers(task, zoo), episodes, seed)
+        per_ep = run_task(task, task_controllers(task, zoo), episodes, seed, reuse, known_controllers(task))
         orc = oracle_episodes(cache, task, seeds)
         if orc is not None:
             per_ep[ORACLE] = orc
@@ -513,6 +535,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.add_argument("--zoo", default=None, help="directory of shipped agents (default agents/zoo)")
     p.add_argument("--no-generalisation", action="store_true", help="skip the generalisation table")
+    p.add_argument("--reuse", default=None, metavar="CSV",
+                   help="comma-separated task_episodes.csv of earlier boards: the built-in controllers' episodes on "
+                        "the same task and seeds are taken from there instead of rerun (agents always run)")
     p.add_argument("--scratch", default=None, metavar="DIR",
                    help="add the from-scratch runs of python -m agents.scratch (DIR/runs.csv, scored on the "
                         "same seeds)")
@@ -542,6 +567,10 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"--scratch {args.scratch}: no runs.csv (python -m agents.scratch evaluate)")
             scratch_runs = pd.read_csv(f)
             scratch_rows(scratch_runs, list(range(args.seed, args.seed + args.episodes)))  # the seeds checked
+        reuse = [c for c in (args.reuse or "").split(",") if c]
+        for r in reuse:
+            if not Path(r).is_file() or not set(CACHE_COLUMNS) <= set(pd.read_csv(r, nrows=0).columns):
+                raise ValueError(f"--reuse {r}: not a task_episodes.csv of thermovalve task-leaderboard")
         outs = OutputSet(force=args.force)
         # --docs: the tracked files (each replaced only with --force); else a directory of its own
         out = Path("docs") if args.docs else outs.add_dir(args.out)
@@ -555,7 +584,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"thermovalve: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    boards, gen, episodes = build(tasks, args.episodes, args.seed, cache, args.zoo, not args.no_generalisation)
+    boards, gen, episodes = build(tasks, args.episodes, args.seed, cache, args.zoo, not args.no_generalisation, reuse)
     meta = {"command": "thermovalve task-leaderboard " + shlex.join(sys.argv[2:] if len(sys.argv) > 1
                                                                     and sys.argv[1] == "task-leaderboard"
                                                                     else sys.argv[1:]),
