@@ -77,8 +77,8 @@ def iqm_interval(scores: np.ndarray, reps: int = REPS, seed: int = 0,
     return point, float(interval[0, 0]), float(interval[1, 0])
 
 
-def summarise(runs: pd.DataFrame, metrics: Sequence[str] = ("gap_score", "cost"), reps: int = REPS,
-              seed: int = 0, aggregate: Sequence[str] = ("gap_score",)) -> pd.DataFrame:
+def summarise(runs: pd.DataFrame, metrics: Sequence[str] = ("gap_score", "score", "cost"), reps: int = REPS,
+              seed: int = 0, aggregate: Sequence[str] = ("gap_score", "score")) -> pd.DataFrame:
     """One row per (algo, task): ``n_runs`` and for each metric ``<m>_iqm``, ``<m>_lo``, ``<m>_hi``
     (the IQM over the training runs and its 95 % stratified-bootstrap interval); then one row per
     algo with task ``ALL_TASKS`` for the ``aggregate`` metrics (scale-free ones: a cost's units
@@ -87,7 +87,7 @@ def summarise(runs: pd.DataFrame, metrics: Sequence[str] = ("gap_score", "cost")
     rows = []
     for (algo, task), g in runs.groupby(["algo", "task"], sort=True):
         row: dict[str, object] = {"algo": algo, "task": task, "n_runs": len(g)}
-        for m in metrics:
+        for m in (m for m in metrics if m in g):
             row[f"{m}_iqm"], row[f"{m}_lo"], row[f"{m}_hi"] = iqm_interval(g[m].to_numpy(float), reps, seed)
         rows.append(row)
     for algo, g in runs.groupby("algo", sort=True):
@@ -95,7 +95,7 @@ def summarise(runs: pd.DataFrame, metrics: Sequence[str] = ("gap_score", "cost")
         n = int(counts.mode().iloc[0])
         tasks = sorted(counts.index[counts == n])
         row = {"algo": algo, "task": ALL_TASKS, "n_runs": n * len(tasks), "n_tasks": len(tasks)}
-        for m in metrics:
+        for m in (m for m in metrics if m in g):
             if m in aggregate:
                 mat = np.column_stack([g[g["task"] == t].sort_values("seed")[m].to_numpy(float) for t in tasks])
                 row[f"{m}_iqm"], row[f"{m}_lo"], row[f"{m}_hi"] = iqm_interval(mat, reps, seed)
@@ -111,8 +111,9 @@ def _f(v: float) -> str:
     return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
 
 
-def markdown(summary: pd.DataFrame, metrics: Sequence[str] = ("gap_score", "cost")) -> list[str]:
-    """The summary as a markdown table: IQM [95 % CI] per metric."""
+def markdown(summary: pd.DataFrame, metrics: Sequence[str] = ("gap_score", "score", "cost")) -> list[str]:
+    """The summary as a markdown table: IQM [95 % CI] per metric (those the summary has)."""
+    metrics = [m for m in metrics if f"{m}_iqm" in summary]
     lines = ["| algo | task | runs | " + " | ".join(f"{m} IQM [95 % CI]" for m in metrics) + " |",
              "|---|---|---:|" + "---:|" * len(metrics)]
     for _, r in summary.iterrows():
