@@ -73,16 +73,38 @@ def _children_cpu_s() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
+def claim(d: Path) -> bool:
+    """Claim run ``d`` for this process (``<d>.claim`` holding the pid, made atomically), so that two
+    sweeps over the same runs share them out; a claim whose process is gone is taken over."""
+    path = d.parent / f"{d.name}.claim"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            try:
+                pid = int(path.read_text() or "0")
+                os.kill(pid, 0)
+                return pid == os.getpid()
+            except (ValueError, ProcessLookupError):
+                path.unlink(missing_ok=True)  # its process is gone
+                continue
+        with os.fdopen(fd, "w") as f:
+            f.write(str(os.getpid()))
+        return True
+    return False
+
+
 def train_all(algos: Sequence[str], tasks: Sequence[str], seeds: Sequence[int], out: str | Path) -> int:
-    """Every run not yet finished, one process at a time, seed-major (a cut-short sweep still has
-    every algo and task on its first seeds)."""
+    """Every run not yet finished and not claimed by another sweep (:func:`claim`), one process at
+    a time, seed-major (a cut-short sweep still has every algo and task on its first seeds)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
     failed = 0
     for seed in seeds:
         for task in tasks:
             for algo in algos:
                 d = run_dir(out, task, algo, seed)
-                if finished(d):
+                if finished(d) or not claim(d):
                     continue
                 t0, c0 = time.perf_counter(), _children_cpu_s()
                 rc = subprocess.call(train_command(algo, task, seed, out), env=env)
