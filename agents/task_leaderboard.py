@@ -223,8 +223,10 @@ def hand_written(cfg: Mapping[str, Any]) -> str:
     parts = []
     res = cfg.get("residual") or {}
     if res:
-        law = (f"base law: PI kp {res.get('kp')} K/K, ki {res.get('ki')} K/(K h) around {res.get('center')}, "
-               f"residual span +-{res.get('span')}")
+        gains = [float(g) for g in (*(res.get("kp") or []), *(res.get("ki") or []))]
+        law = (f"base law: PI kp {res.get('kp')} K/K, ki {res.get('ki')} K/(K h) around {res.get('center')}"
+               if any(gains) else f"base law: a constant setting {res.get('center')} degC, no PI")
+        law += f", residual span +-{res.get('span')}"
         if res.get("kff"):
             law += f", draw feedforward {res['kff']} K per l/min"
         if res.get("shut_band") is not None:
