@@ -202,8 +202,8 @@ def summary_markdown(runs: Any, summary: Any, meta: dict[str, Any]) -> str:
     lines += ["", f"Runs whose best checkpoint was the untrained policy (step 0; a constant setting of 60 degC): "
               f"{step0}."]
     lines += ["", f"Training: {len(runs)} runs, {meta['cpu_min']:.1f} CPU-minutes "
-              f"({meta['wall_min']:.1f} min wall, one or two processes at a time under nice -n 10 on a shared 2-core "
-              "machine).",
+              f"({meta['wall_min']:.1f} min of run wall time summed over the runs: several at a time, nice -n 10, "
+              "on a shared 2-core machine).",
               ""]
     return "\n".join(lines) + "\n"
 

@@ -242,7 +242,9 @@ def hand_written(cfg: Mapping[str, Any]) -> str:
     search = "CEM on a linear action head" if cfg.get("optimizer") == "cem" else f"{cfg.get('algo', '?')} updates"
     cem = cfg.get("cem") or {}
     if cem.get("init"):
-        search += f", warm-started from {Path(str(cem['init'])).parent.name}/{Path(str(cem['init'])).name}"
+        init = str(cem["init"])
+        search += (f", warm-started from {init[init.index('agents/zoo/') + len('agents/zoo/'):]}"
+                   if "agents/zoo/" in init else ", warm-started from an earlier run (its yml's warm_start chain)")
     parts.append(f"learned: {search}")
     return "; ".join(parts)
 
@@ -296,15 +298,16 @@ def scratch_markdown(summary: pd.DataFrame, eng: Sequence[Mapping[str, Any]], me
              "stratified-bootstrap intervals (rliable). Gap score 0 = pi, 1 = oracle; score 0 = self_acting, "
              f"1 = oracle; cost = -return. Training: {meta['scratch_runs']} runs, "
              f"{meta['scratch_cpu_min']:.0f} CPU-minutes, "
-             f"{meta['scratch_wall_min']:.0f} min wall, one or two processes at a time under nice -n 10 on a "
-             "shared 2-core machine.", "",
+             f"{meta['scratch_wall_min']:.0f} min of run wall time summed over the runs (several at a time, "
+             "nice -n 10, on a shared 2-core machine).", "",
              "| task | controller | runs | gap score IQM [95 % CI] | score IQM [95 % CI] | cost IQM [95 % CI] |",
              "|---|---|---:|---:|---:|---:|"]
     tasks = list(dict.fromkeys([*(e["task"] for e in eng), *summary["task"]]))
     for task in tasks:
         for _, r in summary[summary["task"] == task].iterrows():
             cells = [f"{_f(r[f'{m}_iqm'])} [{_f(r[f'{m}_lo'])}, {_f(r[f'{m}_hi'])}]"
-                     if m in r and math.isfinite(r[f"{m}_iqm"]) else "n/a" for m in ("gap_score", "score", "cost")]
+                     if f"{m}_iqm" in r and math.isfinite(r[f"{m}_iqm"]) else "n/a"
+                     for m in ("gap_score", "score", "cost")]
             lines.append(f"| {task} | {r['algo']} from scratch | {int(r['n_runs'])} | " + " | ".join(cells) + " |")
         for e in (e for e in eng if e["task"] == task):
             lines.append(f"| {task} | **{e['agent']}** engineered ({e['hand_written']}) | 1 shipped | "
@@ -448,7 +451,7 @@ def build(tasks: Sequence[str], episodes: int, seed: int, cache: Sequence[str], 
           generalisation: bool = True, reuse: Sequence[str | Path] = ()
           ) -> tuple[dict[str, Any], list[dict[str, Any]], pd.DataFrame]:
     from agents.loader import available_agents
-    from valve_env.tasks import TASK_IDS
+    from valve_env.tasks import CURRENT_TASK_IDS
     from valve_env.tasks.benchmark import known_controllers
 
     seeds = list(range(seed, seed + episodes))
@@ -467,7 +470,7 @@ def build(tasks: Sequence[str], episodes: int, seed: int, cache: Sequence[str], 
     gen: list[dict[str, Any]] = []
     if generalisation:
         for train_task in tasks:
-            for other in TASK_IDS:
+            for other in CURRENT_TASK_IDS:  # a superseded task is no deployment target
                 if other == train_task:
                     continue
                 try:
