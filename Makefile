@@ -24,10 +24,13 @@ venv: $(PY)
 install-core: venv
 	$(PIP) install -q -c $(CONSTRAINTS) -e .
 
-# torch is installed first and pinned so the local CPU build is taken (an unpinned torch pulls GBs of CUDA packages)
+# torch is installed first and pinned so the local CPU build is taken (an unpinned torch pulls GBs of CUDA packages);
+# rliable last, without its dependencies: it declares arch<8, the core pins arch 8 (numpy, scipy, absl-py and
+# arch are already there; agents/rliable_summary.py has the compatibility shim)
 install: venv
 	$(PIP) install -q -c $(CONSTRAINTS) "torch==2.13.0"
 	$(PIP) install -q -c $(CONSTRAINTS) -e ".[rl,dev]"
+	$(PIP) install -q --no-deps -c $(CONSTRAINTS) rliable
 
 demo: install-core
 	$(PY) -m valve_env.cli demo --out $(OUT)/demo --force

@@ -1,12 +1,13 @@
 """The benchmark tasks' leaderboard: shipped agents against every baseline and the oracle, on
 held-out seeds, with the normalised score of ``thermovalve benchmark``.
 
-    thermovalve task-leaderboard [--tasks A,B] [--episodes 10] [--seed 5000]
+    thermovalve task-leaderboard [--tasks A,B] [--episodes 10] [--seed 5000] [--scratch out/scratch]
                                  [--oracle-cache out/benchmark/episodes.csv] [--out out/task_leaderboard]
     thermovalve task-leaderboard --docs --force      # regenerate the tracked docs/task_leaderboard.*
     python -m agents.task_leaderboard ...
 
-Per task (default: every benchmark task with a shipped agent in agents/zoo/<task>/):
+Per task (default: every current benchmark task, valve_env.CURRENT_TASK_IDS, with a shipped agent in
+agents/zoo/<task>/; a superseded task's agent only when its task is named in --tasks):
 
 * every built-in non-oracle controller (the baselines and compensators that apply to the task),
   each shipped agent and, for a residual agent, its base law alone (``<agent>_base_law``: the
@@ -22,11 +23,19 @@ Per task (default: every benchmark task with a shipped agent in agents/zoo/<task
   of that baseline's gap to the oracle the agent closes, the learned share (the agent's score
   minus its base law's: what the learning adds), paired wins, tdis_Kh against ``pi``'s, wear;
 * a generalisation table: each agent run on the other tasks with the same action (observation
-  aids computed from the deployment task's scenario), scored with that task's references.
+  aids computed from the deployment task's scenario), scored with that task's references;
+* with ``--scratch DIR`` (the directory of ``python -m agents.scratch``): the standard algorithms
+  trained from scratch, from the per-run scores stored in ``DIR/runs.csv`` (scored on the same
+  held-out seeds, checked), as the interquartile mean over training seeds with 95 %
+  stratified-bootstrap intervals of the gap score (0 = pi, 1 = oracle) and of the cost
+  (agents.rliable_summary), beside the engineered agents' rows (gap score with the benchmark's paired
+  bootstrap interval over the episodes; what is hand-written named), and a figure of both
+  (``figures/task_leaderboard_scratch.png``).
 
-Writes ``task_leaderboard.md``, ``task_leaderboard.json``, ``task_episodes.csv`` and
-``figures/task_leaderboard.png`` into ``--out`` (default out/task_leaderboard; ``--docs``: the
-tracked docs/), all together and atomically; existing files are replaced only with ``--force``.
+Writes ``task_leaderboard.md``, ``task_leaderboard.json``, ``task_episodes.csv``,
+``figures/task_leaderboard.png`` (and with ``--scratch`` ``figures/task_leaderboard_scratch.png``)
+into ``--out`` (default out/task_leaderboard; ``--docs``: the tracked docs/), all together and
+atomically; existing files are replaced only with ``--force``.
 docs/agents.md, "The benchmark tasks".
 """
 
@@ -114,11 +123,31 @@ def oracle_episodes(cache: Sequence[str | Path], task: str, seeds: Sequence[int]
     return None
 
 
-def run_task(task: str, controllers: Mapping[str, Any], episodes: int, seed: int) -> dict[str, pd.DataFrame]:
+def reused_episodes(reuse: Sequence[str | Path], task: str, name: str, seeds: Sequence[int]) -> pd.DataFrame | None:
+    """A built-in controller's rows for ``task`` and exactly ``seeds`` from an earlier board's
+    ``task_episodes.csv`` (``--reuse``), or None."""
+    for p in reuse:
+        df = pd.read_csv(p)
+        sub = df[(df["task"] == task) & (df["controller"] == name) & df["seed"].isin(list(seeds))]
+        sub = sub.drop_duplicates("seed", keep="last")
+        if len(sub) == len(seeds):
+            return sub.drop(columns=["task", "controller"]).sort_values("seed").reset_index(drop=True)
+    return None
+
+
+def run_task(task: str, controllers: Mapping[str, Any], episodes: int, seed: int,
+             reuse: Sequence[str | Path] = (), builtin: Sequence[str] = ()) -> dict[str, pd.DataFrame]:
+    """Each controller's episodes; a built-in one's (``builtin``: not an agent or a base law) are taken
+    from ``reuse`` (earlier boards' task_episodes.csv) when they hold the same task and seeds."""
     from valve_env.evaluation.evaluator import run_episodes
 
     out = {}
+    seeds = list(range(seed, seed + episodes))
     for name, ctrl in controllers.items():
+        if name in builtin and (old := reused_episodes(reuse, task, name, seeds)) is not None:
+            out[name] = old
+            print(f"[task-leaderboard] {task} {name}: reused", file=sys.stderr, flush=True)
+            continue
         t0 = time.perf_counter()
         out[name] = run_episodes(ctrl, task, episodes, seed)
         print(f"[task-leaderboard] {task} {name}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
@@ -188,6 +217,151 @@ def goal_check(per_ep: Mapping[str, pd.DataFrame], table: pd.DataFrame, agent: s
     return out
 
 
+def hand_written(cfg: Mapping[str, Any]) -> str:
+    """What of an agent's controller is written by hand (its config): the base law of the residual
+    and its rules, the observation aids, the frame stack; and how the rest was found."""
+    parts = []
+    res = cfg.get("residual") or {}
+    if res:
+        gains = [float(g) for g in (*(res.get("kp") or []), *(res.get("ki") or []))]
+        law = (f"base law: PI kp {res.get('kp')} K/K, ki {res.get('ki')} K/(K h) around {res.get('center')}"
+               if any(gains) else f"base law: a constant setting {res.get('center')} degC, no PI")
+        law += f", residual span +-{res.get('span')}"
+        if res.get("kff"):
+            law += f", draw feedforward {res['kff']} K per l/min"
+        if res.get("shut_band") is not None:
+            law += f", shut_band rule {res['shut_band']} K"
+        parts.append(law)
+    else:
+        parts.append("no base law")
+    aids = sorted((cfg.get("obs_aids") or {}).keys())
+    if aids:
+        parts.append("observation aids " + ", ".join(aids))
+    if int(cfg.get("frame_stack", 1) or 1) > 1:
+        parts.append(f"frame stack {cfg['frame_stack']}")
+    search = "CEM on a linear action head" if cfg.get("optimizer") == "cem" else f"{cfg.get('algo', '?')} updates"
+    cem = cfg.get("cem") or {}
+    if cem.get("init"):
+        init = str(cem["init"])
+        search += (f", warm-started from {init[init.index('agents/zoo/') + len('agents/zoo/'):]}"
+                   if "agents/zoo/" in init else ", warm-started from an earlier run (its yml's warm_start chain)")
+    parts.append(f"learned: {search}")
+    return "; ".join(parts)
+
+
+def scratch_rows(runs: pd.DataFrame, seeds: Sequence[int]) -> pd.DataFrame:
+    """The rliable summary of the from-scratch runs (agents.rliable_summary.summarise) after checking
+    that they were scored on ``seeds``."""
+    from agents.rliable_summary import summarise
+
+    want = f"{seeds[0]}-{seeds[-1]}"
+    got = sorted(set(runs["eval_seeds"].astype(str)))
+    if got != [want]:
+        raise ValueError(f"--scratch runs were scored on seeds {', '.join(got)}, the leaderboard on {want}: "
+                         f"python -m agents.scratch evaluate --seed {seeds[0]} --episodes {len(seeds)}")
+    return summarise(runs)
+
+
+def engineered_rows(boards: Mapping[str, Any], zoo: str | Path | None = None) -> list[dict[str, Any]]:
+    """Per task and shipped agent: its gap score (0 = pi, 1 = oracle) with the benchmark's paired
+    bootstrap interval over the held-out episodes, its cost, and what is hand-written."""
+    import yaml
+
+    from agents.loader import agent_files
+    from valve_env.tasks.benchmark import gap_score_ci, gap_scores
+
+    out = []
+    for task, b in boards.items():
+        per_ep = b["per_episode"]
+        cost = dict(zip(b["table"]["controller"], b["table"]["cost"], strict=True))
+        gs, sc = gap_scores(cost), dict(zip(b["table"]["controller"], b["table"]["score"], strict=True))
+        per_seed = {n: dict(zip(df["seed"].astype(int), -df["return"].astype(float), strict=True))
+                    for n, df in per_ep.items()}
+        for g in b["goals"]:
+            name = g["agent"]
+            ci = gap_score_ci({k: per_seed[k] for k in (name, REFERENCE, ORACLE) if k in per_seed})[name] \
+                if ORACLE in per_seed and REFERENCE in per_seed else (math.nan, math.nan)
+            cfg = yaml.safe_load(agent_files(name, task, zoo)[1].read_text())
+            out.append({"task": task, "agent": name, "gap_score": gs.get(name, math.nan), "gap_score_lo": ci[0],
+                        "gap_score_hi": ci[1], "score": sc[name], "cost": cost[name],
+                        "hand_written": hand_written(cfg)})
+    return out
+
+
+def scratch_markdown(summary: pd.DataFrame, eng: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> list[str]:
+    lines = ["## From scratch against engineered agents", "",
+             f"From scratch: SB3 PPO, SAC and TD3 with agents/configs/scratch/<algo>.yml (no base law, no "
+             f"observation aids, no reward shaping; VecNormalize), {meta['scratch_budget']} env steps per run on "
+             f"the native VecEnv, training seeds {meta['scratch_train_seeds']}; each run's best checkpoint "
+             "(periodic evaluation on seeds 10000+) scored on the held-out seeds above; per-run scores in "
+             f"{meta['scratch']}/runs.csv (`python -m agents.scratch`). IQM over the training runs with 95 % "
+             "stratified-bootstrap intervals (rliable). Gap score 0 = pi, 1 = oracle; score 0 = self_acting, "
+             f"1 = oracle; cost = -return. Training: {meta['scratch_runs']} runs, "
+             f"{meta['scratch_cpu_min']:.0f} CPU-minutes, "
+             f"{meta['scratch_wall_min']:.0f} min of run wall time summed over the runs (several at a time, "
+             "nice -n 10, on a shared 2-core machine).", "",
+             "| task | controller | runs | gap score IQM [95 % CI] | score IQM [95 % CI] | cost IQM [95 % CI] |",
+             "|---|---|---:|---:|---:|---:|"]
+    tasks = list(dict.fromkeys([*(e["task"] for e in eng), *summary["task"]]))
+    for task in tasks:
+        for _, r in summary[summary["task"] == task].iterrows():
+            cells = [f"{_f(r[f'{m}_iqm'])} [{_f(r[f'{m}_lo'])}, {_f(r[f'{m}_hi'])}]"
+                     if f"{m}_iqm" in r and math.isfinite(r[f"{m}_iqm"]) else "n/a"
+                     for m in ("gap_score", "score", "cost")]
+            lines.append(f"| {task} | {r['algo']} from scratch | {int(r['n_runs'])} | " + " | ".join(cells) + " |")
+        for e in (e for e in eng if e["task"] == task):
+            lines.append(f"| {task} | **{e['agent']}** engineered ({e['hand_written']}) | 1 shipped | "
+                         f"{_f(e['gap_score'])} [{_f(e['gap_score_lo'])}, {_f(e['gap_score_hi'])}] (over episodes) | "
+                         f"{_f(e['score'])} | {_f(e['cost'])} |")
+    if meta.get("scratch_step0"):
+        lines += ["", "Runs whose best checkpoint on the evaluation seeds was the untrained policy (step 0: its mean "
+                  "action is the middle of the setting's range, 60 degC, a constant setting): "
+                  f"{meta['scratch_step0']}."]
+    lines += ["", "An engineered agent is one shipped run: its interval is the benchmark's paired bootstrap over "
+              "the held-out episodes (valve_env.tasks.benchmark.gap_score_ci), not a spread over training seeds.", ""]
+    return lines
+
+
+def plot_scratch(summary: pd.DataFrame, eng: Sequence[Mapping[str, Any]], path: Any) -> None:
+    from valve_env.plotting import headless
+
+    headless()
+    import matplotlib.pyplot as plt
+
+    per_task = summary[summary["task"] != "all tasks"]
+    tasks = list(dict.fromkeys([*per_task["task"], *(e["task"] for e in eng)]))
+    fig, axes = plt.subplots(1, len(tasks), figsize=(3.6 * len(tasks), 3.4), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        labels, mid, lo, hi, colours = [], [], [], [], []
+        for _, r in per_task[per_task["task"] == task].iterrows():
+            labels.append(f"{r['algo']} ({int(r['n_runs'])} runs)")
+            mid.append(r["gap_score_iqm"])
+            lo.append(r["gap_score_lo"])
+            hi.append(r["gap_score_hi"])
+            colours.append("tab:blue")
+        for e in (e for e in eng if e["task"] == task):
+            labels.append(f"{e['agent']} (engineered)")
+            mid.append(e["gap_score"])
+            lo.append(e["gap_score_lo"])
+            hi.append(e["gap_score_hi"])
+            colours.append("tab:red")
+        y = np.arange(len(labels))
+        m, lo_, hi_ = (np.asarray(v, float) for v in (mid, lo, hi))
+        err = np.vstack([np.nan_to_num(m - lo_), np.nan_to_num(hi_ - m)])
+        ax.errorbar(m, y, xerr=err, fmt="none", ecolor="k", capsize=3)
+        ax.scatter(m, y, c=colours, zorder=3)
+        ax.axvline(0.0, color="0.5", lw=0.8)
+        ax.axvline(1.0, color="tab:green", lw=0.8)
+        ax.set_yticks(y, labels, fontsize=7)
+        ax.invert_yaxis()
+        ax.set_title(task.replace("ThermoValve", ""), fontsize=8)
+        ax.set_xlabel("gap score (0 = pi, 1 = oracle; symlog): IQM, 95 % CI", fontsize=7)
+        ax.set_xscale("symlog", linthresh=1.0)  # from-scratch runs can be thousands of pi's gaps behind
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, format="png")
+    plt.close(fig)
+
+
 def _f(v: Any, digits: int = 3) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "n/a"
@@ -200,7 +374,8 @@ def _pct(v: float) -> str:
     return "n/a" if not math.isfinite(v) else f"{100 * v:.1f} %"
 
 
-def markdown(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
+def markdown(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: Mapping[str, Any],
+             scratch: tuple[pd.DataFrame, Sequence[Mapping[str, Any]]] | None = None) -> str:
     lines = ["# Benchmark tasks: agents against the baselines and the oracle", "",
              f"Generated by `{meta['command']}`. Held-out seeds {meta['seeds'][0]}-{meta['seeds'][1]} "
              "(never used in training or checkpoint selection: agents train on seeds 0 .. n_envs - 1 and select "
@@ -233,6 +408,8 @@ def markdown(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: 
         lines += ["", "Goal: gap closed >= 50 % of the best non-oracle baseline's gap to the oracle "
                   "(the agent's own base law counts as a baseline), with tdis_Kh no worse than pi's "
                   f"(+{TDIS_TOL_KH} K h). Learned = the agent's score minus its base law's.", ""]
+    if scratch is not None:
+        lines += scratch_markdown(scratch[0], scratch[1], meta)
     if gen:
         lines += ["## Generalisation: each agent on the tasks it was not trained on", "",
                   "| agent (trained on) | task | cost | score | pi cost | best baseline (cost) | tdis_Kh | reversals |",
@@ -271,15 +448,17 @@ def plot(boards: Mapping[str, Any], path: Any) -> None:
 
 
 def build(tasks: Sequence[str], episodes: int, seed: int, cache: Sequence[str], zoo: str | Path | None = None,
-          generalisation: bool = True) -> tuple[dict[str, Any], list[dict[str, Any]], pd.DataFrame]:
+          generalisation: bool = True, reuse: Sequence[str | Path] = ()
+          ) -> tuple[dict[str, Any], list[dict[str, Any]], pd.DataFrame]:
     from agents.loader import available_agents
-    from valve_env.tasks import TASK_IDS
+    from valve_env.tasks import CURRENT_TASK_IDS
+    from valve_env.tasks.benchmark import known_controllers
 
     seeds = list(range(seed, seed + episodes))
     boards: dict[str, Any] = {}
     frames = []
     for task in tasks:
-        per_ep = run_task(task, task_controllers(task, zoo), episodes, seed)
+        per_ep = run_task(task, task_controllers(task, zoo), episodes, seed, reuse, known_controllers(task))
         orc = oracle_episodes(cache, task, seeds)
         if orc is not None:
             per_ep[ORACLE] = orc
@@ -291,7 +470,7 @@ def build(tasks: Sequence[str], episodes: int, seed: int, cache: Sequence[str], 
     gen: list[dict[str, Any]] = []
     if generalisation:
         for train_task in tasks:
-            for other in TASK_IDS:
+            for other in CURRENT_TASK_IDS:  # a superseded task is no deployment target
                 if other == train_task:
                     continue
                 try:
@@ -323,7 +502,8 @@ def build(tasks: Sequence[str], episodes: int, seed: int, cache: Sequence[str], 
     return boards, gen, pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
-def _json(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
+def _json(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: Mapping[str, Any],
+          scratch: tuple[pd.DataFrame, Sequence[Mapping[str, Any]]] | None = None) -> str:
     def clean(v: Any) -> Any:
         if isinstance(v, Mapping):
             return {str(k): clean(x) for k, x in v.items()}
@@ -338,6 +518,8 @@ def _json(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: Map
     data = {"meta": meta, "tasks": {t: {"table": b["table"].to_dict(orient="records"), "goals": b["goals"],
                                          "oracle": b["oracle"]} for t, b in boards.items()},
             "generalisation": list(gen)}
+    if scratch is not None:
+        data["scratch"] = {"summary": scratch[0].to_dict(orient="records"), "engineered": list(scratch[1])}
     return json.dumps(clean(data), indent=1) + "\n"
 
 
@@ -356,6 +538,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.add_argument("--zoo", default=None, help="directory of shipped agents (default agents/zoo)")
     p.add_argument("--no-generalisation", action="store_true", help="skip the generalisation table")
+    p.add_argument("--reuse", default=None, metavar="CSV",
+                   help="comma-separated task_episodes.csv of earlier boards: the built-in controllers' episodes on "
+                        "the same task and seeds are taken from there instead of rerun (agents always run)")
+    p.add_argument("--scratch", default=None, metavar="DIR",
+                   help="add the from-scratch runs of python -m agents.scratch (DIR/runs.csv, scored on the "
+                        "same seeds)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -365,7 +553,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         tasks = ([t for t in args.tasks.split(",") if t] if args.tasks
-                 else [t for t in valve_env.TASK_IDS if available_agents(t, args.zoo)])
+                 else [t for t in valve_env.CURRENT_TASK_IDS if available_agents(t, args.zoo)])
         for t in tasks:
             if t not in valve_env.TASK_IDS:
                 raise ValueError(f"unknown benchmark task {t!r}; known: {', '.join(valve_env.TASK_IDS)}")
@@ -375,6 +563,17 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
         cache = [c for c in args.oracle_cache.split(",") if c]
         cache_files(cache)  # a file that is not a benchmark's episodes.csv is refused before any episode
+        scratch_runs = None
+        if args.scratch is not None:
+            f = Path(args.scratch) / "runs.csv"
+            if not f.is_file():
+                raise ValueError(f"--scratch {args.scratch}: no runs.csv (python -m agents.scratch evaluate)")
+            scratch_runs = pd.read_csv(f)
+            scratch_rows(scratch_runs, list(range(args.seed, args.seed + args.episodes)))  # the seeds checked
+        reuse = [c for c in (args.reuse or "").split(",") if c]
+        for r in reuse:
+            if not Path(r).is_file() or not set(CACHE_COLUMNS) <= set(pd.read_csv(r, nrows=0).columns):
+                raise ValueError(f"--reuse {r}: not a task_episodes.csv of thermovalve task-leaderboard")
         outs = OutputSet(force=args.force)
         # --docs: the tracked files (each replaced only with --force); else a directory of its own
         out = Path("docs") if args.docs else outs.add_dir(args.out)
@@ -383,19 +582,34 @@ def run(args: argparse.Namespace) -> int:
         if not args.docs:
             figdir.mkdir(exist_ok=True)
         fig = outs.add(figdir / "task_leaderboard.png")
+        fig_scratch = outs.add(figdir / "task_leaderboard_scratch.png") if scratch_runs is not None else None
     except (ValueError, OutputError) as exc:
         print(f"thermovalve: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    boards, gen, episodes = build(tasks, args.episodes, args.seed, cache, args.zoo, not args.no_generalisation)
+    boards, gen, episodes = build(tasks, args.episodes, args.seed, cache, args.zoo, not args.no_generalisation, reuse)
     meta = {"command": "thermovalve task-leaderboard " + shlex.join(sys.argv[2:] if len(sys.argv) > 1
                                                                     and sys.argv[1] == "task-leaderboard"
                                                                     else sys.argv[1:]),
             "seeds": [args.seed, args.seed + args.episodes - 1], "oracle_cache": cache,
             "wall_s": round(time.perf_counter() - t0, 1)}
-    text = markdown(boards, gen, meta)
+    scratch = None
+    if scratch_runs is not None:
+        summary = scratch_rows(scratch_runs, list(range(args.seed, args.seed + args.episodes)))
+        scratch = (summary, engineered_rows(boards, args.zoo))
+        meta.update({"scratch": str(args.scratch), "scratch_budget": int(scratch_runs["n_timesteps"].max()),
+                     "scratch_train_seeds": ", ".join(map(str, sorted(scratch_runs["seed"].unique()))),
+                     "scratch_runs": len(scratch_runs),
+                     "scratch_step0": ", ".join(
+                         f"{a} {int((g['best_checkpoint_step'] == 0).sum())} of {len(g)}"
+                         for a, g in scratch_runs.groupby("algo")) if "best_checkpoint_step" in scratch_runs else "",
+                     "scratch_cpu_min": float(scratch_runs["train_cpu_s"].fillna(0).sum()) / 60.0,
+                     "scratch_wall_min": float(scratch_runs["train_wall_s"].fillna(0).sum()) / 60.0})
+    text = markdown(boards, gen, meta, scratch)
     outs.write_text(paths["task_leaderboard.md"], text)
-    outs.write_text(paths["task_leaderboard.json"], _json(boards, gen, meta))
+    outs.write_text(paths["task_leaderboard.json"], _json(boards, gen, meta, scratch))
+    if scratch is not None and fig_scratch is not None:
+        outs.stage(fig_scratch, lambda tmp: plot_scratch(scratch[0], scratch[1], tmp))
     outs.stage(paths["task_episodes.csv"], lambda tmp: episodes.to_csv(tmp, index=False))
     outs.stage(fig, lambda tmp: plot(boards, tmp))
     outs.commit()

@@ -189,6 +189,8 @@ _SCALE = np.array([OBS_SCALING[n][1] for n in OBS_NAMES])
 TASK_OBS_SCALING: dict[str, tuple[float, float]] = {
     "price": (80.0, 40.0),  # EUR/MWh: district-heating price now and ahead
     "supply_plan": (75.0, 10.0),  # degC: the operator's supply plan ahead
+    "hour_so_far_kW": (0.0, 10.0),  # kW: the power drawn so far in this hour (DistrictHeatingPower)
+    "peak_hourly_kW": (0.0, 10.0),  # kW: the highest hourly power of the billing period so far
 }
 
 

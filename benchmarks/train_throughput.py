@@ -2,6 +2,7 @@
 
     python benchmarks/train_throughput.py [--json out/train_throughput.json] [--md out/train_throughput.md]
                                           [--seconds 20] [--threads 1] [--quick] [--force]
+    python benchmarks/train_throughput.py --tasks current [--seconds 10] ...   # the current tasks only
 
 Measures in one run, with the training stack of configs/<algo>.yml (residual PI action, physical
 observation scaling, frame stack 4, energy shaping, VecNormalize; agents.wrappers.make_vec_env).
@@ -30,6 +31,15 @@ SAC (off-policy, many envs)
     and ``gradient_steps = max(1, N / 128)``: 8 replayed samples per env step (UTD 1/128). A
     replay ratio of 64 at N = 256 would be 16 gradient steps of 1024 per env step of 256
     transitions: the updates, not the envs, would set the pace at any N. Not the same settings.
+
+The current benchmark tasks (``--tasks current``: valve_env.CURRENT_TASK_IDS; or ``--tasks A,B``)
+  * each task's training configuration of configs/ppo.yml (its residual base law, observation aids,
+    frame stack, shaping and PPO settings: batch 4096, 10 epochs, the linear action head and the
+    64x64 value net; PPO's own updates, ``optimizer: sgd``) at 4096 samples per update (the
+    configs' own 32 x 2880 would make each measurement minutes long on a shared machine),
+    DummyVecEnv(8) (n_steps 512) against the native VecEnv at N = 32 and 256 (n_steps 4096 / N),
+    everything else the same; DummyVecEnv(8) measured first and again last for each task, the ratio
+    over the mean of the two.
 
 The two DummyVecEnv(8) references of the claimed comparisons run again at the end of the run;
 the ratios use the mean of the two measurements (the machine is shared: both are reported, their
@@ -98,6 +108,69 @@ def fast_sac_overrides(n: int) -> list[str]:
         f"hyperparams.gradient_steps={gradient_steps}",
         "hyperparams.learning_starts=2048",
     ]
+
+
+TASK_ROLLOUT = 4096  # samples per update on both sides (the configs' 92160 would take minutes per measurement here)
+TASK_N: tuple[int, ...] = (32, 256)
+
+
+def task_overrides(n: int) -> list[str]:
+    """A current task's configs/ppo.yml block as PPO trains it (optimizer sgd) at TASK_ROLLOUT samples per
+    update: n_steps = TASK_ROLLOUT / N; batch, epochs, network as the block has them."""
+    return ["optimizer=sgd", f"hyperparams.n_steps={TASK_ROLLOUT // n}"]
+
+
+def run_tasks(tasks: list[str], seconds: float, threads: int, quick: bool, progress: Any = None) -> dict[str, Any]:
+    """Per task: DummyVecEnv(8), native(N) for N in TASK_N, DummyVecEnv(8) again; the ratios."""
+    import stable_baselines3
+    import torch
+
+    torch.set_num_threads(int(threads))
+    load_start = list(os.getloadavg())
+    rows = []
+    for task in tasks:
+        plan = [("dummy", 8, "DummyVecEnv(8)")] + [("native", n, f"native({n})")
+                                                    for n in (TASK_N[:1] if quick else TASK_N)]
+        plan.append(("dummy", 8, "DummyVecEnv(8) (again)"))
+        for vec, n, label in plan:
+            if progress:
+                progress(f"ppo {task} {label}")
+            rows.append(measure("ppo", vec, n, task_overrides(n), seconds, label, task, task))
+    ratios_ = {}
+    for task in tasks:
+        refs = [r["env_steps_per_s"] for r in rows if r["group"] == task and r["vec"] == "dummy"]
+        nat = {r["n_envs"]: r["env_steps_per_s"] for r in rows if r["group"] == task and r["vec"] == "native"}
+        best = max(nat, key=lambda k: nat[k])
+        ref = float(np.mean(refs))
+        ratios_[task] = {"dummy8_measurements": refs, "dummy8_mean": ref, "best_n": best,
+                         "best_vs_dummy8": nat[best] / ref, **{f"native{n}_vs_dummy8": v / ref for n, v in nat.items()}}
+    return {"seconds_per_config": seconds, "torch_threads": int(threads),
+            "machine": {"python": platform.python_version(), "torch": torch.__version__,
+                        "stable_baselines3": stable_baselines3.__version__, "cpu_count": os.cpu_count(),
+                        "load_avg": list(os.getloadavg()), "load_avg_start": load_start, "nice": os.nice(0)},
+            "rows": rows, "ratios": ratios_,
+            "goal": {"native_vs_dummy8": 10.0, "met": {t: r["best_vs_dummy8"] >= 10.0 for t, r in ratios_.items()}}}
+
+
+def markdown_tasks(res: dict[str, Any]) -> str:
+    m = res["machine"]
+    lines = [f"Training throughput on the current tasks' training configurations (PPO, configs/ppo.yml, "
+             f"{TASK_ROLLOUT} samples per update; torch threads {res['torch_threads']}, about "
+             f"{res['seconds_per_config']:g} s per configuration, nice {m['nice']}; load average at the start "
+             f"{', '.join(f'{x:.1f}' for x in m['load_avg_start'])}, at the end "
+             f"{', '.join(f'{x:.1f}' for x in m['load_avg'])})", "",
+             "| task | VecEnv | N | settings | env-steps/s | x DummyVecEnv(8) | collection share |",
+             "|---|---|---:|---|---:|---:|---:|"]
+    for r in res["rows"]:
+        ref = res["ratios"][r["group"]]["dummy8_mean"]
+        lines.append(f"| {r['env_id']} | {r['vec']} | {r['n_envs']} | {_settings(r)} | {r['env_steps_per_s']:,.0f} | "
+                     f"{r['env_steps_per_s'] / ref:.1f} | {r['collect_share']:.0%} |")
+    lines.append("")
+    for t, x in res["ratios"].items():
+        lines.append(f"* {t}: native({x['best_n']}) {x['best_vs_dummy8']:.1f}x DummyVecEnv(8) (its two measurements "
+                     f"{', '.join(f'{v:,.0f}' for v in x['dummy8_measurements'])} env-steps/s; goal 10x: "
+                     f"{'met' if x['best_vs_dummy8'] >= 10 else 'not met'}).")
+    return "\n".join(lines)
 
 
 def measure(algo: str, vec: str, n: int, overrides: list[str], seconds: float, label: str,
@@ -316,10 +389,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--quick", action="store_true", help="fewer N and 3 s per configuration (a smoke run)")
     p.add_argument("--force", action="store_true", help="replace existing outputs")
+    p.add_argument("--tasks", default=None, metavar="current|A,B",
+                   help="only the benchmark tasks' training configurations (current: valve_env.CURRENT_TASK_IDS)")
     args = p.parse_args(argv)
     if args.seconds <= 0 or args.threads < 1:
         print("thermovalve: error: --seconds must be > 0 and --threads >= 1", file=sys.stderr)
         return 2
+    tasks: list[str] = []
+    if args.tasks:
+        import valve_env
+
+        tasks = list(valve_env.CURRENT_TASK_IDS) if args.tasks == "current" else [t for t in args.tasks.split(",") if t]
+        bad = [t for t in tasks if t not in valve_env.TASK_IDS]
+        if bad:
+            print(f"thermovalve: error: --tasks: unknown task {bad[0]!r}", file=sys.stderr)
+            return 2
     outs = OutputSet(force=args.force)
     try:
         for path in (args.json, args.md):
@@ -332,9 +416,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import valve_env  # noqa: F401
 
-    res = run(3.0 if args.quick else args.seconds, args.threads, args.quick,
-              progress=lambda m: print(f"train_throughput: {m} ...", file=sys.stderr, flush=True))
-    text = markdown(res)
+    progress = lambda m: print(f"train_throughput: {m} ...", file=sys.stderr, flush=True)  # noqa: E731
+    seconds = 3.0 if args.quick else args.seconds
+    if tasks:
+        res = run_tasks(tasks, seconds, args.threads, args.quick, progress=progress)
+        text = markdown_tasks(res)
+    else:
+        res = run(seconds, args.threads, args.quick, progress=progress)
+        text = markdown(res)
     print(text)
     outs.write_text(json_path, json.dumps(res, indent=2) + "\n")
     outs.write_text(md_path, text + "\n")

@@ -168,17 +168,34 @@ def test_task_leaderboard_regenerates_into_out(tmp_path: Path, monkeypatch: Any)
                         lambda c, env_id, episodes, seed, env_kwargs=None, config=None:
                         orig(c, env_id, episodes, seed, {"control": {"horizon_h": 1.0}}, config))
     out = tmp_path / "board"
+    scratch = tmp_path / "scratch"  # per-run scores as python -m agents.scratch evaluate stores them
+    scratch.mkdir()
+    pd.DataFrame({"algo": ["sac"] * 3, "task": task, "seed": [0, 1, 2], "gap_score": [-3.0, 0.1, 0.2],
+                  "cost": [9.0, 1.0, 2.0], "eval_seeds": "5000-5001", "n_timesteps": 100, "train_cpu_s": 6.0,
+                  "train_wall_s": 9.0, "best_checkpoint_step": [0, 50, 100]}).to_csv(scratch / "runs.csv", index=False)
     rc = tl.main(["--tasks", task, "--episodes", "2", "--oracle-cache", str(cache), "--out", str(out),
-                  "--no-generalisation"])
+                  "--no-generalisation", "--scratch", str(scratch)])
     assert rc == 0
     text = (out / "task_leaderboard.md").read_text()
     assert "| oracle | oracle |" in text and "gap closed" in text and "5000-5001" in text
+    # the IQM of three runs trims none (rliable: scipy's 25 % trimmed mean cuts int(0.75) = 0 runs each side):
+    # the gap scores' mean -0.9 and the costs' 4; the runs have no score column (n/a)
+    assert f"| {task} | sac from scratch | 3 | -0.9 [" in text and "| n/a | 4 [" in text
+    assert "engineered (base law:" in text
+    assert "sac 1 of 3" in text  # one run's best checkpoint was the untrained policy
+    assert (out / "figures" / "task_leaderboard_scratch.png").stat().st_size > 0
     data = json.loads((out / "task_leaderboard.json").read_text())
     rows = {r["controller"]: r for r in data["tasks"][task]["table"]}
     assert rows["self_acting"]["score"] == pytest.approx(0.0) and rows["oracle"]["score"] == pytest.approx(1.0)
     assert (out / "figures" / "task_leaderboard.png").stat().st_size > 0
     assert tl.main(["--tasks", task, "--episodes", "2", "--oracle-cache", str(cache), "--out", str(out),
                     "--no-generalisation"]) == 2  # no replacing without --force
+    # --reuse: the built-in controllers' episodes come from the earlier board, the agents run again
+    again = tmp_path / "again"
+    assert tl.main(["--tasks", task, "--episodes", "2", "--oracle-cache", str(cache), "--out", str(again),
+                    "--no-generalisation", "--reuse", str(out / "task_episodes.csv")]) == 0
+    first, second = (pd.read_csv(d / "task_episodes.csv").set_index(["controller", "seed"]) for d in (out, again))
+    pd.testing.assert_frame_equal(second.sort_index(), first.sort_index(), check_like=True)
 
 
 def test_time_of_day_harmonics_and_forecast_interactions() -> None:

@@ -1,0 +1,33 @@
+"""The from-scratch sweep (agents.scratch): its configs cover every current task at one budget with nothing
+task-specific, and two sweeps share the runs out through claims."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+import valve_env
+from agents.scratch import ALGOS, CONFIG_DIR, claim, run_dir
+from agents.train import load_algo_config
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_every_current_task_has_one_budget_and_no_hand_written_structure(algo: str) -> None:
+    cfgs = [load_algo_config(algo, t, CONFIG_DIR) for t in valve_env.CURRENT_TASK_IDS]
+    assert len({c["n_timesteps"] for c in cfgs}) == 1
+    for c in cfgs:
+        assert c["vec_env"] == "native" and not c.get("residual") and not c.get("obs_aids")
+        assert not c.get("energy_shaping") and int(c.get("frame_stack", 1)) == 1
+
+
+def test_a_run_is_claimed_once_and_a_dead_claim_is_taken_over(tmp_path: Path) -> None:
+    d = run_dir(tmp_path, "T", "ppo", 0)
+    assert claim(d) and claim(d)  # this process holds it
+    other = d.parent / "ppo_s1.claim"
+    other.write_text(str(os.getppid()))  # held by a live process that is not this one
+    assert not claim(run_dir(tmp_path, "T", "ppo", 1))
+    dead = d.parent / "ppo_s2.claim"
+    dead.write_text("999999999")  # no such process
+    assert claim(run_dir(tmp_path, "T", "ppo", 2)) and dead.read_text() == str(os.getpid())
