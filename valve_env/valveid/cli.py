@@ -228,7 +228,7 @@ def run_fit(args: argparse.Namespace) -> int:
     data, pre = preprocess_run(load_run(args.run), source=str(args.run))
     validation = preprocess_run(load_run(args.validate), source=str(args.validate))[0] if args.validate else None
     from valve_env.valveid.fit import eiv_summary, fit_run, fit_summary
-    from valve_env.valveid.report import write_report
+    from valve_env.valveid.report import quantisation_note, write_report
 
     bar = progress_bar(3 if report_dir is not None else 2, desc="fit", unit="step")
     try:
@@ -273,6 +273,9 @@ def run_fit(args: argparse.Namespace) -> int:
           f"rms {summary['rms_mm']:.3g} mm, n {summary['n']}")
     for m in summary["identifiability"]:
         print(f"warning: {m}")
+    qnote = quantisation_note(summary)
+    if qnote:
+        print(f"note: {qnote}")
     if summary["misspecification"]["misspecified"]:
         print(f"warning: {summary['misspecification']['message']}")
     print(outs.summary())

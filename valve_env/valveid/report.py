@@ -341,6 +341,18 @@ def reported_table(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def quantisation_note(summary: dict[str, Any]) -> str | None:
+    """One line on the quantised tank temperature's bracket (docs/uncertainty.md, "Errors in variables",
+    item 4), from the ``thermovalve fit`` JSON, or None where the record is not quantised."""
+    corr = (summary.get("eiv") or {}).get("bias_correction")
+    if not corr:
+        return None
+    shifts = ", ".join(f"{k} {100.0 * (math.sqrt(1.0 + c) - 1.0):+.1f} %" for k, c in corr.items())
+    return ("the tank temperature is quantised (its noise lies below its step): the estimates are the middle of "
+            "the ML fit and its bias-corrected value by the temperature bootstrap, and the sd carries the "
+            f"bracket ({shifts})")
+
+
 def _at_reported(est: MLEstimator, summary: dict[str, Any]) -> MLEstimator:
     """``est`` moved to the reported parameters (the errors-in-variables estimate differs from the ML
     point estimate it starts from), so that every figure shows the fit the report reports."""
@@ -388,6 +400,9 @@ def _write_fit_report(est: MLEstimator, data: pd.DataFrame, outdir: str | Path, 
     if pre:
 
         parts += ["## Pre-processing: the record as measured", ""] + [f"- {x}" for x in describe(pre)] + [""]
+    qnote = quantisation_note(summary)
+    if qnote:
+        parts += [f"**Quantised record:** {qnote}.", ""]
     if summary.get("identifiability"):
         parts += ["**Identifiability:**", ""] + [f"- {m}" for m in summary["identifiability"]] + [""]
     parts += ["## Correlation of the estimates (ML point estimate, inverse Hessian)", "", _corr_md(est), "",
@@ -433,5 +448,5 @@ def _diag_md(rep: Any) -> str:
             f"- all three within their 5 % bands: {'yes' if s['white'] else 'no'}")
 
 
-__all__ = ["write_report", "write_figures", "render_markdown", "table4_markdown", "reported_table",
+__all__ = ["write_report", "write_figures", "render_markdown", "table4_markdown", "reported_table", "quantisation_note",
            "FIGURE_SUFFIXES", "FIT_REPORT_FILES"]

@@ -196,20 +196,28 @@ class ChannelNoise:
     #: a value on the channel's quantisation grid (the grid is ``offset + k quantum``)
     offset: float = 0.0
 
-    def remeasure(self, level: np.ndarray, sd: float, rng: np.random.Generator) -> np.ndarray:
+    def remeasure(self, level: np.ndarray, sd: float, rng: np.random.Generator, *,
+                  shift_grid: bool = False) -> np.ndarray:
         """The channel measured again from a latent ``level``, the way it was recorded: white noise of
         ``sd`` (the smoother's estimate) on a noisy channel; on a quantised one the noise that lies below
         its step (none: its noise is not seen, so the rounding is the measurement) and the rounding to
         its grid; on a noiseless one, nothing. For the null copies and bootstraps that must reproduce the
         record's measurement (a quantised channel given white noise of q / sqrt(12) instead is far
         noisier after smoothing than the rounded record). One standard normal per sample is drawn
-        whatever the convention, so a noisy channel's copies are as before."""
+        whatever the convention, so a noisy channel's copies are as before.
+
+        ``shift_grid``: on a channel whose noise lies below its step, the rounding of one level is one
+        fixed staircase, so copies would all be the same. Where the latent level lies inside its
+        quantisation cells is unknown, so each copy shifts the grid by a uniform draw of +/- q / 2 and
+        shifts the rounded values back: the staircase's steps fall at other times and the level stays
+        centred (one more draw per copy, on such a channel only)."""
         eps = rng.standard_normal(level.shape[0])
         if self.method == "mad" and self.quantum is None:
             return level + sd * eps
         y = level + (sd * eps if self.method == "mad" else 0.0)
         if self.quantum is not None:
-            y = self.offset + np.round((y - self.offset) / self.quantum) * self.quantum
+            u = rng.uniform(-0.5, 0.5) * self.quantum if shift_grid and self.method != "mad" else 0.0
+            y = self.offset + np.round((y + u - self.offset) / self.quantum) * self.quantum - u
         return y
 
     def describe(self, channel: str) -> dict[str, object]:
