@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from valve_env.experiment import simulate_experiment
+from valve_env.ident.kalman import ou_loglik
 from valve_env.valveid.fitting import Model, RunData
-from valve_env.valveid.oe import monotone_path, ou_loglik, stick_demand, stick_loglik
+from valve_env.valveid.oe import monotone_path, stick_demand, stick_loglik
 from valve_env.valveid.temperature import smooth_temperature
 
 

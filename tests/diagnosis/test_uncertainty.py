@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 
 from valve_env.experiment import random_cases, simulate_experiment
+from valve_env.ident.kalman import ou_loglik
 from valve_env.params import I_STROKE, ValveParams
 from valve_env.valveid.bootstrap import bootstrap
 from valve_env.valveid.diagnose import check_run, prepare
 from valve_env.valveid.fitting import Model
-from valve_env.valveid.oe import ou_loglik, simulate_valve, stick_loglik, stick_simulate
+from valve_env.valveid.oe import simulate_valve, stick_loglik, stick_simulate
 from valve_env.valveid.stiction import jump_band
 
 

@@ -93,8 +93,8 @@ def test_quantised_record_is_bias_corrected() -> None:
     """On a record whose temperatures are rounded to 0.1 K, the errors-in-variables fit brackets its
     estimate by the temperature bootstrap's bias correction (half of it applied, its square / 12 added to
     the variance) and says so; the same run with noisy channels is not corrected."""
-    from valve_env.valveid.eiv import fit_eiv
     from valve_env.params import ValveParams
+    from valve_env.valveid.eiv import fit_eiv
 
     df = simulate_experiment(seed=43, duration_h=4.0, dt_s=10.0, T_noise_C=0.01)
     data = df[["time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar", "x_mm"]].copy()

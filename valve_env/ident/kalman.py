@@ -7,6 +7,8 @@
 * :func:`lkf`: the linear Kalman filter with exact discretisation (matrix
   exponential, Van Loan) for models with ``linear = True``.
 * :func:`rts_smooth`: Rauch-Tung-Striebel smoothing of a filter pass.
+* :func:`ou_loglik`: the scalar filter of an Ornstein-Uhlenbeck error plus white noise on a residual
+  (the output-error likelihood's noise model), compiled.
 
 Conventions (those of ctsmTMB, checked against its stored numbers, see
 tests/data/ctsmtmb_ornstein/SOURCE.md): the data update at t_0 comes before
@@ -21,6 +23,7 @@ linearly to u_i+1. Sampling may be uneven.
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 
@@ -605,3 +608,36 @@ def nll(model: SDEModel, params: dict[str, float] | np.ndarray | None, data: pd.
         return run_filter(model, p, arr, method=method, n_sub=n_sub, foh=foh, compiled=compiled, fast=fast).nll
     except np.linalg.LinAlgError:
         return float("inf")
+
+
+@nb.njit(cache=True)
+def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float,
+              mask: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The scalar OU filter: log-likelihood of residuals r = e + w (e an Ornstein-Uhlenbeck process of
+    stationary sd ``s_e`` and time constant ``tau_e``, w white of sd ``s_w``) over samples where ``mask``.
+
+    The filter runs over every sample (the OU state carries across); only masked samples enter the
+    likelihood and are used as observations. Returns (loglik, one-step prediction errors, their variance)."""
+    n = t.shape[0]
+    ve = s_e * s_e
+    vw = s_w * s_w
+    m = 0.0
+    P = ve
+    ll = 0.0
+    innov = np.empty(n)
+    Sout = np.empty(n)
+    for k in range(n):
+        if k > 0:
+            phi = math.exp(-(t[k] - t[k - 1]) / tau_e)
+            m = phi * m
+            P = phi * phi * P + ve * (1.0 - phi * phi)
+        S = P + vw
+        nu = r[k] - m
+        innov[k] = nu
+        Sout[k] = S
+        if mask[k]:
+            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+            K = P / S
+            m = m + K * nu
+            P = P - K * P
+    return ll, innov, Sout

@@ -35,6 +35,7 @@ from scipy.optimize import least_squares
 
 from valve_env.effects import ENGINE_INDEX, N_EFFECT_PARAMS, EffectParameter
 from valve_env.effects import REGISTRY as EFFECTS
+from valve_env.ident.kalman import ou_loglik
 from valve_env.ident.mle import minimise, past_kink
 from valve_env.ident.sde import Parameter, dnat_dwork, from_work, to_work, work_bounds
 from valve_env.ident.uncertainty import hessian_sandwich_sd
@@ -44,7 +45,6 @@ from valve_env.valveid.oe import (
     BAND_SPREAD,
     LANDING_SD,
     LOG2PI,
-    ou_loglik,
     simulate_valve,
     stick_loglik,
     stick_simulate_sj,

@@ -257,38 +257,6 @@ def stick_simulate(x_sub: np.ndarray, sub_idx: np.ndarray, band: float, stroke: 
 
 # --------------------------------------------------------------------------- 3. the output-error model
 @njit(cache=True)
-def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float,
-              mask: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Log-likelihood of residuals r = e + w (e Ornstein-Uhlenbeck, w white) over samples where ``mask``.
-
-    The filter runs over every sample (the OU state carries across); only masked samples enter the
-    likelihood and are used as observations. Returns (loglik, one-step prediction errors, their variance)."""
-    n = t.shape[0]
-    ve = s_e * s_e
-    vw = s_w * s_w
-    m = 0.0
-    P = ve
-    ll = 0.0
-    innov = np.empty(n)
-    Sout = np.empty(n)
-    for k in range(n):
-        if k > 0:
-            phi = math.exp(-(t[k] - t[k - 1]) / tau_e)
-            m = phi * m
-            P = phi * phi * P + ve * (1.0 - phi * phi)
-        S = P + vw
-        nu = r[k] - m
-        innov[k] = nu
-        Sout[k] = S
-        if mask[k]:
-            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
-            K = P / S
-            m = m + K * nu
-            P = P - K * P
-    return ll, innov, Sout
-
-
-@njit(cache=True)
 def _band_cdf(x: float, band: float, sd: float) -> float:
     """P(breakaway band <= x) for a band ~ N(band, sd^2)."""
     if sd <= 0.0:

@@ -14,7 +14,7 @@ about 0.2 K), and a lag moves the whole branch while a larger ``F_hmax`` moves o
 k the hysteresis of the moving branches, ``2 F_hmax / C + (S - J)``, is kept at the fit's (``F_hmax`` lowered
 by ``C (k - 1) J / 2``, then the best of a few offsets about that); the other parameters stay at the fit's.
 The likelihood is the open-loop one: the (S, J) stem (:func:`stick_simulate_sj`) on the fitted valve's demand,
-its residual an Ornstein-Uhlenbeck process plus white noise (:func:`valve_env.valveid.oe.ou_loglik`,
+its residual an Ornstein-Uhlenbeck process plus white noise (:func:`valve_env.ident.kalman.ou_loglik`,
 the diagnosis's output-error likelihood without the stick-slip filter, which holds J = S). So the profile
 asks one question: with the same hysteresis, is part of it a lag of the stem (S > J) rather than friction?
 The estimate is the grid's best k; its sd the half-rise width of the profile (the k whose log-likelihood
@@ -40,7 +40,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from valve_env.valveid.oe import ou_loglik, stick_simulate_sj
+from valve_env.ident.kalman import ou_loglik
+from valve_env.valveid.oe import stick_simulate_sj
 
 if TYPE_CHECKING:
     from valve_env.valveid.data import RunData
@@ -57,7 +58,7 @@ _FWHM = 2.0 * math.sqrt(2.0 * math.log(2.0))
 def sj_loglik(model: Model, data: RunData, values: dict[str, float], S: float, J: float) -> float:
     """The open-loop log-likelihood of the opening under the (S, J) stem on ``model``'s valve with ``values``
     (module docstring): ``model.simulate``'s stem with band S and slip J, its residual scored by
-    :func:`~valve_env.valveid.oe.ou_loglik`."""
+    :func:`~valve_env.ident.kalman.ou_loglik`."""
     xs = model.simulate(data, {**values, "band_mm": S}, slip=J)[0]
     mask = np.ones(len(data), dtype=np.bool_)
     ll, _, _ = ou_loglik(data.t, data.x - xs, values["s_w"], values["s_e"], values["tau_e"], mask)
