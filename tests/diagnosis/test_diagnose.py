@@ -250,7 +250,7 @@ def _staircase(jumps: int, band: float, rng: np.random.Generator, base: float = 
 
 
 def test_record_shows_band_pools_the_parts_and_needs_four_slips() -> None:
-    """Round 13 (docs/diagnosis.md): the whole record's slips confirm a band where the training and held-out
+    """docs/diagnosis.md: the whole record's slips confirm a band where the training and held-out
     parts pooled hold at least stiction.MIN_JUMPS slips whose median is the band within 50 %."""
     from valve_env.params import ValveParams
     from valve_env.valveid.diagnose import record_shows_band, slips_show_band
@@ -268,7 +268,7 @@ def test_record_shows_band_pools_the_parts_and_needs_four_slips() -> None:
 
 
 def test_stiction_fit_carries_on_past_a_kink_where_the_line_search_fails() -> None:
-    """Round 14 (docs/diagnosis.md): on a stiction run of development seed 20270705 (run 28: band 0.0311 mm,
+    """docs/diagnosis.md: on a stiction run of development seed 20270705 (run 28: band 0.0311 mm,
     20 s, 22.9 h) the fit from the base fit with the band held at the slips' median (0.0291 mm) stopped at its
     start: L-BFGS-B's line search failed at a kink of the stick-slip filter's likelihood (``ABNORMAL``), LR 255
     and a held-out gain of +0.01, so stiction was not validated; a fit at a band 3 % larger reached LR 355.

@@ -170,7 +170,7 @@ def test_slips_show_band_needs_slips_of_the_fitted_band() -> None:
                                                                            (False, True)])
 def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
         monkeypatch: pytest.MonkeyPatch, significant_at_slips_band: bool, held_out_shows_it: bool) -> None:
-    """Round 7 (docs/diagnosis.md): where the training slips (two or more) do not show the likelihood's band,
+    """docs/diagnosis.md: where the training slips (two or more) do not show the likelihood's band,
     stiction is refitted with the band held at the slips' median; that finding replaces the first only if it
     is significant and the held-out opening's slips show the band too; otherwise the first stays, with the
     slips' band's statistic recorded."""

@@ -411,7 +411,7 @@ def _null_guarded(f: Finding, ref_fit: FitResult, train: RunData, valve: ValvePa
     return f
 
 
-#: Round 7 (docs/diagnosis.md): where the training slips (at least two) do not show the likelihood's band,
+#: docs/diagnosis.md, "Method": where the training slips (at least two) do not show the likelihood's band,
 #: test stiction with the band held at the slips' median, confirmed by the held-out opening's slips
 SLIP_BAND_TEST = True
 
