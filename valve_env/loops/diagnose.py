@@ -25,8 +25,8 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
+from valve_env.ident.tests import delta_bic, lr_pvalue
 from valve_env.loops.detect import DEFAULT_RULE, detect
 from valve_env.loops.detectors import oscillation
 from valve_env.loops.io import MIN_SAMPLES, LoopData
@@ -155,8 +155,8 @@ def finding(name: str, fit: ValveFit, lin: ValveFit, s: Settings) -> dict[str, A
     df = fit.n_params - lin.n_params
     lr = 2.0 * (fit.loglik - lin.loglik)
     return {"candidate": name, "valve": name, "loglik": fit.loglik, "n_params": fit.n_params, "n": fit.n,
-            "lr_stat": lr, "p_value": float(stats.chi2.sf(max(lr, 0.0), df)) if df else 1.0,
-            "delta_bic": -lr + df * math.log(fit.n), "S_pct": fit.S, "J_pct": fit.J,
+            "lr_stat": lr, "p_value": lr_pvalue(lr, df) if df else 1.0,
+            "delta_bic": delta_bic(lr, df, fit.n), "S_pct": fit.S, "J_pct": fit.J,
             "process": fit.process.describe(s.dt)}
 
 

@@ -57,8 +57,9 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
 
     headless()
     import matplotlib.pyplot as plt
-    from statsmodels.stats.diagnostic import acorr_ljungbox
     from statsmodels.tsa.stattools import acf
+
+    from valve_env.ident.tests import ljung_box
 
     loop, s, R = diag.loop, diag.settings, diag.result
     paths = {name: directory / name for name in (*FIGURES, "report.md")}
@@ -113,7 +114,7 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
     e = residuals(loop.pv, fit.path(loop.op), fit.process, s.k0)
     nl = min(40, e.size // 4)
     r = acf(e, nlags=nl, fft=True)
-    lb = acorr_ljungbox(e, lags=[10, 20], return_df=True)
+    lb = ljung_box(e, [10, 20])
     fig, axs = plt.subplots(1, 2, figsize=(9, 3.2))
     axs[0].bar(np.arange(1, nl + 1), r[1:], width=0.6)
     axs[0].axhline(1.96 / np.sqrt(e.size), ls="--", color="k", lw=0.7)
