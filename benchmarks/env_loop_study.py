@@ -17,7 +17,7 @@ import time
 from collections import Counter
 
 from valve_env.cli import int_list
-from valve_env.loops.diagnose import diagnose
+from valve_env.loops.diagnose import diagnose_loop
 from valve_env.loops.envloop import ENV_ID, RECORD_H, WARMUP_H, record_env_loop
 
 STICKY_MM = 0.1
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
             loop = record_env_loop(band, seed=seed, hours=a.hours, warmup_h=a.warmup_h, env_id=a.env_id, Kp=a.kp,
                                    Ti_s=a.ti, F_hmax=a.f_hmax)
             t1 = time.process_time()
-            res = diagnose(loop, rule=a.rule).result
+            res = diagnose_loop(loop, rule=a.rule).result
             t2 = time.process_time()
             cause = str(res["cause"])
             named[band] += cause == "stiction"

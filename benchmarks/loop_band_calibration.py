@@ -4,7 +4,7 @@
     python benchmarks/loop_band_calibration.py --seeds 0-299
 
 For the sticky loops among ``valve_env.loops.sim.random_case``'s seeds (development seeds: the detector's training
-range, never the benchmark's evaluation seeds), fits the band (``diagnose(..., quantify=True)``) and prints, for
+range, never the benchmark's evaluation seeds), fits the band (``diagnose_loop(..., quantify=True)``) and prints, for
 each candidate relative model-error sd, the 1-sd and 2-sd coverage of the true band, and the share of bands within
 20 % of the truth (which the sd does not change). The sd's other terms (profile likelihood, sampling offset) are
 taken as fitted.
@@ -18,7 +18,7 @@ import sys
 import numpy as np
 
 from valve_env.cli import int_list
-from valve_env.loops.diagnose import BAND_REL_SD, SAMPLING_SD_SHARE, diagnose
+from valve_env.loops.diagnose import BAND_REL_SD, SAMPLING_SD_SHARE, diagnose_loop
 from valve_env.loops.sim import random_case, simulate_case
 
 
@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
         if case["label"] != "stiction":
             continue
         loop, _ = simulate_case(case)
-        st = diagnose(loop, quantify=True).result["stiction"]
+        st = diagnose_loop(loop, quantify=True).result["stiction"]
         other = st["std_pct"] ** 2 - (BAND_REL_SD * st["band_pct"]) ** 2
         rows.append((case["S"], st["band_pct"], max(other, 0.0)))
     S, B, O = (np.array([r[i] for r in rows]) for i in range(3))

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.loops.detectors import DETECTORS, horch
-from valve_env.loops.diagnose import diagnose
+from valve_env.loops.diagnose import diagnose_loop
 from valve_env.loops.io import LoopDataError, read_loop
 from valve_env.loops.sim import random_case, simulate_case
 
@@ -88,7 +88,7 @@ def real_loops(data: Path) -> None:
             print(f"{r['file'][:36]:36s} {r['label'][:8]:8s} REFUSED: {str(exc).split(': ', 1)[-1]}")
             continue
         t0, c0 = time.perf_counter(), time.process_time()
-        d = diagnose(loop)
+        d = diagnose_loop(loop)
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
         sizes.append(loop.n)
@@ -140,7 +140,7 @@ def sim_loops(seed0: int, n: int) -> None:
         loop, truth = simulate_case(case)
         c0 = time.process_time()
         sticky = case["label"] == "stiction"
-        d = diagnose(loop, quantify=True if sticky else None)
+        d = diagnose_loop(loop, quantify=True if sticky else None)
         dt_cpu = time.process_time() - c0
         cpu.append(dt_cpu)
         per720.append(dt_cpu / loop.n * 720.0)
@@ -192,12 +192,12 @@ def standard_loops(seed0: int, n: int) -> None:
         S = float(rng.uniform(1.0, 4.0))
         J = S * float(rng.uniform(0.3, 1.0))
         loop, _ = simulate_loop(procs[i % 4], S=S, J=J, seed=seed0 + i)
-        d = diagnose(loop, quantify=True)
+        d = diagnose_loop(loop, quantify=True)
         found += d.cause == "stiction"
         st = d.result["stiction"]
         rows.append((S, st["band_pct"], st["std_pct"]))
         smooth, _ = simulate_loop(procs[i % 4], S=0.0, seed=seed0 + 10_000 + i)
-        twins += diagnose(smooth).cause == "stiction"
+        twins += diagnose_loop(smooth).cause == "stiction"
     S, B, SD = (np.array([r[k] for r in rows]) for k in range(3))
     err = np.abs(B - S)
     print(f"\nfour-process set, seeds {seed0}..{seed0 + n - 1} (S ~ U(1, 4) %, J/S ~ U(0.3, 1)): sticky named "

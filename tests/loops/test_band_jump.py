@@ -24,14 +24,14 @@ def test_band_j_grid_nests_the_decisions() -> None:
 def test_small_jump_band_within_20_percent(monkeypatch: pytest.MonkeyPatch) -> None:
     loop, _ = simulate_loop(SMALL_JUMP["process"], S=SMALL_JUMP["S"], J=SMALL_JUMP["J"], seed=SMALL_JUMP["seed"])
     S = SMALL_JUMP["S"]
-    d = diag.diagnose(loop, quantify=True)
+    d = diag.diagnose_loop(loop, quantify=True)
     st = d.result["stiction"]
     assert abs(st["band_pct"] - S) / S <= 0.2
     assert abs(st["band_pct"] - S) <= 2.0 * st["std_pct"]
     assert st["jump_pct"] > 0.0 and st["kind"] == "stick-slip"  # the jump is resolved, not read as a deadband
     # the decision's grid {0, 1/2, 1} in the band's fit: J = 0 and the band more than 20 % short
     monkeypatch.setattr(diag, "BAND_J_FRACTIONS", J_FRACTIONS)
-    old = diag.diagnose(loop, quantify=True)
+    old = diag.diagnose_loop(loop, quantify=True)
     assert old.result["findings"][0] == d.result["findings"][0]  # the linear valve's fit is the same
     assert old.result["stiction"]["jump_pct"] == 0.0
     assert (S - old.result["stiction"]["band_pct"]) / S > 0.2

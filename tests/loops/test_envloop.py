@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tests.diagnosis.studies import load_study
-from valve_env.loops.diagnose import Diagnosis, diagnose
+from valve_env.loops.diagnose import LoopDiagnosis, diagnose_loop
 from valve_env.loops.envloop import record_env_loop
 from valve_env.loops.io import check_loop, read_loop
 
@@ -64,11 +64,11 @@ def test_env_loop_takes_the_valves_friction() -> None:
     assert a.f_hmax == 0.01
 
 
-def _diagnosis_via_csv(band_mm: float, seed: int, tmp_path: Path) -> Diagnosis:
+def _diagnosis_via_csv(band_mm: float, seed: int, tmp_path: Path) -> LoopDiagnosis:
     loop = record_env_loop(band_mm, seed=seed)
     path = tmp_path / f"env-{band_mm:g}-{seed}.csv"
     path.write_text(loop.to_csv_text())
-    return diagnose(read_loop(path), rule="learned")  # the environment's loops: the learned rule (docs/loops.md)
+    return diagnose_loop(read_loop(path), rule="learned")  # the environment's loops: the learned rule (docs/loops.md)
 
 
 def _diagnose_via_csv(band_mm: float, seed: int, tmp_path: Path) -> str:
@@ -88,7 +88,7 @@ def test_env_acceptance_mid_stroke(tmp_path: Path) -> None:
     for seed in range(700, 712):
         for band in (STICKY_MM, 0.0):
             loop = record_env_loop(band, seed=seed, env_id="ThermoValveStickyCirculation-v0", Kp=5.0, Ti_s=1500.0)
-            named = diagnose(loop, rule="learned").cause == "stiction"
+            named = diagnose_loop(loop, rule="learned").cause == "stiction"
             sticky += named and band > 0
             smooth += named and band == 0
     assert sticky >= 11 and smooth <= 1

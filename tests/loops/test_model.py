@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from valve_env.loops.diagnose import diagnose
+from valve_env.loops.diagnose import diagnose_loop
 from valve_env.loops.model import valve_path
 from valve_env.loops.sim import simulate_loop
 from valve_env.physics import stickslip
@@ -25,7 +25,7 @@ def test_valve_is_the_project_stick_slip() -> None:
 @pytest.mark.parametrize(("process", "S", "J"), [("pressure", 3.0, 1.5), ("temperature", 2.5, 2.0)])
 def test_sticky_simulated_loop_gives_its_band(process: str, S: float, J: float) -> None:
     loop, truth = simulate_loop(process, S=S, J=J, seed=101)
-    d = diagnose(loop, rule="learned")  # the simulated loops' detection is the learned rule's (docs/loops.md)
+    d = diagnose_loop(loop, rule="learned")  # the simulated loops' detection is the learned rule's (docs/loops.md)
     assert d.cause == "stiction" and d.result["stiction"]["detected"] is True
     st = d.result["stiction"]
     assert abs(st["band_pct"] - S) < 0.25 * S
@@ -47,7 +47,7 @@ def test_sticky_simulated_loop_gives_its_band(process: str, S: float, J: float) 
 
 def test_smooth_simulated_loop_is_not_stiction() -> None:
     loop, _ = simulate_loop("pressure", S=0.0, seed=102)
-    d = diagnose(loop, rule="learned")
+    d = diagnose_loop(loop, rule="learned")
     assert d.cause != "stiction" and "stiction" not in d.result and d.band_fit is None
 
 

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from valve_env.loops.diagnose import diagnose, select_noise_order
+from valve_env.loops.diagnose import diagnose_loop, select_noise_order
 from valve_env.loops.model import Settings, fit_process, resolution, scan_paths, subsample_op, valve_path
 from valve_env.loops.sim import simulate_loop
 from valve_env.physics import stickslip
@@ -72,7 +72,7 @@ def test_sub_sample_valve_recovers_the_flow_band() -> None:
     err = {}
     findings = []
     for m in (1, 4):
-        d = diagnose(loop, quantify=True, settings=replace(base, band_substeps=m))
+        d = diagnose_loop(loop, quantify=True, settings=replace(base, band_substeps=m))
         assert d.band_fit is not None
         st = d.result["stiction"]
         err[m] = abs(st["band_pct"] - FLOW["S"]) / FLOW["S"]

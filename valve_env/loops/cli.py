@@ -33,7 +33,7 @@ def register(subparsers: Any) -> None:
 def _cmd(args: argparse.Namespace) -> int:
     """Bad input raises (LoopDataError, OutputError, UsageError): valve_env.cli's shared handler prints
     one line and exits 2; the outputs are declared up front and written together."""
-    from valve_env.loops.diagnose import diagnose
+    from valve_env.loops.diagnose import diagnose_loop
     from valve_env.loops.io import read_loop
     from valve_env.outputs import OutputSet, json_text
 
@@ -47,13 +47,13 @@ def _cmd(args: argparse.Namespace) -> int:
         for name in (*FIGURES, "report.md"):
             outs.add(report_dir / name, "report file")
     loop = read_loop(args.loop)
-    diag = diagnose(loop, quantify=True if args.quantify else None, rule=args.rule)
+    diag = diagnose_loop(loop, quantify=True if args.quantify else None, rule=args.rule)
     with outs:
         outs.write_text(json_path, json_text(diag.result))
         if report_dir is not None:
-            from valve_env.loops.report import write_report
+            from valve_env.loops.report import write_loop_report
 
-            write_report(diag, outs, report_dir)
+            write_loop_report(diag, outs, report_dir)
     R = diag.result
     what = R["cause"]
     if R["cause"] == "insufficient_data":

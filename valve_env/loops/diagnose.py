@@ -59,7 +59,7 @@ LINEAR_R2_MIN = 0.5
 
 
 @dataclass
-class Diagnosis:
+class LoopDiagnosis:
     result: dict[str, Any]
     fits: dict[str, ValveFit]
     settings: Settings
@@ -160,16 +160,16 @@ def finding(name: str, fit: ValveFit, lin: ValveFit, s: Settings) -> dict[str, A
             "process": fit.process.describe(s.dt)}
 
 
-def _insufficient(loop: LoopData, reason: str) -> Diagnosis:
+def _insufficient(loop: LoopData, reason: str) -> LoopDiagnosis:
     result = {"cause": "insufficient_data", "reason": reason, "findings": [],
               "loop": {"tag": loop.tag, "source": loop.source, "n_samples": loop.n, "dt_s": loop.dt,
                        "op_scaled_from": list(loop.op_scaled_from) if loop.op_scaled_from else None},
               "notes": list(loop.notes)}
-    return Diagnosis(result, {}, Settings(dt=loop.dt), loop)
+    return LoopDiagnosis(result, {}, Settings(dt=loop.dt), loop)
 
 
-def diagnose(loop: LoopData, quantify: bool | None = None, settings: Settings | None = None,
-             rule: str = DEFAULT_RULE) -> Diagnosis:
+def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settings | None = None,
+             rule: str = DEFAULT_RULE) -> LoopDiagnosis:
     """Diagnose one loop record (module doc); returns the docs/reference.md section 10 result and the fits behind it.
     ``quantify`` True fits the band whatever the detection says; None (the default) fits it when stiction is
     detected; False never. ``rule``: the detection's decision rule (:data:`valve_env.loops.detect.RULES`)."""
@@ -220,8 +220,8 @@ def diagnose(loop: LoopData, quantify: bool | None = None, settings: Settings | 
     if "linear" in fits:
         result["loop"]["process"] = fits["linear"].process.describe(s.dt)
     result["notes"] = list(loop.notes)
-    return Diagnosis(result, fits, s, loop)
+    return LoopDiagnosis(result, fits, s, loop)
 
 
-__all__ = ["CAUSES", "Diagnosis", "diagnose", "band_uncertainty", "sampling_offset", "band_resolved", "crosses_back",
-           "MODEL", "MIN_PERIODS", "fit_band", "finding", "model_label", "select_noise_order"]
+__all__ = ["CAUSES", "LoopDiagnosis", "diagnose_loop", "band_uncertainty", "sampling_offset", "band_resolved",
+           "crosses_back", "MODEL", "MIN_PERIODS", "fit_band", "finding", "model_label", "select_noise_order"]

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from valve_env.loops.diagnose import MODEL, Diagnosis
+from valve_env.loops.diagnose import MODEL, LoopDiagnosis
 from valve_env.loops.model import ValveFit, fit_valve, residuals, simulate
 from valve_env.outputs import OutputSet
 
@@ -35,7 +35,7 @@ def _headline(R: dict[str, Any]) -> str:
     return line
 
 
-def _model_fit(diag: Diagnosis) -> tuple[str, ValveFit]:
+def _model_fit(diag: LoopDiagnosis) -> tuple[str, ValveFit]:
     """The model the figures show: the stick-slip fit when a band was fitted, else the linear valve (fitted here if
     the diagnosis did not need it)."""
     if MODEL in diag.fits:
@@ -51,7 +51,7 @@ def _text_figure(plt: Any, text: str) -> Any:
     return fig
 
 
-def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path]:
+def write_loop_report(diag: LoopDiagnosis, outs: OutputSet, directory: Path) -> list[Path]:
     """Stage ``report.md`` and the figures in ``directory`` (declared in ``outs`` by the caller)."""
     from valve_env.plotting import headless
 
@@ -193,4 +193,4 @@ def write_report(diag: Diagnosis, outs: OutputSet, directory: Path) -> list[Path
     return list(paths.values())
 
 
-__all__ = ["write_report", "FIGURES"]
+__all__ = ["write_loop_report", "FIGURES"]
