@@ -17,6 +17,7 @@ import time
 from collections import Counter
 
 from valve_env.cli import int_list
+from valve_env.loops.detect import DEFAULT_RULE, RULES
 from valve_env.loops.diagnose import diagnose_loop
 from valve_env.loops.envloop import ENV_ID, RECORD_H, WARMUP_H, record_env_loop
 
@@ -36,7 +37,7 @@ def parse_env_args(description: str, argv: list[str] | None) -> tuple[argparse.N
     ap.add_argument("--warmup-h", type=float, default=WARMUP_H, help="warm-up before the record, h")
     ap.add_argument("--f-hmax", type=float, default=None,
                     help="the valve's Dahl friction F_hmax, N, on both stems (default: the paper's 1.31)")
-    ap.add_argument("--rule", choices=("horch", "learned"), default="horch",
+    ap.add_argument("--rule", choices=RULES, default=DEFAULT_RULE,
                     help="loop-diagnose's detection rule (default horch; the acceptance is the learned rule's)")
     a = ap.parse_args(argv)
     if not (a.hours > 0.0 and a.warmup_h >= 0.0):

@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from valve_env.cli import add_force
+from valve_env.loops.detect import DEFAULT_RULE, RULES
 
 
 def register(subparsers: Any) -> None:
@@ -23,7 +24,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--report", metavar="DIR", default=None, help="write report.md and figures into DIR")
     p.add_argument("--quantify", action="store_true",
                    help="fit the stick-slip band even when stiction is not detected (the cause is unchanged)")
-    p.add_argument("--rule", choices=("horch", "learned"), default="horch",
+    p.add_argument("--rule", choices=RULES, default=DEFAULT_RULE,
                    help="the detection's decision: horch (default; Horch's test as published) or learned (the "
                    "shape tests combined by a logistic regression fitted on simulated loops; docs/loops.md)")
     add_force(p)
