@@ -111,28 +111,29 @@ def cache_files(cache: Sequence[str | Path]) -> list[Path]:
     return out
 
 
-def oracle_episodes(cache: Sequence[str | Path], task: str, seeds: Sequence[int]) -> pd.DataFrame | None:
-    """The oracle's rows for ``task`` and exactly ``seeds`` from the first cache file (glob patterns
-    expanded, sorted) that has them all."""
-    for p in cache_files(cache):
+def _stored_episodes(files: Sequence[str | Path], task: str, controller: str,
+                     seeds: Sequence[int]) -> pd.DataFrame | None:
+    """``controller``'s rows for ``task`` and exactly ``seeds`` (the last row of a seed stored twice) from
+    the first of ``files`` that has them all, or None."""
+    for p in files:
         df = pd.read_csv(p)
-        sub = df[(df["task"] == task) & (df["controller"] == ORACLE) & df["seed"].isin(list(seeds))]
+        sub = df[(df["task"] == task) & (df["controller"] == controller) & df["seed"].isin(list(seeds))]
         sub = sub.drop_duplicates("seed", keep="last")
         if len(sub) == len(seeds):
             return sub.drop(columns=["task", "controller"]).sort_values("seed").reset_index(drop=True)
     return None
+
+
+def oracle_episodes(cache: Sequence[str | Path], task: str, seeds: Sequence[int]) -> pd.DataFrame | None:
+    """The oracle's rows for ``task`` and exactly ``seeds`` from the first cache file (glob patterns
+    expanded, sorted) that has them all."""
+    return _stored_episodes(cache_files(cache), task, ORACLE, seeds)
 
 
 def reused_episodes(reuse: Sequence[str | Path], task: str, name: str, seeds: Sequence[int]) -> pd.DataFrame | None:
     """A built-in controller's rows for ``task`` and exactly ``seeds`` from an earlier board's
     ``task_episodes.csv`` (``--reuse``), or None."""
-    for p in reuse:
-        df = pd.read_csv(p)
-        sub = df[(df["task"] == task) & (df["controller"] == name) & df["seed"].isin(list(seeds))]
-        sub = sub.drop_duplicates("seed", keep="last")
-        if len(sub) == len(seeds):
-            return sub.drop(columns=["task", "controller"]).sort_values("seed").reset_index(drop=True)
-    return None
+    return _stored_episodes(reuse, task, name, seeds)
 
 
 def run_task(task: str, controllers: Mapping[str, Any], episodes: int, seed: int,
