@@ -1,6 +1,7 @@
 """Fit the stiction detector's combining rule on simulated loops only (docs/loops.md, "Detection").
 
-    python benchmarks/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --write
+    python benchmarks/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --l2 100 \
+        --clarity osc_acf_peak --write
 
 Simulates the loops of ``valve_env.loops.sim.random_case`` for the training seeds, computes every detector's
 statistic (``valve_env.loops.detect.features``), fits an L2-penalised logistic regression (scipy) on the
@@ -24,23 +25,26 @@ from scipy.optimize import minimize
 
 from valve_env.cli import int_list
 from valve_env.loops.detect import SHAPE_FEATURES, design_row, features, terms
-from valve_env.loops.detector_coefs import FEATURES
 from valve_env.loops.sim import random_case, simulate_case
 from valve_env.outputs import atomic_write_text
 
 OUT = Path(__file__).resolve().parents[1] / "valve_env" / "loops" / "detector_coefs.py"
 
 
-def feature_table(seeds: list[int]) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def feature_table(seeds: list[int]) -> tuple[np.ndarray, np.ndarray, list[str], tuple[str, ...]]:
+    """Every feature of :func:`valve_env.loops.detect.features` for the loops of ``seeds``, the labels, the kinds and
+    the feature names (the columns)."""
     X, y, kinds = [], [], []
+    names: tuple[str, ...] = ()
     for s in seeds:
         case = random_case(s)
         loop, truth = simulate_case(case)
         f, _ = features(loop)
-        X.append(design_row(f, FEATURES))
+        names = tuple(f)
+        X.append(design_row(f, names))
         y.append(truth.label == "stiction")
         kinds.append(case["kind"])
-    return np.array(X), np.array(y, dtype=float), kinds
+    return np.array(X), np.array(y, dtype=float), kinds, names
 
 
 def fit_logistic(Z: np.ndarray, y: np.ndarray, l2: float) -> np.ndarray:
@@ -67,25 +71,33 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--train-seeds", default="0-1199")
     ap.add_argument("--val-seeds", default="100000-100399")
-    ap.add_argument("--l2", type=float, default=10.0)
+    ap.add_argument("--l2", type=float, default=100.0)
     ap.add_argument("--max-false-alarm", type=float, default=0.04)
+    ap.add_argument("--clarity", default="osc_acf_peak",
+                    help="the feature that weighs the shape features (how clearly the loop oscillates), or 'none'")
     ap.add_argument("--cache", type=Path, default=None, help="an .npz to keep the feature tables in (read if present)")
     ap.add_argument("--write", action="store_true", help="write valve_env/loops/detector_coefs.py")
     a = ap.parse_args(argv)
     tr, va = int_list(a.train_seeds), int_list(a.val_seeds)
     t0 = time.perf_counter()
+    clarity = None if a.clarity == "none" else a.clarity
     if a.cache is not None and a.cache.exists():
         c = np.load(a.cache, allow_pickle=False)
         Xt, yt, kt, Xv, yv, kv = c["Xt"], c["yt"], list(c["kt"]), c["Xv"], c["yv"], list(c["kv"])
+        names = tuple(str(k) for k in c["names"])
     else:
-        Xt, yt, kt = feature_table(tr)
-        Xv, yv, kv = feature_table(va)
+        Xt, yt, kt, names = feature_table(tr)
+        Xv, yv, kv, _ = feature_table(va)
         if a.cache is not None:
-            np.savez(a.cache, Xt=Xt, yt=yt, kt=np.array(kt), Xv=Xv, yv=yv, kv=np.array(kv))
+            np.savez(a.cache, Xt=Xt, yt=yt, kt=np.array(kt), Xv=Xv, yv=yv, kv=np.array(kv), names=np.array(names))
     print(f"features of {len(tr)} training and {len(va)} validation loops in {time.perf_counter() - t0:.0f} s")
-    Xt, Xv = terms(Xt), terms(Xv)
-    lin = [*FEATURES, *(f"{k}*osc" for k in SHAPE_FEATURES)]
-    names = [*lin, *(f"({k})^2" for k in lin)]
+    if clarity is not None and clarity not in names:
+        print(f"loop_train_detector: error: --clarity must be a feature ({', '.join(names)}) or 'none'",
+              file=sys.stderr)
+        return 2
+    Xt, Xv = terms(Xt, names, clarity), terms(Xv, names, clarity)
+    lin = [*names, *(f"{k}*{clarity}" for k in SHAPE_FEATURES if clarity is not None)]
+    term_names = [*lin, *(f"({k})^2" for k in lin)]
     mu, sd = Xt.mean(axis=0), Xt.std(axis=0)
     sd[sd == 0] = 1.0
     b = fit_logistic((Xt - mu) / sd, yt, a.l2)
@@ -98,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
             best = (ba, float(th))
     th = best[1]
     print(f"coefficients (standardised features; intercept {b[0]:+.3f}):")
-    for name, v in zip(names, b[1:], strict=True):
+    for name, v in zip(term_names, b[1:], strict=True):
         print(f"  {name:16s} {v:+.3f}")
     for label, P, Y, K in (("training", pt, yt, kt), ("validation", pv, yv, kv)):
         sens, fa = float(np.mean(P[Y == 1] > th)), float(np.mean(P[Y == 0] > th))
@@ -108,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             m = np.array([kk == k for kk in K])
             print(f"    {k:18s} n={int(m.sum()):4d} named stiction {100 * float(np.mean(P[m] > th)):5.1f} %")
     if a.write:
-        training = {"train_seeds": a.train_seeds, "validation_seeds": a.val_seeds, "l2": a.l2,
+        training = {"train_seeds": a.train_seeds, "validation_seeds": a.val_seeds, "l2": a.l2, "clarity": a.clarity,
                     "max_false_alarm": a.max_false_alarm, "n_train": len(tr)}
         from pprint import pformat
 
@@ -118,12 +130,14 @@ def main(argv: list[str] | None = None) -> int:
         text = ('"""The stiction detector\'s combining rule (valve_env.loops.detect), fitted on simulated loops '
                 "only by\n"
                 f"``python benchmarks/loop_train_detector.py --train-seeds {a.train_seeds} --val-seeds {a.val_seeds}\n"
-                f"--l2 {a.l2:g} --max-false-alarm {a.max_false_alarm:g} --write``. Generated: do not edit.\"\"\"\n\n"
-                + const("FEATURES", tuple(FEATURES))
+                f"--l2 {a.l2:g} --max-false-alarm {a.max_false_alarm:g} --clarity {a.clarity} --write``.\n"
+                "Generated: do not edit.\"\"\"\n\n"
+                + const("FEATURES", tuple(names))
                 + const("MEANS", tuple(round(float(v), 6) for v in mu))
                 + const("SCALES", tuple(round(float(v), 6) for v in sd))
                 + const("COEFS", tuple(round(float(v), 6) for v in b))
                 + const("THRESHOLD", th)
+                + const("CLARITY", clarity)
                 + "TRAINING: dict = " + pformat(training, width=100, compact=True) + "\n")
         atomic_write_text(OUT, text)
         print(f"wrote {OUT}")
