@@ -319,5 +319,18 @@ def simulate_case(case: dict) -> tuple[LoopData, SimTruth]:
     return loop, truth
 
 
+def stiction_visibility(case: dict, loop: LoopData | None = None) -> float:
+    """How much a sticky valve shows in its record: the variance of the control error (SP - PV) of the loop of
+    ``case`` (``loop``, simulated when None) over that of its smooth twin (the same case and random numbers, S = J =
+    0). About 1 when the stiction hides under noise and load (the stem is kept moving, no limit cycle), large when the
+    valve drives the loop into a limit cycle. NaN for a valve without a band."""
+    if case["S"] <= 0:
+        return math.nan
+    if loop is None:
+        loop, _ = simulate_case(case)
+    twin, _ = simulate_case({**case, "S": 0.0, "J": 0.0})
+    return float(np.var(loop.sp - loop.pv) / max(float(np.var(twin.sp - twin.pv)), 1e-300))
+
+
 __all__ = ["CASE_KINDS", "Historian", "SHAPES", "Process", "PROCESSES", "SimTruth", "random_case", "simulate_case",
-           "simulate_loop"]
+           "simulate_loop", "stiction_visibility"]
