@@ -1,8 +1,9 @@
 """Simulated loops against real ones, feature by feature (docs/loops.md, "Simulated loops"; docs/history/loops.md,
 2026-11-28 "The simulator against the plant").
 
-    python benchmarks/loop_sim_vs_real.py --data /work/shared/data/plant_loops --sim-seeds 0-299
-    python benchmarks/loop_sim_vs_real.py --data /work/shared/data/plant_loops --sim-seeds 100000-100399 --labels
+    python benchmarks/loop_sim_vs_real.py --data /work/shared/data/plant_loops --sim-seeds 0-299 [--plant]
+    python benchmarks/loop_sim_vs_real.py --data /work/shared/data/plant_loops --sim-seeds 100000-100399 --plant \
+        --labels
 
 Without ``--labels`` it reads the real records **without their labels** (every ``*.txt`` under ``--data``, pooled)
 and prints, for every feature of ``valve_env.loops.detect.features`` and a few of the record itself (repeated values,
@@ -50,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--data", type=Path, required=True)
     ap.add_argument("--sim-seeds", default="0-299")
+    ap.add_argument("--plant", action="store_true", help="the simulated loops with the plant's habits")
     ap.add_argument("--labels", action="store_true", help="also each feature's AUC, sticky against clean (diagnosis)")
     a = ap.parse_args(argv)
     files = sorted(a.data.rglob("*.txt"), key=lambda p: p.name)
@@ -69,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         real_y.append(label_of.get(p.name, False))
     sim, sim_y = [], []
     for s in int_list(a.sim_seeds):
-        case = random_case(s)
+        case = random_case(s, plant=a.plant)
         loop, truth = simulate_case(case)
         sim.append({**features(loop)[0], **record_stats(loop)})
         sim_y.append(truth.label == "stiction")

@@ -1,7 +1,15 @@
 """Fit the stiction detector's combining rule on simulated loops only (docs/loops.md, "Detection").
 
+The frozen rule (valve_env/loops/detector_coefs.py; the command is also in its docstring):
+
     python benchmarks/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --l2 10 \
-        --clarity osc_acf_peak --min-visibility 2 --write
+        --clarity osc_acf_peak --drop osc_band_share --write
+
+The two rules trained on the loops with the plant's habits (docs/history/loops.md, 2026-11-28 "The simulator against
+the plant"; neither is frozen: they did no better on the real loops and worse on the environment's):
+
+    python benchmarks/loop_train_detector.py --plant --l2 100 --clarity osc_acf_peak
+    python benchmarks/loop_train_detector.py --plant --l2 10 --clarity osc_acf_peak --min-visibility 2
 
 Simulates the loops of ``valve_env.loops.sim.random_case`` for the training seeds, computes every detector's
 statistic (``valve_env.loops.detect.features``), fits an L2-penalised logistic regression (scipy) on the
@@ -31,21 +39,23 @@ from valve_env.outputs import atomic_write_text
 OUT = Path(__file__).resolve().parents[1] / "valve_env" / "loops" / "detector_coefs.py"
 
 
-def feature_table(seeds: list[int]) -> tuple[np.ndarray, np.ndarray, list[str], tuple[str, ...], np.ndarray]:
+def feature_table(seeds: list[int], plant: bool = False, visibility: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray, list[str], tuple[str, ...], np.ndarray]:
     """Every feature of :func:`valve_env.loops.detect.features` for the loops of ``seeds``, the labels, the kinds,
-    the feature names (the columns) and each sticky loop's :func:`valve_env.loops.sim.stiction_visibility` (NaN for
-    the others)."""
+    the feature names (the columns) and, with ``visibility``, each sticky loop's
+    :func:`valve_env.loops.sim.stiction_visibility` (NaN for the others and without it); ``plant``: the loops of
+    ``random_case(..., plant=True)``."""
     X, y, kinds, vis = [], [], [], []
     names: tuple[str, ...] = ()
     for s in seeds:
-        case = random_case(s)
+        case = random_case(s, plant=plant)
         loop, truth = simulate_case(case)
         f, _ = features(loop)
         names = tuple(f)
         X.append(design_row(f, names))
         y.append(truth.label == "stiction")
         kinds.append(case["kind"])
-        vis.append(stiction_visibility(case, loop))
+        vis.append(stiction_visibility(case, loop) if visibility else np.nan)
     return np.array(X), np.array(y, dtype=float), kinds, names, np.array(vis)
 
 
@@ -75,7 +85,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--val-seeds", default="100000-100399")
     ap.add_argument("--l2", type=float, default=10.0)
     ap.add_argument("--max-false-alarm", type=float, default=0.04)
-    ap.add_argument("--min-visibility", type=float, default=2.0,
+    ap.add_argument("--plant", action="store_true", help="train on random_case(..., plant=True): the plant's habits")
+    ap.add_argument("--drop", default="",
+                    help="features of valve_env.loops.detect.features left out of the rule (a comma list)")
+    ap.add_argument("--min-visibility", type=float, default=0.0,
                     help="leave out the sticky loops whose stiction_visibility is below this (0: keep all)")
     ap.add_argument("--clarity", default="osc_acf_peak",
                     help="the feature that weighs the shape features (how clearly the loop oscillates), or 'none'")
@@ -91,8 +104,8 @@ def main(argv: list[str] | None = None) -> int:
         names = tuple(str(k) for k in c["names"])
         vt, vv = c["vt"], c["vv"]
     else:
-        Xt, yt, kt, names, vt = feature_table(tr)
-        Xv, yv, kv, _, vv = feature_table(va)
+        Xt, yt, kt, names, vt = feature_table(tr, a.plant, a.min_visibility > 0)
+        Xv, yv, kv, _, vv = feature_table(va, a.plant, a.min_visibility > 0)
         if a.cache is not None:
             np.savez(a.cache, Xt=Xt, yt=yt, kt=np.array(kt), Xv=Xv, yv=yv, kv=np.array(kv), names=np.array(names),
                      vt=vt, vv=vv)
@@ -105,6 +118,13 @@ def main(argv: list[str] | None = None) -> int:
               f"{int(np.sum(yt == 1))}, validation {int(np.sum(kept_v & (yv == 1)))}/{int(np.sum(yv == 1))}")
         Xt, yt, kt = Xt[kept_t], yt[kept_t], [k for k, m in zip(kt, kept_t, strict=True) if m]
         Xv, yv, kv = Xv[kept_v], yv[kept_v], [k for k, m in zip(kv, kept_v, strict=True) if m]
+    if a.drop:
+        drop = a.drop.split(",")
+        if not set(drop) <= set(names):
+            print(f"loop_train_detector: error: unknown feature(s) {sorted(set(drop) - set(names))}", file=sys.stderr)
+            return 2
+        idx = [i for i, k in enumerate(names) if k not in drop]
+        Xt, Xv, names = Xt[:, idx], Xv[:, idx], tuple(names[i] for i in idx)
     if clarity is not None and clarity not in names:
         print(f"loop_train_detector: error: --clarity must be a feature ({', '.join(names)}) or 'none'",
               file=sys.stderr)
@@ -135,19 +155,22 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {k:18s} n={int(m.sum()):4d} named stiction {100 * float(np.mean(P[m] > th)):5.1f} %")
     if a.write:
         training = {"train_seeds": a.train_seeds, "validation_seeds": a.val_seeds, "l2": a.l2, "clarity": a.clarity,
-                    "min_visibility": a.min_visibility,
+                    "min_visibility": a.min_visibility, "plant": a.plant,
                     "max_false_alarm": a.max_false_alarm, "n_train": len(tr)}
         from pprint import pformat
 
         def const(name: str, value: object) -> str:
             return f"{name} = {pformat(value, width=118 - len(name), compact=True)}\n"
 
+        import textwrap
+
+        cmd = (f"python benchmarks/loop_train_detector.py --train-seeds {a.train_seeds} --val-seeds {a.val_seeds} "
+               f"--l2 {a.l2:g} --max-false-alarm {a.max_false_alarm:g} --clarity {a.clarity} "
+               f"--min-visibility {a.min_visibility:g}{' --plant' if a.plant else ''}"
+               f"{' --drop ' + a.drop if a.drop else ''} --write")
         text = ('"""The stiction detector\'s combining rule (valve_env.loops.detect), fitted on simulated loops '
-                "only by\n"
-                f"``python benchmarks/loop_train_detector.py --train-seeds {a.train_seeds} --val-seeds {a.val_seeds}\n"
-                f"--l2 {a.l2:g} --max-false-alarm {a.max_false_alarm:g} --clarity {a.clarity} "
-                f"--min-visibility {a.min_visibility:g} --write``.\n"
-                "Generated: do not edit.\"\"\"\n\n"
+                "only by\n\n" + textwrap.indent(textwrap.fill(cmd, 110, break_on_hyphens=False), "    ")
+                + "\n\nGenerated: do not edit.\"\"\"\n\n"
                 + const("FEATURES", tuple(names))
                 + const("MEANS", tuple(round(float(v), 6) for v in mu))
                 + const("SCALES", tuple(round(float(v), 6) for v in sd))

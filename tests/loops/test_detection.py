@@ -79,25 +79,26 @@ def test_features_are_finite_and_scale_free() -> None:
     """Every feature is finite, and none changes when PV and OP are rescaled (engineering units)."""
     loop, _ = simulate_case(random_case(910001, kind="stiction"))
     f, _ = features(loop)
-    assert set(f) == set(FEATURES) and all(math.isfinite(v) for v in f.values())
+    assert set(FEATURES) <= set(f) and all(math.isfinite(v) for v in f.values())
     scaled = LoopData(time_s=loop.time_s, sp=3.0 * loop.sp + 7.0, pv=3.0 * loop.pv + 7.0, op=0.5 * loop.op + 10.0)
     g, _ = features(scaled)
-    for k in FEATURES:
+    for k in f:
         assert g[k] == pytest.approx(f[k], rel=1e-6, abs=1e-6), k
 
 
-def test_rule_names_few_smooth_valves_of_unseen_simulated_loops() -> None:
-    """On simulated loops of evaluation seeds (never fitted on), at most one smooth valve in twelve is named."""
-    hits = [detect(simulate_case(random_case(seed, kind="smooth"))[0], rule="learned")["stiction"]
+@pytest.mark.parametrize(("kind", "named"), [("stiction", True), ("smooth", False)])
+def test_rule_on_unseen_simulated_loops(kind: str, named: bool) -> None:
+    """On simulated loops of evaluation seeds (never fitted on), a third or more of the sticky loops are named (the
+    benchmark's rate is about 60 %: half the generator's sticky loops do not limit-cycle in their record) and at most
+    one smooth one in twelve."""
+    hits = [detect(simulate_case(random_case(seed, kind=kind))[0], rule="learned")["stiction"]
             for seed in range(920000, 920012)]
-    assert sum(hits) <= 1
+    assert (sum(hits) >= 4) if named else (sum(hits) <= 1)
 
 
 def test_rule_on_limit_cycles_of_the_four_process_set() -> None:
     """On the four-process set (flow, pressure, temperature, level; never fitted on), whose sticky valves (S 3 %,
-    J 1.5 %) limit-cycle clearly, at least 10 of 12 sticky loops are named and at most 1 of their 12 smooth twins.
-    (On the wide-variety generator most sticky loops do not limit-cycle visibly and the rule names few: the
-    benchmark's figures, docs/loops.md.)"""
+    J 1.5 %) limit-cycle clearly, at least 10 of 12 sticky loops are named and at most 1 of their 12 smooth twins."""
     from valve_env.loops.sim import simulate_loop
 
     sticky, smooth = [], []

@@ -102,3 +102,26 @@ def test_the_plants_habits_are_off_by_default_and_change_the_record_when_on() ->
     timid, _ = simulate_loop("flow", S=0.0, seed=5, hours=0.5, kc_factor=0.1)
     smooth, _ = simulate_loop("flow", S=0.0, seed=5, hours=0.5)
     assert np.std(np.diff(timid.op)) < np.std(np.diff(smooth.op))
+
+
+def test_random_case_with_the_plants_habits_and_the_stictions_visibility() -> None:
+    """``plant=True`` draws the plant's habits (the first population has none of them); its loops are valid records;
+    the visibility of stiction is NaN for a valve without a band and the control error's variance ratio to the
+    smooth twin for a sticky one (above 1 for a band of 4 % that limit-cycles)."""
+    import math
+
+    from valve_env.loops.sim import random_case, simulate_case, simulate_loop, stiction_visibility
+
+    first, plant = random_case(11, kind="stiction"), random_case(11, kind="stiction", plant=True)
+    assert "historian" not in first and "noise_ar" not in first
+    assert {"historian", "noise_ar", "slow_load_sd", "sp_walk_sd", "kc_factor"} <= set(plant)
+    loop, _ = simulate_case(plant)
+    assert all(np.isfinite(v).all() for v in (loop.pv, loop.op, loop.sp)) and loop.n >= 240
+    assert math.isnan(stiction_visibility(random_case(11, kind="smooth", plant=True)))
+    case = {**first, "process": PROCESSES["flow"], "S": 4.0, "J": 2.0, "hours": 1.0, "dt": 10.0}
+    sticky, _ = simulate_case(case)
+    twin, _ = simulate_loop("flow", S=0.0, seed=case["seed"], hours=1.0, dt=10.0, tau_c_s=case["tau_c_s"],
+                            sp_steps=case["sp_steps"], op0=case["op0"], ti_factor=case["ti_factor"],
+                            load_tau_s=case["load_tau_s"])
+    v = stiction_visibility(case, sticky)
+    assert v == pytest.approx(np.var(sticky.sp - sticky.pv) / np.var(twin.sp - twin.pv)) and v > 1.0

@@ -221,29 +221,30 @@ def _logu(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
 
-def random_case(seed: int, kind: str | None = None) -> dict:
+def random_case(seed: int, kind: str | None = None, plant: bool = False) -> dict:
     """The parameters of one simulated loop of wide variety (docs/loops.md, "Simulated loops"), from ``seed``
-    alone.
+    alone; ``plant`` adds the plant's habits (below; a different population: the same seed gives another loop).
 
-    * **Process**: self-regulating (lag 1-1200 s, dead time 0-60 s) or, one time in three, integrating (dead time
-      0-60 s).
+    * **Process**: self-regulating (lag 1-600 s; ``plant``: 1-1200 s; dead time 0-60 s) or, one time in three,
+      integrating (dead time 0-60 s).
     * **Tuning**: SIMC with a closed-loop time constant of 0.25-3 times the SIMC default (aggressive to sluggish);
-      for 70 % of the loops an integral time 1-30 times SIMC's, and for half of them a gain 0.1-1 times SIMC's
-      (detuned, as many plant loops are: slow limit cycles, a timid controller output).
+      for half the loops an integral time 1-10 times SIMC's (``plant``: for 70 % of the loops 1-30 times, and for half
+      of those a gain 0.1-1 times SIMC's: detuned, as many plant loops are; slow limit cycles, a timid controller
+      output).
     * **Noise and load**, scaled by a band ``S_ref`` of 0.3-5 % of OP drawn for every loop, so that they are
-      distributed alike with and without stiction: measurement noise 1-50 % of the PV's move for ``S_ref``, white or
-      (half the loops) AR(1)-coloured with coefficient 0-0.9; a load with increments 0.1-1 % of ``S_ref`` per
-      sqrt(s), mean-reverting with a time constant of 5-60 min; for half the loops a slow wander (sd 0.3-3
-      ``S_ref``, time constant 1-8 h: often longer than the record), for a quarter a ramp of 0.1-3 ``S_ref`` per
-      hour.
-    * **Set point**: 0-3 steps; for 15 % of the loops it follows a master loop (a cascade's secondary: sd 0.3-3
-      times the PV's move for ``S_ref``, time constant 2-30 min).
-    * **Record**: 1.5-4 h sampled at 5 or 10 s, or 2-4 h at 30 s (at least 240 samples). For half the loops the
-      historian rounds PV, SP and OP (resolution 0.5-20 % of the noise sd and 0.001-0.1 % of OP), for a fifth
-      it compresses them by store-on-change (dead bands 0.5-3 noise sd and 0.01-0.3 % of OP).
+      distributed alike with and without stiction: white measurement noise 1-20 % of the PV's move for ``S_ref``
+      (``plant``: 1-50 %, for half the loops AR(1)-coloured with coefficient 0-0.9); a load with increments 0.1-1 % of
+      ``S_ref`` per sqrt(s), mean-reverting with a time constant of 5-60 min. ``plant``: for half the loops a slow
+      wander (sd 0.3-3 ``S_ref``, time constant 1-8 h: often longer than the record), for a quarter a ramp of 0.1-3
+      ``S_ref`` per hour.
+    * **Set point**: 0-3 steps. ``plant``: for 15 % of the loops it follows a master loop (a cascade's secondary: sd
+      0.3-3 times the PV's move for ``S_ref``, time constant 2-30 min).
+    * **Record**: 1.5-4 h sampled at 5 or 10 s, or 2-4 h at 30 s (at least 240 samples). ``plant``: for half the
+      loops the historian rounds PV, SP and OP (resolution 0.5-20 % of the noise sd and 0.001-0.1 % of OP), for a
+      fifth it compresses them by store-on-change (dead bands 0.5-3 noise sd and 0.01-0.3 % of OP).
     * **Valve and disturbance** of ``kind`` (drawn from :data:`CASE_KINDS` when None): stick-slip with S =
-      ``S_ref`` and J/S 0.2-0.95; a deadband of 0.2-2 % without stick; an external oscillation of 0.2-2 ``S_ref``
-      (% of valve travel) at a period of 3-180 min, its shape drawn from :data:`SHAPES`.
+      ``S_ref`` and J/S 0.2-0.95; a deadband of 0.2-2 % without stick; an external sinusoid of 0.2-2 ``S_ref`` (% of
+      valve travel) at a period of 3-60 min (``plant``: 3-180 min, its shape drawn from :data:`SHAPES`).
 
     The label is ``stiction`` for the sticky kinds, else ``none``."""
     rng = np.random.default_rng([seed, 38])
@@ -252,7 +253,7 @@ def random_case(seed: int, kind: str | None = None) -> dict:
         kind = str(rng.choice(names, p=np.asarray(w) / sum(w)))
     integrating = bool(rng.uniform() < 1.0 / 3.0)
     delay = float(rng.uniform(0.0, 60.0))
-    tau = 0.0 if integrating else _logu(rng, 1.0, 1200.0)
+    tau = 0.0 if integrating else _logu(rng, 1.0, 1200.0 if plant else 600.0)
     gain = _logu(rng, 2e-4, 5e-3) if integrating else _logu(rng, 0.3, 3.0)
     default = max(delay, 0.5 * tau, 60.0 if integrating else 10.0)
     tau_c = default * _logu(rng, 0.25, 3.0)
@@ -260,35 +261,40 @@ def random_case(seed: int, kind: str | None = None) -> dict:
     # distributed alike with and without stiction
     S_ref = _logu(rng, 0.3, 5.0)
     pv_per_pct = gain * (tau_c + delay) if integrating else gain  # the PV's move for 1 % of valve, settled
-    noise_sd = pv_per_pct * S_ref * _logu(rng, 0.01, 0.5)
+    noise_sd = pv_per_pct * S_ref * _logu(rng, 0.01, 0.5 if plant else 0.2)
     proc = Process("integrating" if integrating else "self-regulating", gain=gain, tau_s=tau, delay_s=delay,
                    integrating=integrating, noise_sd=noise_sd, load_sd=S_ref * _logu(rng, 0.001, 0.01))
     dt = float(rng.choice([5.0, 10.0, 10.0, 30.0]))
-    detuned = rng.uniform() < 0.7
+    detuned = bool(rng.uniform() < 0.7) if plant else False
     case = {"kind": kind, "process": proc, "tau_c_s": tau_c,
             "dt": dt, "hours": float(rng.uniform(2.0 if dt >= 30.0 else 1.5, 4.0)),
             "sp_steps": int(rng.integers(0, 4)), "S": 0.0, "J": 0.0, "external_amp": 0.0,
-            "external_period_s": 600.0, "seed": int(seed), "op0": float(rng.uniform(20.0, 80.0)),
-            "ti_factor": _logu(rng, 1.0, 30.0) if detuned else 1.0,
-            "kc_factor": _logu(rng, 0.1, 1.0) if detuned and rng.uniform() < 0.5 else 1.0,
-            "load_tau_s": _logu(rng, 300.0, 3600.0)}
+            "external_period_s": 600.0, "seed": int(seed), "op0": float(rng.uniform(20.0, 80.0))}
+    if plant:
+        case["ti_factor"] = _logu(rng, 1.0, 30.0) if detuned else 1.0
+        case["kc_factor"] = _logu(rng, 0.1, 1.0) if detuned and rng.uniform() < 0.5 else 1.0
+    else:
+        case["ti_factor"] = _logu(rng, 1.0, 10.0) if rng.uniform() < 0.5 else 1.0
+    case["load_tau_s"] = _logu(rng, 300.0, 3600.0)
     jump = float(rng.uniform(0.2, 0.95))
     hyst = _logu(rng, 0.2, 2.0)
     ext_amp = S_ref * _logu(rng, 0.2, 2.0)
-    ext_period = _logu(rng, 180.0, 10800.0)
-    ext_shape = str(rng.choice(SHAPES))
-    # the plant's other habits, drawn for every kind
-    case["noise_ar"] = float(rng.uniform(0.0, 0.9)) if rng.uniform() < 0.5 else 0.0
-    case["slow_load_sd"] = S_ref * _logu(rng, 0.3, 3.0) if rng.uniform() < 0.5 else 0.0
-    case["slow_load_tau_s"] = _logu(rng, 3600.0, 28800.0)
-    case["drift_per_h"] = S_ref * _logu(rng, 0.1, 3.0) * float(rng.choice([-1.0, 1.0])) if rng.uniform() < 0.25 else 0.0
-    case["sp_walk_sd"] = pv_per_pct * S_ref * _logu(rng, 0.3, 3.0) if rng.uniform() < 0.15 else 0.0
-    case["sp_walk_tau_s"] = _logu(rng, 120.0, 1800.0)
-    rounded, compressed = rng.uniform() < 0.5, rng.uniform() < 0.2
-    case["historian"] = Historian(pv_step=noise_sd * _logu(rng, 0.005, 0.2) if rounded else 0.0,
-                                  op_step=_logu(rng, 0.001, 0.1) if rounded else 0.0,
-                                  pv_dev=noise_sd * _logu(rng, 0.5, 3.0) if compressed else 0.0,
-                                  op_dev=_logu(rng, 0.01, 0.3) if compressed else 0.0)
+    ext_period = _logu(rng, 180.0, 10800.0 if plant else 3600.0)
+    if plant:
+        case["external_shape"] = str(rng.choice(SHAPES))
+        # the plant's other habits, drawn for every kind
+        case["noise_ar"] = float(rng.uniform(0.0, 0.9)) if rng.uniform() < 0.5 else 0.0
+        case["slow_load_sd"] = S_ref * _logu(rng, 0.3, 3.0) if rng.uniform() < 0.5 else 0.0
+        case["slow_load_tau_s"] = _logu(rng, 3600.0, 28800.0)
+        case["drift_per_h"] = (S_ref * _logu(rng, 0.1, 3.0) * float(rng.choice([-1.0, 1.0]))
+                               if rng.uniform() < 0.25 else 0.0)
+        case["sp_walk_sd"] = pv_per_pct * S_ref * _logu(rng, 0.3, 3.0) if rng.uniform() < 0.15 else 0.0
+        case["sp_walk_tau_s"] = _logu(rng, 120.0, 1800.0)
+        rounded, compressed = rng.uniform() < 0.5, rng.uniform() < 0.2
+        case["historian"] = Historian(pv_step=noise_sd * _logu(rng, 0.005, 0.2) if rounded else 0.0,
+                                      op_step=_logu(rng, 0.001, 0.1) if rounded else 0.0,
+                                      pv_dev=noise_sd * _logu(rng, 0.5, 3.0) if compressed else 0.0,
+                                      op_dev=_logu(rng, 0.01, 0.3) if compressed else 0.0)
     if kind in ("stiction", "stiction_external"):
         case["S"] = S_ref
         case["J"] = S_ref * jump
@@ -297,9 +303,15 @@ def random_case(seed: int, kind: str | None = None) -> dict:
     if kind in ("external", "stiction_external"):
         case["external_amp"] = ext_amp
         case["external_period_s"] = ext_period
-        case["external_shape"] = ext_shape
+    else:
+        case.pop("external_shape", None)
     case["label"] = "stiction" if kind.startswith("stiction") else "none"
     return case
+
+
+#: :func:`simulate_loop`'s options that :func:`random_case` sets only with ``plant`` (absent: the option's default)
+_PLANT_OPTIONS = ("kc_factor", "external_shape", "noise_ar", "slow_load_sd", "slow_load_tau_s", "drift_per_h",
+                  "sp_walk_sd", "sp_walk_tau_s", "historian")
 
 
 def simulate_case(case: dict) -> tuple[LoopData, SimTruth]:
@@ -308,11 +320,7 @@ def simulate_case(case: dict) -> tuple[LoopData, SimTruth]:
                                 dt=case["dt"], tau_c_s=case["tau_c_s"], external_amp=case["external_amp"],
                                 external_period_s=case["external_period_s"], sp_steps=case["sp_steps"],
                                 op0=case["op0"], ti_factor=case["ti_factor"], load_tau_s=case["load_tau_s"],
-                                kc_factor=case["kc_factor"], external_shape=case.get("external_shape", "sine"),
-                                noise_ar=case["noise_ar"], slow_load_sd=case["slow_load_sd"],
-                                slow_load_tau_s=case["slow_load_tau_s"], drift_per_h=case["drift_per_h"],
-                                sp_walk_sd=case["sp_walk_sd"], sp_walk_tau_s=case["sp_walk_tau_s"],
-                                historian=case["historian"])
+                                **{k: case[k] for k in _PLANT_OPTIONS if k in case})
     truth.label = case["label"]
     truth.extra["kind"] = case["kind"]
     loop.tag = f"sim-{case['kind']}-{case['process'].name}-seed{case['seed']}"
