@@ -6,7 +6,9 @@ The process runs at a 1 s step, the PI controller at the same step (velocity for
 0-100 %), and the historian records every ``dt`` seconds the mean over the interval (as a
 historian's averaging compression does). Tuning is SIMC (Skogestad 2003) with closed-loop time
 constant ``tau_c``; a smaller ``tau_c`` is more aggressive. Disturbances: a load random walk
-(filtered), an optional external sinusoid, white measurement noise, and set-point steps.
+(filtered), an optional external sinusoid, white measurement noise, and set-point steps; optionally the plant's
+other habits (:func:`simulate_loop`'s options; :func:`random_case` with ``plant=True``) and the historian's own
+conventions (:class:`Historian`). :func:`stiction_visibility` says how much a sticky valve shows in its record.
 """
 
 from __future__ import annotations
