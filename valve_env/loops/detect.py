@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from valve_env.loops.detector_coefs import COEFS, FEATURES, MEANS, SCALES, THRESHOLD, TRAINING
+from valve_env.loops.detector_coefs import CLARITY, COEFS, FEATURES, MEANS, SCALES, THRESHOLD, TRAINING
 from valve_env.loops.detectors import bicoherence, ellipse_area, he_curve_fit, horch, kano, oscillation
 from valve_env.loops.io import LoopData
 
@@ -57,9 +57,23 @@ def features(loop: LoopData) -> tuple[dict[str, float], dict[str, dict[str, Any]
         "osc_regularity": math.log1p(min(osc["regularity"], 20.0)),
         "osc_acf_peak": osc["acf_peak"],
         "log_cycles": math.log(max(cycles, 0.5)),
+        "osc_band_share": band_share(loop.sp - loop.pv, 1.0 / max(el["period_samples"], 1.0)),
     }
     return f, {"horch": h, "horch_dpv": hi, "he": he, "he_pv": he_pv, "kano": ka, "bicoherence": bi, "ellipse": el,
                "oscillation": osc}
+
+
+def band_share(y: np.ndarray, f0: float) -> float:
+    """The share of the (linear-trend-removed, Hann-windowed) periodogram of ``y`` within a factor of two of the
+    frequency ``f0`` (cycles per sample): how clearly one oscillation dominates, readable from a single cycle
+    (Thornhill et al.'s ACF test asks for several)."""
+    from valve_env.loops.detectors import _detrend
+
+    z = _detrend(np.asarray(y, dtype=float))
+    p = np.abs(np.fft.rfft(z * np.hanning(z.size))) ** 2
+    f = np.fft.rfftfreq(z.size)
+    tot = float(p[1:].sum())
+    return float(p[(f >= f0 / 2.0) & (f <= 2.0 * f0)].sum() / tot) if tot > 0 else 0.0
 
 
 #: the features that describe an oscillation's shape; the rule also weighs each by how clearly the control error
@@ -75,14 +89,17 @@ def design_row(f: dict[str, float], names: tuple[str, ...] = FEATURES) -> np.nda
     return np.array([f[k] for k in names], dtype=float)
 
 
-def terms(raw: np.ndarray) -> np.ndarray:
-    """The rule's terms from raw feature rows (:func:`design_row`, one row or a matrix): the features and each shape
-    feature times the oscillation's clarity ``clip(osc_acf_peak, 0, 1)``, then the squares of all of these (a
+def terms(raw: np.ndarray, names: tuple[str, ...] = FEATURES, clarity: str | None = CLARITY) -> np.ndarray:
+    """The rule's terms from raw feature rows (:func:`design_row`, one row or a matrix, columns ``names``): the
+    features and, unless ``clarity`` is None, each shape feature times how clearly the control error oscillates
+    (that feature clipped to 0-1: the shape tests read an oscillating loop), then the squares of all of these (a
     quadratic logistic regression: a detector's statistic may matter most in the middle of its range)."""
     raw = np.atleast_2d(raw)
-    w = np.clip(raw[:, FEATURES.index("osc_acf_peak")], 0.0, 1.0)[:, None]
-    shape = raw[:, [FEATURES.index(k) for k in SHAPE_FEATURES]]
-    lin = np.column_stack([raw, shape * w])
+    parts = [raw]
+    if clarity is not None:
+        w = np.clip(raw[:, names.index(clarity)], 0.0, 1.0)[:, None]
+        parts.append(raw[:, [names.index(k) for k in SHAPE_FEATURES if k in names]] * w)
+    lin = np.column_stack(parts)
     return np.column_stack([lin, lin ** 2])
 
 
@@ -121,4 +138,4 @@ def detect(loop: LoopData, rule: str = DEFAULT_RULE) -> dict[str, Any]:
 
 
 __all__ = ["detect", "RULES", "DEFAULT_RULE", "features", "stiction_probability", "design_row", "terms", "FEATURES",
-           "SHAPE_FEATURES", "THRESHOLD"]
+           "SHAPE_FEATURES", "THRESHOLD", "band_share"]

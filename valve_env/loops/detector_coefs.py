@@ -1,6 +1,9 @@
 """The stiction detector's combining rule (valve_env.loops.detect), fitted on simulated loops only by
-``python benchmarks/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399
---l2 10 --max-false-alarm 0.04 --write``. Generated: do not edit."""
+
+    python benchmarks/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --l2 10
+    --max-false-alarm 0.04 --clarity osc_acf_peak --min-visibility 0 --drop osc_band_share --write
+
+Generated: do not edit."""
 
 FEATURES = ('horch_phase', 'horch_signed', 'horch_ratio', 'horch_dpv_phase', 'horch_asym', 'horch_half_cycles', 'he_si',
  'he_si_pv', 'kano_rho', 'bic_ngi', 'bic_nli', 'bic_peak', 'ellipse_signed', 'ellipse_abs', 'osc_regularity',
@@ -25,8 +28,12 @@ COEFS = (-0.029927, -0.067259, -0.170076, -0.393158, -0.040158, -0.020635, -0.24
  0.181022, -0.162817, -0.01374, 0.116247, -0.163189, 0.163937, -0.090339, 0.068735, 0.176632, -0.180243,
  -0.010318, -0.010318, -0.341349)
 THRESHOLD = 0.68
-TRAINING: dict = {'l2': 10.0,
+CLARITY = 'osc_acf_peak'
+TRAINING: dict = {'clarity': 'osc_acf_peak',
+ 'l2': 10.0,
  'max_false_alarm': 0.04,
+ 'min_visibility': 0.0,
  'n_train': 1200,
+ 'plant': False,
  'train_seeds': '0-1199',
  'validation_seeds': '100000-100399'}
