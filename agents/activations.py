@@ -36,7 +36,11 @@ class _TanhFn(torch.autograd.Function):
 
 
 def tanh(x: torch.Tensor) -> torch.Tensor:
-    """``torch.tanh(x)`` computed as ``2 sigmoid(2x) - 1`` (see the module docstring)."""
+    """``torch.tanh(x)`` computed as ``2 sigmoid(2x) - 1`` (see the module docstring). Without a
+    gradient to record (a rollout's forward pass) the same ops run without the autograd
+    Function around them (its call cost 35 us per layer, more than a 256-row forward's tanh)."""
+    if not (x.requires_grad and torch.is_grad_enabled()):
+        return torch.sigmoid(2.0 * x).mul_(2.0).sub_(1.0)
     return _TanhFn.apply(x)  # type: ignore[no-any-return]
 
 

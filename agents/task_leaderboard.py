@@ -7,7 +7,8 @@ held-out seeds, with the normalised score of ``thermovalve benchmark``.
     python -m agents.task_leaderboard ...
 
 Per task (default: every current benchmark task, valve_env.CURRENT_TASK_IDS, with a shipped agent in
-agents/zoo/<task>/; a superseded task's agent only when its task is named in --tasks):
+agents/zoo/<task>/; a superseded task's agent, or an original environment's (ThermoValve-v0, ...), only
+when its id is named in --tasks):
 
 * every built-in non-oracle controller (the baselines and compensators that apply to the task),
   each shipped agent and, for a residual agent, its base law alone (``<agent>_base_law``: the
@@ -527,8 +528,8 @@ def _json(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: Map
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from valve_env.tasks.benchmark import HELD_OUT_SEED
 
-    p.add_argument("--tasks", default=None, help="comma-separated task ids (default: every benchmark task with a "
-                   "shipped agent)")
+    p.add_argument("--tasks", default=None, help="comma-separated env ids (default: every current benchmark task "
+                   "with a shipped agent; a superseded task or an original environment when named)")
     p.add_argument("--episodes", type=int, default=10, help="episodes per controller (default 10)")
     p.add_argument("--seed", type=int, default=HELD_OUT_SEED, help=f"first seed (default {HELD_OUT_SEED}, held out)")
     p.add_argument("--oracle-cache", default=DEFAULT_CACHE,
@@ -555,9 +556,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         tasks = ([t for t in args.tasks.split(",") if t] if args.tasks
                  else [t for t in valve_env.CURRENT_TASK_IDS if available_agents(t, args.zoo)])
-        for t in tasks:
-            if t not in valve_env.TASK_IDS:
-                raise ValueError(f"unknown benchmark task {t!r}; known: {', '.join(valve_env.TASK_IDS)}")
+        for t in tasks:  # a benchmark task, or an original environment named explicitly (its agents, the oracle)
+            if t not in valve_env.ALL_ENV_IDS:
+                raise ValueError(f"unknown env id {t!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
         if not tasks:
             raise ValueError("no benchmark task has a shipped agent (agents/zoo/<task>/)")
         if args.episodes < 1:

@@ -36,7 +36,7 @@ stacks step by step against each other.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -58,28 +58,57 @@ _PER_ENV_ATTRS: tuple[str, ...] = ("hidden_state", "layer_temperatures", "step_i
 _PER_ENV_METHODS: tuple[str, ...] = ("stored_energy_J", "energy_account", "kpis")
 
 
-def _unbatch_info(info: Mapping[str, Any], n: int, out: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+#: per tuple of info keys, a function building the per-env dicts from one list per key (_rows_builder)
+_ROW_BUILDERS: dict[tuple[str, ...], Callable[..., list[dict[str, Any]]]] = {}
+
+
+def _rows_builder(keys: tuple[str, ...]) -> Callable[..., list[dict[str, Any]]]:
+    """``f(col_0, ..., col_m)`` -> ``[{keys[0]: col_0[i], ..., keys[m]: col_m[i]} for i]``, compiled once
+    per tuple of keys: a dict display with constant keys is CPython's fastest way to build a small
+    dict (at N = 256, 9 keys: 0.27 against 0.37 ms per step for a loop of per-key assignments)."""
+    fn = _ROW_BUILDERS.get(keys)
+    if fn is None:
+        if not all(isinstance(k, str) for k in keys):
+            raise TypeError(f"info keys must be strings, got {keys!r}")
+        cols = ", ".join(f"c{j}" for j in range(len(keys)))
+        vals = ", ".join(f"v{j}" for j in range(len(keys)))
+        items = ", ".join(f"{k!r}: v{j}" for j, k in enumerate(keys))
+        src = f"def build({cols}):\n    return [{{{items}}} for {vals}{',' if len(keys) == 1 else ''} in zip({cols})]\n"
+        ns: dict[str, Any] = {}
+        exec(compile(src, f"<info rows {len(keys)}>", "exec"), ns)  # noqa: S102 (keys are repr'd strings)
+        fn = _ROW_BUILDERS[keys] = ns["build"]
+    return fn
+
+
+def _unbatch_info(
+    info: Mapping[str, Any], n: int, extra: Mapping[str, list[Any]] | None = None
+) -> list[dict[str, Any]]:
     """Gymnasium's vectorised info (arrays over envs with ``_key`` masks) as a list
     of per-env dicts of Python scalars: what ``gymnasium.wrappers.vector.DictInfoToList``
     does, with ``tolist`` (the single env's info holds Python floats) and without a
-    Python loop over the envs where a key is set for all (a step at N = 1024 is a
-    few microseconds of kernel: the conversion must not dwarf it)."""
-    infos: list[dict[str, Any]] = [{} for _ in range(n)] if out is None else out
+    Python loop per key over the envs where a key is set for all (a step at N = 1024 is a
+    few microseconds of kernel: the conversion must not dwarf it). ``extra``: further keys
+    set for every env, one list each, after the info's own."""
+    keys: list[str] = []
+    cols: list[list[Any]] = []
+    partial: list[tuple[str, np.ndarray, list[Any]]] = []
     for key, value in info.items():
         if key.startswith("_"):
             continue
         mask = info.get("_" + key)
-        if isinstance(value, Mapping):
-            sub = _unbatch_info(value, n)
-            vals: list[Any] = sub
-        else:
-            vals = np.asarray(value).tolist()
+        vals = _unbatch_info(value, n) if isinstance(value, Mapping) else np.asarray(value).tolist()
         if mask is None or mask.all():
-            for d, v in zip(infos, vals, strict=True):
-                d[key] = v
+            keys.append(key)
+            cols.append(vals)
         else:
-            for i in np.flatnonzero(mask).tolist():
-                infos[i][key] = vals[i]
+            partial.append((key, mask, vals))
+    if extra:
+        keys.extend(extra)
+        cols.extend(extra.values())
+    infos = _rows_builder(tuple(keys))(*cols) if keys else [{} for _ in range(n)]
+    for key, mask, vals in partial:
+        for i in np.flatnonzero(mask).tolist():
+            infos[i][key] = vals[i]
     return infos
 
 
@@ -178,12 +207,14 @@ class ThermoValveVecEnv(VecEnv):
             self._cut_at[(terminated | truncated | cut) & (self._cut_at > 0)] = 0
             truncated = truncated | cut
         dones = terminated | truncated
-        infos = _unbatch_info(info, self.num_envs)
-        if cut is not None:
+        if cut is None:
+            infos = _unbatch_info(info, self.num_envs, {"TimeLimit.truncated": (truncated & ~terminated).tolist()})
+        else:
+            infos = _unbatch_info(info, self.num_envs)
             for i in np.flatnonzero(cut).tolist():
                 infos[i]["desync_cut"] = True
-        for d, trunc in zip(infos, (truncated & ~terminated).tolist(), strict=True):
-            d["TimeLimit.truncated"] = trunc
+            for d, trunc in zip(infos, (truncated & ~terminated).tolist(), strict=True):
+                d["TimeLimit.truncated"] = trunc
         self.step_stored_energy_J = vec.stored_energy_J()
         if dones.any():
             idx = np.flatnonzero(dones)
@@ -308,7 +339,9 @@ class VecEnergyShaping(VecEnvWrapper):
                 if not infos[i].get("TimeLimit.truncated", False):
                     phi[i] = 0.0  # terminated: no future
         shaped = rewards.astype(np.float64) + self.gamma * phi - self._phi
-        self._phi = np.where(dones, self._scale * (self._base.vector_env.stored_energy_J() - self._E_ref), phi)
+        if dones.any():  # a reset env's potential is its new episode's
+            phi = np.where(dones, self._scale * (self._base.vector_env.stored_energy_J() - self._E_ref), phi)
+        self._phi = phi
         return obs, shaped.astype(np.float32), dones, infos
 
 
@@ -416,7 +449,7 @@ class VecHistory(_ObsTransform):
 
     def transform(self, obs: np.ndarray, dones: np.ndarray | None) -> np.ndarray:
         starts = np.ones(self.num_envs, bool) if dones is None else dones
-        self._hist = push_history(self._hist, obs, starts)
+        push_history(self._hist, obs, starts, in_place=True)
         return self._hist.reshape(self.num_envs, -1).copy()
 
     def terminal(self, i: int, obs: np.ndarray) -> np.ndarray:

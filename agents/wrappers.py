@@ -28,6 +28,7 @@ and ``push_history`` code, so training and deployment cannot drift apart.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -194,7 +195,9 @@ TASK_OBS_SCALING: dict[str, tuple[float, float]] = {
 }
 
 
-def _extra_scaling(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+@functools.cache
+def _extra_scaling(names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The centre and scale of the 12 plant columns followed by the task layer's ``names``."""
     cs = []
     for n in names:
         hit = [v for k, v in TASK_OBS_SCALING.items() if n.startswith(k)]
@@ -202,7 +205,9 @@ def _extra_scaling(names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
             raise ValueError(f"no fixed scaling for the task observation {n!r} (agents.wrappers.TASK_OBS_SCALING)")
         cs.append(hit[0])
     arr = np.asarray(cs, np.float64).reshape(-1, 2)
-    return arr[:, 0], arr[:, 1]
+    center, scale = np.concatenate([_CENTER, arr[:, 0]]), np.concatenate([_SCALE, arr[:, 1]])
+    center.flags.writeable = scale.flags.writeable = False  # cached: shared by every call
+    return center, scale
 
 
 def scale_obs(obs: np.ndarray, extra_names: Sequence[str] = ()) -> np.ndarray:
@@ -211,11 +216,10 @@ def scale_obs(obs: np.ndarray, extra_names: Sequence[str] = ()) -> np.ndarray:
     by TASK_OBS_SCALING."""
     o = np.array(obs, dtype=np.float64, copy=True)
     o[..., I_TARGET] = o[..., I_TARGET] - o[..., I_T_OUT]
-    center, scale = _CENTER, _SCALE
-    if extra_names:
-        c2, s2 = _extra_scaling(extra_names)
-        center, scale = np.concatenate([_CENTER, c2]), np.concatenate([_SCALE, s2])
-    return ((o - center) / scale).astype(np.float32)
+    center, scale = _extra_scaling(tuple(extra_names)) if extra_names else (_CENTER, _SCALE)
+    o -= center
+    o /= scale
+    return o.astype(np.float32)
 
 
 def time_of_day_s(obs: np.ndarray) -> np.ndarray:
@@ -274,14 +278,18 @@ class DrawForecast:
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         from scipy.special import ndtr
 
-        t = time_of_day_s(obs)[:, None, None]  # (n, 1, 1)
+        # the windows depend on the time of day alone: each distinct time is computed once (envs
+        # that started together share it) and the rows are gathered back
+        t_all = time_of_day_s(obs)
+        t_u, inv = np.unique(t_all, return_inverse=True)
+        t = t_u[:, None, None]  # (distinct times, 1, 1)
         s = (self.starts_s[None, :] + np.array([-86400.0, 0.0, 86400.0])[:, None])[None]  # (1, 3, draws)
         cdf = []
         for h in self.edges_h:  # P(the draw starts before t + h) over the draw's jittered start
             x = t + h * 3600.0 - s
             cdf.append(ndtr(x / self.sigma_s) if self.sigma_s > 0 else (x >= 0).astype(np.float64))
         out = [((cdf[j + 1] - cdf[j]) * self.energy_kWh).sum(axis=(1, 2)) for j in range(len(self.edges_h) - 1)]
-        win = np.stack(out, axis=1)
+        win = np.stack(out, axis=1)[inv.reshape(-1)]
         if not self.times:
             return win
         o = np.atleast_2d(np.asarray(obs, np.float64))
@@ -374,13 +382,20 @@ class ScaleObservation(gym.ObservationWrapper[np.ndarray, np.ndarray, np.ndarray
         return self.features(observation)
 
 
-def push_history(hist: np.ndarray, obs: np.ndarray, starts: np.ndarray) -> np.ndarray:
+def push_history(hist: np.ndarray, obs: np.ndarray, starts: np.ndarray, in_place: bool = False) -> np.ndarray:
     """The last k observations, oldest first, exactly as gymnasium's
     FrameStackObservation(padding_type="reset") keeps them: ``hist`` (n, k, d),
-    ``obs`` (n, d); rows flagged in ``starts`` restart filled with ``obs``."""
-    shifted = np.concatenate([hist[:, 1:], obs[:, None, :]], axis=1)
-    fresh = np.broadcast_to(obs[:, None, :], hist.shape)
-    return np.where(starts[:, None, None], fresh, shifted)
+    ``obs`` (n, d); rows flagged in ``starts`` restart filled with ``obs``. A new array,
+    or with ``in_place`` ``hist`` itself updated (its dtype kept; no per-step allocation)."""
+    if not in_place:
+        shifted = np.concatenate([hist[:, 1:], obs[:, None, :]], axis=1)
+        fresh = np.broadcast_to(obs[:, None, :], hist.shape)
+        return np.where(starts[:, None, None], fresh, shifted)
+    hist[:, :-1] = hist[:, 1:]  # numpy buffers the overlapping copy
+    hist[:, -1] = obs
+    if starts.any():
+        hist[starts] = obs[starts][:, None, :]
+    return hist
 
 
 # --------------------------------------------------------------------------- wrappers

@@ -53,6 +53,26 @@ def test_draw_forecast_windows_add_up_to_the_tabled_cycle(jitter: float) -> None
         assert f[0, 0] == pytest.approx(morning)
 
 
+def test_batched_features_and_history_are_the_single_env_s_bit_for_bit() -> None:
+    """The native stack computes the draw forecast once per distinct time of day and pushes the
+    frame history in place; the single env's stack computes them row by row, allocating: the same
+    numbers, bit for bit (times shared by several envs, as envs started together share them)."""
+    from agents.wrappers import push_history
+
+    sc = ScenarioParams.from_dict({"tapping_profile": "M", "draw_jitter_min": 20.0, "stochastic_draws": True})
+    fc = DrawForecast.from_config({"edges_h": [0.0, 0.5, 1.0, 2.0, 4.0], "times": ["T_bottom_C"]}, sc)
+    rng = np.random.default_rng(0)
+    obs = _obs_at(rng.choice([0.0, 30.0, 25200.0, 61230.0, 86370.0], size=40))
+    obs[:, 2] = rng.uniform(30.0, 60.0, size=40)
+    batch = fc(obs)
+    assert np.array_equal(batch, np.concatenate([fc(obs[i : i + 1]) for i in range(40)]))
+    hist = rng.normal(size=(40, 4, 7)).astype(np.float32)
+    new = rng.normal(size=(40, 7)).astype(np.float32)
+    starts = rng.uniform(size=40) < 0.3
+    expected = push_history(hist, new, starts)
+    assert np.array_equal(push_history(hist.copy(), new, starts, in_place=True), expected)
+
+
 def test_observation_aid_errors_name_the_problem() -> None:
     env = gym.make("ThermoValve-v0", scenario={"tapping_profile": "none"})
     with pytest.raises(ValueError, match="tapping profile"):

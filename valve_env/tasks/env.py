@@ -163,7 +163,7 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
     def _extend(self, obs: np.ndarray) -> np.ndarray:
         if not self.layer.obs_names:
             return obs
-        return np.concatenate([obs, self.layer.observation(self._K, self._TACC)], axis=1).astype(np.float32)
+        return np.concatenate([obs, self.layer.observation(self._K, self._TACC)], axis=1, dtype=np.float32)
 
     def reset(
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
@@ -177,14 +177,20 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
         return self._extend(obs), info
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        stepping = ~self._autoreset if self._any_autoreset else np.ones(self.num_envs, bool)
+        some_reset = self._any_autoreset
+        stepping = ~self._autoreset if some_reset else self._all_envs
         k_before = self._K.copy()
         obs, rewards, terminated, truncated, info = super().step(actions)
-        idx = np.flatnonzero(stepping)
         if self.layer.n_acc:
-            r_add, acc = self.layer.step(k_before[idx], self._OUT[idx], self._dt_s, self._TACC[idx])
-            rewards[idx] += r_add
-            self._TACC[idx] += acc
+            if some_reset:
+                idx = np.flatnonzero(stepping)
+                r_add, acc = self.layer.step(k_before[idx], self._OUT[idx], self._dt_s, self._TACC[idx])
+                rewards[idx] += r_add
+                self._TACC[idx] += acc
+            else:  # every env stepped: the arrays themselves, no gathered copies
+                r_add, acc = self.layer.step(k_before, self._OUT, self._dt_s, self._TACC)
+                rewards += r_add
+                self._TACC += acc
         if "kpis" in info:  # some episodes ended: the layer settles the heat stored
             ended = np.flatnonzero(info["_kpis"])
             r_end, acc = self.layer.settle(self.stored_energy_J()[ended] - self._E0[ended])
@@ -199,7 +205,8 @@ class ThermoValveTaskVectorEnv(ThermoValveVectorEnv):
                 for name, v in self.layer.kpis(self._TACC[i]).items():
                     info["kpis"][name][i] = v
         # envs reset by this step (autoreset) start their accumulators afresh
-        self._TACC[~stepping] = 0.0
+        if some_reset:
+            self._TACC[~stepping] = 0.0
         return self._extend(obs), rewards, terminated, truncated, info
 
     def task_kpis(self, i: int) -> dict[str, float]:
