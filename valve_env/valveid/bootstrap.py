@@ -168,18 +168,6 @@ class BootstrapResult:
                 "interval_95": {k: [float(a), float(b)] for k, (a, b) in self.interval_95.items()}}
 
 
-def _ou_path(t: np.ndarray, s_e: float, tau_e: float, rng: np.random.Generator) -> np.ndarray:
-    n = t.shape[0]
-    out = np.empty(n)
-    z = np.asarray(rng.standard_normal(n), dtype=float)
-    out[0] = s_e * z[0]
-    phi = np.asarray(np.exp(-np.diff(t) / tau_e), dtype=float)
-    sd = np.asarray(s_e * np.sqrt(1.0 - phi * phi), dtype=float)
-    for k in range(1, n):
-        out[k] = phi[k - 1] * out[k - 1] + sd[k - 1] * z[k]
-    return out
-
-
 def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np.random.Generator,
                   truth_step_s: float = 1.0, x_noise_sd: float | None = None,
                   x_true: np.ndarray | None = None, resid_block: int | None = None) -> RunData:
@@ -189,9 +177,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
     ``x_noise_sd``: with stiction, the sd of the white noise on the opening (default:
     :func:`valve_env.valveid.temperature.noise_sd` of ``data``' opening).
     ``resid_block``: without stiction, the opening's noise is the residuals ``data.x - x_true``
-    resampled in circular blocks of this length (default: :func:`residual_block_length`); 0
-    draws the fitted noise model instead (white ``s_w`` plus the Ornstein-Uhlenbeck ``s_e``,
-    ``tau_e``), a purely parametric bootstrap."""
+    resampled in circular blocks of this length (default: :func:`residual_block_length`)."""
     if x_true is None:
         x_true = world_opening(model, data, values, truth_step_s)
     n = len(data)
@@ -202,8 +188,6 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
         if x_noise_sd is None:
             x_noise_sd = noise_sd(data.x)
         y = x_true + x_noise_sd * rng.standard_normal(n)
-    elif resid_block == 0:
-        y = x_true + values["s_w"] * rng.standard_normal(n) + _ou_path(data.t, values["s_e"], values["tau_e"], rng)
     else:
         resid = data.x - x_true
         block = resid_block if resid_block is not None else residual_block_length(resid)

@@ -32,7 +32,6 @@ Their reported sd is the bootstrap's (:mod:`valve_env.valveid.bootstrap`).
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -45,8 +44,7 @@ from valve_env.ident.kalman import FilterResult, run_filter
 from valve_env.ident.mle import MLEstimator, NotFittedError
 from valve_env.ident.sde import dnat_dwork, from_work
 from valve_env.ident.tests import ROBUST_ADVICE, MisspecificationWarning, whiteness_check
-from valve_env.ident.uncertainty import hac_meat, hessian_sandwich_parts, newey_west_lags
-from valve_env.valveid.fitting import NOISE_NAMES
+from valve_env.ident.uncertainty import hac_meat, newey_west_lags
 from valve_env.valveid.stiction import slips
 from valve_env.valveid.temperature import noise_sd
 
@@ -97,17 +95,12 @@ def score_contributions(est: MLEstimator, step: float = 1e-4) -> pd.DataFrame:
         parts = []
         for sgn in (1.0, -1.0):
             p = est.p_.copy()
-            p[i] = _from_work(th + sgn * h, q)
+            p[i] = from_work(th + sgn * h, q)
             res = run_filter(model, p, arr, method=est.method, n_sub=est.n_sub, foh=est.foh,
                              compiled=est.compiled, fast=est.fast)
             parts.append(step_nll(res))
         G[:, j] = (parts[0] - parts[1]) / (2.0 * h)
     return pd.DataFrame(G, columns=names)
-
-
-def _from_work(theta: float, q: Any) -> float:
-
-    return from_work(theta, q)
 
 
 @dataclass(frozen=True)
@@ -171,29 +164,9 @@ def sandwich_std(model: Model, data: RunData, fit: FitResult, fixed: tuple[str, 
     standard errors (docs/estimation.md). ``fixed`` parameters have neither (stiction's band is
     measured from the slips, not fitted: its sd is the bootstrap's alone). ``lags``: the HAC window."""
 
-    free = [i for i, n in enumerate(model.names) if n not in fixed]
-    z_all = model.to_work(fit.params)
-    bounds = model.work_bounds()
-
-    def values(zf: np.ndarray) -> dict[str, float]:
-        z = z_all.copy()
-        z[free] = zf
-        return model.from_work(z)
-
-    def nll(zf: np.ndarray) -> float:
-        ll = model.loglik(data, values(zf))
-        return -ll if math.isfinite(ll) else 1e300
-
-    def contrib(zf: np.ndarray) -> np.ndarray:
-        nu, S = model.prediction_errors(data, values(zf))
-        return np.asarray(-0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S))
-
-    zf = z_all[free]
-    names = [model.names[i] for i in free]
-    widths = np.array([bounds[i][1] - bounds[i][0] for i in free], dtype=float)
-    g = np.array([dnat_dwork(zf[j], model.parameters[i]) for j, i in enumerate(free)])
-    working = np.array([n in NOISE_NAMES for n in names])
-    sd_h, sd_r, lags = hessian_sandwich_parts(nll, contrib, zf, widths, g, working)
+    held = {n: fit.params[n] for n in fixed if n in model.names}
+    free, zf, _, at, nll = model._objective(data, fit.params, held)
+    names, sd_h, sd_r, lags = model.std_parts(data, free, zf, at, nll)
     nan = {n: float("nan") for n in fixed if n in model.names}
     return {"std_hessian": {n: float(sd_h[j]) for j, n in enumerate(names)} | nan,
             "std_robust": {n: float(sd_r[j]) for j, n in enumerate(names)} | nan,

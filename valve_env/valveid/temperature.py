@@ -384,21 +384,16 @@ def monotone_path(y: np.ndarray, delta: float) -> np.ndarray:
         if y[k] < lo:
             lo = y[k]
             ilo = k
+        first = second = 0
         if hi - y[k] >= delta and ihi >= ilo:
-            direction = -1  # rose to hi, now falling
-            if ilo > 0:
-                tps[ntp] = ilo
-                ntp += 1
-            tps[ntp] = ihi
-            ntp += 1
-            ext = y[k]
-            iext = k
+            direction, first, second = -1, ilo, ihi  # rose to hi, now falling
         elif y[k] - lo >= delta and ilo >= ihi:
-            direction = 1
-            if ihi > 0:
-                tps[ntp] = ihi
+            direction, first, second = 1, ihi, ilo  # fell to lo, now rising
+        if direction != 0:
+            if first > 0:
+                tps[ntp] = first
                 ntp += 1
-            tps[ntp] = ilo
+            tps[ntp] = second
             ntp += 1
             ext = y[k]
             iext = k
@@ -408,26 +403,18 @@ def monotone_path(y: np.ndarray, delta: float) -> np.ndarray:
         _pava(y, 0, n, inc, out)
         return out
     while k < n:
-        if direction == 1:
-            if y[k] > ext:
-                ext = y[k]
-                iext = k
-            elif ext - y[k] >= delta:
-                tps[ntp] = iext
-                ntp += 1
-                direction = -1
-                ext = y[k]
-                iext = k
-        else:
-            if y[k] < ext:
-                ext = y[k]
-                iext = k
-            elif y[k] - ext >= delta:
-                tps[ntp] = iext
-                ntp += 1
-                direction = 1
-                ext = y[k]
-                iext = k
+        # in the direction of travel (signs flip exactly): a new extreme, or a retrace of delta from it
+        v = direction * y[k]
+        e = direction * ext
+        if v > e:
+            ext = y[k]
+            iext = k
+        elif e - v >= delta:
+            tps[ntp] = iext
+            ntp += 1
+            direction = -direction
+            ext = y[k]
+            iext = k
         k += 1
     if tps[ntp - 1] != n - 1:
         tps[ntp] = n - 1
