@@ -38,7 +38,7 @@ OWNERS: dict[str, tuple[str, ...]] = {
     "data_io.py": ("load_run", "validate_run"),
     "valveid/data.py": ("RunData",),
     "valveid/bootstrap.py": ("bootstrap", "apply_bootstrap", "BootstrapResult", "replicate_run", "world_opening",
-                             "curved_world", "denoised_run", "bracketed", "preprocessing_refit"),
+                             "denoised_run", "bracketed", "preprocessing_refit"),
     "ident/bootstrap.py": ("replicates", "residual_block_length", "block_resample", "gross_refits", "screen_refits"),
     "ident/tests.py": ("lr_pvalue", "delta_bic", "ljung_box", "residual_report", "cumulated_periodogram",
                        "whiteness_check"),

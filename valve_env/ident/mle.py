@@ -339,24 +339,14 @@ class MLEstimator(Estimator):
 
     def predict(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """One-step predictions of each output (``name``) and their standard deviations (``name_sd``)."""
-        arr, res = self._run(data)
-        out = {"time_s": arr.t}
-        for j, name in enumerate(self.model.outputs):
-            out[name] = res.y_pred[:, j]
-            out[f"{name}_sd"] = np.sqrt(np.maximum(res.S[:, j, j], 0.0))
-        return pd.DataFrame(out)
+        return _outputs_frame(self.model, *self._run(data))
 
     def simulate(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """Pure simulation: the outputs predicted from the inputs alone, never updated by the
         measured outputs, except those the model lists in ``simulation_outputs`` (for the
         valve model the noisy temperature, which plays the paper's input T_tank)."""
         keep = tuple(getattr(self.model, "simulation_outputs", ()))
-        arr, res = self._run(data, tuple(n for n in self.model.outputs if n not in keep))
-        out = {"time_s": arr.t}
-        for j, name in enumerate(self.model.outputs):
-            out[name] = res.y_pred[:, j]
-            out[f"{name}_sd"] = np.sqrt(np.maximum(res.S[:, j, j], 0.0))
-        return pd.DataFrame(out)
+        return _outputs_frame(self.model, *self._run(data, tuple(n for n in self.model.outputs if n not in keep)))
 
     def filter(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """Filtered states and their standard deviations."""
@@ -431,6 +421,15 @@ def past_kink(f: Callable[[np.ndarray], float], x0: np.ndarray, max_fevals: int)
     the fit's caller restarts :func:`minimise` from its end point and keeps the better."""
     return scipy.optimize.minimize(f, x0, method="Nelder-Mead",
                                    options={"maxfev": max_fevals, "xatol": 1e-4, "fatol": 0.01})
+
+
+def _outputs_frame(model: SDEModel, arr: Arrays, res: FilterResult) -> pd.DataFrame:
+    """The predicted outputs (``name``) and their sds (``name_sd``) of a filter pass."""
+    out: dict[str, np.ndarray] = {"time_s": arr.t}
+    for j, name in enumerate(model.outputs):
+        out[name] = res.y_pred[:, j]
+        out[f"{name}_sd"] = np.sqrt(np.maximum(res.S[:, j, j], 0.0))
+    return pd.DataFrame(out)
 
 
 def _states_frame(model: SDEModel, t: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
