@@ -8,8 +8,9 @@
   exponential, Van Loan) for models with ``linear = True``.
 * :func:`rts_smooth`: Rauch-Tung-Striebel smoothing of a filter pass.
 * :func:`ou_loglik`: the scalar filter of an Ornstein-Uhlenbeck error plus white noise on a residual
-  (the output-error likelihood's noise model), compiled; :func:`ou_predict` its time update, which the
-  valve's stick-slip filter shares.
+  (the output-error likelihood's noise model), compiled; its steps :func:`ou_predict`,
+  :func:`ou_innovation` and :func:`ou_update` also carry a second state observed with the OU error (the
+  valve's stick-slip filter is this filter plus its stem's logic).
 
 Conventions (those of ctsmTMB, checked against its stored numbers, see
 tests/data/ctsmtmb_ornstein/SOURCE.md): the data update at t_0 comes before
@@ -607,6 +608,26 @@ def ou_predict(dt: float, tau: float, var: float, m: float, P: float) -> tuple[f
 
 
 @nb.njit(cache=True)
+def ou_innovation(y: float, m: float, P: float, vw: float, s: float = 0.0, Pes: float = 0.0,
+                  Pss: float = 0.0) -> tuple[float, float, float]:
+    """The one-step prediction of a measurement ``y = s + e + w`` (``e`` the OU state, mean ``m``, variance
+    ``P``; ``w`` white of variance ``vw``; ``s`` a second state with variance ``Pss`` and covariance ``Pes``
+    with ``e``, none for the scalar filter): (prediction error, its variance, the log-likelihood term)."""
+    S = P + 2.0 * Pes + Pss + vw
+    nu = y - s - m
+    return nu, S, -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+
+
+@nb.njit(cache=True)
+def ou_update(nu: float, S: float, m: float, P: float, s: float = 0.0, Pes: float = 0.0,
+              Pss: float = 0.0) -> tuple[float, float, float, float, float]:
+    """The measurement update after :func:`ou_innovation`: (m, P, s, Pes, Pss)."""
+    ke = (P + Pes) / S
+    ks = (Pes + Pss) / S
+    return m + ke * nu, P - ke * (P + Pes), s + ks * nu, Pes - ke * (Pes + Pss), Pss - ks * (Pes + Pss)
+
+
+@nb.njit(cache=True)
 def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float,
               mask: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """The scalar OU filter: log-likelihood of residuals r = e + w (e an Ornstein-Uhlenbeck process of
@@ -625,13 +646,10 @@ def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float
     for k in range(n):
         if k > 0:
             _, m, P = ou_predict(t[k] - t[k - 1], tau_e, ve, m, P)
-        S = P + vw
-        nu = r[k] - m
+        nu, S, lk = ou_innovation(r[k], m, P, vw)
         innov[k] = nu
         Sout[k] = S
         if mask[k]:
-            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
-            K = P / S
-            m = m + K * nu
-            P = P - K * P
+            ll += lk
+            m, P, _, _, _ = ou_update(nu, S, m, P)
     return ll, innov, Sout

@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
-from valve_env.ident.kalman import ou_predict
+from valve_env.ident.kalman import LOG2PI, ou_innovation, ou_predict, ou_update
 from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.physics import valve as phys
 from valve_env.physics.stickslip import initial_state as stick_initial_state
@@ -46,7 +46,6 @@ from valve_env.valveid.temperature import monotone_path
 
 _demanded_opening = njit(cache=True)(phys.demanded_opening)
 _dahl_update = njit(cache=True)(phys.dahl_update)
-LOG2PI = math.log(2.0 * math.pi)
 SQRT2 = math.sqrt(2.0)
 #: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
 BAND_SPREAD = 0.5
@@ -418,9 +417,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                         ms = xd - side * min(lag, ad) if lag > 0.0 else xd
                         Pss = vl
                         Pes = 0.0
-        S = Pee + 2.0 * Pes + Pss + vw
-        nu = y[k] - ms - me
-        lk = -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+        nu, S, lk = ou_innovation(y[k], me, Pee, vw, ms, Pes, Pss)
         if mask[k] and band > 0.0 and k > 0 and moving:
             # the decision that the stem moves, revisited honestly: the measurement is scored once, under
             # the predictive mixture of three hypotheses with their prior probabilities (first-order
@@ -485,14 +482,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
         if mask[k]:
             ll += lk
             terms[k] = lk
-            ke = (Pee + Pes) / S
-            ks = (Pes + Pss) / S
-            me = me + ke * nu
-            ms = ms + ks * nu
-            nPee = Pee - ke * (Pee + Pes)
-            nPes = Pes - ke * (Pes + Pss)
-            nPss = Pss - ks * (Pes + Pss)
-            Pee, Pes, Pss = nPee, nPes, nPss
+            me, Pee, ms, Pes, Pss = ou_update(nu, S, me, Pee, ms, Pes, Pss)
             dk = abs(x_sub[sub_idx[k]] - ms)
             if dk < dmax:
                 dmax = dk

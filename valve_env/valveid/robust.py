@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.effects import REGISTRY as EFFECTS
-from valve_env.ident.kalman import FilterResult, run_filter
+from valve_env.ident.kalman import LOG2PI, FilterResult, run_filter
 from valve_env.ident.mle import MLEstimator, NotFittedError
 from valve_env.ident.sde import dnat_dwork, from_work
 from valve_env.ident.tests import ROBUST_ADVICE, MisspecificationWarning, whiteness_check
@@ -51,8 +51,6 @@ from valve_env.valveid.temperature import noise_sd
 if TYPE_CHECKING:
     from valve_env.valveid.data import RunData
     from valve_env.valveid.fitting import FitResult, Model
-
-LOG2PI = float(np.log(2.0 * np.pi))
 
 
 def step_nll(res: FilterResult) -> np.ndarray:

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import minimize_scalar
 
-_LOG2PI = math.log(2.0 * math.pi)
+from valve_env.ident.kalman import LOG2PI
 
 
 # --------------------------------------------------------------------------- TV denoising
@@ -468,7 +468,7 @@ def _irw_pass(t: np.ndarray, y: np.ndarray, q: float, r: float, smooth: bool,
         Pp[k, 2] = p11
         S = p00 + r
         nu = y[k] - m0
-        ll += -0.5 * (_LOG2PI + math.log(S) + nu * nu / S)
+        ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
         k0 = p00 / S
         k1 = p01 / S
         m0 = m0 + k0 * nu
