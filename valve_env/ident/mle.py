@@ -35,7 +35,7 @@ import scipy.optimize
 
 from valve_env.ident.kalman import Arrays, FilterResult, rts_smooth, run_filter, to_arrays
 from valve_env.ident.sde import Parameter, SDEModel, dnat_dwork, from_work, to_work, work_bounds
-from valve_env.ident.tests import lr_pvalue
+from valve_env.ident.tests import lr_test
 from valve_env.ident.uncertainty import fd_hessian, identified_directions
 
 
@@ -452,7 +452,8 @@ def _clip_work(theta: np.ndarray, qs: list[Parameter]) -> np.ndarray:
 
 
 def likelihood_ratio(restricted: MLEstimator, full: MLEstimator) -> tuple[float, int, float]:
-    """Likelihood-ratio statistic 2 (l_full - l_restricted), its degrees of freedom and the chi^2 p-value."""
-    stat = max(0.0, 2.0 * (full.loglik_ - restricted.loglik_))
+    """Likelihood-ratio statistic 2 (l_full - l_restricted), its degrees of freedom and the chi^2 p-value
+    (:func:`valve_env.ident.tests.lr_test`)."""
     df = max(full.n_free_ - restricted.n_free_, 1)
-    return stat, df, lr_pvalue(stat, df)
+    stat, p = lr_test(restricted.loglik_, full.loglik_, df)
+    return stat, df, p

@@ -30,6 +30,12 @@ def lr_pvalue(lr: float, df: int, boundary: bool = False) -> float:
     return float(stats.chi2.sf(lr, df))
 
 
+def lr_test(loglik_restricted: float, loglik_full: float, df: int, boundary: bool = False) -> tuple[float, float]:
+    """The likelihood-ratio statistic 2 (l_full - l_restricted) (at least 0) and its p-value (:func:`lr_pvalue`)."""
+    lr = max(2.0 * (loglik_full - loglik_restricted), 0.0)
+    return lr, lr_pvalue(lr, df, boundary)
+
+
 def bic(loglik: float, k: int, n: int) -> float:
     """Schwarz's criterion -2 loglik + k log n (``n`` at least 1)."""
     return -2.0 * loglik + math.log(max(n, 1)) * k
