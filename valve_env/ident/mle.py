@@ -115,7 +115,7 @@ class MLEstimator(Estimator):
 
     Learned attributes end in ``_``: ``params_``, ``std_`` (natural scale),
     ``params_work_``/``std_work_``/``cov_work_`` (transformed scale; ``cov_work_`` the inverse
-    Hessian, the bread of :func:`valve_env.valveid.robust.robust_std`), ``corr_`` (DataFrame),
+    Hessian, the bread of :func:`valve_env.ident.uncertainty.robust_std`), ``corr_`` (DataFrame),
     ``cov_`` (natural scale, DataFrame), ``tstat_``, ``loglik_``, ``nll_``,
     ``n_obs_`` (scalar observations), ``n_samples_``, ``n_free_``, ``aic_``,
     ``bic_``, ``free_``, ``at_bound_``, ``identifiability_`` (messages),

@@ -10,13 +10,16 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 from statsmodels.stats.diagnostic import acorr_ljungbox
 from statsmodels.tsa.stattools import acf, ccf
+
+if TYPE_CHECKING:
+    from valve_env.ident.mle import MLEstimator
 
 
 # --------------------------------------------------------------------------- likelihood ratio and criteria
@@ -170,3 +173,16 @@ def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nl
 
 
 # --------------------------------------------------------------------------- misspecification-robust sd and check
+
+
+def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float = 0.01, nlags: int = 40,
+                           warn: bool = True) -> dict[str, Any]:
+    """The misspecification check of a fitted :class:`~valve_env.ident.mle.MLEstimator`: the whiteness of
+    each output's standardised one-step residuals (Ljung-Box at ``nlags`` and the cumulated periodogram's KS
+    band, both at level ``alpha``, :func:`whiteness_check`); a :class:`MisspecificationWarning` when
+    either rejects: the model does not explain the data's dynamics, so its inverse-Hessian standard errors
+    are not to be trusted (docs/uncertainty.md). Returns the JSON-ready result: per output the statistics,
+    then ``misspecified`` and ``message``."""
+    res = est.residuals(data)
+    return whiteness_check({name: res[name].to_numpy(dtype=float) for name in est.model.outputs},
+                           alpha=alpha, nlags=nlags, warn=warn, label=est.model.name)
