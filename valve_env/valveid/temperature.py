@@ -31,6 +31,16 @@ from valve_env.ident.kalman import LOG2PI
 
 # --------------------------------------------------------------------------- TV denoising
 @njit(cache=True)
+def _fill(x: np.ndarray, k0: int, last: int, v: float) -> int:  # pragma: no cover - compiled
+    """``x[k0..last] = v`` (at least ``x[k0]``, as the C code's do-while); returns the next index."""
+    while True:
+        x[k0] = v
+        k0 += 1
+        if k0 > last:
+            return k0
+
+
+@njit(cache=True)
 def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - compiled
     """Total-variation denoising: argmin_x 0.5 sum (y - x)^2 + lam sum |x_i+1 - x_i|.
 
@@ -53,22 +63,14 @@ def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - c
     while True:
         while k == n - 1:
             if umin < 0.0:
-                while True:
-                    x[k0] = vmin
-                    k0 += 1
-                    if k0 > kminus:
-                        break
+                k0 = _fill(x, k0, kminus, vmin)
                 kminus = k0
                 k = k0
                 vmin = y[k0]
                 umin = lam
                 umax = vmin + umin - vmax
             elif umax > 0.0:
-                while True:
-                    x[k0] = vmax
-                    k0 += 1
-                    if k0 > kplus:
-                        break
+                k0 = _fill(x, k0, kplus, vmax)
                 kplus = k0
                 k = k0
                 vmax = y[k0]
@@ -76,19 +78,11 @@ def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - c
                 umin = vmax + umax - vmin
             else:
                 vmin += umin / (k - k0 + 1)
-                while True:
-                    x[k0] = vmin
-                    k0 += 1
-                    if k0 > k:
-                        break
+                _fill(x, k0, k, vmin)
                 return x
         umin += y[k + 1] - vmin
         if umin < minlam:
-            while True:
-                x[k0] = vmin
-                k0 += 1
-                if k0 > kminus:
-                    break
+            k0 = _fill(x, k0, kminus, vmin)
             kplus = k0
             kminus = k0
             k = k0
@@ -99,11 +93,7 @@ def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - c
         else:
             umax += y[k + 1] - vmax
             if umax > lam:
-                while True:
-                    x[k0] = vmax
-                    k0 += 1
-                    if k0 > kplus:
-                        break
+                k0 = _fill(x, k0, kplus, vmax)
                 kplus = k0
                 kminus = k0
                 k = k0
