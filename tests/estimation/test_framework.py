@@ -110,7 +110,7 @@ def test_the_diagnosis_imports_the_shared_pieces_from_their_owner() -> None:
     fitting = _imports(_tree("valveid/fitting.py"))
     for name in ("to_work", "from_work", "dnat_dwork", "work_bounds", "Parameter"):
         assert fitting.get(name) == "valve_env.ident.sde", name
-    assert fitting.get("hessian_sandwich_sd") == "valve_env.ident.uncertainty"
+    assert fitting.get("hessian_sandwich_parts") == "valve_env.ident.uncertainty"
     assert fitting.get("RunData") == "valve_env.valveid.data"
     assert _imports(_tree("valveid/data.py")).get("smooth_temperature") == "valve_env.valveid.temperature"
     diagnose = _imports(_tree("valveid/diagnose.py"))

@@ -75,9 +75,6 @@ from valve_env.valveid.valve_model import (
     smooth_sign,
 )
 
-#: the error model's parameters, appended after the base model's
-EIV_PARAMETERS: tuple[str, ...] = ("s_d", "tau_d", "s_e")
-
 
 class InputErrorModel(SDEModel):
     """Errors in variables for one input of ``base`` (see the module doc).
@@ -418,4 +415,4 @@ def valve_eiv_model(data: Any, valve: Any = None, *, B: int = 4, seed: int = 0, 
     return ValveEIVModel(valve, fixed={"s_d": s_d, "tau_d": tau_d}, **options)
 
 
-__all__ = ["InputErrorModel", "ValveEIVModel", "EIV_PARAMETERS", "denoising_error", "valve_eiv_model"]
+__all__ = ["InputErrorModel", "ValveEIVModel", "denoising_error", "valve_eiv_model"]

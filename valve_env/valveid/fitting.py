@@ -557,11 +557,4 @@ class Model:
         return FitResult(self.effects, vals, std, ll, len(data), n_free, rms, ok, msg)
 
 
-def simulation_rms(model: Model, data: RunData, values: dict[str, float], a: int = 0, b: int | None = None) -> float:
-    """RMS (mm) of measured minus simulated opening over samples a..b (simulating from the start of ``data``)."""
-    xs, _, _ = model.simulate(data, values)
-    r = (data.x - xs)[a:b]
-    return float(np.sqrt(np.mean(r * r)))
-
-
-__all__ = ["RunData", "FitResult", "Model", "simulation_rms", "BASE_PARAMS", "NOISE_PARAMS"]
+__all__ = ["RunData", "FitResult", "Model", "BASE_PARAMS", "NOISE_PARAMS"]
