@@ -10,16 +10,13 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 from statsmodels.stats.diagnostic import acorr_ljungbox
 from statsmodels.tsa.stattools import acf, ccf
-
-if TYPE_CHECKING:
-    from valve_env.ident.mle import MLEstimator
 
 
 # --------------------------------------------------------------------------- likelihood ratio and criteria
@@ -175,7 +172,7 @@ def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nl
 # --------------------------------------------------------------------------- misspecification-robust sd and check
 
 
-def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float = 0.01, nlags: int = 40,
+def misspecification_check(est: Any, data: Any = None, *, alpha: float = 0.01, nlags: int = 40,
                            warn: bool = True) -> dict[str, Any]:
     """The misspecification check of a fitted :class:`~valve_env.ident.mle.MLEstimator`: the whiteness of
     each output's standardised one-step residuals (Ljung-Box at ``nlags`` and the cumulated periodogram's KS

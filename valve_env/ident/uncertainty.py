@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -53,9 +53,6 @@ from statsmodels.stats.sandwich_covariance import S_hac_simple
 
 from valve_env.ident.kalman import LOG2PI, FilterResult, run_filter
 from valve_env.ident.sde import dnat_dwork, from_work
-
-if TYPE_CHECKING:
-    from valve_env.ident.mle import MLEstimator
 
 
 def fd_hessian(f: Callable[[np.ndarray], float], z: np.ndarray, steps: np.ndarray | float) -> np.ndarray:
@@ -239,7 +236,7 @@ def step_nll(res: FilterResult) -> np.ndarray:
     return out
 
 
-def score_contributions(est: MLEstimator, step: float = 1e-4) -> pd.DataFrame:
+def score_contributions(est: Any, step: float = 1e-4) -> pd.DataFrame:
     """Per-sample score contributions d l_k / d theta_j (optimiser's scale) at the estimate, for the
     free parameters that have a standard error (central differences, 2 filter passes each)."""
     est._check()  # raises NotFittedError before fit
@@ -282,7 +279,7 @@ class RobustResult:
                                                 "the EKF score contributions"}
 
 
-def robust_std(est: MLEstimator, *, lags: int | None = None, scores: pd.DataFrame | None = None) -> RobustResult:
+def robust_std(est: Any, *, lags: int | None = None, scores: pd.DataFrame | None = None) -> RobustResult:
     """Sandwich (HAC) standard errors of a fitted estimator (see the module doc). ``lags``: the
     Bartlett window (default :func:`newey_west_lags`; 0 = Huber-White); ``scores`` precomputed
     :func:`score_contributions` (to try several windows at the cost of one)."""
