@@ -8,9 +8,9 @@
   exponential, Van Loan) for models with ``linear = True``.
 * :func:`rts_smooth`: Rauch-Tung-Striebel smoothing of a filter pass.
 * :func:`ou_loglik`: the scalar filter of an Ornstein-Uhlenbeck error plus white noise on a residual
-  (the output-error likelihood's noise model), compiled; its steps :func:`ou_predict`,
-  :func:`ou_innovation` and :func:`ou_update` also carry a second state observed with the OU error (the
-  valve's stick-slip filter is this filter plus its stem's logic).
+  (the output-error likelihood's noise model), compiled; its time step :func:`ou_predict` and its
+  measurement step with a second state observed with the OU error, :func:`ou_innovation` and
+  :func:`ou_update` (the valve's stick-slip filter is these steps plus its stem's logic).
 
 Conventions (those of ctsmTMB, checked against its stored numbers, see
 tests/data/ctsmtmb_ornstein/SOURCE.md): the data update at t_0 comes before
@@ -646,10 +646,15 @@ def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float
     for k in range(n):
         if k > 0:
             _, m, P = ou_predict(t[k] - t[k - 1], tau_e, ve, m, P)
-        nu, S, lk = ou_innovation(r[k], m, P, vw)
+        # the scalar case of ou_innovation and ou_update (no second state), written out: the likelihood of
+        # every output-error fit evaluation, where the second state's arithmetic cost a few per cent
+        S = P + vw
+        nu = r[k] - m
         innov[k] = nu
         Sout[k] = S
         if mask[k]:
-            ll += lk
-            m, P, _, _, _ = ou_update(nu, S, m, P)
+            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+            K = P / S
+            m = m + K * nu
+            P = P - K * P
     return ll, innov, Sout
