@@ -1,7 +1,6 @@
-"""The loop model's fast paths compute what the paths they replaced computed: the
-candidates' output-error fits from lagged moments against the record-pass fit (``_oe_fit``), the LR
-scan's Schur-complement solve and whole-delay moments against least squares on the delayed lag output, and the fit
-memo against fitting afresh."""
+"""The loop model's fast paths compute what they define: the candidates' output-error fits from lagged moments
+against the alternating least squares written plainly, one pass over the record per iteration (``_record_pass_fit``),
+and the LR scan's Schur-complement solve and whole-delay moments against least squares on the delayed lag output."""
 
 from __future__ import annotations
 
@@ -11,8 +10,32 @@ import numpy as np
 import pytest
 
 from valve_env.loops import model
-from valve_env.loops.model import Settings, fit_valve, scan_paths, valve_path
+from valve_env.loops.model import Settings, scan_paths, valve_path
 from valve_env.loops.sim import simulate_loop
+
+
+def _record_pass_fit(pv: np.ndarray, w: np.ndarray, basis: np.ndarray, k0: int, k1: int, p: int,
+                     n_iter: int) -> tuple[float, np.ndarray, float, float]:
+    """The output-error fit of ``pv ~ K w + basis weights`` with AR(p <= 2) noise over samples ``k0..k1-1``:
+    (K, weights) by least squares on the AR-filtered terms (with the kernels' ridge), alternated ``n_iter`` times
+    with the AR filter by least squares on the residual. Returns (rss, theta, rho1, rho2)."""
+    rho = np.zeros(2)
+    X = np.column_stack([w, basis])
+    ks = np.arange(k0, k1)
+    for _ in range(1 if p == 0 else n_iter):
+        Xf = X[ks] - rho[0] * X[ks - 1] - rho[1] * X[ks - 2]
+        z = pv[ks] - rho[0] * pv[ks - 1] - rho[1] * pv[ks - 2]
+        A = Xf.T @ Xf
+        A += np.diag(1e-9 * np.diag(A) + 1e-12)
+        theta = np.linalg.solve(A, Xf.T @ z)
+        r = pv - X @ theta
+        if p > 0:
+            lags = np.column_stack([r[ks - 1], r[ks - 2]])[:, :p]
+            G = lags.T @ lags + 1e-12 * np.eye(p)
+            rho = np.zeros(2)
+            rho[:p] = np.linalg.solve(G, lags.T @ r[ks])
+    e = r[ks] - rho[0] * r[ks - 1] - rho[1] * r[ks - 2]
+    return float(e @ e), theta, float(rho[0]), float(rho[1])
 
 
 @pytest.fixture(scope="module")
@@ -22,16 +45,16 @@ def loop():  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.parametrize("p", [0, 1, 2])
-@pytest.mark.parametrize("period", [math.inf, 700.0])
-def test_moment_fit_is_the_record_pass_fit(loop, p: int, period: float) -> None:  # type: ignore[no-untyped-def]
-    s = Settings(dt=loop.dt, noise_order=p, load_period_s=period)
+@pytest.mark.parametrize("knot_s", [1200.0, math.inf])
+def test_moment_fit_is_the_record_pass_fit(loop, p: int, knot_s: float) -> None:  # type: ignore[no-untyped-def]
+    s = Settings(dt=loop.dt, noise_order=p, disturbance_knot_s=knot_s)
     basis, idx, val = model._settings_basis(loop.n, s)
     x = valve_path(loop.op, 2.0, 1.0, 1.0)
     for k0, k1 in ((s.k0, loop.n), (s.k0, loop.n // 2), (loop.n // 2 + s.k0, loop.n)):
         PB, BB = model._fixed_moments(loop.pv, idx, val, basis.shape[1], k0, k1)
         for a, d, integ in ((s.alist()[2], 1.0, False), (s.alist()[5], 2.25, False), (1.0, 7.0, True)):
             w = model._filtered(x, a, d, integ)
-            rss, theta, r1, r2 = model._oe_fit(loop.pv, w, basis, k0, k1, p, s.n_iter)
+            rss, theta, r1, r2 = _record_pass_fit(loop.pv, w, basis, k0, k1, p, s.n_iter)
             rss_m, theta_m, r1_m, r2_m = model._oe_fit_moments(loop.pv, w, idx, val, PB, BB, k0, k1, p, s.n_iter,
                                                                np.zeros(loop.n))
             assert rss_m == pytest.approx(rss, rel=1e-7)
@@ -73,31 +96,12 @@ def _scan_reference(pv: np.ndarray, x: np.ndarray, basis: np.ndarray, s: Setting
     return best
 
 
-@pytest.mark.parametrize("s", [Settings(), Settings(load_period_s=900.0), Settings(min_delay=0.25)])
+@pytest.mark.parametrize("s", [Settings(), Settings(disturbance_knot_s=math.inf), Settings(min_delay=0.25)])
 def test_scan_is_least_squares_on_the_delayed_lag(loop, s: Settings) -> None:  # type: ignore[no-untyped-def]
     s = Settings(**{**s.__dict__, "dt": loop.dt})
-    xs, _ = scan_paths(loop.op, 1, float(np.quantile(loop.op, 0.2)))
+    xs, _ = scan_paths(loop.op, 1)
     xs = xs[[0, 1, 40, 101, 144]]
     rss = model._scan_rss_paths(loop.pv, xs, s)
     basis = model._settings_basis(loop.n, s)[0]
     ref = [_scan_reference(loop.pv, x, basis, s) for x in xs]
     np.testing.assert_allclose(rss, ref, rtol=1e-6)
-
-
-def test_fit_memo_gives_the_same_fits(loop, monkeypatch) -> None:  # type: ignore[no-untyped-def]
-    s = Settings(dt=loop.dt, n_grid=6)
-    calls = []
-    fit = model.fit_process
-    monkeypatch.setattr(model, "fit_process", lambda *a, **k: calls.append(1) or fit(*a, **k))
-    memo: model.FitMemo = {}
-    shared = [fit_valve(loop.op, loop.pv, v, s, memo=memo) for v in ("backlash", "stiction")]
-    n_shared = len(calls)
-    alone = [fit_valve(loop.op, loop.pv, v, s) for v in ("backlash", "stiction")]
-    n_alone = len(calls)
-    for a, b in zip(shared, alone, strict=True):
-        assert (a.S, a.J, a.direction, a.loglik, a.profile) == (b.S, b.J, b.direction, b.loglik, b.profile)
-    # the stiction grid's J = 0 paths (6 bands, 2 directions; and the refinement's where it starts alike) were the
-    # backlash valve's: looked up, not fitted again
-    assert n_shared <= len(calls) - n_shared - 2 * s.n_grid
-    again = fit_valve(loop.op, loop.pv, "stiction", s, memo=memo)
-    assert again.process is shared[1].process and len(calls) == n_alone

@@ -432,6 +432,28 @@ def _outputs_frame(model: SDEModel, arr: Arrays, res: FilterResult) -> pd.DataFr
     return pd.DataFrame(out)
 
 
+def profile_maximum(f: Callable[[float], float], grid: np.ndarray, *, xatol: float,
+                    maxiter: int) -> tuple[float, float, list[tuple[float, float]]]:
+    """The maximum of a rugged one-dimensional (profile) log-likelihood ``f``, where a gradient method stalls:
+    ``f`` on every point of ``grid`` (increasing), then Brent's bounded search (scipy's ``minimize_scalar``,
+    ``xatol``, ``maxiter``) between the best grid point's two neighbours. Returns the best argument, its value
+    and the profile, every ``(x, f(x))`` evaluated on the grid and the refined point, sorted by ``x``; the
+    first of equal maxima wins, and the refined point only when it is strictly better."""
+    profile = [(float(x), f(float(x))) for x in grid]
+    i = int(np.argmax([p[1] for p in profile]))
+    best = profile[i]
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    if hi > lo:
+        res = scipy.optimize.minimize_scalar(lambda v: -f(float(v)), bounds=(lo, hi), method="bounded",
+                                             options={"xatol": xatol, "maxiter": maxiter})
+        refined = (float(res.x), -float(res.fun))
+        profile.append(refined)
+        if refined[1] > best[1]:
+            best = refined
+    profile.sort()
+    return best[0], best[1], profile
+
+
 def _states_frame(model: SDEModel, t: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
     out: dict[str, np.ndarray] = {"time_s": t}
     for j, name in enumerate(model.states):

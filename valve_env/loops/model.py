@@ -33,8 +33,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 from scipy.linalg import solve_banded
-from scipy.optimize import minimize_scalar
 
+from valve_env.ident.mle import profile_maximum
+from valve_env.ident.tests import bic
 from valve_env.physics.stickslip import stick_slip_path
 
 #: valve candidates, nested: linear (S = 0) in backlash (J = 0) in stiction (S, J free)
@@ -57,9 +58,9 @@ DIRECTIONS: tuple[float, ...] = (1.0, -1.0)
 
 
 @njit(cache=True)
-def _valve_path(op: np.ndarray, S: float, J: float, d0: float, out: np.ndarray, seat: float) -> np.ndarray:
+def _valve_path(op: np.ndarray, S: float, J: float, d0: float, out: np.ndarray) -> np.ndarray:
     # pragma: no cover - compiled
-    return stick_slip_path(op, S, J, seat, np.inf, out, d0)
+    return stick_slip_path(op, S, J, -np.inf, np.inf, out, d0)
 
 
 @functools.lru_cache(maxsize=4)
@@ -90,36 +91,19 @@ def subsample_op(op: np.ndarray, substeps: int) -> np.ndarray:
     return np.interp(t, np.arange(op.size, dtype=float), c)
 
 
-def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1,
-               seat: float = -math.inf) -> np.ndarray:
+def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1) -> np.ndarray:
     """The valve position (% of OP) for the controller output ``op``: at rest at ``op[0]``, stuck after a
     motion upwards (``direction`` +1, :func:`valve_env.physics.stickslip.initial_state`) or downwards (-1).
     With ``substeps`` > 1 the valve is driven by the sub-sample OP of :func:`subsample_op` and its position
-    averaged over each sample's interval (as the record averages OP); 1 is the sample-rate valve. ``seat`` (% of
-    OP; -inf: none) is the valve's closed position, the stick-slip's lower end stop (the input clipped at it, so a
-    stem resting on its seat breaks away only once the OP has risen the slip jump above it; :func:`seated`)."""
+    averaged over each sample's interval (as the record averages OP); 1 is the sample-rate valve."""
     op = np.ascontiguousarray(op, dtype=float)
-    seat = float(seat) if np.isfinite(seat) else -math.inf
     if S <= 0.0:
-        return seated(op, seat).copy()
+        return op.copy()
     if substeps <= 1:
-        return _valve_path(op, float(S), float(J), float(direction), np.empty_like(op), seat)
+        return _valve_path(op, float(S), float(J), float(direction), np.empty_like(op))
     fine = subsample_op(op, substeps)
-    x = _valve_path(fine, float(S), float(J), float(direction), np.empty_like(fine), seat)
+    x = _valve_path(fine, float(S), float(J), float(direction), np.empty_like(fine))
     return x.reshape(op.size, substeps).mean(axis=1)
-
-
-def seated(x: np.ndarray, seat: float) -> np.ndarray:
-    """The valve position ``x`` (% of OP) on its seat at ``seat``: a control valve closes on its seat, so below it the
-    flow is nil whatever the stem's input or stiction (a model option, not used by valve_env.loops.diagnose);
-    for a sticky valve the seat is the stick-slip's end stop (:func:`valve_path`'s ``seat``). ``seat`` -inf (or any
-    non-finite value) is no seat."""
-    return np.maximum(x, seat) if np.isfinite(seat) else x
-
-
-def seat_params(seat: float) -> int:
-    """The parameters a seat adds to a valve: one (its level) if there is one."""
-    return 1 if np.isfinite(seat) else 0
 
 
 @njit(cache=True)
@@ -140,44 +124,6 @@ def _filtered(x: np.ndarray, a: float, delay: float, integ: bool) -> np.ndarray:
         else:
             w[k] = a * w[k - 1] + (1.0 - a) * xk
     return w
-
-
-@njit(cache=True)
-def _oe_fit(pv: np.ndarray, w: np.ndarray, basis: np.ndarray, k0: int, k1: int, p: int, n_iter: int) -> tuple:
-    # pragma: no cover - compiled
-    """Alternating LS: (K, basis weights) given the AR(p<=2) filter, the filter given the residual,
-    over samples k0..k1-1. Returns (rss, theta, rho1, rho2); theta = [K, weights of the basis]."""
-    n = pv.size
-    q = basis.shape[1]
-    m = 1 + q
-    rho = np.zeros(2)
-    theta = np.zeros(m)
-    reg = np.zeros(m)
-    r = np.empty(n)
-    iters = 1 if p == 0 else n_iter
-    for _ in range(iters):
-        A = np.zeros((m, m))
-        bb = np.zeros(m)
-        for k in range(k0, k1):
-            z = pv[k] - rho[0] * pv[k - 1] - rho[1] * pv[k - 2]
-            reg[0] = w[k] - rho[0] * w[k - 1] - rho[1] * w[k - 2]
-            for j in range(q):
-                reg[1 + j] = basis[k, j] - rho[0] * basis[k - 1, j] - rho[1] * basis[k - 2, j]
-            for i in range(m):
-                bb[i] += reg[i] * z
-                for j in range(m):
-                    A[i, j] += reg[i] * reg[j]
-        for i in range(m):
-            A[i, i] += 1e-9 * A[i, i] + 1e-12
-        theta = np.linalg.solve(A, bb)
-        for k in range(n):
-            v = pv[k] - theta[0] * w[k]
-            for j in range(q):
-                v -= theta[1 + j] * basis[k, j]
-            r[k] = v
-        if p > 0:
-            rho[0], rho[1] = _ar_fit(r, k0, k1, p)
-    return _ar_rss(r, rho[0], rho[1], k0, k1), theta, rho[0], rho[1]
 
 
 @njit(cache=True)
@@ -236,12 +182,13 @@ def _fixed_moments(pv: np.ndarray, bidx: np.ndarray, bval: np.ndarray, q: int, k
 def _oe_fit_moments(pv: np.ndarray, w: np.ndarray, bidx: np.ndarray, bval: np.ndarray, PB: np.ndarray,
                     BB: np.ndarray, k0: int, k1: int, p: int, n_iter: int, r: np.ndarray) -> tuple:
     # pragma: no cover - compiled
-    """:func:`_oe_fit` for :func:`_best_process`'s many candidates, the same alternating least squares computed
-    faster: the AR-filtered normal equations are sums over the lag pairs
-    of the AR(2) filter of the terms' lagged cross moments, so the moments of ``w`` are taken once (the basis's
-    and ``pv``'s, :func:`_fixed_moments`, once for all candidates) and each iteration assembles its equations from
-    them instead of a pass over the record; the residual, the AR filter and the RSS are computed on the record as
-    there, with the sparse basis. ``r`` is work space of ``pv``'s size. Returns (rss, theta, rho1, rho2)."""
+    """:func:`_best_process`'s output-error fit of one candidate over samples ``k0..k1-1``: least squares for
+    ``theta = [K, basis weights]`` given the AR(p <= 2) filter, alternated ``n_iter`` times with the filter given the
+    residual (:func:`_ar_fit`). The AR-filtered normal equations are sums over the lag pairs of the AR(2) filter of
+    the terms' lagged cross moments, so the moments of ``w`` are taken once (the basis's and ``pv``'s,
+    :func:`_fixed_moments`, once for all candidates) and each iteration assembles its equations from them instead of
+    a pass over the record; the residual, the AR filter and the RSS are computed on the record, with the sparse
+    basis. ``r`` is work space of ``pv``'s size. Returns (rss, theta, rho1, rho2)."""
     q = PB.shape[2]
     m = 1 + q
     wd = bidx.shape[1]
@@ -352,11 +299,9 @@ def _best_process(pv: np.ndarray, x: np.ndarray, bidx: np.ndarray, bval: np.ndar
     return best
 
 
-def disturbance_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) -> np.ndarray:
+def disturbance_basis(n: int, dt: float, knot_s: float) -> np.ndarray:
     """Hat functions (linear B-splines) with knots every ``knot_s``: a slow load disturbance (one
-    column, a constant, when ``knot_s`` is infinite or longer than the record); with a finite ``period_s``, also a
-    sine and a cosine of that period: a periodic load at the record's oscillation period, the same for every valve
-    candidate (a model option; the diagnosis does not use it)."""
+    column, a constant, when ``knot_s`` is infinite or longer than the record)."""
     t = np.arange(n) * dt
     if not np.isfinite(knot_s) or knot_s >= t[-1]:
         B = np.ones((n, 1))
@@ -364,9 +309,6 @@ def disturbance_basis(n: int, dt: float, knot_s: float, period_s: float = math.i
         knots = np.arange(0.0, t[-1] + knot_s, knot_s)
         B = np.maximum(0.0, 1.0 - np.abs(t[:, None] - knots[None, :]) / knot_s)
         B = B[:, B.sum(axis=0) > 0]
-    if np.isfinite(period_s):
-        ph = 2.0 * np.pi * t / period_s
-        B = np.column_stack([B, np.sin(ph), np.cos(ph)])
     return np.ascontiguousarray(B)
 
 
@@ -386,18 +328,12 @@ class Settings:
     allow_integrating: bool = True
     n_grid: int = 16
     disturbance_knot_s: float = 1200.0
-    #: the period of a sinusoidal load in the disturbance basis of every candidate, s (inf: none; set by
-    #: a model option, not used by valve_env.loops.diagnose)
-    load_period_s: float = math.inf
     #: the valve's steps per recorded sample, driven by the mean-preserving sub-sample OP (:func:`subsample_op`) and
     #: averaged back over each sample, as the historian averages OP; 1 is the sample-rate valve (nested). The
     #: decision's fits use ``substeps``, the band's fit ``band_substeps`` (docs/loops.md, "Model" and "Band
     #: uncertainty")
     substeps: int = 1
     band_substeps: int = 4
-    #: the valve's seat, % of OP: every candidate's valve position is clipped from below at it (:func:`seated`;
-    #: a model option, not used by valve_env.loops.diagnose); -inf is no seat (the unseated model)
-    seat: float = -math.inf
 
     @property
     def k0(self) -> int:
@@ -439,19 +375,6 @@ class ProcessFit:
             return math.inf
         return 0.0 if self.a <= 1e-12 else -dt / math.log(self.a)
 
-    def transfer(self) -> tuple[np.ndarray, np.ndarray]:
-        """The process from the valve path to ``K w`` as a transfer function: numerator and denominator, polynomials
-        in z^-1 in ascending powers (:func:`_filtered`'s recursion: the fractional delay ``(1-f) z^-d + f z^-(d+1)``,
-        then ``(1-a) / (1 - a z^-1)``, or ``1 / (1 - z^-1)`` when integrating), e.g. for the loop closed by the
-        controller identified from the record (valve_env.loops.diagnose.closed_loop)."""
-        d = int(math.floor(self.delay))
-        f = self.delay - d
-        num = np.zeros(d + 2)
-        num[d], num[d + 1] = 1.0 - f, f
-        num *= self.K if self.integrating else self.K * (1.0 - self.a)
-        den = np.array([1.0, -1.0 if self.integrating else -self.a])
-        return num, den
-
     def describe(self, dt: float) -> str:
         if self.integrating:
             return f"integrating, gain {self.K:.4g}/sample per %, delay {self.delay * dt:g} s"
@@ -462,10 +385,9 @@ def concentrated_loglik(rss: float, n: int) -> float:
     return -0.5 * n * (math.log(2.0 * math.pi * max(rss, 1e-300) / n) + 1.0)
 
 
-def fit_process(pv: np.ndarray, x: np.ndarray, s: Settings, k1: int | None = None, k0: int | None = None) -> ProcessFit:
-    """Maximum-likelihood process for a given valve path ``x`` (samples ``k0..k1-1``)."""
-    k0 = s.k0 if k0 is None else k0
-    k1 = pv.size if k1 is None else k1
+def fit_process(pv: np.ndarray, x: np.ndarray, s: Settings) -> ProcessFit:
+    """Maximum-likelihood process for a given valve path ``x`` (samples ``s.k0`` on)."""
+    k0, k1 = s.k0, pv.size
     basis, idx, val = _settings_basis(pv.size, s)
     rss, a, d, integ, theta, r1, r2 = _best_process(
         np.ascontiguousarray(pv, dtype=float), np.ascontiguousarray(x, dtype=float), idx, val, basis.shape[1],
@@ -501,7 +423,6 @@ class ValveFit:
     profile: list[tuple[float, float]] = field(default_factory=list)  # (S, loglik maximised over J and process)
     direction: float = 1.0  # the valve's last motion before the record (+1 up, -1 down)
     substeps: int = 1  # the valve's steps per recorded sample (Settings.substeps)
-    seat: float = -math.inf  # the valve's seat, % of OP (Settings.seat; -inf: none)
 
     @property
     def loglik(self) -> float:
@@ -513,10 +434,10 @@ class ValveFit:
 
     @property
     def bic(self) -> float:
-        return -2.0 * self.loglik + self.n_params * math.log(self.n)
+        return bic(self.loglik, self.n_params, self.n)
 
     def path(self, op: np.ndarray) -> np.ndarray:
-        return valve_path(op, self.S, self.J, self.direction, self.substeps, self.seat)
+        return valve_path(op, self.S, self.J, self.direction, self.substeps)
 
 
 def op_scale(op: np.ndarray) -> float:
@@ -525,68 +446,32 @@ def op_scale(op: np.ndarray) -> float:
     return float(max(hi - lo, 1e-6))
 
 
-#: fitted processes of one record's valve paths (:func:`fit_valve`'s ``memo``), by settings, samples and valve
-FitMemo = dict[tuple[Settings, int, int, float, float, float], "ProcessFit"]
-
-
-def _fit_path(op: np.ndarray, pv: np.ndarray, S: float, J: float, d0: float, s: Settings, k1: int | None,
-              k0: int | None, memo: FitMemo | None) -> ProcessFit:
-    """:func:`fit_process` behind the valve ``(S, J, d0)`` (``S`` 0: the linear valve) on ``s.seat`` at
-    ``s.substeps``, looked up in ``memo`` (the same record's fits) first and stored there: the backlash valve's paths
-    are the stiction valve's at J = 0, and a comparison on other seats repeats the fits of a kind of valve whose seat
-    is the same."""
-    key = (s, s.k0 if k0 is None else k0, pv.size if k1 is None else k1, float(S), float(J), float(d0))
-    if memo is not None and key in memo:
-        return memo[key]
-    x = seated(op, s.seat) if S <= 0.0 else valve_path(op, S, J, d0, s.substeps, s.seat)
-    pf = fit_process(pv, x, s, k1, k0)
-    if memo is not None:
-        memo[key] = pf
-    return pf
-
-
-def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, k1: int | None = None,
-              k0: int | None = None, extra_S: tuple[float, ...] = (),
-              j_fractions: tuple[float, ...] = J_FRACTIONS, memo: FitMemo | None = None) -> ValveFit:
+def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, extra_S: tuple[float, ...] = (),
+              j_fractions: tuple[float, ...] = J_FRACTIONS) -> ValveFit:
     """Maximum-likelihood fit of one valve candidate (the process re-fitted for each S, J); ``extra_S`` are bands
     added to the grid (the dense search's best band, :func:`scan_valve`); ``j_fractions`` the J / S values of the
-    stiction valve (J profiled out at each S). ``memo`` (a dict kept for one record, or None) holds the process fits
-    of every valve path fitted so far, so that a path fitted again is looked up (:func:`_fit_path`); the fit is the
-    same."""
+    stiction valve (J profiled out at each S). The band is the maximum of the profile likelihood in S
+    (:func:`valve_env.ident.mle.profile_maximum`: the grid, then a bounded scalar search between the best point's
+    neighbours)."""
     if valve == "linear":
-        pf = _fit_path(op, pv, 0.0, 0.0, 1.0, s, k1, k0, memo)
-        return ValveFit("linear", 0.0, 0.0, pf, pf.n_params + seat_params(s.seat), seat=s.seat)
+        pf = fit_process(pv, op, s)
+        return ValveFit("linear", 0.0, 0.0, pf, pf.n_params)
     fracs = (0.0,) if valve == "backlash" else j_fractions
     r = op_scale(op)
     grid = np.unique(np.concatenate([r * np.geomspace(S_FRACTIONS[0], S_FRACTIONS[1], s.n_grid),
                                      [v for v in extra_S if v > 0.0]]))
+    fits: dict[float, tuple[ProcessFit, float, float]] = {}  # S: the best (process, J, direction) over J
 
-    def best_over_j(S: float) -> tuple[float, float, float, ProcessFit]:
-        cand = [(_fit_path(op, pv, S, f * S, d0, s, k1, k0, memo), f * S, d0) for f in fracs for d0 in DIRECTIONS]
-        pf, J, d0 = max(cand, key=lambda c: c[0].loglik)
-        return pf.loglik, J, d0, pf
+    def profile_ll(S: float) -> float:
+        if S not in fits:
+            cand = [(fit_process(pv, valve_path(op, S, f * S, d0, s.substeps), s), f * S, d0)
+                    for f in fracs for d0 in DIRECTIONS]
+            fits[S] = max(cand, key=lambda c: c[0].loglik)
+        return fits[S][0].loglik
 
-    profile: list[tuple[float, float]] = []
-    best: tuple[float, float, float, float, ProcessFit] | None = None  # (ll, S, J, direction, fit)
-    for S in grid:
-        ll, J, d0, pf = best_over_j(float(S))
-        profile.append((float(S), ll))
-        if best is None or ll > best[0]:
-            best = (ll, float(S), J, d0, pf)
-    assert best is not None
-    i = int(np.argmax([p[1] for p in profile]))
-    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
-    if hi > lo:
-        res = minimize_scalar(lambda v: -best_over_j(float(v))[0], bounds=(lo, hi), method="bounded",
-                              options={"xatol": 2e-3 * r, "maxiter": 12})
-        ll, J, d0, pf = best_over_j(float(res.x))
-        profile.append((float(res.x), ll))
-        if ll > best[0]:
-            best = (ll, float(res.x), J, d0, pf)
-    profile.sort()
-    ll, S, J, d0, pf = best
-    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve] + seat_params(s.seat), profile, d0,
-                    s.substeps, s.seat)
+    S, _, profile = profile_maximum(profile_ll, grid, xatol=2e-3 * r, maxiter=12)
+    pf, J, d0 = fits[S]
+    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile, d0, s.substeps)
 
 
 #: the dense band search's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md,
@@ -734,10 +619,9 @@ def resolution(op: np.ndarray) -> float:
     return float(np.median(np.abs(np.diff(op))))
 
 
-def scan_paths(op: np.ndarray, substeps: int = 1,
-               seat: float = -math.inf) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
+def scan_paths(op: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
     """The valve paths of the scan: the linear valve first, then every (S, J, direction) of the grid (the valve
-    at ``substeps`` steps per sample, :func:`valve_path`, on its ``seat``, :func:`seated`)."""
+    at ``substeps`` steps per sample, :func:`valve_path`)."""
     op = np.ascontiguousarray(op, dtype=float)
     r = op_scale(op)
     lo = max(SCAN_S_FRACTIONS[0] * r, resolution(op))
@@ -747,19 +631,18 @@ def scan_paths(op: np.ndarray, substeps: int = 1,
             for d0 in DIRECTIONS:
                 params.append((float(S), float(f * S), d0))
     xs = np.empty((len(params), op.size))
-    xs[0] = seated(op, seat)
+    xs[0] = op
     for i, (S, J, d0) in enumerate(params[1:], start=1):
-        xs[i] = valve_path(op, S, J, d0, substeps, seat)
+        xs[i] = valve_path(op, S, J, d0, substeps)
     return xs, params
 
 
 @functools.lru_cache(maxsize=8)
-def _cached_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) -> tuple[np.ndarray, np.ndarray,
-                                                                                          np.ndarray]:
+def _cached_basis(n: int, dt: float, knot_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The disturbance basis of a record of ``n`` samples (:func:`disturbance_basis`), dense and in the sparse form
     of :func:`_sparse_basis` (columns, values): the same for every fit and scan of the record,
     so built once (read-only: the fits hold it)."""
-    basis = disturbance_basis(n, dt, knot_s, period_s)
+    basis = disturbance_basis(n, dt, knot_s)
     idx, val = _sparse_basis(basis)
     for arr in (basis, idx, val):
         arr.setflags(write=False)
@@ -768,20 +651,14 @@ def _cached_basis(n: int, dt: float, knot_s: float, period_s: float = math.inf) 
 
 def _settings_basis(n: int, s: Settings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_cached_basis` of a record of ``n`` samples with the disturbance model of ``s``."""
-    return _cached_basis(n, float(s.dt), float(s.disturbance_knot_s), float(s.load_period_s))
+    return _cached_basis(n, float(s.dt), float(s.disturbance_knot_s))
 
 
-def _scan_rss_paths(pv: np.ndarray, xs: np.ndarray, s: Settings, structure: ProcessFit | None = None) -> np.ndarray:
+def _scan_rss_paths(pv: np.ndarray, xs: np.ndarray, s: Settings) -> np.ndarray:
     """The scan's residual sum of squares of ``pv`` behind each valve path of ``xs`` (each with its best process
-    structure, the disturbance basis of ``s``, its periodic load included); with ``structure``, the process's lag and
-    delay held at that fit's (the gain and the disturbance weights still fitted for each path: the cheap score of the
-    seat's second stage, :func:`scan_seats`)."""
+    structure and the disturbance basis of ``s``)."""
     basis, idx, val = _settings_basis(pv.size, s)
-    if structure is None:
-        return _scan_rss(pv, xs, idx, val, basis.shape[1], s.alist(), s.delays(), s.k0, s.allow_integrating)
-    alist = np.empty(0) if structure.integrating else np.array([structure.a])
-    return _scan_rss(pv, xs, idx, val, basis.shape[1], alist, np.array([structure.delay]), s.k0,
-                     structure.integrating)
+    return _scan_rss(pv, xs, idx, val, basis.shape[1], s.alist(), s.delays(), s.k0, s.allow_integrating)
 
 
 def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float, float]]], s: Settings) -> Scan:
@@ -798,4 +675,4 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
 
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
            "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
-           "scan_paths", "resolution", "subsample_op", "disturbance_basis", "seated", "seat_params"]
+           "scan_paths", "resolution", "subsample_op", "disturbance_basis"]

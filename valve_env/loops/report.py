@@ -57,9 +57,8 @@ def write_loop_report(diag: LoopDiagnosis, outs: OutputSet, directory: Path) -> 
 
     headless()
     import matplotlib.pyplot as plt
-    from statsmodels.tsa.stattools import acf
 
-    from valve_env.ident.tests import ljung_box
+    from valve_env.ident.tests import residual_report
 
     loop, s, R = diag.loop, diag.settings, diag.result
     paths = {name: directory / name for name in (*FIGURES, "report.md")}
@@ -112,13 +111,12 @@ def write_loop_report(diag: LoopDiagnosis, outs: OutputSet, directory: Path) -> 
     save("simulation.png", fig)
 
     e = residuals(loop.pv, fit.path(loop.op), fit.process, s.k0)
-    nl = min(40, e.size // 4)
-    r = acf(e, nlags=nl, fft=True)
-    lb = ljung_box(e, [10, 20])
+    white = residual_report(e, nlags=min(40, e.size // 4))  # the core's whiteness checks: ACF, Ljung-Box
+    lb = white.ljung_box.loc[[10, 20]]
     fig, axs = plt.subplots(1, 2, figsize=(9, 3.2))
-    axs[0].bar(np.arange(1, nl + 1), r[1:], width=0.6)
-    axs[0].axhline(1.96 / np.sqrt(e.size), ls="--", color="k", lw=0.7)
-    axs[0].axhline(-1.96 / np.sqrt(e.size), ls="--", color="k", lw=0.7)
+    axs[0].bar(white.lags[1:], white.acf[1:], width=0.6)
+    axs[0].axhline(white.acf_band, ls="--", color="k", lw=0.7)
+    axs[0].axhline(-white.acf_band, ls="--", color="k", lw=0.7)
     axs[0].set_title(f"residual ACF: {label}", fontsize=8)
     axs[0].set_xlabel("lag, samples")
     axs[1].hist(e, bins=40, color="C0")
