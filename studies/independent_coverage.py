@@ -124,9 +124,9 @@ def run_base(case: dict[str, Any]) -> dict[str, Any]:
     :func:`valve_env.valveid.eiv.fit_eiv`, with the temperature bootstrap of B replicates, whose
     bias-corrected result is the previous "after") and the EIV fit with the temperature error as a
     filter state (``fit_eiv(model="eiv")``)."""
+    from valve_env.ident.uncertainty import robust_std, score_contributions
     from valve_env.valveid.eiv import fit_eiv
     from valve_env.valveid.fit import fit_run
-    from valve_env.valveid.robust import robust_std, score_contributions
 
     df, truth, _ = _simulate(case)
     data = _as_measured(df)

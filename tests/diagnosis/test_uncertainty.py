@@ -254,23 +254,6 @@ def test_failed_refits_are_set_aside_and_honest_spreads_kept() -> None:
     assert not failed_refits(half).any()  # two clusters: no majority to call the other failed
 
 
-def test_curved_world_passes_through_the_samples_and_turns_between_them() -> None:
-    """The optional curved bootstrap world: a dense grid holding every sample time, splines through the
-    smoothed temperatures there, and a peak between two samples higher than both (straight lines
-    would peak on a sample)."""
-    from valve_env.valveid.bootstrap import curved_world
-    from valve_env.valveid.fitting import RunData
-
-    t = np.arange(0.0, 600.0, 30.0)
-    T = 50.0 + 5.0 * np.sin(2 * np.pi * (t + 7.0) / 600.0)  # its peak falls between samples
-    d = RunData.from_arrays(t, T, T + 10.0, np.zeros_like(t), np.full_like(t, 100.0), np.full_like(t, 1.0))
-    dense, idx = curved_world(d, 1.0)
-    assert np.array_equal(dense.t[idx], d.t) and np.allclose(dense.T[idx], d.T) and np.allclose(dense.M[idx], d.M)
-    assert np.all(np.diff(dense.t) > 0) and np.max(np.diff(dense.t)) <= 1.0 + 1e-9
-    assert dense.T.max() > d.T.max() + 1e-3
-    assert dense.s_T == d.s_T and len(dense) == dense.T.shape[0] == dense.dp.shape[0]
-
-
 def test_split_replicates_are_not_bias_corrected() -> None:
     """Half of the refits ran away to one far value (a bound): the re-estimates have split, none is
     set aside, and the estimate is not moved by a 'bias' that is the gap between the two groups; a

@@ -32,17 +32,18 @@ DIAGNOSIS = tuple(f"valveid/{m}.py" for m in ("diagnose", "effects", "fitting", 
 OWNERS: dict[str, tuple[str, ...]] = {
     "ident/sde.py": ("to_work", "from_work", "dnat_dwork", "work_bounds"),
     "ident/uncertainty.py": ("fd_hessian", "identified_directions", "identified_inverse", "_identified_inverse",
-                                 "hac_meat", "score_matrix", "hessian_sandwich_sd"),
+                                 "hac_meat", "score_matrix", "hessian_sandwich_sd", "robust_std", "step_nll",
+                                 "score_contributions"),
     "valveid/temperature.py": ("smooth_temperature", "_irw_pass", "tv_denoise", "relaxed_tv",
                                   "denoise_temperature", "noise_sd"),
     "data_io.py": ("load_run", "validate_run"),
     "valveid/data.py": ("RunData",),
     "valveid/bootstrap.py": ("bootstrap", "apply_bootstrap", "BootstrapResult", "replicate_run", "world_opening",
-                             "curved_world", "denoised_run", "bracketed", "preprocessing_refit"),
+                             "denoised_run", "bracketed", "preprocessing_refit"),
     "ident/bootstrap.py": ("replicates", "residual_block_length", "block_resample", "gross_refits", "screen_refits"),
     "ident/tests.py": ("lr_pvalue", "delta_bic", "ljung_box", "residual_report", "cumulated_periodogram",
-                       "whiteness_check"),
-    "valveid/robust.py": ("sandwich_std", "effect_misspecification", "robust_finding", "misspecification_check"),
+                       "whiteness_check", "misspecification_check", "lr_test"),
+    "valveid/robust.py": ("sandwich_std", "effect_misspecification", "robust_finding"),
 }
 #: a method of this name may exist elsewhere only as a thin wrapper that calls the owner's function
 WRAPPERS = {"to_work", "from_work", "work_bounds", "noise_sd", "bootstrap"}
@@ -109,7 +110,7 @@ def test_the_diagnosis_imports_the_shared_pieces_from_their_owner() -> None:
     fitting = _imports(_tree("valveid/fitting.py"))
     for name in ("to_work", "from_work", "dnat_dwork", "work_bounds", "Parameter"):
         assert fitting.get(name) == "valve_env.ident.sde", name
-    assert fitting.get("hessian_sandwich_sd") == "valve_env.ident.uncertainty"
+    assert fitting.get("hessian_sandwich_parts") == "valve_env.ident.uncertainty"
     assert fitting.get("RunData") == "valve_env.valveid.data"
     assert _imports(_tree("valveid/data.py")).get("smooth_temperature") == "valve_env.valveid.temperature"
     diagnose = _imports(_tree("valveid/diagnose.py"))
@@ -212,12 +213,13 @@ def test_valve_estimator_wraps_each_likelihood_without_changing_its_numbers() ->
 
 
 def test_one_hac_meat_serves_both_sandwiches() -> None:
-    """The HAC meat has one home (covariance.hac_meat): the EKF's sandwich (robust.robust_std) and the
+    """The HAC meat has one home (covariance.hac_meat): the EKF's sandwich (covariance.robust_std) and the
     output error's (covariance.hessian_sandwich_parts) both take it; no other module calls statsmodels'
-    S_hac_simple."""
+    S_hac_simple, and the valve's fit takes both sandwiches from the core."""
     users = sorted(rel for rel in _modules() if "S_hac" in (PKG / rel).read_text(encoding="utf-8"))
     assert users == ["ident/uncertainty.py"]
-    assert _imports(_tree("valveid/robust.py")).get("hac_meat") == "valve_env.ident.uncertainty"
+    assert _imports(_tree("valveid/fitting.py")).get("hessian_sandwich_parts") == "valve_env.ident.uncertainty"
+    assert _imports(_tree("valveid/fit.py")).get("robust_std") == "valve_env.ident.uncertainty"
     rng = np.random.default_rng(1)
     G = rng.standard_normal((300, 3)) + 0.3
     assert np.array_equal(covariance.hac_meat(G, 0, demean=False), G.T @ G)  # Huber-White's outer product

@@ -1,4 +1,5 @@
-"""Sandwich standard errors and the misspecification check (valve_env.valveid.robust)."""
+"""The EKF estimator's sandwich standard errors and misspecification check (valve_env.ident.uncertainty,
+valve_env.ident.tests)."""
 
 from __future__ import annotations
 
@@ -10,14 +11,8 @@ import pytest
 
 from valve_env.ident.examples import Ornstein2D
 from valve_env.ident.mle import IdentifiabilityWarning, MLEstimator
-from valve_env.ident.tests import MisspecificationWarning
-from valve_env.valveid.robust import (
-    misspecification_check,
-    newey_west_lags,
-    robust_std,
-    score_contributions,
-    step_nll,
-)
+from valve_env.ident.tests import MisspecificationWarning, misspecification_check
+from valve_env.ident.uncertainty import newey_west_lags, robust_std, score_contributions, step_nll
 
 
 def _ornstein_data(seed: int, n: int = 1500, ar: float = 0.0) -> pd.DataFrame:

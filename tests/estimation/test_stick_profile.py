@@ -66,7 +66,7 @@ def test_filter_with_a_slip_reads_the_breakaway_and_keeps_j_equal_s() -> None:
 
     def ll(y: np.ndarray, k: float, J: float) -> float:
         B, slip = (0.5 * (k * J + J), J) if k > 1.0 else (J, -1.0)
-        return float(stick_loglik(ts, y, x_sub, idx, B, 2.0, 2e-3, 1e-4, 300.0, mask, 0.5, 0.2, True, slip)[0])
+        return float(stick_loglik(ts, y, x_sub, idx, B, 2.0, 2e-3, 1e-4, 300.0, mask, 0.5, 0.2, slip)[0])
 
     ks = (1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
     y = stick_simulate_sj(x_sub, idx, S, S / 3, 2.0) + 2e-3 * rng.standard_normal(ts.size)
@@ -76,7 +76,7 @@ def test_filter_with_a_slip_reads_the_breakaway_and_keeps_j_equal_s() -> None:
     assert ll(y, 1.5, S) < ll(y, 1.0, S) - 10.0
     ref = stick_loglik(ts, y, x_sub, idx, S, 2.0, 2e-3, 1e-4, 300.0, mask)
     for slip in (-1.0, S, 2 * S):
-        got = stick_loglik(ts, y, x_sub, idx, S, 2.0, 2e-3, 1e-4, 300.0, mask, 0.5, 0.2, True, slip)
+        got = stick_loglik(ts, y, x_sub, idx, S, 2.0, 2e-3, 1e-4, 300.0, mask, 0.5, 0.2, slip)
         for a, b in zip(ref, got, strict=True):
             np.testing.assert_array_equal(a, b)
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from valve_env.ident.sde import CompiledFunctions, Parameter, SDEModel
+from valve_env.ident.sde import CompiledFunctions, CompiledSDEModel, Parameter, SDEModel
 
 
-class Ornstein2D(SDEModel):
+class Ornstein2D(CompiledSDEModel):
     """ctsmTMB's ``create.Ornstein2D.model()``:
 
         dx1 = theta (mu + u - x1) dt + sigma_x1 dw1
@@ -37,24 +37,6 @@ class Ornstein2D(SDEModel):
     def __init__(self, x0: tuple[float, float] = (3.0, 3.0), P0: float = 0.1) -> None:
         self.x0 = np.array(x0, dtype=float)
         self.P0 = float(P0)
-
-    def drift(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return _o2_drift(t, x, u, p)
-
-    def drift_jacobian(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return _o2_drift_jac(t, x, u, p)
-
-    def diffusion(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return _o2_diffusion(t, x, u, p)
-
-    def observation(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return _o2_obs(t, x, u, p)
-
-    def observation_jacobian(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return _o2_obs_jac(t, x, u, p)
-
-    def obs_variance(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return _o2_obs_var(t, x, u, p)
 
     def initial_state(self, p: np.ndarray, y0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.x0.copy(), self.P0 * np.eye(2)

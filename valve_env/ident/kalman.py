@@ -8,7 +8,9 @@
   exponential, Van Loan) for models with ``linear = True``.
 * :func:`rts_smooth`: Rauch-Tung-Striebel smoothing of a filter pass.
 * :func:`ou_loglik`: the scalar filter of an Ornstein-Uhlenbeck error plus white noise on a residual
-  (the output-error likelihood's noise model), compiled.
+  (the output-error likelihood's noise model), compiled; its time step :func:`ou_predict` and its
+  measurement step with a second state observed with the OU error, :func:`ou_innovation` and
+  :func:`ou_update` (the valve's stick-slip filter is these steps plus its stem's logic).
 
 Conventions (those of ctsmTMB, checked against its stored numbers, see
 tests/data/ctsmtmb_ornstein/SOURCE.md): the data update at t_0 comes before
@@ -597,17 +599,32 @@ def run_filter(model: SDEModel, p: np.ndarray, arr: Arrays, *, method: str = "ek
     return ekf_python(model, p, arr, n_sub=n_sub, foh=foh)
 
 
-def nll(model: SDEModel, params: dict[str, float] | np.ndarray | None, data: pd.DataFrame | Arrays, *,
-        method: str = "ekf", n_sub: int = 1, foh: bool = False, compiled: bool | None = None,
-        fast: bool | None = None) -> float:
-    """The negative log-likelihood at the given (natural-scale) parameters;
-    ``params`` a dict (missing names take their ``init``) or a full vector."""
-    arr = data if isinstance(data, Arrays) else to_arrays(model, data)
-    p = params if isinstance(params, np.ndarray) else model.param_vector(params)
-    try:
-        return run_filter(model, p, arr, method=method, n_sub=n_sub, foh=foh, compiled=compiled, fast=fast).nll
-    except np.linalg.LinAlgError:
-        return float("inf")
+@nb.njit(cache=True)
+def ou_predict(dt: float, tau: float, var: float, m: float, P: float) -> tuple[float, float, float]:
+    """The time update over ``dt`` of an Ornstein-Uhlenbeck state (time constant ``tau``, stationary
+    variance ``var``) with mean ``m`` and variance ``P``: (phi = exp(-dt / tau), the mean, the variance)."""
+    phi = math.exp(-dt / tau)
+    return phi, phi * m, phi * phi * P + var * (1.0 - phi * phi)
+
+
+@nb.njit(cache=True)
+def ou_innovation(y: float, m: float, P: float, vw: float, s: float = 0.0, Pes: float = 0.0,
+                  Pss: float = 0.0) -> tuple[float, float, float]:
+    """The one-step prediction of a measurement ``y = s + e + w`` (``e`` the OU state, mean ``m``, variance
+    ``P``; ``w`` white of variance ``vw``; ``s`` a second state with variance ``Pss`` and covariance ``Pes``
+    with ``e``, none for the scalar filter): (prediction error, its variance, the log-likelihood term)."""
+    S = P + 2.0 * Pes + Pss + vw
+    nu = y - s - m
+    return nu, S, -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+
+
+@nb.njit(cache=True)
+def ou_update(nu: float, S: float, m: float, P: float, s: float = 0.0, Pes: float = 0.0,
+              Pss: float = 0.0) -> tuple[float, float, float, float, float]:
+    """The measurement update after :func:`ou_innovation`: (m, P, s, Pes, Pss)."""
+    ke = (P + Pes) / S
+    ks = (Pes + Pss) / S
+    return m + ke * nu, P - ke * (P + Pes), s + ks * nu, Pes - ke * (Pes + Pss), Pss - ks * (Pes + Pss)
 
 
 @nb.njit(cache=True)
@@ -628,9 +645,9 @@ def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float
     Sout = np.empty(n)
     for k in range(n):
         if k > 0:
-            phi = math.exp(-(t[k] - t[k - 1]) / tau_e)
-            m = phi * m
-            P = phi * phi * P + ve * (1.0 - phi * phi)
+            _, m, P = ou_predict(t[k] - t[k - 1], tau_e, ve, m, P)
+        # the scalar case of ou_innovation and ou_update (no second state), written out: the likelihood of
+        # every output-error fit evaluation, where the second state's arithmetic cost a few per cent
         S = P + vw
         nu = r[k] - m
         innov[k] = nu

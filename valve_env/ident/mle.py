@@ -35,7 +35,7 @@ import scipy.optimize
 
 from valve_env.ident.kalman import Arrays, FilterResult, rts_smooth, run_filter, to_arrays
 from valve_env.ident.sde import Parameter, SDEModel, dnat_dwork, from_work, to_work, work_bounds
-from valve_env.ident.tests import lr_pvalue
+from valve_env.ident.tests import lr_test
 from valve_env.ident.uncertainty import fd_hessian, identified_directions
 
 
@@ -115,7 +115,7 @@ class MLEstimator(Estimator):
 
     Learned attributes end in ``_``: ``params_``, ``std_`` (natural scale),
     ``params_work_``/``std_work_``/``cov_work_`` (transformed scale; ``cov_work_`` the inverse
-    Hessian, the bread of :func:`valve_env.valveid.robust.robust_std`), ``corr_`` (DataFrame),
+    Hessian, the bread of :func:`valve_env.ident.uncertainty.robust_std`), ``corr_`` (DataFrame),
     ``cov_`` (natural scale, DataFrame), ``tstat_``, ``loglik_``, ``nll_``,
     ``n_obs_`` (scalar observations), ``n_samples_``, ``n_free_``, ``aic_``,
     ``bic_``, ``free_``, ``at_bound_``, ``identifiability_`` (messages),
@@ -339,24 +339,14 @@ class MLEstimator(Estimator):
 
     def predict(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """One-step predictions of each output (``name``) and their standard deviations (``name_sd``)."""
-        arr, res = self._run(data)
-        out = {"time_s": arr.t}
-        for j, name in enumerate(self.model.outputs):
-            out[name] = res.y_pred[:, j]
-            out[f"{name}_sd"] = np.sqrt(np.maximum(res.S[:, j, j], 0.0))
-        return pd.DataFrame(out)
+        return _outputs_frame(self.model, *self._run(data))
 
     def simulate(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """Pure simulation: the outputs predicted from the inputs alone, never updated by the
         measured outputs, except those the model lists in ``simulation_outputs`` (for the
         valve model the noisy temperature, which plays the paper's input T_tank)."""
         keep = tuple(getattr(self.model, "simulation_outputs", ()))
-        arr, res = self._run(data, tuple(n for n in self.model.outputs if n not in keep))
-        out = {"time_s": arr.t}
-        for j, name in enumerate(self.model.outputs):
-            out[name] = res.y_pred[:, j]
-            out[f"{name}_sd"] = np.sqrt(np.maximum(res.S[:, j, j], 0.0))
-        return pd.DataFrame(out)
+        return _outputs_frame(self.model, *self._run(data, tuple(n for n in self.model.outputs if n not in keep)))
 
     def filter(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """Filtered states and their standard deviations."""
@@ -433,6 +423,15 @@ def past_kink(f: Callable[[np.ndarray], float], x0: np.ndarray, max_fevals: int)
                                    options={"maxfev": max_fevals, "xatol": 1e-4, "fatol": 0.01})
 
 
+def _outputs_frame(model: SDEModel, arr: Arrays, res: FilterResult) -> pd.DataFrame:
+    """The predicted outputs (``name``) and their sds (``name_sd``) of a filter pass."""
+    out: dict[str, np.ndarray] = {"time_s": arr.t}
+    for j, name in enumerate(model.outputs):
+        out[name] = res.y_pred[:, j]
+        out[f"{name}_sd"] = np.sqrt(np.maximum(res.S[:, j, j], 0.0))
+    return pd.DataFrame(out)
+
+
 def profile_maximum(f: Callable[[float], float], grid: np.ndarray, *, xatol: float,
                     maxiter: int) -> tuple[float, float, list[tuple[float, float]]]:
     """The maximum of a rugged one-dimensional (profile) log-likelihood ``f``, where a gradient method stalls:
@@ -475,7 +474,8 @@ def _clip_work(theta: np.ndarray, qs: list[Parameter]) -> np.ndarray:
 
 
 def likelihood_ratio(restricted: MLEstimator, full: MLEstimator) -> tuple[float, int, float]:
-    """Likelihood-ratio statistic 2 (l_full - l_restricted), its degrees of freedom and the chi^2 p-value."""
-    stat = max(0.0, 2.0 * (full.loglik_ - restricted.loglik_))
+    """Likelihood-ratio statistic 2 (l_full - l_restricted), its degrees of freedom and the chi^2 p-value
+    (:func:`valve_env.ident.tests.lr_test`)."""
     df = max(full.n_free_ - restricted.n_free_, 1)
-    return stat, df, lr_pvalue(stat, df)
+    stat, p = lr_test(restricted.loglik_, full.loglik_, df)
+    return stat, df, p

@@ -25,11 +25,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+from numba.core.errors import NumbaExperimentalFeatureWarning
 
 Transform = Literal["none", "log", "logit"]
 
@@ -254,6 +256,43 @@ class SDEModel:
 
     def observation_jacobian(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
         return _fd_jacobian(lambda z: self.observation(t, z, u, p), x)
+
+
+class CompiledSDEModel(SDEModel):
+    """An :class:`SDEModel` whose model functions are its compiled ones (:meth:`SDEModel.compiled`, which a
+    subclass must return): each Python method calls the compiled function with
+    ``pc = concatenate([p, compiled_constants()])`` and the functions' ``ctx``, so the Python filters, the
+    linear Kalman filter and the compiled kernel evaluate the same code."""
+
+    def _call(self, name: str, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        cf = self.compiled()
+        assert cf is not None, f"{self.name}: a CompiledSDEModel needs compiled()"
+        pc = np.concatenate([_f64(p), self.compiled_constants()])
+        with warnings.catch_warnings():  # dispatchers in ctx: first-class functions are experimental in numba
+            warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
+            return getattr(cf, name)(float(t), _f64(x), _f64(u), pc, cf.ctx)
+
+    def drift(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return self._call("drift", t, x, u, p)
+
+    def drift_jacobian(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return self._call("drift_jacobian", t, x, u, p)
+
+    def diffusion(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return self._call("diffusion", t, x, u, p)
+
+    def observation(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return self._call("observation", t, x, u, p)
+
+    def observation_jacobian(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return self._call("observation_jacobian", t, x, u, p)
+
+    def obs_variance(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return self._call("obs_variance", t, x, u, p)
+
+
+def _f64(a: Any) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def _fd_jacobian(fun, x: np.ndarray, rel: float = 1e-7) -> np.ndarray:

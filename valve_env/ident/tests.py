@@ -30,6 +30,12 @@ def lr_pvalue(lr: float, df: int, boundary: bool = False) -> float:
     return float(stats.chi2.sf(lr, df))
 
 
+def lr_test(loglik_restricted: float, loglik_full: float, df: int, boundary: bool = False) -> tuple[float, float]:
+    """The likelihood-ratio statistic 2 (l_full - l_restricted) (at least 0) and its p-value (:func:`lr_pvalue`)."""
+    lr = max(2.0 * (loglik_full - loglik_restricted), 0.0)
+    return lr, lr_pvalue(lr, df, boundary)
+
+
 def bic(loglik: float, k: int, n: int) -> float:
     """Schwarz's criterion -2 loglik + k log n (``n`` at least 1)."""
     return -2.0 * loglik + math.log(max(n, 1)) * k
@@ -164,3 +170,16 @@ def whiteness_check(residuals: dict[str, np.ndarray], *, alpha: float = 0.01, nl
 
 
 # --------------------------------------------------------------------------- misspecification-robust sd and check
+
+
+def misspecification_check(est: Any, data: Any = None, *, alpha: float = 0.01, nlags: int = 40,
+                           warn: bool = True) -> dict[str, Any]:
+    """The misspecification check of a fitted :class:`~valve_env.ident.mle.MLEstimator`: the whiteness of
+    each output's standardised one-step residuals (Ljung-Box at ``nlags`` and the cumulated periodogram's KS
+    band, both at level ``alpha``, :func:`whiteness_check`); a :class:`MisspecificationWarning` when
+    either rejects: the model does not explain the data's dynamics, so its inverse-Hessian standard errors
+    are not to be trusted (docs/uncertainty.md). Returns the JSON-ready result: per output the statistics,
+    then ``misspecified`` and ``message``."""
+    res = est.residuals(data)
+    return whiteness_check({name: res[name].to_numpy(dtype=float) for name in est.model.outputs},
+                           alpha=alpha, nlags=nlags, warn=warn, label=est.model.name)

@@ -24,16 +24,35 @@ The pieces (docs/estimation.md, "Standard errors"):
 Used by :class:`valve_env.ident.mle.MLEstimator` (the EKF likelihood: inverse Hessian over
 the identified directions) and by the output-error likelihood of the diagnosis
 (:class:`valve_env.valveid.fitting.Model`: the sandwich).
+
+**The EKF estimator's sandwich** (:func:`robust_std`). The prediction-error decomposition makes the
+negative log-likelihood a sum of per-sample terms ``l_k(theta)`` (:func:`step_nll`: the filter's innovation
+``e_k`` and its covariance ``S_k``, ``0.5 log det S_k + 0.5 e_k' S_k^-1 e_k + 0.5 m_k log 2 pi``). Their
+gradients ``g_k`` (:func:`score_contributions`: central differences on the optimiser's scale, one filter
+pass per step and parameter) are the score contributions. With a correct model they are martingale
+differences and ``sum g_k g_k'`` equals the Hessian ``H`` on average; when the model is wrong they are
+not, and
+
+    cov = H^-1 M H^-1,    M = sum_k g_k g_k' + sum_{l=1..L} w_l sum_k (g_k g_{k-l}' + g_{k-l} g_k')
+
+(Huber 1967, White 1982; with L > 0 the Newey-West HAC form, Bartlett weights w_l = 1 - l / (L + 1),
+:func:`hac_meat`) is consistent for the estimator's covariance (the quasi-ML, "sandwich" covariance).
+``H^-1`` is the fit's inverse Hessian (``MLEstimator.cov_work_``). ``lags=0`` gives Huber-White.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+import pandas as pd
 from statsmodels.stats.sandwich_covariance import S_hac_simple
+
+from valve_env.ident.kalman import LOG2PI, FilterResult, run_filter
+from valve_env.ident.sde import dnat_dwork, from_work
 
 
 def fd_hessian(f: Callable[[np.ndarray], float], z: np.ndarray, steps: np.ndarray | float) -> np.ndarray:
@@ -119,7 +138,7 @@ def hac_meat(G: np.ndarray, nlags: int | None = None, *, demean: bool = True) ->
 
     The one HAC meat of the project (statsmodels' ``S_hac_simple``): the output-error sandwich
     (:func:`hessian_sandwich_parts`) takes it about the scores' mean (``demean``, the default), the
-    EKF's (:func:`valve_env.valveid.robust.robust_std`) about zero, the scores' expectation at the
+    EKF's (:func:`robust_std`) about zero, the scores' expectation at the
     maximum (``demean=False``). At an interior maximum the mean score is zero to the optimiser's
     tolerance, so the two agree there."""
     G = np.asarray(G, dtype=float)
@@ -193,5 +212,94 @@ def hessian_sandwich_sd(nll: Callable[[np.ndarray], float], contrib: Callable[[n
     return np.fmax(sd_model, sd_robust)
 
 
+# --------------------------------------------------------------------------- the EKF estimator's sandwich
+def step_nll(res: FilterResult) -> np.ndarray:
+    """The per-sample terms of the negative log-likelihood from a filter pass (sum = ``res.nll``)."""
+    innov = res.innov
+    N, ny = innov.shape
+    if ny == 1:
+        e = innov[:, 0]
+        S = res.S[:, 0, 0]
+        ok = np.isfinite(e)
+        out = np.zeros(N)
+        out[ok] = 0.5 * np.log(S[ok]) + 0.5 * e[ok] ** 2 / S[ok] + 0.5 * LOG2PI
+        return out
+    out = np.zeros(N)
+    for k in range(N):
+        obs = np.isfinite(innov[k])
+        if not obs.any():
+            continue
+        e = innov[k, obs]
+        S = res.S[k][np.ix_(obs, obs)]
+        sign, logdet = np.linalg.slogdet(S)
+        out[k] = 0.5 * logdet + 0.5 * float(e @ np.linalg.solve(S, e)) + 0.5 * obs.sum() * LOG2PI
+    return out
+
+
+def score_contributions(est: Any, step: float = 1e-4) -> pd.DataFrame:
+    """Per-sample score contributions d l_k / d theta_j (optimiser's scale) at the estimate, for the
+    free parameters that have a standard error (central differences, 2 filter passes each)."""
+    est._check()  # raises NotFittedError before fit
+    model = est.model
+    names = [n for n in est.free_ if np.isfinite(est.std_work_.get(n, np.nan))]
+    arr = est._arr
+    G = np.zeros((len(arr.t), len(names)))
+    for j, name in enumerate(names):
+        i = model.param_names.index(name)
+        q = model.parameters[i]
+        th = est.params_work_[name]
+        h = step * max(1.0, abs(th))
+        parts = []
+        for sgn in (1.0, -1.0):
+            p = est.p_.copy()
+            p[i] = from_work(th + sgn * h, q)
+            res = run_filter(model, p, arr, method=est.method, n_sub=est.n_sub, foh=est.foh,
+                             compiled=est.compiled, fast=est.fast)
+            parts.append(step_nll(res))
+        G[:, j] = (parts[0] - parts[1]) / (2.0 * h)
+    return pd.DataFrame(G, columns=names)
+
+
+@dataclass(frozen=True)
+class RobustResult:
+    """Sandwich standard errors. ``std`` natural scale, ``std_work`` optimiser's scale, ``cov_work``
+    the sandwich on the optimiser's scale, ``lags`` the HAC lag window (0: Huber-White),
+    ``ratio`` std / the inverse Hessian's std."""
+
+    std: dict[str, float]
+    std_work: dict[str, float]
+    cov_work: pd.DataFrame
+    lags: int
+    ratio: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"std": dict(self.std), "lags": self.lags, "ratio": dict(self.ratio),
+                "method": "sandwich H^-1 M H^-1, M the Newey-West (Bartlett) HAC of the EKF score contributions"
+                          if self.lags > 0 else "sandwich H^-1 M H^-1 (Huber-White), M the outer product of "
+                                                "the EKF score contributions"}
+
+
+def robust_std(est: Any, *, lags: int | None = None, scores: pd.DataFrame | None = None) -> RobustResult:
+    """Sandwich (HAC) standard errors of a fitted estimator (see the module doc). ``lags``: the
+    Bartlett window (default :func:`newey_west_lags`; 0 = Huber-White); ``scores`` precomputed
+    :func:`score_contributions` (to try several windows at the cost of one)."""
+    G = score_contributions(est) if scores is None else scores
+    names = list(G.columns)
+    n = len(G)
+    L = newey_west_lags(n) if lags is None else int(lags)
+    M = hac_meat(G.to_numpy(), L, demean=False)
+    C = est.cov_work_.loc[names, names].to_numpy()
+    V = C @ M @ C
+    sd_w = np.sqrt(np.clip(np.diag(V), 0.0, None))
+    model = est.model
+    std_w = {k: float(s) for k, s in zip(names, sd_w, strict=True)}
+    std = {k: float(s * abs(dnat_dwork(est.params_work_[k], model.parameter(k))))
+           for k, s in zip(names, sd_w, strict=True)}
+    ratio = {k: float(std_w[k] / est.std_work_[k]) for k in names}
+    return RobustResult(std=std, std_work=std_w, cov_work=pd.DataFrame(V, index=names, columns=names), lags=L,
+                        ratio=ratio)
+
+
 __all__ = ["Identified", "newey_west_lags", "fd_hessian", "identified_directions", "identified_inverse", "hac_meat",
-           "score_matrix", "hessian_sandwich_parts", "hessian_sandwich_sd"]
+           "score_matrix", "hessian_sandwich_parts", "hessian_sandwich_sd", "step_nll", "score_contributions",
+           "RobustResult", "robust_std"]

@@ -168,18 +168,6 @@ class BootstrapResult:
                 "interval_95": {k: [float(a), float(b)] for k, (a, b) in self.interval_95.items()}}
 
 
-def _ou_path(t: np.ndarray, s_e: float, tau_e: float, rng: np.random.Generator) -> np.ndarray:
-    n = t.shape[0]
-    out = np.empty(n)
-    z = np.asarray(rng.standard_normal(n), dtype=float)
-    out[0] = s_e * z[0]
-    phi = np.asarray(np.exp(-np.diff(t) / tau_e), dtype=float)
-    sd = np.asarray(s_e * np.sqrt(1.0 - phi * phi), dtype=float)
-    for k in range(1, n):
-        out[k] = phi[k - 1] * out[k - 1] + sd[k - 1] * z[k]
-    return out
-
-
 def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np.random.Generator,
                   truth_step_s: float = 1.0, x_noise_sd: float | None = None,
                   x_true: np.ndarray | None = None, resid_block: int | None = None) -> RunData:
@@ -189,9 +177,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
     ``x_noise_sd``: with stiction, the sd of the white noise on the opening (default:
     :func:`valve_env.valveid.temperature.noise_sd` of ``data``' opening).
     ``resid_block``: without stiction, the opening's noise is the residuals ``data.x - x_true``
-    resampled in circular blocks of this length (default: :func:`residual_block_length`); 0
-    draws the fitted noise model instead (white ``s_w`` plus the Ornstein-Uhlenbeck ``s_e``,
-    ``tau_e``), a purely parametric bootstrap."""
+    resampled in circular blocks of this length (default: :func:`residual_block_length`)."""
     if x_true is None:
         x_true = world_opening(model, data, values, truth_step_s)
     n = len(data)
@@ -202,8 +188,6 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
         if x_noise_sd is None:
             x_noise_sd = noise_sd(data.x)
         y = x_true + x_noise_sd * rng.standard_normal(n)
-    elif resid_block == 0:
-        y = x_true + values["s_w"] * rng.standard_normal(n) + _ou_path(data.t, values["s_e"], values["tau_e"], rng)
     else:
         resid = data.x - x_true
         block = resid_block if resid_block is not None else residual_block_length(resid)
@@ -212,58 +196,17 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
     return RunData.from_arrays(data.t, T, M, y, data.dp, data.ps, name=f"{data.name} (bootstrap)")
 
 
-def world_opening(model: Model, data: RunData, values: dict[str, float], truth_step_s: float = 1.0,
-                  curved: bool = False) -> np.ndarray:
+def world_opening(model: Model, data: RunData, values: dict[str, float], truth_step_s: float = 1.0) -> np.ndarray:
     """The bootstrap world's true opening: the valve simulated from the smoothed temperatures with
-    ``values`` on sub-steps of at most ``truth_step_s``.
-
-    ``curved`` (without stiction): the world's temperatures between the samples follow cubic
-    splines through the smoothed ones, on a grid of ``truth_step_s``, so that they can turn between
-    the samples (:func:`curved_world`); else they are the estimator's own straight lines."""
+    ``values`` on sub-steps of at most ``truth_step_s``, the temperatures going in straight lines between
+    the samples as the estimator's do (a world whose temperatures turn between the samples on cubic splines
+    made half the refits of a set-point drift run away, docs/diagnosis.md)."""
     step = min(truth_step_s, model.max_step_s)
     if "stiction" in model.effects:
         step = _mean_substep(data.t, step)
     fine = Model(model.effects, model.valve, max_step_s=step)
-    if curved and "stiction" not in model.effects:
-        dense, idx = curved_world(data, step)
-        x_dense, _, _ = fine.simulate(dense, values)
-        return np.asarray(x_dense[idx], dtype=float)
     x_true, _, _ = fine.simulate(data, values)
     return x_true
-
-
-def curved_world(data: RunData, step: float) -> tuple[RunData, np.ndarray]:
-    """The bootstrap world's temperatures on a dense grid (the samples' times and a clock of ``step``):
-    cubic splines through the smoothed tank and medium temperatures, the pressures interpolated
-    linearly; and the indices of the samples in the grid. The noise levels stay the run's, so the
-    world's valve ignores the reversals the estimator ignores (smaller than 5 sd of the noise: the
-    smoothed temperatures wiggle at that scale, the true ones need not).
-
-    Why: the estimator sees the temperatures at the samples only and goes from one to the next in
-    a straight line, freed of reversals smaller than its noise threshold. The real temperatures turn
-    between the samples (a peak lies between two samples, not on one, and is higher than both), and
-    the friction turns with them; at 20-30 s sampling this moved beta by 4 sd of a bootstrap whose
-    world ran on the estimator's straight lines (medium_temperature, seed 808). A spline turns
-    between the samples as smooth temperatures do, so the replicates carry that error of the inputs
-    too.
-
-    Not the default (``curved=False`` in :func:`bootstrap`), by measurement: it brought those two runs
-    to 2.0 sd, but on seed 909 it made half of the 16 refits of one setpoint_drift run (30 s sampling)
-    run away to a drift 60 times the estimate (2 of 16 with straight lines), and the bias correction
-    then moved the estimate 33-fold (docs/diagnosis.md)."""
-    from dataclasses import replace
-
-    from scipy.interpolate import CubicSpline
-
-    t = data.t
-    grid = np.union1d(t, np.arange(t[0], t[-1], step))
-    idx = np.searchsorted(grid, t)
-    T = CubicSpline(t, data.T)(grid)
-    M = CubicSpline(t, data.M)(grid)
-    zero = np.zeros(grid.shape[0])
-    dense = replace(data, t=grid, T_raw=T, M_raw=M, x=zero, dp=np.interp(grid, t, data.dp),
-                    ps=np.interp(grid, t, data.ps), T=T, vT=zero, M=M, vM=zero)
-    return dense, idx
 
 
 def _mean_substep(t: np.ndarray, step: float) -> float:
@@ -310,7 +253,7 @@ def _band_from(model: Model, x: np.ndarray, band: float) -> float:
 
 def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: int = 0,
               truth_step_s: float = 1.0, bias_z: float = 2.0, band_B: int = 48,
-              curved: bool = False, names: list[str] | None = None) -> BootstrapResult:
+              names: list[str] | None = None) -> BootstrapResult:
     """Model-based bootstrap (module docstring) of the effect parameters of ``fit``, a fit of ``model`` to ``data``.
 
     ``B`` replicates re-estimate every effect parameter; stiction's band, which needs no refit, is
@@ -321,7 +264,7 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     if names is None:
         names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
     stuck = "stiction" in model.effects
-    x_true = world_opening(model, data, fit.params, truth_step_s, curved)
+    x_true = world_opening(model, data, fit.params, truth_step_s)
     s_x = noise_sd(data.x) if stuck else None
     block = None if stuck else residual_block_length(data.x - x_true)
     denoiser = replicate_denoiser(model, names)

@@ -62,8 +62,8 @@ import pandas as pd
 from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
 from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.effects import check_effects
-from valve_env.ident.bootstrap import NORMAL_P
-from valve_env.ident.tests import delta_bic, ljung_box, lr_pvalue
+from valve_env.ident.bootstrap import NORMAL_P, replicates
+from valve_env.ident.tests import delta_bic, ljung_box, lr_test
 from valve_env.params import ValveParams
 from valve_env.valveid.bootstrap import METHOD, denoised_run, world_opening
 from valve_env.valveid.estimator import ValveEstimator
@@ -313,12 +313,6 @@ class Diagnosis:
 
 
 # --------------------------------------------------------------------------- the procedure
-def _p_value(lr: float, effects: tuple[str, ...]) -> float:
-    """p-value of the LR statistic for adding ``effects`` (one parameter each)."""
-    k = sum(len(EFFECTS[e].parameters) for e in effects)
-    return lr_pvalue(lr, k, boundary=all(EFFECTS[e].boundary for e in effects))
-
-
 def _held_out(model: Model, data: RunData, values: dict[str, float], a: int, b: int) -> tuple[float, float, float]:
     """(one-step RMS mm, log-likelihood, simulation RMS mm) over samples a..b of ``data``. The
     log-likelihood is the sum of the samples' terms (:meth:`Model.loglik_terms`: for the stick-slip filter
@@ -424,9 +418,8 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
     and (stiction) the training slips' check; ``slips_stand_in``: the whole record's slips show the band
     (:func:`record_shows_band`) and stand in for the training slips' check."""
     model, fit = est.backend_, est.result_
-    lr = max(2.0 * (fit.loglik - ref_fit.loglik), 0.0)
     k = len(EFFECTS[effect].parameters)
-    p = _p_value(lr, (effect,))
+    lr, p = lr_test(ref_fit.loglik, fit.loglik, k, EFFECTS[effect].boundary)
     n = train.t.shape[0]
     v_rms, v_ll, v_sim = _held_out(model, valid, fit.params, *vr)
     f = Finding(
@@ -552,19 +545,20 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
         best = max(stick_model.loglik(data, {**ref, "band_mm": b}) for b in grid)
         return max(2.0 * (best - l0), 0.0)
 
-    rng = np.random.default_rng(seed)
     obs = stat(train)
     # the world's temperatures: TV-denoised, as before; a quantised record's TV denoising keeps its staircase,
     # whose steps would make the world's valve slip, so there the smoother's level stands for them
     world = _null_world(train)
     x_w = world_opening(ref_model, world, ref)
     sd = noise_sd(train.x)
-    n = len(train)
-    null = np.empty(copies)
-    for i in range(copies):
+
+    def copy(rng: np.random.Generator) -> RunData:
         T, M = train.remeasure(world.T, world.M, rng)  # as the run's channels were recorded
-        y = x_w + sd * rng.standard_normal(n)
-        null[i] = stat(RunData.from_arrays(train.t, T, M, y, train.dp, train.ps, name="null copy"))
+        y = x_w + sd * rng.standard_normal(len(train))
+        return RunData.from_arrays(train.t, T, M, y, train.dp, train.ps, name="null copy")
+
+    rows, _ = replicates(copies, np.random.default_rng(seed), copy, lambda d: {"stat": stat(d)})
+    null = np.array([r["stat"] for r in rows])
     k = int(np.sum(null >= obs))
     return {"statistic": float(obs), "null": [float(v) for v in null], "p_value": (1 + k) / (1 + copies),
             "band_factors": list(NULL_BAND_FACTORS)}

@@ -51,8 +51,9 @@ import pandas as pd
 from valve_env.ident.bootstrap import replicates
 from valve_env.ident.mle import MLEstimator
 from valve_env.ident.sde import SDEModel
+from valve_env.ident.tests import misspecification_check
+from valve_env.ident.uncertainty import robust_std
 from valve_env.valveid.eiv_model import valve_eiv_model
-from valve_env.valveid.robust import misspecification_check, robust_std
 from valve_env.valveid.temperature import channel_noise
 from valve_env.valveid.valve_model import ValveModel
 
@@ -193,7 +194,7 @@ class EIVFit:
     the sandwich of the relaxed-denoiser fit, ``denoiser`` the bracket's, ``temperature`` the
     temperature bootstrap's, if run), each as a relative sd; ``estimates``: the fits with each
     denoiser; ``estimator``: the relaxed-denoiser :class:`MLEstimator` (residuals, report);
-    ``misspecification``: :func:`valve_env.valveid.robust.misspecification_check`;
+    ``misspecification``: :func:`valve_env.ident.tests.misspecification_check`;
     ``fit_time_s``: wall time of the whole procedure; ``bias_correction``: on a quantised record (a
     tank temperature whose noise lies below its step), the bracket's relative correction of each
     estimate, else None."""
@@ -232,7 +233,7 @@ def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: i
        temperature denoised two ways, ``relaxed`` (the default, which overshoots a smooth reversal)
        and plain ``tv`` (which shaves it); the estimate is their midpoint on the log scale and the
        bracket's width w adds w^2 / 12 (a uniform distribution over it) to the variance.
-    3. The sampling variance: the sandwich (HAC, :func:`valve_env.valveid.robust.robust_std`) of
+    3. The sampling variance: the sandwich (HAC, :func:`valve_env.ident.uncertainty.robust_std`) of
        the relaxed fit, plus (``B > 0``, default 8) the temperature noise's variance from the
        temperature bootstrap (:func:`temperature_bootstrap` of the relaxed base fit; kept in
        ``bootstrap``).

@@ -75,9 +75,6 @@ from valve_env.valveid.valve_model import (
     smooth_sign,
 )
 
-#: the error model's parameters, appended after the base model's
-EIV_PARAMETERS: tuple[str, ...] = ("s_d", "tau_d", "s_e")
-
 
 class InputErrorModel(SDEModel):
     """Errors in variables for one input of ``base`` (see the module doc).
@@ -201,6 +198,17 @@ def _scalar_update(F: float, d: float, P00: float, P01: float, P11: float, ek: f
 
 
 @nb.njit(cache=True)
+def _put2(m: np.ndarray, P: np.ndarray, m0: float, m1: float, P00: float, P01: float,
+          P11: float) -> None:  # pragma: no cover - compiled
+    """Store a 2-vector and a symmetric 2 x 2 matrix (one sample of the filter's output arrays)."""
+    m[0] = m0
+    m[1] = m1
+    P[0, 0] = P00
+    P[0, 1] = P[1, 0] = P01
+    P[1, 1] = P11
+
+
+@nb.njit(cache=True)
 def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarray, c: np.ndarray,
                            k_extra: int, s_e: float, x_pred: np.ndarray, P_pred: np.ndarray, x_filt: np.ndarray,
                            P_filt: np.ndarray, y_pred: np.ndarray, S_out: np.ndarray, innov: np.ndarray,
@@ -254,12 +262,7 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
             P00, P01, P11 = n00, n01, n11
             F = Fn
             d = a * d
-        x_pred[k, 0] = F
-        x_pred[k, 1] = d
-        P_pred[k, 0, 0] = P00
-        P_pred[k, 0, 1] = P01
-        P_pred[k, 1, 0] = P01
-        P_pred[k, 1, 1] = P11
+        _put2(x_pred[k], P_pred[k], F, d, P00, P01, P11)
         Phi_out[k, 0, 0] = A00
         Phi_out[k, 0, 1] = A01
         Phi_out[k, 1, 0] = 0.0
@@ -279,12 +282,7 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
         S00 = hF * PH00 + hd * PH10 + R0
         S01 = PH10
         S11 = P11 + R1
-        y_pred[k, 0] = y0
-        y_pred[k, 1] = T_g
-        S_out[k, 0, 0] = S00
-        S_out[k, 0, 1] = S01
-        S_out[k, 1, 0] = S01
-        S_out[k, 1, 1] = S11
+        _put2(y_pred[k], S_out[k], y0, T_g, S00, S01, S11)
         # the joint update of the present outputs as sequential scalar updates with the same
         # linearisation (exact for independent measurement noises: same state, covariance and nll)
         F0 = F
@@ -302,12 +300,7 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
             if not np.isfinite(term):
                 return np.inf
             nll += term
-        x_filt[k, 0] = F
-        x_filt[k, 1] = d
-        P_filt[k, 0, 0] = P00
-        P_filt[k, 0, 1] = P01
-        P_filt[k, 1, 0] = P01
-        P_filt[k, 1, 1] = P11
+        _put2(x_filt[k], P_filt[k], F, d, P00, P01, P11)
     return nll
 
 
@@ -422,4 +415,4 @@ def valve_eiv_model(data: Any, valve: Any = None, *, B: int = 4, seed: int = 0, 
     return ValveEIVModel(valve, fixed={"s_d": s_d, "tau_d": tau_d}, **options)
 
 
-__all__ = ["InputErrorModel", "ValveEIVModel", "EIV_PARAMETERS", "denoising_error", "valve_eiv_model"]
+__all__ = ["InputErrorModel", "ValveEIVModel", "denoising_error", "valve_eiv_model"]

@@ -10,8 +10,9 @@ import numpy as np
 import pandas as pd
 
 from valve_env.ident.mle import MLEstimator
+from valve_env.ident.tests import misspecification_check
+from valve_env.ident.uncertainty import robust_std
 from valve_env.params import ValveParams
-from valve_env.valveid.robust import misspecification_check, robust_std
 from valve_env.valveid.valve_model import ValveModel
 
 #: The parameters handed to the environment (ValveParams fields).
@@ -73,8 +74,8 @@ def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame |
 def uncertainty_summary(est: MLEstimator) -> dict[str, Any]:
     """The robust standard errors and the misspecification check of a fit, for the JSON:
     ``std_hessian`` (inverse Hessian), ``std_robust`` (the HAC sandwich of
-    :func:`valve_env.valveid.robust.robust_std`), ``robust_lags``, ``std_method`` (which of them
-    ``std`` holds) and ``misspecification`` (:func:`~valve_env.valveid.robust.misspecification_check`,
+    :func:`valve_env.ident.uncertainty.robust_std`), ``robust_lags``, ``std_method`` (which of them
+    ``std`` holds) and ``misspecification`` (:func:`~valve_env.ident.tests.misspecification_check`,
     which also warns)."""
 
     rob = robust_std(est)

@@ -9,7 +9,7 @@ switched on. Stiction's band is not fitted by the optimiser: its likelihood
 is rough and trades off against F_hmax, so it is measured from the jumps of
 the opening (:mod:`valve_env.valveid.stiction`) and held while the rest is
 fitted. Standard deviations here are the larger of the inverse-Hessian and
-the HAC-sandwich ones (delta method to the natural scale); they ignore the
+the HAC-sandwich ones (:meth:`Model.std_parts`) (delta method to the natural scale); they ignore the
 smoothing error of the temperatures and are optimistic, so the diagnosis
 replaces them for the named effects by a model-based bootstrap
 (:mod:`valve_env.valveid.bootstrap`).
@@ -18,7 +18,7 @@ This is the output-error back-end of the identification framework
 (docs/estimation.md, "Architecture"): the data container is
 :class:`valve_env.valveid.data.RunData`, the parameters and their
 transforms are :mod:`valve_env.ident.sde`'s, the standard errors
-:func:`valve_env.ident.uncertainty.hessian_sandwich_sd`; the scikit-learn
+:func:`valve_env.ident.uncertainty.hessian_sandwich_parts`; the scikit-learn
 style front is ``ValveEstimator(effects, likelihood="output_error")``
 (:mod:`valve_env.valveid.estimator`).
 """
@@ -38,7 +38,7 @@ from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.ident.kalman import ou_loglik
 from valve_env.ident.mle import minimise, past_kink
 from valve_env.ident.sde import Parameter, dnat_dwork, from_work, to_work, work_bounds
-from valve_env.ident.uncertainty import hessian_sandwich_sd
+from valve_env.ident.uncertainty import hessian_sandwich_parts
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
 from valve_env.valveid.data import RunData
 from valve_env.valveid.oe import (
@@ -94,10 +94,6 @@ class FitResult:
         names = [p.name for e in self.effects for p in EFFECTS[e].parameters]
         return {k: self.params[k] for k in names}
 
-    @property
-    def physical_params(self) -> dict[str, float]:
-        return {q.name: self.params[q.name] for q in BASE_PARAMS}
-
 
 #: Nelder-Mead's evaluations per free parameter where L-BFGS-B's line search failed at a kink of the
 #: likelihood (:meth:`Model._past_kink`)
@@ -109,11 +105,6 @@ KINK_FEVALS = 60
 #: time, and the three noise parameters and stiction's band leave the path as it is: with the base point and
 #: the valve parameters' steps kept, those evaluations run only the filter (docs/diagnosis.md, "Speed")
 PATH_CACHE = 8
-
-
-#: whether Model.fit profiles stiction's band by the likelihood after the fit at the slips' band (off: on a
-#: generated 27.8 h run at 5 s it moved a band of 0.0312 mm, measured 0.0309, to 0.0158)
-PROFILE_BAND = False
 
 
 def _clip(v: float, q: Parameter) -> float:
@@ -139,8 +130,6 @@ class Model:
         #: the stick-slip filter's breakaway spread and landing sd, relative to the band
         self.band_spread = BAND_SPREAD
         self.landing_sd = LANDING_SD
-        #: after the fit with the band measured from the slips, profile it by the likelihood (see fit)
-        self.profile_band = PROFILE_BAND
         self._paths: OrderedDict[tuple[int, bytes, bytes, float, bool], tuple[RunData, tuple[np.ndarray, ...]]] = (
             OrderedDict())
 
@@ -290,14 +279,13 @@ class Model:
         robust start: the likelihood can be far from quadratic away from the optimum). Stiction's band
         is measured from the slips of the opening (:func:`valve_env.valveid.stiction.jump_band`) and
         held fixed; only where the record has too few slips is it fitted, by a 1-D profile search
-        alternating with fits of the other parameters (:meth:`_coordinate_ascent`). With
-        ``profile_band`` (:data:`PROFILE_BAND`, off) the measured band is afterwards profiled by the
-        likelihood too: on generated (S, J) runs that named stiction more often but put the band at half
-        its value where the slips' median was within 1 % (docs/diagnosis.md)."""
+        alternating with fits of the other parameters (:meth:`_coordinate_ascent`). The measured band is
+        not profiled by the likelihood afterwards: on generated (S, J) runs that named stiction more often
+        but put the band at half its value where the slips' median was within 1 % (docs/diagnosis.md; on a
+        generated 27.8 h run at 5 s it moved a band of 0.0312 mm, measured 0.0309, to 0.0158)."""
         cold = start is None
         start = {**self.default_start(data), **(start or {})}
         fixed = dict(fixed or {})
-        free = dict(fixed)  # what stays fixed in the final profile search of the band
         # stiction's band is measured from the staircase of the opening (valve_env.valveid.stiction):
         # its likelihood is rough and trades the band off against F_hmax, which traps a joint fit
         for p in self.eff_params:
@@ -313,9 +301,6 @@ class Model:
                                      for p in self.eff_params) else (False,)
         fit = max((self._fit_path(data, dict(start), fixed, cold, maxiter, turn) for turn in turns),
                   key=lambda f: f.loglik)
-        if self.profile_band and any(p.log_grid and p.name in fixed and p.name not in free for p in self.eff_params):
-            fit = self._coordinate_ascent(data, fit, free, maxiter)
-            fixed = free
         if with_std:
             fit = self._fit_smooth(data, fit.params, fixed, 50, True)
         return fit
@@ -542,38 +527,28 @@ class Model:
         vals = at(res.x)
         std = {n: float("nan") for n in self.names}
         if with_std:
-            names = [self.names[i] for i in free]
-
-            def contrib(zf: np.ndarray) -> np.ndarray:
-                nu, S = self.prediction_errors(data, at(zf))
-                return -0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S)
-
-            std.update(self._std(nll, contrib, res.x, names, vals, free))
+            names, sd_h, sd_r, _ = self.std_parts(data, free, res.x, at, nll)
+            std.update({n: float(v) for n, v in zip(names, np.fmax(sd_h, sd_r), strict=True)})
         return self._result(data, vals, std, -float(res.fun), len(free), bool(res.success), str(res.message))
 
-    def _std(self, nll: Callable[[np.ndarray], float], contrib: Callable[[np.ndarray], np.ndarray],
-             zf: np.ndarray, names: list[str], vals: dict[str, float], free: list[int]) -> dict[str, float]:
-        """Standard deviations: the larger of the model-based one (inverse Hessian of the negative
-        log-likelihood over the identified directions) and the robust one (Newey-West HAC sandwich of
-        the per-sample scores, the residual model's parameters held as a working covariance); delta
-        method to natural scale. The one implementation of :mod:`valve_env.ident.uncertainty`."""
+    def std_parts(self, data: RunData, free: list[int], zf: np.ndarray, at: Callable[[np.ndarray], dict[str, float]],
+                  nll: Callable[[np.ndarray], float]) -> tuple[list[str], np.ndarray, np.ndarray, int]:
+        """The free parameters' names and their two likelihood-based sds at the working point ``zf`` of
+        :meth:`_objective`'s ``free``, ``at`` and ``nll``: the model-based one (inverse Hessian of the negative
+        log-likelihood over the identified directions) and the robust one (Newey-West HAC sandwich of the
+        per-sample scores, the residual model's parameters held as a working covariance), delta method to
+        the natural scale (:func:`valve_env.ident.uncertainty.hessian_sandwich_parts`), and the HAC window."""
+
+        def contrib(z: np.ndarray) -> np.ndarray:
+            nu, S = self.prediction_errors(data, at(z))
+            return -0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S)
+
+        names = [self.names[i] for i in free]
         bounds = self.work_bounds()
         widths = np.array([bounds[i][1] - bounds[i][0] for i in free], dtype=float)
         g = np.array([dnat_dwork(zf[j], self.parameters[i]) for j, i in enumerate(free)])
         working = np.array([n in NOISE_NAMES for n in names])
-        sd = hessian_sandwich_sd(nll, contrib, zf, widths, g, working)
-        return {n: float(v) for n, v in zip(names, sd, strict=True)}
-
-    @staticmethod
-    def _profile_std(pts: dict[float, float], ll_best: float) -> float:
-        """sd from the curvature of the log-likelihood in one parameter (a parabola through the points)."""
-        b = np.array(sorted(pts))
-        ll = np.array([pts[k] for k in b])
-        try:
-            c2, _, _ = np.polyfit(b, ll, 2)
-        except (np.linalg.LinAlgError, ValueError):
-            return float("nan")
-        return float(math.sqrt(-1.0 / (2.0 * c2))) if c2 < 0 else float("nan")
+        return names, *hessian_sandwich_parts(nll, contrib, zf, widths, g, working)
 
     def _result(self, data: RunData, vals: dict[str, float], std: dict[str, float], ll: float, n_free: int,
                 ok: bool, msg: str) -> FitResult:
@@ -582,11 +557,4 @@ class Model:
         return FitResult(self.effects, vals, std, ll, len(data), n_free, rms, ok, msg)
 
 
-def simulation_rms(model: Model, data: RunData, values: dict[str, float], a: int = 0, b: int | None = None) -> float:
-    """RMS (mm) of measured minus simulated opening over samples a..b (simulating from the start of ``data``)."""
-    xs, _, _ = model.simulate(data, values)
-    r = (data.x - xs)[a:b]
-    return float(np.sqrt(np.mean(r * r)))
-
-
-__all__ = ["RunData", "FitResult", "Model", "simulation_rms", "BASE_PARAMS", "NOISE_PARAMS"]
+__all__ = ["RunData", "FitResult", "Model", "BASE_PARAMS", "NOISE_PARAMS"]

@@ -28,6 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
+from valve_env.ident.kalman import LOG2PI, ou_innovation, ou_predict, ou_update
 from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.physics import valve as phys
 from valve_env.physics.stickslip import initial_state as stick_initial_state
@@ -45,7 +46,6 @@ from valve_env.valveid.temperature import monotone_path
 
 _demanded_opening = njit(cache=True)(phys.demanded_opening)
 _dahl_update = njit(cache=True)(phys.dahl_update)
-LOG2PI = math.log(2.0 * math.pi)
 SQRT2 = math.sqrt(2.0)
 #: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
 BAND_SPREAD = 0.5
@@ -60,13 +60,9 @@ DECIDE_MOVING = 0.5
 #: probability that it stays stuck there; exp(-2), the log-likelihood ratio of 2 at which the earlier filter
 #: re-stuck it
 RESTICK_P = math.exp(-2.0)
-#: the prior probability of a slip (between measurements) at which the filter with the measured slip
-#: decision (``measured=True``) decides that a resting stem moves
+#: the prior probability of a slip (between measurements) at which the stick-slip filter decides that a
+#: resting stem moves
 DECIDE_PRIOR = 0.999
-#: whether a resting stem's slip is weighed by each measurement (in use behind diagnose's simulated null
-#: guard); each such measurement is scored under the two-component mixture (scored under the moment-matched
-#: predictive instead, it was worse on the null: LR 157 and 111 on two development `none` runs)
-MEASURED_SLIP = True
 
 
 # --------------------------------------------------------------------------- 2. the valve simulation
@@ -269,7 +265,6 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                  stroke: float, s_w: float, s_e: float, tau_e: float,
                  mask: np.ndarray, spread: float = BAND_SPREAD,
                  landing: float = LANDING_SD,
-                 measured: bool = MEASURED_SLIP,
                  slip: float = -1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
@@ -281,11 +276,11 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     :func:`ou_loglik`); observation ``y = s + e + w``. Between samples, on the sub-step grid: a resting
     stem slips with the probability of breakaway *in this sub-step*, landing on the demand with an
     uncertainty of ``landing * band`` (sd). The breakaway band itself varies (sd ``spread * band``) and
-    the stem position is uncertain, so the filter moment-matches the two outcomes (a first-order
-    generalised pseudo-Bayes filter; this also makes the likelihood continuous in ``band``); once the
-    probability that the stem has slipped since it last stuck passes ``DECIDE_MOVING``, the filter decides that
-    it moves and lets it follow the demand's increments until the demand stops or reverses
-    (decision-directed). Where the stem sticks, ``s`` is unchanged and the measurements pin it down.
+    the stem position is uncertain, so the filter weighs the two outcomes (a first-order generalised
+    pseudo-Bayes filter; this also makes the likelihood continuous in ``band``); once the probability that
+    the stem has slipped since it last stuck passes ``DECIDE_MOVING``, the filter decides that it moves and
+    lets it follow the demand's increments until the demand stops or reverses (decision-directed). Where
+    the stem sticks, ``s`` is unchanged and the measurements pin it down.
     "Stops or reverses" is judged on the demand freed of its noise's reversals (:func:`stick_demand`),
     as in :func:`stick_simulate`. While the filter holds that the stem moves, each measurement is scored
     once, under the predictive mixture of three hypotheses with their prior probabilities: it moves, it
@@ -304,14 +299,16 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     all while ``|d|`` stays below ``dmax``. ``dmax`` restarts where the stem sticks again and after a
     measurement that moves the stem estimate towards the demand.
 
-    **The measured slip decision** (``measured``, default ``MEASURED_SLIP``; docs/diagnosis.md,
-    "Method"): a resting stem is not moment-matched between measurements. Each
+    **The measured slip decision** (docs/diagnosis.md, "Method"): a resting stem is not moment-matched
+    between measurements. Each
     measurement is scored once under the mixture of "stuck where it rests" (prior ``1 - p_slip``) and
     "slipped onto the demand" (prior ``p_slip``, landing sd ``landing * band``); Bayes' rule updates
     ``p_slip``, and where the slip is the more probable (``DECIDE_MOVING``) the stem is put on the demand
     and moves. Between measurements the slip is decided only where the prior alone makes it near certain
     (``DECIDE_PRIOR``). The moment-matched filter caught a slip that came before its prior slip probability
-    reached one half many samples late (-594 held-out log-units on a 20 s run of seed 20270127, run 33).
+    reached one half many samples late (-594 held-out log-units on a 20 s run of seed 20270127, run 33), and
+    each measurement scored under the moment-matched predictive instead of the two-component mixture was
+    worse on the null (LR 157 and 111 on two development `none` runs).
 
     Because the resting position is estimated from the data rather than simulated open loop, a
     small error in the demand does not put the simulated and the measured stems out of step.
@@ -322,7 +319,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     then the J = S filter's exactly): with ``0 < slip < band`` the stem of :func:`stick_simulate_sj` with
     ``S = band``: a slip lands ``band - slip`` short of the demand (at most the distance it broke away at),
     and the moving stem follows the demand's increments with that lag (docs/diagnosis.md, "What
-    ``band_mm`` is on a valve with J < S"). Only the measured slip decision (``measured``) carries the lag.
+    ``band_mm`` is on a valve with J < S").
 
     Returns (loglik, one-step prediction errors of the hypothesis followed, their variances, each
     sample's log-likelihood term: the mixture's where the filter weighed hypotheses, 0 off ``mask``)."""
@@ -356,9 +353,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     terms = np.zeros(n)
     for k in range(n):
         if k > 0:
-            phi = math.exp(-(t[k] - t[k - 1]) / tau_e)
-            me = phi * me
-            Pee = phi * phi * Pee + ve * (1.0 - phi * phi)
+            # the model error's OU step (the scalar OU filter's), then the stem's between the samples
+            phi, me, Pee = ou_predict(t[k] - t[k - 1], tau_e, ve, me, Pee)
             Pes = phi * Pes
             s_hold = ms
             was_moving = moving
@@ -383,7 +379,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                     # the demand (freed of its noise's reversals, stick_demand) stops or reverses: a moving
                     # stem sticks where it is; with the measured slip decision a resting one that has more
                     # likely than not slipped since it stuck has followed the demand here and sticks here
-                    if measured and not moving and p_slip >= DECIDE_MOVING:
+                    if not moving and p_slip >= DECIDE_MOVING:
                         ms = min(max(xd - side * lag, 0.0), stroke) if lag > 0.0 else min(max(xd, 0.0), stroke)
                         Pss = vl
                         Pes = 0.0
@@ -408,7 +404,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 F1 = _band_cdf(ad, band, sd)
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
                 dmax = ad
-                if pi > 1e-12 and measured:
+                if pi > 1e-12:
                     # two hypotheses, "still stuck at ms" and "slipped onto the demand"; the next measurement
                     # weighs them (below). Between measurements the filter decides that the stem moves only
                     # where the prior alone makes it near certain
@@ -421,18 +417,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                         ms = xd - side * min(lag, ad) if lag > 0.0 else xd
                         Pss = vl
                         Pes = 0.0
-                elif pi > 1e-12:
-                    # moment-matched mixture of "still stuck" and "slipped onto the demand"
-                    ms = ms + pi * d
-                    Pss = (1.0 - pi) * Pss + pi * vl + pi * (1.0 - pi) * d * d
-                    Pes = (1.0 - pi) * Pes
-                    p_slip = 1.0 - (1.0 - p_slip) * (1.0 - pi)
-                    if p_slip >= DECIDE_MOVING:
-                        moving = True  # decided: it has broken away and now moves with the demand
-                        s_alt = ms - pi * d  # where it would be had it not slipped
-        S = Pee + 2.0 * Pes + Pss + vw
-        nu = y[k] - ms - me
-        lk = -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+        nu, S, lk = ou_innovation(y[k], me, Pee, vw, ms, Pes, Pss)
         if mask[k] and band > 0.0 and k > 0 and moving:
             # the decision that the stem moves, revisited honestly: the measurement is scored once, under
             # the predictive mixture of three hypotheses with their prior probabilities (first-order
@@ -468,7 +453,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             else:
                 # it moves: the measurement's evidence against "never slipped" carries to the next sample
                 p_slip = 1.0 - math.exp(l_a - top) / tot
-        elif measured and mask[k] and band > 0.0 and k > 0 and p_slip > 0.0:
+        elif mask[k] and band > 0.0 and k > 0 and p_slip > 0.0:
             # a resting stem that may have slipped since it stuck: the measurement is scored once under the
             # mixture of "stuck at ms" (prior 1 - p_slip) and "on the demand" (p_slip), and updates the slip
             # probability by Bayes' rule; where the slip is now the more probable, the stem moves
@@ -497,14 +482,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
         if mask[k]:
             ll += lk
             terms[k] = lk
-            ke = (Pee + Pes) / S
-            ks = (Pes + Pss) / S
-            me = me + ke * nu
-            ms = ms + ks * nu
-            nPee = Pee - ke * (Pee + Pes)
-            nPes = Pes - ke * (Pes + Pss)
-            nPss = Pss - ks * (Pes + Pss)
-            Pee, Pes, Pss = nPee, nPes, nPss
+            me, Pee, ms, Pes, Pss = ou_update(nu, S, me, Pee, ms, Pes, Pss)
             dk = abs(x_sub[sub_idx[k]] - ms)
             if dk < dmax:
                 dmax = dk

@@ -304,20 +304,6 @@ def write_report(result: Diagnosis | MLEstimator, path: str | Path, *, data: pd.
     return path
 
 
-def table4_markdown(est: MLEstimator) -> str:
-    """A parameter table like the paper's Table 4, with the paper's values beside ours."""
-    lines = ["| variable | estimate | std.dev. | t | unit | paper estimate | paper std.dev. |",
-             "|---|---|---|---|---|---|---|"]
-    for k in (*VALVE_FIELDS, "s_F", "s_x"):
-        label, unit = _LABELS[k]
-        sd = est.std_.get(k, float("nan"))
-        t = est.tstat_.get(k, float("nan"))
-        pe, ps = PAPER_TABLE4.get(k, (float("nan"), float("nan")))
-        lines.append(f"| {label} | {est.params_[k]:.4g} | {_fmt_spec(sd)} | {_fmt_spec(t, '.1f')} | {unit} | "
-                     f"{_fmt_spec(pe)} | {_fmt_spec(ps)} |")
-    return "\n".join(lines)
-
-
 def _fmt_spec(v: float, spec: str = ".3g") -> str:
     return "-" if not math.isfinite(v) else format(v, spec)
 
@@ -447,5 +433,5 @@ def _diag_md(rep: Any) -> str:
             f"- all three within their 5 % bands: {'yes' if s['white'] else 'no'}")
 
 
-__all__ = ["write_report", "write_figures", "render_markdown", "table4_markdown", "reported_table", "quantisation_note",
+__all__ = ["write_report", "write_figures", "render_markdown", "reported_table", "quantisation_note",
            "FIGURE_SUFFIXES", "FIT_REPORT_FILES"]

@@ -1,27 +1,7 @@
-"""Misspecification-robust standard errors and the misspecification check of a fitted model.
+"""Misspecification-robust standard errors and the misspecification checks of the valve's fits.
 
-**Sandwich.** The prediction-error decomposition makes the negative log-likelihood a
-sum of per-sample terms ``l_k(theta)`` (the filter's innovation ``e_k`` and its
-covariance ``S_k``: ``0.5 log det S_k + 0.5 e_k' S_k^-1 e_k + 0.5 m_k log 2 pi``).
-Their gradients ``g_k`` (central differences on the optimiser's scale, one filter
-pass per step and parameter) are the score contributions. With a correct model they
-are martingale differences and ``sum g_k g_k'`` equals the Hessian ``H`` on average;
-when the model is wrong (here: the denoised temperature treated as exact, a
-different friction law, ...) they are not, and
-
-    cov = H^-1 M H^-1,    M = sum_k g_k g_k' + sum_{l=1..L} w_l sum_k (g_k g_{k-l}' + g_{k-l} g_k')
-
-(Huber 1967, White 1982; with L > 0 the Newey-West HAC form, Bartlett weights
-w_l = 1 - l / (L + 1), :func:`valve_env.ident.uncertainty.hac_meat`) is consistent for the
-estimator's covariance (the quasi-ML, "sandwich" covariance). ``H^-1`` is the fit's
-inverse Hessian (``MLEstimator.cov_work_``). ``lags=0`` gives Huber-White.
-
-**Misspecification check.** :func:`misspecification_check` runs the residual
-whiteness tests of :mod:`valve_env.valveid.diagnostics` (statsmodels' Ljung-Box;
-the cumulated periodogram with its Kolmogorov-Smirnov band) on each output's
-standardised one-step residuals and warns (:class:`MisspecificationWarning`) when
-either rejects at ``alpha``: the model does not explain the data's dynamics, so its
-inverse-Hessian standard errors are not to be trusted (docs/uncertainty.md).
+The EKF estimator's sandwich and whiteness check are the core's
+(:func:`valve_env.ident.uncertainty.robust_std`, :func:`valve_env.ident.tests.misspecification_check`).
 
 **The output-error likelihood's** (the diagnosis's named effects, :class:`valve_env.valveid.fitting.Model`):
 :func:`sandwich_std` (its inverse Hessian and HAC sandwich, from the same
@@ -32,133 +12,19 @@ Their reported sd is the bootstrap's (:mod:`valve_env.valveid.bootstrap`).
 
 from __future__ import annotations
 
-import math
 import warnings
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from valve_env.effects import REGISTRY as EFFECTS
-from valve_env.ident.kalman import FilterResult, run_filter
-from valve_env.ident.mle import MLEstimator, NotFittedError
-from valve_env.ident.sde import dnat_dwork, from_work
 from valve_env.ident.tests import ROBUST_ADVICE, MisspecificationWarning, whiteness_check
-from valve_env.ident.uncertainty import hac_meat, hessian_sandwich_parts, newey_west_lags
-from valve_env.valveid.fitting import NOISE_NAMES
 from valve_env.valveid.stiction import slips
 from valve_env.valveid.temperature import noise_sd
 
 if TYPE_CHECKING:
     from valve_env.valveid.data import RunData
     from valve_env.valveid.fitting import FitResult, Model
-
-LOG2PI = float(np.log(2.0 * np.pi))
-
-
-def step_nll(res: FilterResult) -> np.ndarray:
-    """The per-sample terms of the negative log-likelihood from a filter pass (sum = ``res.nll``)."""
-    innov = res.innov
-    N, ny = innov.shape
-    if ny == 1:
-        e = innov[:, 0]
-        S = res.S[:, 0, 0]
-        ok = np.isfinite(e)
-        out = np.zeros(N)
-        out[ok] = 0.5 * np.log(S[ok]) + 0.5 * e[ok] ** 2 / S[ok] + 0.5 * LOG2PI
-        return out
-    out = np.zeros(N)
-    for k in range(N):
-        obs = np.isfinite(innov[k])
-        if not obs.any():
-            continue
-        e = innov[k, obs]
-        S = res.S[k][np.ix_(obs, obs)]
-        sign, logdet = np.linalg.slogdet(S)
-        out[k] = 0.5 * logdet + 0.5 * float(e @ np.linalg.solve(S, e)) + 0.5 * obs.sum() * LOG2PI
-    return out
-
-
-def score_contributions(est: MLEstimator, step: float = 1e-4) -> pd.DataFrame:
-    """Per-sample score contributions d l_k / d theta_j (optimiser's scale) at the estimate, for the
-    free parameters that have a standard error (central differences, 2 filter passes each)."""
-    if not hasattr(est, "params_"):
-        raise NotFittedError("call fit(data) first")
-    model = est.model
-    names = [n for n in est.free_ if np.isfinite(est.std_work_.get(n, np.nan))]
-    arr = est._arr
-    G = np.zeros((len(arr.t), len(names)))
-    for j, name in enumerate(names):
-        i = model.param_names.index(name)
-        q = model.parameters[i]
-        th = est.params_work_[name]
-        h = step * max(1.0, abs(th))
-        parts = []
-        for sgn in (1.0, -1.0):
-            p = est.p_.copy()
-            p[i] = _from_work(th + sgn * h, q)
-            res = run_filter(model, p, arr, method=est.method, n_sub=est.n_sub, foh=est.foh,
-                             compiled=est.compiled, fast=est.fast)
-            parts.append(step_nll(res))
-        G[:, j] = (parts[0] - parts[1]) / (2.0 * h)
-    return pd.DataFrame(G, columns=names)
-
-
-def _from_work(theta: float, q: Any) -> float:
-
-    return from_work(theta, q)
-
-
-@dataclass(frozen=True)
-class RobustResult:
-    """Sandwich standard errors. ``std`` natural scale, ``std_work`` optimiser's scale, ``cov_work``
-    the sandwich on the optimiser's scale, ``lags`` the HAC lag window (0: Huber-White),
-    ``ratio`` std / the inverse Hessian's std."""
-
-    std: dict[str, float]
-    std_work: dict[str, float]
-    cov_work: pd.DataFrame
-    lags: int
-    ratio: dict[str, float] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"std": dict(self.std), "lags": self.lags, "ratio": dict(self.ratio),
-                "method": "sandwich H^-1 M H^-1, M the Newey-West (Bartlett) HAC of the EKF score contributions"
-                          if self.lags > 0 else "sandwich H^-1 M H^-1 (Huber-White), M the outer product of "
-                                                "the EKF score contributions"}
-
-
-def robust_std(est: MLEstimator, *, lags: int | None = None, scores: pd.DataFrame | None = None) -> RobustResult:
-    """Sandwich (HAC) standard errors of a fitted estimator (see the module doc). ``lags``: the
-    Bartlett window (default :func:`newey_west_lags`; 0 = Huber-White); ``scores`` precomputed
-    :func:`score_contributions` (to try several windows at the cost of one)."""
-    G = score_contributions(est) if scores is None else scores
-    names = list(G.columns)
-    n = len(G)
-    L = newey_west_lags(n) if lags is None else int(lags)
-    M = hac_meat(G.to_numpy(), L, demean=False)
-    C = est.cov_work_.loc[names, names].to_numpy()
-    V = C @ M @ C
-    sd_w = np.sqrt(np.clip(np.diag(V), 0.0, None))
-    model = est.model
-    std_w = {k: float(s) for k, s in zip(names, sd_w, strict=True)}
-    std = {k: float(s * abs(dnat_dwork(est.params_work_[k], model.parameter(k))))
-           for k, s in zip(names, sd_w, strict=True)}
-    ratio = {k: float(std_w[k] / est.std_work_[k]) for k in names}
-    return RobustResult(std=std, std_work=std_w, cov_work=pd.DataFrame(V, index=names, columns=names), lags=L,
-                        ratio=ratio)
-
-
-def misspecification_check(est: MLEstimator, data: Any = None, *, alpha: float = 0.01, nlags: int = 40,
-                           warn: bool = True) -> dict[str, Any]:
-    """Whiteness of each output's standardised one-step residuals (Ljung-Box at ``nlags`` and the
-    cumulated periodogram's KS band, both at level ``alpha``); a :class:`MisspecificationWarning` when
-    either rejects. Returns the JSON-ready result: per output the statistics, then ``misspecified``
-    and ``message``."""
-    res = est.residuals(data)
-    return whiteness_check({name: res[name].to_numpy(dtype=float) for name in est.model.outputs},
-                           alpha=alpha, nlags=nlags, warn=warn, label=est.model.name)
 
 
 def sandwich_std(model: Model, data: RunData, fit: FitResult, fixed: tuple[str, ...] = ("band_mm",)
@@ -171,29 +37,9 @@ def sandwich_std(model: Model, data: RunData, fit: FitResult, fixed: tuple[str, 
     standard errors (docs/estimation.md). ``fixed`` parameters have neither (stiction's band is
     measured from the slips, not fitted: its sd is the bootstrap's alone). ``lags``: the HAC window."""
 
-    free = [i for i, n in enumerate(model.names) if n not in fixed]
-    z_all = model.to_work(fit.params)
-    bounds = model.work_bounds()
-
-    def values(zf: np.ndarray) -> dict[str, float]:
-        z = z_all.copy()
-        z[free] = zf
-        return model.from_work(z)
-
-    def nll(zf: np.ndarray) -> float:
-        ll = model.loglik(data, values(zf))
-        return -ll if math.isfinite(ll) else 1e300
-
-    def contrib(zf: np.ndarray) -> np.ndarray:
-        nu, S = model.prediction_errors(data, values(zf))
-        return np.asarray(-0.5 * (np.log(2.0 * np.pi * S) + nu * nu / S))
-
-    zf = z_all[free]
-    names = [model.names[i] for i in free]
-    widths = np.array([bounds[i][1] - bounds[i][0] for i in free], dtype=float)
-    g = np.array([dnat_dwork(zf[j], model.parameters[i]) for j, i in enumerate(free)])
-    working = np.array([n in NOISE_NAMES for n in names])
-    sd_h, sd_r, lags = hessian_sandwich_parts(nll, contrib, zf, widths, g, working)
+    held = {n: fit.params[n] for n in fixed if n in model.names}
+    free, zf, _, at, nll = model._objective(data, fit.params, held)
+    names, sd_h, sd_r, lags = model.std_parts(data, free, zf, at, nll)
     nan = {n: float("nan") for n in fixed if n in model.names}
     return {"std_hessian": {n: float(sd_h[j]) for j, n in enumerate(names)} | nan,
             "std_robust": {n: float(sd_r[j]) for j, n in enumerate(names)} | nan,
@@ -322,6 +168,4 @@ def robust_finding(model: Model, data: RunData, fit: FitResult, *, warn: bool = 
             "misspecification": effect_misspecification(model, data, fit, warn=warn, bootstrap_sd=bootstrap_sd)}
 
 
-__all__ = ["RobustResult", "effect_misspecification", "misspecification_check",
-           "newey_west_lags", "robust_finding", "robust_std", "sandwich_std", "score_contributions", "step_nll",
-           "stick_slip_check", "stuck_travel"]
+__all__ = ["effect_misspecification", "robust_finding", "sandwich_std", "stick_slip_check", "stuck_travel"]

@@ -24,12 +24,6 @@ import numpy as np
 from valve_env.valveid.temperature import noise_sd
 
 
-def _away_from_stops(x: np.ndarray, stroke: float, edge_mm: float) -> np.ndarray:
-    """Mask of the steps of ``x`` whose both ends lie more than ``edge_mm`` from the end stops."""
-    lo, hi = edge_mm, stroke - edge_mm
-    return (x[:-1] > lo) & (x[1:] > lo) & (x[:-1] < hi) & (x[1:] < hi)
-
-
 def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0, plateau: int = 3,
           after: int = 3, edge_mm: float = 0.02, flat: float = 3.5, persist: float = 3.0,
           ramp: float = 1.0, events: list[tuple[int, float, float, float]] | None = None) -> np.ndarray:

@@ -26,10 +26,20 @@ import numpy as np
 from numba import njit
 from scipy.optimize import minimize_scalar
 
-_LOG2PI = math.log(2.0 * math.pi)
+from valve_env.ident.kalman import LOG2PI
 
 
 # --------------------------------------------------------------------------- TV denoising
+@njit(cache=True)
+def _fill(x: np.ndarray, k0: int, last: int, v: float) -> int:  # pragma: no cover - compiled
+    """``x[k0..last] = v`` (at least ``x[k0]``, as the C code's do-while); returns the next index."""
+    while True:
+        x[k0] = v
+        k0 += 1
+        if k0 > last:
+            return k0
+
+
 @njit(cache=True)
 def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - compiled
     """Total-variation denoising: argmin_x 0.5 sum (y - x)^2 + lam sum |x_i+1 - x_i|.
@@ -53,22 +63,14 @@ def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - c
     while True:
         while k == n - 1:
             if umin < 0.0:
-                while True:
-                    x[k0] = vmin
-                    k0 += 1
-                    if k0 > kminus:
-                        break
+                k0 = _fill(x, k0, kminus, vmin)
                 kminus = k0
                 k = k0
                 vmin = y[k0]
                 umin = lam
                 umax = vmin + umin - vmax
             elif umax > 0.0:
-                while True:
-                    x[k0] = vmax
-                    k0 += 1
-                    if k0 > kplus:
-                        break
+                k0 = _fill(x, k0, kplus, vmax)
                 kplus = k0
                 k = k0
                 vmax = y[k0]
@@ -76,19 +78,11 @@ def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - c
                 umin = vmax + umax - vmin
             else:
                 vmin += umin / (k - k0 + 1)
-                while True:
-                    x[k0] = vmin
-                    k0 += 1
-                    if k0 > k:
-                        break
+                _fill(x, k0, k, vmin)
                 return x
         umin += y[k + 1] - vmin
         if umin < minlam:
-            while True:
-                x[k0] = vmin
-                k0 += 1
-                if k0 > kminus:
-                    break
+            k0 = _fill(x, k0, kminus, vmin)
             kplus = k0
             kminus = k0
             k = k0
@@ -99,11 +93,7 @@ def tv_denoise(y: np.ndarray, lam: float) -> np.ndarray:  # pragma: no cover - c
         else:
             umax += y[k + 1] - vmax
             if umax > lam:
-                while True:
-                    x[k0] = vmax
-                    k0 += 1
-                    if k0 > kplus:
-                        break
+                k0 = _fill(x, k0, kplus, vmax)
                 kplus = k0
                 kminus = k0
                 k = k0
@@ -384,21 +374,16 @@ def monotone_path(y: np.ndarray, delta: float) -> np.ndarray:
         if y[k] < lo:
             lo = y[k]
             ilo = k
+        first = second = 0
         if hi - y[k] >= delta and ihi >= ilo:
-            direction = -1  # rose to hi, now falling
-            if ilo > 0:
-                tps[ntp] = ilo
-                ntp += 1
-            tps[ntp] = ihi
-            ntp += 1
-            ext = y[k]
-            iext = k
+            direction, first, second = -1, ilo, ihi  # rose to hi, now falling
         elif y[k] - lo >= delta and ilo >= ihi:
-            direction = 1
-            if ihi > 0:
-                tps[ntp] = ihi
+            direction, first, second = 1, ihi, ilo  # fell to lo, now rising
+        if direction != 0:
+            if first > 0:
+                tps[ntp] = first
                 ntp += 1
-            tps[ntp] = ilo
+            tps[ntp] = second
             ntp += 1
             ext = y[k]
             iext = k
@@ -408,26 +393,18 @@ def monotone_path(y: np.ndarray, delta: float) -> np.ndarray:
         _pava(y, 0, n, inc, out)
         return out
     while k < n:
-        if direction == 1:
-            if y[k] > ext:
-                ext = y[k]
-                iext = k
-            elif ext - y[k] >= delta:
-                tps[ntp] = iext
-                ntp += 1
-                direction = -1
-                ext = y[k]
-                iext = k
-        else:
-            if y[k] < ext:
-                ext = y[k]
-                iext = k
-            elif y[k] - ext >= delta:
-                tps[ntp] = iext
-                ntp += 1
-                direction = 1
-                ext = y[k]
-                iext = k
+        # in the direction of travel (signs flip exactly): a new extreme, or a retrace of delta from it
+        v = direction * y[k]
+        e = direction * ext
+        if v > e:
+            ext = y[k]
+            iext = k
+        elif e - v >= delta:
+            tps[ntp] = iext
+            ntp += 1
+            direction = -direction
+            ext = y[k]
+            iext = k
         k += 1
     if tps[ntp - 1] != n - 1:
         tps[ntp] = n - 1
@@ -481,7 +458,7 @@ def _irw_pass(t: np.ndarray, y: np.ndarray, q: float, r: float, smooth: bool,
         Pp[k, 2] = p11
         S = p00 + r
         nu = y[k] - m0
-        ll += -0.5 * (_LOG2PI + math.log(S) + nu * nu / S)
+        ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
         k0 = p00 / S
         k1 = p01 / S
         m0 = m0 + k0 * nu

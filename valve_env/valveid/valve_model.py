@@ -48,7 +48,7 @@ import pandas as pd
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
 from valve_env.ident.kalman import _alloc
-from valve_env.ident.sde import CompiledFunctions, Parameter, SDEModel, with_overrides
+from valve_env.ident.sde import CompiledFunctions, CompiledSDEModel, Parameter, with_overrides
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, N_VALVE, ValveParams
 from valve_env.physics import valve as phys
 from valve_env.valveid.temperature import DENOISERS, denoise_temperature, noise_sd, relaxed_tv, tv_denoise
@@ -336,8 +336,9 @@ def _fast_valve_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarra
 
 
 # --------------------------------------------------------------------------- the model class
-class ValveModel(SDEModel):
-    """The base valve model (docs/reference.md, section 1, paper eq. 15-17), a :class:`SDEModel`.
+class ValveModel(CompiledSDEModel):
+    """The base valve model (docs/reference.md, section 1, paper eq. 15-17), a
+    :class:`~valve_env.ident.sde.CompiledSDEModel` (its Python functions are the compiled ones).
 
     Free parameters (natural units): ``sigma`` N/K, ``F_hmax`` N, ``p_bset`` MPa
     (paper Table 4), ``s_F`` (N/sqrt(s), friction diffusion, paper eq. 15 dw) and
@@ -434,31 +435,6 @@ class ValveModel(SDEModel):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
             return float(_demand(float(t), _f(x), _f(u), pp, c, cf.ctx))
-
-    # --- SDEModel functions (generic path) ----------------------------------
-    def _call(self, name: str, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        cf = self.compiled()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NumbaExperimentalFeatureWarning)
-            return getattr(cf, name)(float(t), _f(x), _f(u), np.concatenate([_f(p), self.constants]), cf.ctx)
-
-    def drift(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return self._call("drift", t, x, u, p)
-
-    def drift_jacobian(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return self._call("drift_jacobian", t, x, u, p)
-
-    def diffusion(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return self._call("diffusion", t, x, u, p)
-
-    def observation(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return self._call("observation", t, x, u, p)
-
-    def observation_jacobian(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return self._call("observation_jacobian", t, x, u, p)
-
-    def obs_variance(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        return self._call("obs_variance", t, x, u, p)
 
     def initial_state(self, p: np.ndarray, y0: np.ndarray, u0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """F_h = 0 +- F_hmax (the first opening measured settles it); extra states from
