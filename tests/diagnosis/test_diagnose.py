@@ -341,3 +341,20 @@ def test_the_first_steps_null_guard_runs_once_on_the_step_that_is_kept(monkeypat
     assert f.null_guard is not None and f.null_guard["passed"]
     # the diagnosis keeps its models, not their valve paths (Model.forget_paths)
     assert all(not g.estimator.backend_._paths for st in d.steps for g in st)
+
+
+def test_the_slips_check_knows_when_a_record_cannot_show_slips() -> None:
+    """diagnose.expected_slips (docs/diagnosis.md, "Method"): the stick-slip model's own opening, at a
+    5 s record's samples, shows slips for the slips' check to judge; the same record kept one row a minute
+    shows none, so there the check cannot apply (a rest of tens of seconds falls between the samples)."""
+    from valve_env.params import ValveParams
+    from valve_env.valveid.diagnose import check_run, expected_slips, prepare
+    from valve_env.valveid.fitting import Model
+
+    df = simulate_experiment(seed=3, duration_h=6.0, dt_s=5.0, effects={"stiction": {"band_mm": 0.03}})
+    counts = []
+    for k in (1, 12):
+        d = prepare(check_run(df.iloc[::k].reset_index(drop=True)))
+        m = Model(("stiction",))
+        counts.append(expected_slips(m, d, {**m.default_start(d), "band_mm": 0.03}, ValveParams().stroke))
+    assert counts[0] >= 2 > counts[1]
