@@ -17,7 +17,7 @@ def sha(path: Path) -> str:
 def short_run_df() -> pd.DataFrame:
     from valve_env.experiment import simulate_experiment
 
-    df = simulate_experiment(seed=3, duration_h=0.5, dt_s=10.0)
+    df = simulate_experiment(seed=3, duration_h=2.0, dt_s=10.0)  # long enough to identify the valve
     return df[[c for c in df.columns if not c.startswith("true_")]]
 
 

@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pandas as pd
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from valve_env.cli import main
@@ -163,10 +164,13 @@ def test_the_full_foreign_data_corpus(cls, seed) -> None:
 
 
 # --------------------------------------------------------------------------- property: finite or one line
-@settings(max_examples=4, deadline=None,
+# derandomized: the same draws on every run, so that the default suite's time does not depend on them (a
+# random draw of 1 s runs took 195 s against 15 s); the slow suite's corpus covers the conventions at length
+@settings(max_examples=4, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(q=st.sampled_from([0.0, 0.01, 0.02, 0.05, 0.1]), drop=st.floats(0.0, 0.1),
        dt=st.sampled_from([1.0, 5.0, 10.0, 30.0, 60.0]), seed=st.integers(0, 10_000))
+@example(q=0.0, drop=0.0, dt=1.0, seed=189)  # fit's sigma and F_hmax not identified: refused in one line
 def test_fit_and_diagnose_give_finite_results_or_refuse_in_one_line(tmp_path_factory, capsys, q, drop, dt,
                                                                       seed) -> None:
     """Quantisation steps, dropped-row fractions and sampling intervals from the ranges measured data have:
@@ -191,5 +195,8 @@ def test_fit_and_diagnose_give_finite_results_or_refuse_in_one_line(tmp_path_fac
             assert all(math.isfinite(v) for v in block["params"].values())
             assert all(v is not None and math.isfinite(v) for v in block["std"].values()), block["std"]
         else:
-            assert code == 2 and len(err.strip().splitlines()) == 1, err
+            # one error line (the progress lines of a refusal after the fit come before it), no traceback
+            lines = [ln for ln in err.strip().splitlines() if not re.match(r"^\w+: \d+/\d+ ", ln)]
+            assert code == 2 and len(lines) == 1 and lines[0].startswith("thermovalve: error: "), err
+            assert "Traceback" not in err, err
             assert "Error" not in err.split(":", 2)[-1].split(" ")[1], err  # a refusal, not an exception's name

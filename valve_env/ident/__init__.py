@@ -7,6 +7,6 @@
   sandwich covariances;
 * :mod:`~valve_env.ident.bootstrap`: the bootstrap driver;
 * :mod:`~valve_env.ident.tests`: the likelihood-ratio test (boundary mixture, effective sample size),
-  BIC, whiteness (Ljung-Box) and the held-out gain;
+  BIC, whiteness (Ljung-Box) and the misspecification check;
 * :mod:`~valve_env.ident.examples`: small example models (ctsmTMB's Ornstein-Uhlenbeck models).
 """

@@ -261,13 +261,21 @@ def run_fit(args: argparse.Namespace) -> int:
     bad = [k for k, v in p.items() if not (isinstance(v, (int, float)) and math.isfinite(v))]
     if bad:
         raise UsageError(f"{args.run}: the fit gave a non-finite {bad[0]}; the run does not identify the valve")
+    s = summary["std"]
+    flat = [k for k in ("sigma", "F_hmax", "p_bset")
+            if not (isinstance(s.get(k), (int, float)) and math.isfinite(s[k]))]
+    if flat:
+        # an estimate without a standard error is not a result (docs/estimation.md, "Bad input")
+        why = next((m.split(": these parameters")[0] for m in summary["identifiability"] if any(k in m for k in flat)),
+                   "no finite standard error")
+        raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} ({why}); "
+                         "a longer record with wider temperature swings is needed")
     with outs:
         outs.write_text(json_out, json_text(summary))
         if valve_out is not None:
             from valve_env.valvefile import write_valve
 
             write_valve(outs, valve_out, summary["params"], source=f"fitted by thermovalve fit {args.run}")
-    s = summary["std"]
     print(f"sigma = {p['sigma']:.4g} ({_sd(s['sigma'])}) N/K, F_hmax = {p['F_hmax']:.4g} ({_sd(s['F_hmax'])}) N, "
           f"p_bset = {p['p_bset']:.5g} ({_sd(s['p_bset'])}) MPa; loglik {summary['loglik']:.1f}, "
           f"rms {summary['rms_mm']:.3g} mm, n {summary['n']}")
