@@ -470,8 +470,9 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
                        or slips_show_band(valid.x[vr[0]:vr[1]], float(valve.stroke), float(fit.params["band_mm"])))
         if f.training_slips.get("resolved") is False:
             # a record that cannot show the slips cannot judge them held out either: the held-out
-            # log-likelihood must gain
-            f.validated = f.validation_loglik_gain > min_gain
+            # log-likelihood must gain, and by "very strong" evidence (Kass and Raftery 1995: 2 ln B > 10),
+            # as nothing in the record's events corroborates it
+            f.validated = f.validation_loglik_gain > max(min_gain, UNRESOLVED_MIN_GAIN)
     else:
         f.validated = f.validation_loglik_gain > min_gain and v_rms <= ref_val[0]
     return f
@@ -616,6 +617,8 @@ def record_shows_band(parts: tuple[np.ndarray, ...], stroke: float, band: float,
 
 #: docs/diagnosis.md, "Method": the slips' check applies where the fitted model's opening would show slips
 SLIPS_RESOLVED_CHECK = True
+#: the held-out log-likelihood gain (nats) stiction needs where the record cannot show slips
+UNRESOLVED_MIN_GAIN = 5.0
 
 
 def expected_slips(model: Model, data: RunData, values: dict[str, float], stroke: float, seed: int = 0) -> int:
