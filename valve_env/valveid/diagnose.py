@@ -466,13 +466,15 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
         # until the next. It is validated where a held-out measure says it is real: the log-likelihood
         # gains, the open-loop simulation error (where the dead zones show) falls, or the held-out
         # opening itself slips by the fitted band (slips_show_band: the events judged directly)
-        f.validated = (f.validation_loglik_gain > min_gain or v_sim < ref_val[2]
-                       or slips_show_band(valid.x[vr[0]:vr[1]], float(valve.stroke), float(fit.params["band_mm"])))
         if f.training_slips.get("resolved") is False:
             # a record that cannot show the slips cannot judge them held out either: the held-out
             # log-likelihood must gain, and by "very strong" evidence (Kass and Raftery 1995: 2 ln B > 10),
             # as nothing in the record's events corroborates it
             f.validated = f.validation_loglik_gain > max(min_gain, UNRESOLVED_MIN_GAIN)
+        else:
+            f.validated = (f.validation_loglik_gain > min_gain or v_sim < ref_val[2]
+                           or slips_show_band(valid.x[vr[0]:vr[1]], float(valve.stroke),
+                                              float(fit.params["band_mm"])))
     else:
         f.validated = f.validation_loglik_gain > min_gain and v_rms <= ref_val[0]
     return f
