@@ -11,7 +11,7 @@ runs the cells on a Dask cluster.
 
 Seeds: the report's episodes use seeds ``HELD_OUT_SEED .. HELD_OUT_SEED +
 episodes - 1`` (5000-5009 by default). The tasks, their parameters and the
-report were built looking only at seeds 0-99; 5000+ were not run while
+report were built looking only at seeds 0-103; 5000+ were not run while
 building.
 """
 
