@@ -6,7 +6,7 @@
 
 Each cell (task, controller) runs the evaluator (valve_env.evaluation) on
 ``--episodes`` seeded episodes, seeds ``--seed ..`` (5000-5009 by default:
-held out, never run while the tasks were built, which used seeds 0-99).
+held out, never run while the tasks were built, which used seeds 0-103).
 Cells are Dask tasks, on a ``distributed.LocalCluster`` by default
 (``--workers`` processes, one thread each) or on an existing cluster
 (``--scheduler``; the workers need this package installed). Besides the
