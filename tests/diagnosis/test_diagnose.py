@@ -348,7 +348,7 @@ def test_the_slips_check_knows_when_a_record_cannot_show_slips() -> None:
     5 s record's samples, shows slips for the slips' check to judge; the same record kept one row a minute
     shows none, so there the check cannot apply (a rest of tens of seconds falls between the samples)."""
     from valve_env.params import ValveParams
-    from valve_env.valveid.diagnose import check_run, expected_slips, prepare
+    from valve_env.valveid.diagnose import check_run, expected_slips, prepare, slips_below_noise
     from valve_env.valveid.fitting import Model
 
     df = simulate_experiment(seed=3, duration_h=6.0, dt_s=5.0, effects={"stiction": {"band_mm": 0.03}})
@@ -358,6 +358,11 @@ def test_the_slips_check_knows_when_a_record_cannot_show_slips() -> None:
         m = Model(("stiction",))
         counts.append(expected_slips(m, d, {**m.default_start(d), "band_mm": 0.03}, ValveParams().stroke))
     assert counts[0] >= 2 > counts[1]
+    # the minute record hides the slips of a 0.03 mm band by its sampling, not by its noise: a finely sampled
+    # record would show them; a band of one noise sd (2.4 um) no sampling would show
+    start = {**m.default_start(d), "s_w": 2.4e-3}  # the generator's opening noise
+    assert not slips_below_noise(m, d, {**start, "band_mm": 0.03}, ValveParams().stroke)
+    assert slips_below_noise(m, d, {**start, "band_mm": 2.4e-3}, ValveParams().stroke)
 
 
 def test_a_smooth_effects_size_is_its_demands_not_the_friction_memorys() -> None:
