@@ -348,7 +348,7 @@ def test_the_slips_check_knows_when_a_record_cannot_show_slips() -> None:
     5 s record's samples, shows slips for the slips' check to judge; the same record kept one row a minute
     shows none, so there the check cannot apply (a rest of tens of seconds falls between the samples)."""
     from valve_env.params import ValveParams
-    from valve_env.valveid.diagnose import check_run, expected_slips, prepare
+    from valve_env.valveid.diagnose import check_run, expected_slips, prepare, slips_below_noise
     from valve_env.valveid.fitting import Model
 
     df = simulate_experiment(seed=3, duration_h=6.0, dt_s=5.0, effects={"stiction": {"band_mm": 0.03}})
@@ -358,3 +358,35 @@ def test_the_slips_check_knows_when_a_record_cannot_show_slips() -> None:
         m = Model(("stiction",))
         counts.append(expected_slips(m, d, {**m.default_start(d), "band_mm": 0.03}, ValveParams().stroke))
     assert counts[0] >= 2 > counts[1]
+    # the minute record hides the slips of a 0.03 mm band by its sampling, not by its noise: a finely sampled
+    # record would show them; a band of one noise sd (2.4 um) no sampling would show
+    start = {**m.default_start(d), "s_w": 2.4e-3}  # the generator's opening noise
+    assert not slips_below_noise(m, d, {**start, "band_mm": 0.03}, ValveParams().stroke)
+    assert slips_below_noise(m, d, {**start, "band_mm": 2.4e-3}, ValveParams().stroke)
+
+
+def test_a_smooth_effects_size_is_its_demands_not_the_friction_memorys() -> None:
+    """diagnose.effect_size (docs/diagnosis.md, "Measured data of any convention"): a medium weight of
+    1.5e-4, fitted to a run without any effect whose medium temperature is noiseless and stored on change,
+    moves the simulated opening by 3 um RMS, more than its noise sd, through one offset held for
+    1.8 h (a reversal of the sensed temperature kept instead of dropped, 0.15 um median); it moves the
+    valve's demand by far less than the noise sd, and is not relevant."""
+    from valve_env.studies.conventions import apply_convention
+    from valve_env.valveid.diagnose import check_run, effect_size, prepare
+    from valve_env.valveid.fitting import Model
+
+    df = simulate_experiment(seed=136279866, duration_h=24.442482428857208, dt_s=10.0, T_noise_C=0.003911477031886089,
+                             x_noise_mm=0.0017002974954904613)
+    run = prepare(check_run(apply_convention(df, "stepped_medium")))
+    train = run.slice(0, int(round(0.75 * len(run))))
+    m = Model(("medium_temperature",))
+    fit = {"sigma": 6.36135614213168, "F_hmax": 1.3156756115620472, "p_bset": 0.07760937509927036,
+           "beta": 0.00014552007363542675, "s_w": 0.001688135257525188, "s_e": 0.000638661688665416, "tau_e": 900.0}
+    x1, _, _ = m.simulate(train, fit)
+    x0, _, _ = m.simulate(train, {**fit, "beta": 0.0})
+    assert np.sqrt(np.mean((x1 - x0) ** 2)) > fit["s_w"] > 10 * np.median(np.abs(x1 - x0))  # the held offset
+    size = effect_size(m, train, fit, "medium_temperature")
+    assert size < 0.3 * fit["s_w"]
+    # the demand of a real medium weight (0.03, the smallest the studies draw) is far above the noise
+    assert effect_size(m, train, {**fit, "beta": 0.03}, "medium_temperature") > 10 * fit["s_w"]
+

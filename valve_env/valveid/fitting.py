@@ -40,6 +40,8 @@ from valve_env.ident.mle import minimise, past_kink
 from valve_env.ident.sde import Parameter, dnat_dwork, from_work, to_work, work_bounds
 from valve_env.ident.uncertainty import hessian_sandwich_parts
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, ValveParams
+from valve_env.physics.trajectory import drifted_set_pressure
+from valve_env.physics.valve import demanded_opening
 from valve_env.valveid.data import RunData
 from valve_env.valveid.oe import (
     BAND_SPREAD,
@@ -212,6 +214,28 @@ class Model:
         else:
             x = x.copy()
         return x, Tg.copy(), F.copy()
+
+    def simulate_substeps(self, data: RunData, values: dict[str, float]) -> np.ndarray:
+        """The open-loop opening (mm) on the simulation's sub-step grid (at most ``max_step_s`` apart): the
+        valve as a record sampled that finely would show it, with stiction's rests and slips between the
+        samples."""
+        vp, e = self._vectors(values)
+        _, _, _, x_sub, _ = self._valve_path(data, vp, e, self.delta(data, values), True)
+        if not self._stuck(values):
+            return x_sub.copy()
+        band = values["band_mm"]
+        return stick_simulate_sj(x_sub, np.arange(x_sub.shape[0]), band, band, float(vp[I_STROKE]))
+
+    def demand(self, data: RunData, values: dict[str, float]) -> np.ndarray:
+        """The opening the force balance demands without friction (mm, limited to the stroke) at the
+        samples: the simulated gas temperature and set pressure with the friction force at 0. Unlike the
+        opening, it has no memory: where the sensed temperature is freed of small reversals
+        (:func:`~valve_env.valveid.oe.monotone_path`), a tiny change of it can keep or drop a reversal and
+        leave the friction force, and so the opening, a different offset until the next reversal."""
+        vp, e = self._vectors(values)
+        _, Tg, _ = self.simulate(data, values)
+        p_set = drifted_set_pressure(vp[I_P_BSET], e[ENGINE_INDEX["rate_MPa_per_h"]], data.t - data.t[0])
+        return np.clip(demanded_opening(Tg, 0.0, data.dp, data.ps, p_set, vp), 0.0, vp[I_STROKE])
 
     def _filter(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None,
                 slip: float = -1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
