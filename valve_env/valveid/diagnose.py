@@ -448,11 +448,12 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
             # unless a finely sampled record would not show them either (a band within the noise)
             expected = expected_slips(model, train, fit.params, float(valve.stroke))
             f.training_slips["expected"] = expected
-            if expected < 2 and slips_below_noise(model, train, fit.params, float(valve.stroke)):
-                f.training_slips["below_noise"] = True
-            elif expected < 2:
-                shown = True
-                f.training_slips["resolved"] = False
+            if expected < 2:
+                if slips_below_noise(model, train, fit.params, float(valve.stroke)):
+                    f.training_slips["below_noise"] = True
+                else:
+                    shown = True
+                    f.training_slips["resolved"] = False
         f.significant = f.significant and (shown or slips_stand_in)
     f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
     if not EFFECTS[effect].variance_gain and train.quantised:
@@ -732,10 +733,9 @@ def effect_size(model: Model, data: RunData, values: dict[str, float], effect: s
     xs, _, _ = model.simulate(data, values)
     x0, _, _ = model.simulate(data, {**values, **nulls})
     diff = xs - x0
-    if EFFECTS[effect].variance_gain:
-        diff = diff[np.abs(diff) > float(values["s_w"])]
-        if diff.size == 0:
-            return 0.0
+    diff = diff[np.abs(diff) > float(values["s_w"])]
+    if diff.size == 0:
+        return 0.0
     return float(np.sqrt(np.mean(diff**2)))
 
 
