@@ -79,8 +79,9 @@ def test_band_sampling_is_the_estimators_spread_and_the_bootstrap_matches_it() -
                    "stem's slip on each measurement (the measured slip decision, behind the simulated null "
                    "guard of diagnose): it catches the slip at the sample that shows it, but with the slip decided "
                    "by the measurement a smaller band costs only the log of the slip's prior where the stem rests, "
-                   "so the likelihood peaks below the band (here at 0.7 band, the band 11 log-units below; the "
-                   "moment-matched filter peaked at 0.85 band, the band 86 below). The band is "
+                   "so the likelihood peaks below the band (here at 0.5-0.6 band, the band 13.6 log-units below, "
+                   "8.1 below the test grid's lowest point, 0.7 band; the moment-matched filter peaked at 0.85 "
+                   "band, the band 86 below). The band is "
                    "measured from the slips, not by this likelihood (docs/diagnosis.md, 'Method').")
 def test_stick_filter_nested_and_peaks_at_the_band() -> None:
     """Exact stick-slip data: the filter's likelihood is maximal near the true band (the first-passage
