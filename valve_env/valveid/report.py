@@ -62,7 +62,7 @@ def _series(model: Model, data: RunData,
 
 def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str]]:
     """Write the PNG figures; returns (file name, caption) pairs."""
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
@@ -75,6 +75,10 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
     xf, Tgf, zf, rf, lf = _series(fin_m, data, d.final.params)
     th = (data.t - data.t[0]) / 3600.0
     figs: list[tuple[str, str]] = []
+
+    def save(fig: Any, suffix: str, caption: str) -> None:
+        fig.tight_layout()
+        figs.append((save_figure(fig, out_dir / f"{stem}_{suffix}.png", dpi=90).name, caption))
     label_f = "+".join(d.final.effects) or "base"
 
     fig, ax = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True, gridspec_kw={"height_ratios": [2, 1.3, 1]})
@@ -98,11 +102,7 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
         if b > a:
             axx.axvspan(th[a], th[b - 1], color="0.9", zorder=0)
     ax[0].set_title("Opening: measured and simulated (shaded: held out for validation)", fontsize=10)
-    fig.tight_layout()
-    name = f"{stem}_fit.png"
-    fig.savefig(out_dir / name, dpi=90)
-    plt.close(fig)
-    figs.append((name, "The run, the base model's and the extended model's simulation, and the residuals."))
+    save(fig, "fit", "The run, the base model's and the extended model's simulation, and the residuals.")
 
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
     rising = data.vT > 0
@@ -115,11 +115,7 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
         axx.set_title(f"phase diagram, colour = residual ({title})", fontsize=10)
         fig.colorbar(sc, ax=axx, label="um")
     ax[0].set_ylabel("measured opening, mm")
-    fig.tight_layout()
-    name = f"{stem}_phase.png"
-    fig.savefig(out_dir / name, dpi=90)
-    plt.close(fig)
-    figs.append((name, "Where in the phase diagram the misfit lies (colour: measured minus simulated)."))
+    save(fig, "phase", "Where in the phase diagram the misfit lies (colour: measured minus simulated).")
 
     fig, ax = plt.subplots(1, 2, figsize=(11, 3.6))
     lags = np.arange(1, 31)
@@ -143,11 +139,7 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
     ax[1].set_ylabel("RMS per hour, um")
     ax[1].set_title("where in time the misfit lies", fontsize=10)
     ax[1].legend(fontsize=8)
-    fig.tight_layout()
-    name = f"{stem}_residuals.png"
-    fig.savefig(out_dir / name, dpi=90)
-    plt.close(fig)
-    figs.append((name, "Residual whiteness before and after, and the misfit hour by hour."))
+    save(fig, "residuals", "Residual whiteness before and after, and the misfit hour by hour.")
     return figs
 
 
