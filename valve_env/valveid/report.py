@@ -20,18 +20,17 @@ import pandas as pd
 from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.ident.mle import MLEstimator
 from valve_env.ident.tests import residual_report
-from valve_env.params import ValveParams
 from valve_env.valveid.diagnose import Diagnosis
 from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
 from valve_env.valveid.fit import PAPER_TABLE4, VALVE_FIELDS, fit_summary
-from valve_env.valveid.fitting import Model, RunData
+from valve_env.valveid.fitting import BASE_PARAMS, NOISE_PARAMS, Model, RunData
 from valve_env.valveid.preprocess import describe
 
 #: the fit report's parameter labels and units
 _LABELS = {"sigma": ("sigma", "N/K"), "F_hmax": ("F_h,max", "N"), "p_bset": ("p_b,set", "MPa"),
            "s_F": ("s_F (friction diffusion)", "N/sqrt(s)"), "s_x": ("s_x (observation sd)", "mm")}
-UNITS = {"sigma": "N/K", "F_hmax": "N", "p_bset": "MPa", "s_w": "mm", "s_e": "mm", "tau_e": "s", "tau_s": "s",
-         "beta": "-", "band_mm": "mm", "rate_MPa_per_h": "MPa/h"}
+#: each output-error parameter's unit, as the fit and the effects' registry declare it
+UNITS = {q.name: q.unit for q in (*BASE_PARAMS, *NOISE_PARAMS, *(p for e in EFFECTS.values() for p in e.parameters))}
 MEANING = {"sigma": "Dahl stiffness", "F_hmax": "maximum friction force", "p_bset": "bellows pressure at the set point",
            "s_w": "measurement noise sd", "s_e": "model error sd (Ornstein-Uhlenbeck)",
            "tau_e": "model error time constant", "tau_s": "bulb time constant", "beta": "medium temperature weight",
@@ -69,8 +68,8 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
 
     data = d.valid if d.valid_range[0] > 0 else d.train
     a, b = d.valid_range if d.valid_range[0] > 0 else (len(data), len(data))
-    base_m = Model((), _valve(d))
-    fin_m = Model(d.final.effects, _valve(d))
+    base_m = Model((), d.valve)
+    fin_m = Model(d.final.effects, d.valve)
     xb, Tgb, zb, rb, lb = _series(base_m, data, d.base.params)
     xf, Tgf, zf, rf, lf = _series(fin_m, data, d.final.params)
     th = (data.t - data.t[0]) / 3600.0
@@ -141,11 +140,6 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
     ax[1].legend(fontsize=8)
     save(fig, "residuals", "Residual whiteness before and after, and the misfit hour by hour.")
     return figs
-
-
-def _valve(d: Diagnosis) -> ValveParams:
-    """The valve constants the diagnosis used."""
-    return d.valve
 
 
 def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "run") -> str:
