@@ -8,6 +8,9 @@ a command has written its own.
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 
 def headless() -> None:
     """Select the Agg backend unless a notebook's inline (``module://...``) backend is active."""
@@ -18,4 +21,14 @@ def headless() -> None:
         matplotlib.use("Agg")
 
 
-__all__ = ["headless"]
+def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:
+    """Write ``fig`` to ``path`` at ``dpi`` and close it; returns the path."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+__all__ = ["headless", "save_figure"]

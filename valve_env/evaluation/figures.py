@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from valve_env.plotting import headless
+from valve_env.plotting import headless, save_figure
 
 headless()
 import matplotlib.pyplot as plt  # noqa: E402
@@ -51,10 +51,7 @@ def plot_trajectories(
     ax_d.set_xlabel("time of day (h)")
     ax_t.set_title(f"{env_id}: one episode (seed {first.attrs.get('seed', '')}) per controller".replace("(seed )", ""))
     fig.tight_layout()
-    p = Path(path)
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    return p
+    return save_figure(fig, path)
 
 
 def plot_tradeoff(summary: Mapping[str, Any], path: str | Path) -> Path:
@@ -73,7 +70,4 @@ def plot_tradeoff(summary: Mapping[str, Any], path: str | Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    p = Path(path)
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    return p
+    return save_figure(fig, path)

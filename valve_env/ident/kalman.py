@@ -203,13 +203,14 @@ def _sym_rhs(A: np.ndarray, P: np.ndarray, G: np.ndarray, out: np.ndarray) -> No
 
 
 @nb.njit(cache=True)
-def _mat_rhs(A: np.ndarray, Phi: np.ndarray, out: np.ndarray) -> None:
+def _matmul(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """out = A B for square matrices (explicit loops: small matrices)."""
     n = A.shape[0]
     for i in range(n):
         for j in range(n):
             s = 0.0
             for k in range(n):
-                s += A[i, k] * Phi[k, j]
+                s += A[i, k] * B[k, j]
             out[i, j] = s
 
 
@@ -303,13 +304,8 @@ def _update(x: np.ndarray, P: np.ndarray, yh: np.ndarray, H: np.ndarray, R: np.n
             for a in range(m):
                 s -= K[i, a] * H[idx[a], j]
             IKH[i, j] = s
-    T1 = np.zeros((nx, nx))
-    for i in range(nx):
-        for j in range(nx):
-            s = 0.0
-            for k in range(nx):
-                s += IKH[i, k] * P[k, j]
-            T1[i, j] = s
+    T1 = np.empty((nx, nx))
+    _matmul(IKH, P, T1)
     for i in range(nx):
         for j in range(i, nx):
             s = 0.0
@@ -373,7 +369,7 @@ def _ekf_kernel(f, jf, g, h, jh, r, ctx, t, U, Y, pc, x0, P0, n_sub, foh, jac_ea
                         A = jf(s0 + c * hh, xt, u, pc, ctx)
                         G = g(s0 + c * hh, xt, u, pc, ctx)
                     _sym_rhs(A, Pt, G, kP[st])
-                    _mat_rhs(A, Ft, kF[st])
+                    _matmul(A, Ft, kF[st])
                 for i in range(nx):
                     x[i] += hh / 6.0 * (kx[0, i] + 2.0 * kx[1, i] + 2.0 * kx[2, i] + kx[3, i])
                     for jj in range(nx):

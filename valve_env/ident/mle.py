@@ -339,25 +339,27 @@ class MLEstimator(Estimator):
 
     def predict(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """One-step predictions of each output (``name``) and their standard deviations (``name_sd``)."""
-        return _outputs_frame(self.model, *self._run(data))
+        arr, res = self._run(data)
+        return _frame(self.model.outputs, arr.t, res.y_pred, res.S)
 
     def simulate(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """Pure simulation: the outputs predicted from the inputs alone, never updated by the
         measured outputs, except those the model lists in ``simulation_outputs`` (for the
         valve model the noisy temperature, which plays the paper's input T_tank)."""
         keep = tuple(getattr(self.model, "simulation_outputs", ()))
-        return _outputs_frame(self.model, *self._run(data, tuple(n for n in self.model.outputs if n not in keep)))
+        arr, res = self._run(data, tuple(n for n in self.model.outputs if n not in keep))
+        return _frame(self.model.outputs, arr.t, res.y_pred, res.S)
 
     def filter(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """Filtered states and their standard deviations."""
         arr, res = self._run(data)
-        return _states_frame(self.model, arr.t, res.x_filt, res.P_filt)
+        return _frame(self.model.states, arr.t, res.x_filt, res.P_filt)
 
     def smooth(self, data: pd.DataFrame | Arrays | None = None) -> pd.DataFrame:
         """Smoothed states (Rauch-Tung-Striebel on the linearised filter) and standard deviations."""
         arr, res = self._run(data)
         xs, Ps = rts_smooth(res)
-        return _states_frame(self.model, arr.t, xs, Ps)
+        return _frame(self.model.states, arr.t, xs, Ps)
 
     def residuals(self, data: pd.DataFrame | Arrays | None = None, standardised: bool = True) -> pd.DataFrame:
         """One-step prediction errors per output, standardised by their predicted sd (NaN where missing)."""
@@ -423,15 +425,6 @@ def past_kink(f: Callable[[np.ndarray], float], x0: np.ndarray, max_fevals: int)
                                    options={"maxfev": max_fevals, "xatol": 1e-4, "fatol": 0.01})
 
 
-def _outputs_frame(model: SDEModel, arr: Arrays, res: FilterResult) -> pd.DataFrame:
-    """The predicted outputs (``name``) and their sds (``name_sd``) of a filter pass."""
-    out: dict[str, np.ndarray] = {"time_s": arr.t}
-    for j, name in enumerate(model.outputs):
-        out[name] = res.y_pred[:, j]
-        out[f"{name}_sd"] = np.sqrt(np.maximum(res.S[:, j, j], 0.0))
-    return pd.DataFrame(out)
-
-
 def profile_maximum(f: Callable[[float], float], grid: np.ndarray, *, xatol: float,
                     maxiter: int) -> tuple[float, float, list[tuple[float, float]]]:
     """The maximum of a rugged one-dimensional (profile) log-likelihood ``f``, where a gradient method stalls:
@@ -454,9 +447,11 @@ def profile_maximum(f: Callable[[float], float], grid: np.ndarray, *, xatol: flo
     return best[0], best[1], profile
 
 
-def _states_frame(model: SDEModel, t: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
+def _frame(names: tuple[str, ...], t: np.ndarray, X: np.ndarray, P: np.ndarray) -> pd.DataFrame:
+    """Means ``X`` (``name``) and the sds of their covariances ``P`` (``name_sd``) of the ``names`` at times ``t``:
+    a filter pass's predicted outputs, filtered or smoothed states."""
     out: dict[str, np.ndarray] = {"time_s": t}
-    for j, name in enumerate(model.states):
+    for j, name in enumerate(names):
         out[name] = X[:, j]
         out[f"{name}_sd"] = np.sqrt(np.maximum(P[:, j, j], 0.0))
     return pd.DataFrame(out)

@@ -518,12 +518,10 @@ def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray
     wb = np.empty(q)
     na = alist.size + (1 if allow_integ else 0)
     out = np.empty(xs.shape[0])
-    w = np.empty(n)
     for ix in range(xs.shape[0]):
         best = 1e300
         sign = 0.0
         x = xs[ix]
-        xm = x.mean()
         for sub in (False, True):  # whole-sample delays first, then sub-sample ones of their gain's sign
             if sub and delays[0] >= 1.0:
                 break
@@ -531,9 +529,7 @@ def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray
             for ia in range(na):
                 integ = ia == alist.size
                 a = alist[ia] if not integ else 1.0
-                w[0] = 0.0 if integ else x[0]
-                for k in range(1, n):
-                    w[k] = w[k - 1] + (x[k] - xm) if integ else a * w[k - 1] + (1.0 - a) * x[k]
+                w = _filtered(x, a, 0.0, integ)
                 P2[1] = w[0] * w[0]
                 for k in range(1, n):
                     P2[k + 1] = P2[k] + w[k] * w[k]

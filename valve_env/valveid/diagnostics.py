@@ -7,22 +7,22 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from valve_env.plotting import headless
+from valve_env.plotting import headless, save_figure
 
 headless()
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from statsmodels.tsa.stattools import acf  # noqa: E402
 
-from valve_env.ident.tests import ResidualReport  # noqa: E402
+from valve_env.ident.tests import ResidualReport, residual_report  # noqa: E402
 
 
 # --------------------------------------------------------------------------- figures
 def paper_figure(time_s: np.ndarray, measured: np.ndarray, predicted: np.ndarray, simulated: np.ndarray,
                  residuals: np.ndarray, path: str | Path, title: str = "", nlags: int = 40,
                  ylabel: str = "x [mm]") -> Path:
-    """The paper's Fig. 6/7: measured, predicted and simulated output; residuals; residual ACF."""
+    """The paper's Fig. 6/7: measured, predicted and simulated output; residuals; residual ACF
+    (:func:`valve_env.ident.tests.residual_report`'s, with its 95 % band)."""
     th = np.asarray(time_s, dtype=float) / 3600.0
     fig, ax = plt.subplots(3, 1, figsize=(9, 8), constrained_layout=True)
     ax[0].plot(th, measured, ".", ms=1.5, color="0.3", label="measured")
@@ -36,21 +36,14 @@ def paper_figure(time_s: np.ndarray, measured: np.ndarray, predicted: np.ndarray
     ax[1].axhline(0, color="k", lw=0.5)
     ax[1].set_ylabel("residual")
     ax[1].set_xlabel("time [h]")
-    e = np.asarray(residuals, dtype=float)
-    e = e[np.isfinite(e)]
-    nl = int(min(nlags, len(e) // 2 - 1))
-    r = acf(e, nlags=nl, fft=True)
-    ax[2].vlines(np.arange(nl + 1), 0, r, color="C0")
-    band = 1.96 / np.sqrt(len(e))
-    ax[2].axhline(band, ls="--", color="C3", lw=0.8)
-    ax[2].axhline(-band, ls="--", color="C3", lw=0.8)
+    rep = residual_report(residuals, nlags=nlags)
+    ax[2].vlines(rep.lags, 0, rep.acf, color="C0")
+    ax[2].axhline(rep.acf_band, ls="--", color="C3", lw=0.8)
+    ax[2].axhline(-rep.acf_band, ls="--", color="C3", lw=0.8)
     ax[2].axhline(0, color="k", lw=0.5)
     ax[2].set_xlabel("lag")
     ax[2].set_ylabel("ACF of residuals")
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def phase_diagram(temperature: np.ndarray, opening: np.ndarray, path: str | Path, simulated: np.ndarray | None = None,
@@ -65,10 +58,7 @@ def phase_diagram(temperature: np.ndarray, opening: np.ndarray, path: str | Path
     ax.set_ylabel("x [mm]")
     if title:
         ax.set_title(title)
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def whiteness_figure(rep: ResidualReport, path: str | Path, title: str = "") -> Path:
@@ -91,10 +81,7 @@ def whiteness_figure(rep: ResidualReport, path: str | Path, title: str = "") -> 
         ax[1].legend(fontsize=7)
     if title:
         fig.suptitle(title)
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 __all__ = ["paper_figure", "phase_diagram", "whiteness_figure"]

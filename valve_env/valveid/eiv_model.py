@@ -53,6 +53,7 @@ import numpy as np
 from valve_env.ident.kalman import _alloc
 from valve_env.ident.sde import Parameter, SDEModel, with_overrides
 from valve_env.params import I_P_BSET, I_STROKE
+from valve_env.physics import valve as phys
 from valve_env.valveid.valve_model import (
     C_CLIP_W,
     C_SIGN_EPS,
@@ -68,9 +69,6 @@ from valve_env.valveid.valve_model import (
     _valve_vector,
     clip_weight,
     denoise_temperature,
-    nb_dahl_relax,
-    nb_demanded_opening,
-    nb_stiffness,
     noise_sd,
     smooth_sign,
 )
@@ -251,7 +249,7 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
             if e > 1.0 and sv != 0.0:  # the error's travel cannot reverse the interval's direction
                 e = 1.0
             g = sig * sv * (sv * Fm - F) / Fm * e  # dF+/d(dd)
-            Fn = nb_dahl_relax(F, sv, e, vp)
+            Fn = phys.dahl_relax(F, sv, e, vp)
             A00 = e
             A01 = g * (a - 1.0)
             A11 = a
@@ -270,11 +268,11 @@ def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.nd
         T_g = U[k, U_T] + d
         dpk = U[k, U_DP]
         psk = U[k, U_PS]
-        xd = nb_demanded_opening(T_g, F, dpk, psk, vp[I_P_BSET], vp)
+        xd = phys.demanded_opening(T_g, F, dpk, psk, vp[I_P_BSET], vp)
         wgt = clip_weight(xd, stroke, w)
-        hF = wgt / nb_stiffness(dpk, vp)
-        hd = wgt * (nb_demanded_opening(T_g + hT, F, dpk, psk, vp[I_P_BSET], vp)
-                    - nb_demanded_opening(T_g - hT, F, dpk, psk, vp[I_P_BSET], vp)) / (2.0 * hT)
+        hF = wgt / phys.stiffness(dpk, vp)
+        hd = wgt * (phys.demanded_opening(T_g + hT, F, dpk, psk, vp[I_P_BSET], vp)
+                    - phys.demanded_opening(T_g - hT, F, dpk, psk, vp[I_P_BSET], vp)) / (2.0 * hT)
         y0 = min(max(xd, 0.0), stroke)
         # S = H P H' + R with H = [[hF, hd], [0, 1]]
         PH00 = P00 * hF + P01 * hd  # (P H')[:, 0]

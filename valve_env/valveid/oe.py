@@ -44,8 +44,6 @@ from valve_env.physics.trajectory import (
 )
 from valve_env.valveid.temperature import monotone_path
 
-_demanded_opening = njit(cache=True)(phys.demanded_opening)
-_dahl_update = njit(cache=True)(phys.dahl_update)
 SQRT2 = math.sqrt(2.0)
 #: sd of the breakaway band relative to the band (static friction varies from one breakaway to the next)
 BAND_SPREAD = 0.5
@@ -113,7 +111,7 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
     env_s = monotone_path(env_raw, delta)
     Tg = env_s[0]
     F = 0.0
-    xd = _demanded_opening(Tg, F, dp[0], ps[0], p0, vp)
+    xd = phys.demanded_opening(Tg, F, dp[0], ps[0], p0, vp)
     x_out[0] = min(max(xd, 0.0), stroke)
     Tg_out[0] = Tg
     F_out[0] = F
@@ -135,14 +133,14 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
             env_prev = e0 + (j - 1) * de
             env = e0 + j * de
             Tg_new = bulb_lag(Tg, env_prev, env, a, b)
-            F = _dahl_update(F, Tg_new - Tg, vp)
+            F = phys.dahl_update(F, Tg_new - Tg, vp)
             Tg = Tg_new
             if want_sub and j < m:
                 tt = t[k - 1] + j * hs
-                xd = _demanded_opening(Tg, F, dp[k], ps[k], drifted_set_pressure(p0, rate, tt - t0), vp)
+                xd = phys.demanded_opening(Tg, F, dp[k], ps[k], drifted_set_pressure(p0, rate, tt - t0), vp)
                 pos += 1
                 x_sub[pos] = min(max(xd, 0.0), stroke)
-        xd = _demanded_opening(Tg, F, dp[k], ps[k], drifted_set_pressure(p0, rate, t[k] - t0), vp)
+        xd = phys.demanded_opening(Tg, F, dp[k], ps[k], drifted_set_pressure(p0, rate, t[k] - t0), vp)
         x_out[k] = min(max(xd, 0.0), stroke)
         if want_sub:
             pos += 1

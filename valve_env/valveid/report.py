@@ -20,18 +20,17 @@ import pandas as pd
 from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.ident.mle import MLEstimator
 from valve_env.ident.tests import residual_report
-from valve_env.params import ValveParams
 from valve_env.valveid.diagnose import Diagnosis
 from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
 from valve_env.valveid.fit import PAPER_TABLE4, VALVE_FIELDS, fit_summary
-from valve_env.valveid.fitting import Model, RunData
+from valve_env.valveid.fitting import BASE_PARAMS, NOISE_PARAMS, Model, RunData
 from valve_env.valveid.preprocess import describe
 
 #: the fit report's parameter labels and units
 _LABELS = {"sigma": ("sigma", "N/K"), "F_hmax": ("F_h,max", "N"), "p_bset": ("p_b,set", "MPa"),
            "s_F": ("s_F (friction diffusion)", "N/sqrt(s)"), "s_x": ("s_x (observation sd)", "mm")}
-UNITS = {"sigma": "N/K", "F_hmax": "N", "p_bset": "MPa", "s_w": "mm", "s_e": "mm", "tau_e": "s", "tau_s": "s",
-         "beta": "-", "band_mm": "mm", "rate_MPa_per_h": "MPa/h"}
+#: each output-error parameter's unit, as the fit and the effects' registry declare it
+UNITS = {q.name: q.unit for q in (*BASE_PARAMS, *NOISE_PARAMS, *(p for e in EFFECTS.values() for p in e.parameters))}
 MEANING = {"sigma": "Dahl stiffness", "F_hmax": "maximum friction force", "p_bset": "bellows pressure at the set point",
            "s_w": "measurement noise sd", "s_e": "model error sd (Ornstein-Uhlenbeck)",
            "tau_e": "model error time constant", "tau_s": "bulb time constant", "beta": "medium temperature weight",
@@ -62,19 +61,23 @@ def _series(model: Model, data: RunData,
 
 def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str]]:
     """Write the PNG figures; returns (file name, caption) pairs."""
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
 
     data = d.valid if d.valid_range[0] > 0 else d.train
     a, b = d.valid_range if d.valid_range[0] > 0 else (len(data), len(data))
-    base_m = Model((), _valve(d))
-    fin_m = Model(d.final.effects, _valve(d))
+    base_m = Model((), d.valve)
+    fin_m = Model(d.final.effects, d.valve)
     xb, Tgb, zb, rb, lb = _series(base_m, data, d.base.params)
     xf, Tgf, zf, rf, lf = _series(fin_m, data, d.final.params)
     th = (data.t - data.t[0]) / 3600.0
     figs: list[tuple[str, str]] = []
+
+    def save(fig: Any, suffix: str, caption: str) -> None:
+        fig.tight_layout()
+        figs.append((save_figure(fig, out_dir / f"{stem}_{suffix}.png", dpi=90).name, caption))
     label_f = "+".join(d.final.effects) or "base"
 
     fig, ax = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True, gridspec_kw={"height_ratios": [2, 1.3, 1]})
@@ -98,11 +101,7 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
         if b > a:
             axx.axvspan(th[a], th[b - 1], color="0.9", zorder=0)
     ax[0].set_title("Opening: measured and simulated (shaded: held out for validation)", fontsize=10)
-    fig.tight_layout()
-    name = f"{stem}_fit.png"
-    fig.savefig(out_dir / name, dpi=90)
-    plt.close(fig)
-    figs.append((name, "The run, the base model's and the extended model's simulation, and the residuals."))
+    save(fig, "fit", "The run, the base model's and the extended model's simulation, and the residuals.")
 
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
     rising = data.vT > 0
@@ -115,11 +114,7 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
         axx.set_title(f"phase diagram, colour = residual ({title})", fontsize=10)
         fig.colorbar(sc, ax=axx, label="um")
     ax[0].set_ylabel("measured opening, mm")
-    fig.tight_layout()
-    name = f"{stem}_phase.png"
-    fig.savefig(out_dir / name, dpi=90)
-    plt.close(fig)
-    figs.append((name, "Where in the phase diagram the misfit lies (colour: measured minus simulated)."))
+    save(fig, "phase", "Where in the phase diagram the misfit lies (colour: measured minus simulated).")
 
     fig, ax = plt.subplots(1, 2, figsize=(11, 3.6))
     lags = np.arange(1, 31)
@@ -143,17 +138,8 @@ def write_figures(d: Diagnosis, out_dir: Path, stem: str) -> list[tuple[str, str
     ax[1].set_ylabel("RMS per hour, um")
     ax[1].set_title("where in time the misfit lies", fontsize=10)
     ax[1].legend(fontsize=8)
-    fig.tight_layout()
-    name = f"{stem}_residuals.png"
-    fig.savefig(out_dir / name, dpi=90)
-    plt.close(fig)
-    figs.append((name, "Residual whiteness before and after, and the misfit hour by hour."))
+    save(fig, "residuals", "Residual whiteness before and after, and the misfit hour by hour.")
     return figs
-
-
-def _valve(d: Diagnosis) -> ValveParams:
-    """The valve constants the diagnosis used."""
-    return d.valve
 
 
 def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "run") -> str:

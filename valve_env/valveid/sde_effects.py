@@ -35,6 +35,7 @@ import numpy as np
 
 from valve_env.effects import REGISTRY, check_effects
 from valve_env.ident.sde import Parameter
+from valve_env.physics.trajectory import sensed_temperature
 from valve_env.valveid.valve_model import (
     N_BASE_CONSTANTS,
     N_BASE_PARAMS,
@@ -62,9 +63,7 @@ def _par(p: np.ndarray, c: np.ndarray, where: int, default: float) -> float:
 
 @nb.njit(cache=True)
 def _env(t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray, c: np.ndarray) -> float:
-    beta = _par(p, c, C_BETA, 0.0)
-    T = tank_temperature(t, u)
-    return T + beta * (medium_temperature(t, u) - T)
+    return sensed_temperature(tank_temperature(t, u), medium_temperature(t, u), _par(p, c, C_BETA, 0.0))
 
 
 @nb.njit(cache=True)
@@ -105,7 +104,7 @@ def fx_extra_drift(t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray, c: np.
     out = np.zeros(x.shape[0] - N_BASE_STATES)
     i = int(c[C_XTG])
     if i >= 0:
-        out[i - N_BASE_STATES] = (_env(t, x, u, p, c) - x[i]) / max(_par(p, c, C_TAU, 1.0), 1e-6)
+        out[i - N_BASE_STATES] = fx_gas_rate(t, x, u, p, c)  # the bulb state's drift is the Dahl driver
     j = int(c[C_XSTEM])
     if j >= 0:
         Tg = fx_gas_temperature(t, x, u, p, c)

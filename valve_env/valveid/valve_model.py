@@ -53,13 +53,6 @@ from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, N_VALVE, Val
 from valve_env.physics import valve as phys
 from valve_env.valveid.temperature import DENOISERS, denoise_temperature, noise_sd, relaxed_tv, tv_denoise
 
-# numba versions of the shared physics functions (the same source as the environment uses)
-nb_demanded_opening = nb.njit(cache=True)(phys.demanded_opening)
-nb_vapour_pressure = nb.njit(cache=True)(phys.vapour_pressure)
-nb_vapour_pressure_slope = nb.njit(cache=True)(phys.vapour_pressure_slope)
-nb_stiffness = nb.njit(cache=True)(phys.stiffness)
-nb_dahl_relax = nb.njit(cache=True)(phys.dahl_relax)
-
 # Indices into the parameter vector p (base parameters come first, extensions append).
 P_SIGMA, P_F_HMAX, P_P_BSET, P_S_F, P_S_X = 0, 1, 2, 3, 4
 N_BASE_PARAMS = 5
@@ -141,7 +134,7 @@ def hook_opening(t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray, c: np.nd
                  T_g: float, p_set: float) -> float:
     """The unclipped opening, mm (the observation clips it to [0, stroke]).
     Base: the force balance, paper eq. 16, with F_h = x[X_F]."""
-    return nb_demanded_opening(T_g, x[X_F], u[U_DP], u[U_PS], p_set, _valve_vector(p, c))
+    return phys.demanded_opening(T_g, x[X_F], u[U_DP], u[U_PS], p_set, _valve_vector(p, c))
 
 
 @nb.njit(cache=True)
@@ -307,15 +300,15 @@ def _fast_valve_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarra
             v = U[k - 1, U_V]
             sv = smooth_sign(v, eps)
             e = np.exp(-sig * v * sv * dt / Fm)
-            F = nb_dahl_relax(F, sv, e, vp)  # the exact Dahl step of physics.valve
+            F = phys.dahl_relax(F, sv, e, vp)  # the exact Dahl step of physics.valve
             P = e * e * P + qF * dt
         x_pred[k, 0] = F
         P_pred[k, 0, 0] = P
         Phi_out[k, 0, 0] = e
         T_g = U[k, U_T]
         dpk = U[k, U_DP]
-        xd = nb_demanded_opening(T_g, F, dpk, U[k, U_PS], vp[I_P_BSET], vp)
-        H = clip_weight(xd, stroke, w) / nb_stiffness(dpk, vp)
+        xd = phys.demanded_opening(T_g, F, dpk, U[k, U_PS], vp[I_P_BSET], vp)
+        H = clip_weight(xd, stroke, w) / phys.stiffness(dpk, vp)
         yh = min(max(xd, 0.0), stroke)
         S = H * H * P + R
         y_pred[k, 0] = yh
@@ -519,8 +512,6 @@ __all__ = [
     "hook_extra_diffusion",
     "smooth_sign",
     "clip_weight",
-    "nb_demanded_opening",
-    "nb_vapour_pressure",
     "N_BASE_PARAMS",
     "N_BASE_STATES",
     "N_BASE_CONSTANTS",
