@@ -57,20 +57,25 @@ class BatchedLinearPolicies:
     """The training stack's features and residual for popsize x episodes envs of the native batched
     env, with one linear action head per candidate (rows c * episodes .. (c + 1) * episodes - 1)."""
 
-    def __init__(self, env_id: str, cfg: Mapping[str, Any], n_envs: int) -> None:
+    def __init__(self, env_id: str, cfg: Mapping[str, Any], n_envs: int,
+                 vectorization_mode: str = "vector_entry_point") -> None:
+        """``vectorization_mode``: the native batched env (training), or ``"sync"``: gymnasium's
+        SyncVectorEnv over ``n_envs`` single envs, the same features, residual and heads on top
+        (benchmarks/train_throughput.py's reference)."""
         import gymnasium as gym
 
         from agents.wrappers import ObsFeatures, ResidualCore
 
         kw = dict(cfg.get("env_kwargs") or {})
-        self.vec: Any = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", **kw)
-        base: Any = self.vec.unwrapped
-        base.parallel_threshold = n_envs + 1  # serial kernel: the machine is shared (agents.vec_env)
+        self.vec: Any = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode=vectorization_mode, **kw)
+        if vectorization_mode == "vector_entry_point":
+            base: Any = self.vec.unwrapped
+            base.parallel_threshold = n_envs + 1  # serial kernel: the machine is shared (agents.vec_env)
         single = gym.make(env_id, **kw)
         self.features = ObsFeatures.from_config(cfg, single)
         space = single.action_space
         assert isinstance(space, gym.spaces.Box)
-        self.core = ResidualCore.from_config(cfg["residual"], space, float(base.cfg.control.dt_s))
+        self.core = ResidualCore.from_config(cfg["residual"], space, float(single.unwrapped.cfg.control.dt_s))  # type: ignore[attr-defined]
         self.obs_dim = int(single.observation_space.shape[0])  # type: ignore[index]
         single.close()
         self.k = int(cfg.get("frame_stack", 1) or 1)

@@ -303,3 +303,36 @@ def test_residual_shut_band_holds_the_integrator_while_the_valve_is_shut() -> No
     np.testing.assert_allclose(i_held[:, 0], [integ[0, 0], i_plain[1, 0], i_plain[2, 0]])
     with pytest.raises(ValueError, match="shut_band"):
         ResidualCore.from_config({**cfg, "shut_band": -1.0}, space, 30.0)
+
+
+def test_cem_population_on_sync_vector_env_earns_the_native_returns() -> None:
+    """The training-throughput benchmark's CEM reference (SyncVectorEnv over single envs, the same
+    features, residual and heads) evaluates exactly what the native batched env does, in blocks of 8
+    envs cut from the population as benchmarks/train_throughput.py cuts them."""
+    import importlib.util
+
+    from agents.cem import BatchedLinearPolicies
+    from agents.train import load_algo_config
+
+    spec = importlib.util.spec_from_file_location(
+        "train_throughput", Path(__file__).resolve().parents[2] / "benchmarks" / "train_throughput.py")
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    cem_chunks = bench.cem_chunks
+
+    cfg = load_algo_config("ppo", SMALL)
+    cfg["env_kwargs"] = {"control": {"horizon_h": 1.0}}
+    native = BatchedLinearPolicies(SMALL, cfg, 4 * 4)
+    sync = BatchedLinearPolicies(SMALL, cfg, 8, vectorization_mode="sync")
+    theta = 0.3 * np.random.default_rng(1).standard_normal((4, native.n_params))
+    seeds = [7, 8, 9, 10]
+    want = native.returns(theta, seeds)
+    got = np.full_like(want, np.nan)
+    for cs, js in cem_chunks(4, 4):
+        got[cs, js] = sync.returns(theta[cs], seeds[js])
+    np.testing.assert_array_equal(got, want)
+    assert np.ptp(want) > 0  # the candidates differ
+    assert [(c.start, j.start) for c, j in cem_chunks(2, 16)] == [(0, 0), (0, 8), (1, 0), (1, 8)]
+    with pytest.raises(ValueError, match="blocks of 8"):
+        cem_chunks(3, 4)
