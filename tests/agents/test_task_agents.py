@@ -271,13 +271,19 @@ def test_cem_warm_start_with_more_features_is_the_old_policy(tmp_path: Path) -> 
     assert new.n_params > old.n_params
     theta2 = warm_start(zip_, new.k, new.feat_dim, new.n_act)
     np.testing.assert_allclose(new.returns(theta2[None], [3, 4]), old.returns(theta[None], [3, 4]), rtol=1e-9)
-    # the old frames are the newest ones, the old columns the first of each frame; the rest is 0
-    W2 = theta2[:-1].reshape(new.k, new.feat_dim)
-    np.testing.assert_array_equal(W2[new.k - old.k:, :old.feat_dim], theta[:-1].reshape(old.k, old.feat_dim))
+    # the layout, on the run's final head (its best checkpoint may be the all-zero start): the old frames
+    # are the newest ones, the old columns the first of each frame, the rest 0; the source's frame count
+    # comes from its config (a 2-frame head also fits 4 frames of half the columns)
+    final = run / "model.zip"
+    theta_f = warm_start(final, old.k, old.feat_dim, old.n_act)[:-1].reshape(old.k, old.feat_dim)
+    assert np.all(theta_f != 0)
+    W2 = warm_start(final, new.k, new.feat_dim, new.n_act)[:-1].reshape(new.k, new.feat_dim)
+    np.testing.assert_array_equal(W2[new.k - old.k:, :old.feat_dim], theta_f)
     assert not W2[: new.k - old.k].any() and not W2[:, old.feat_dim:].any()
     more_frames = BatchedLinearPolicies(SMALL, {**cfg, "frame_stack": 2 * cfg["frame_stack"]}, 2)
-    W3 = warm_start(zip_, more_frames.k, more_frames.feat_dim, more_frames.n_act)[:-1].reshape(more_frames.k, -1)
-    np.testing.assert_array_equal(W3[more_frames.k - old.k:], theta[:-1].reshape(old.k, old.feat_dim))
+    W3 = warm_start(final, more_frames.k, more_frames.feat_dim, more_frames.n_act)[:-1].reshape(more_frames.k, -1)
+    np.testing.assert_array_equal(W3[more_frames.k - old.k:], theta_f)
+    assert not W3[: more_frames.k - old.k].any()
     with pytest.raises(ValueError, match="does not fit"):
         warm_start(zip_, 1, old.feat_dim, old.n_act)
     from agents.cem import warm_start_chain
