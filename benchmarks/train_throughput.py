@@ -4,6 +4,7 @@
                                           [--seconds 20] [--threads 1] [--quick] [--force]
     python benchmarks/train_throughput.py --tasks current [--seconds 10] ...   # the current tasks only
     python benchmarks/train_throughput.py --tasks current --cem ...           # and their CEM training
+    python benchmarks/train_throughput.py --tasks current --cem --no-ppo ...  # their CEM training only
 
 Measures in one run, with the training stack of configs/<algo>.yml (residual PI action, physical
 observation scaling, frame stack 4, energy shaping, VecNormalize; agents.wrappers.make_vec_env).
