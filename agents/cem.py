@@ -57,20 +57,25 @@ class BatchedLinearPolicies:
     """The training stack's features and residual for popsize x episodes envs of the native batched
     env, with one linear action head per candidate (rows c * episodes .. (c + 1) * episodes - 1)."""
 
-    def __init__(self, env_id: str, cfg: Mapping[str, Any], n_envs: int) -> None:
+    def __init__(self, env_id: str, cfg: Mapping[str, Any], n_envs: int,
+                 vectorization_mode: str = "vector_entry_point") -> None:
+        """``vectorization_mode``: the native batched env (training), or ``"sync"``: gymnasium's
+        SyncVectorEnv over ``n_envs`` single envs, the same features, residual and heads on top
+        (benchmarks/train_throughput.py's reference)."""
         import gymnasium as gym
 
         from agents.wrappers import ObsFeatures, ResidualCore
 
         kw = dict(cfg.get("env_kwargs") or {})
-        self.vec: Any = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="vector_entry_point", **kw)
-        base: Any = self.vec.unwrapped
-        base.parallel_threshold = n_envs + 1  # serial kernel: the machine is shared (agents.vec_env)
+        self.vec: Any = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode=vectorization_mode, **kw)
+        if vectorization_mode == "vector_entry_point":
+            base: Any = self.vec.unwrapped
+            base.parallel_threshold = n_envs + 1  # serial kernel: the machine is shared (agents.vec_env)
         single = gym.make(env_id, **kw)
         self.features = ObsFeatures.from_config(cfg, single)
         space = single.action_space
         assert isinstance(space, gym.spaces.Box)
-        self.core = ResidualCore.from_config(cfg["residual"], space, float(base.cfg.control.dt_s))
+        self.core = ResidualCore.from_config(cfg["residual"], space, float(single.unwrapped.cfg.control.dt_s))  # type: ignore[attr-defined]
         self.obs_dim = int(single.observation_space.shape[0])  # type: ignore[index]
         single.close()
         self.k = int(cfg.get("frame_stack", 1) or 1)
@@ -134,16 +139,22 @@ def set_linear_head(model: Any, theta: np.ndarray, k_feat: int, n_act: int) -> N
 def warm_start(src: Path, k: int, feat_dim: int, n_act: int) -> np.ndarray:
     """The linear head of ``src`` (a CEM run directory: its best/best_model.zip; or a model zip, e.g. a
     shipped agent's) as one parameter row. If this config appends observation-aid columns to each
-    frame (same frame count), or keeps more frames (same features), the new weights start at 0: the
-    warm start is then exactly the old policy."""
+    frame, or keeps more frames, the new weights start at 0: the warm start is then exactly the old
+    policy. The source's frame count is read from its config (the run's config.yml, the agent's
+    <name>.yml); without one, only one of the two changes is told apart."""
     from stable_baselines3 import PPO
 
     path = src if src.suffix == ".zip" else src / "best" / "best_model.zip"
     net: Any = PPO.load(path, device="cpu").policy.action_net
     W = net.weight.detach().numpy().astype(float)
     b = net.bias.detach().numpy().astype(float)
-    fits = [(k0, W.shape[1] // k0) for k0 in range(1, k + 1) if W.shape[1] % k0 == 0]
-    fits = [(k0, f0) for k0, f0 in fits if f0 <= feat_dim and (k0 == k or f0 == feat_dim)]
+    k_src = _source_frames(src)
+    if k_src is not None:  # the source's own frame count: more frames and more columns at once are fine
+        fits = [(k_src, W.shape[1] // k_src)] if W.shape[1] % k_src == 0 and k_src <= k else []
+        fits = [(k0, f0) for k0, f0 in fits if f0 <= feat_dim]
+    else:  # no config beside it: the same frame count with more columns, or more frames of the same columns
+        fits = [(k0, W.shape[1] // k0) for k0 in range(1, k + 1) if W.shape[1] % k0 == 0]
+        fits = [(k0, f0) for k0, f0 in fits if f0 <= feat_dim and (k0 == k or f0 == feat_dim)]
     if W.shape[0] != n_act or not fits:
         raise ValueError(f"cem.init {src}: a head of shape {W.shape} does not fit {k} frames x {feat_dim} "
                          f"features -> {n_act} actions")
@@ -151,6 +162,21 @@ def warm_start(src: Path, k: int, feat_dim: int, n_act: int) -> np.ndarray:
     Wn = np.zeros((n_act, k, feat_dim))  # history is oldest first: the old frames are the newest ones
     Wn[:, k - k0:, :f0] = W.reshape(n_act, k0, f0)
     return np.concatenate([Wn.ravel(), b])
+
+
+def _source_frames(src: Path) -> int | None:
+    """``frame_stack`` of the config a warm-start source was trained with (a run directory's config.yml, also
+    for its best/best_model.zip or model.zip; a shipped agent's <name>.yml), or None if there is none."""
+    if src.suffix != ".zip":
+        cfg_path = src / "config.yml"
+    elif src.with_suffix(".yml").is_file():
+        cfg_path = src.with_suffix(".yml")
+    else:
+        run = src.parent.parent if src.parent.name == "best" else src.parent
+        cfg_path = run / "config.yml"
+    if not cfg_path.is_file():
+        return None
+    return int(yaml_load(cfg_path).get("frame_stack", 1) or 1)
 
 
 def cem_train(env_id: str, cfg: Mapping[str, Any], seed: int, run_dir: Path, model: Any,

@@ -3,6 +3,8 @@
     python benchmarks/train_throughput.py [--json out/train_throughput.json] [--md out/train_throughput.md]
                                           [--seconds 20] [--threads 1] [--quick] [--force]
     python benchmarks/train_throughput.py --tasks current [--seconds 10] ...   # the current tasks only
+    python benchmarks/train_throughput.py --tasks current --cem ...           # and their CEM training
+    python benchmarks/train_throughput.py --tasks current --cem --no-ppo ...  # their CEM training only
 
 Measures in one run, with the training stack of configs/<algo>.yml (residual PI action, physical
 observation scaling, frame stack 4, energy shaping, VecNormalize; agents.wrappers.make_vec_env).
@@ -40,6 +42,21 @@ The current benchmark tasks (``--tasks current``: valve_env.CURRENT_TASK_IDS; or
     DummyVecEnv(8) (n_steps 512) against the native VecEnv at N = 32 and 256 (n_steps 4096 / N),
     everything else the same; DummyVecEnv(8) measured first and again last for each task, the ratio
     over the mean of the two.
+
+  * ``--cem``: the configuration every current task's shipped agent is trained with (``optimizer:
+    cem``, agents/cem.py): one CEM generation's population evaluation, popsize x episodes whole days
+    of the configuration each shipped CEM agent was trained with (agents/zoo/<task>/<name>.yml, its
+    ``cem:`` block; candidates mu + sigma eps, mu = 0; configs/ppo.yml's block for a task without
+    one), with its residual base law, observation aids and frame stack and the linear heads applied
+    at once (agents.cem.BatchedLinearPolicies.returns, as ``cem_train`` calls it), on the native
+    batched env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``, all popsize x
+    episodes envs in one) against the same evaluation on gymnasium's ``SyncVectorEnv`` over 8
+    single envs (``vectorization_mode="sync"``: the same features, residual and heads on 8 rows at a
+    time, whole days of 8 candidate-episodes in turn). No update is in the loop (CEM refits a mean
+    and a spread: microseconds) and the search ranks the true return, so the configs'
+    ``energy_shaping`` takes no part. SyncVectorEnv(8) is measured before and after the native
+    generation (whole chunks of 8 days for about ``--seconds``, the first chunk a warm-up), the
+    ratio over the mean of the two.
 
 The two DummyVecEnv(8) references of the claimed comparisons run again at the end of the run;
 the ratios use the mean of the two measurements (the machine is shared: both are reported, their
@@ -150,6 +167,117 @@ def run_tasks(tasks: list[str], seconds: float, threads: int, quick: bool, progr
                         "load_avg": list(os.getloadavg()), "load_avg_start": load_start, "nice": os.nice(0)},
             "rows": rows, "ratios": ratios_,
             "goal": {"native_vs_dummy8": 10.0, "met": {t: r["best_vs_dummy8"] >= 10.0 for t, r in ratios_.items()}}}
+
+
+def cem_chunks(popsize: int, episodes: int, width: int = 8) -> list[tuple[slice, slice]]:
+    """One CEM generation's (candidate rows, seed columns) cut into blocks of ``width`` envs, in the
+    population's row order (candidate-major), for a reference VecEnv of ``width`` envs."""
+    if episodes % width == 0:
+        return [(slice(c, c + 1), slice(j, j + width)) for c in range(popsize) for j in range(0, episodes, width)]
+    if width % episodes == 0 and popsize % (width // episodes) == 0:
+        k = width // episodes
+        return [(slice(c, c + k), slice(0, episodes)) for c in range(0, popsize, k)]
+    raise ValueError(f"cem: {popsize} x {episodes} episodes cannot be cut into blocks of {width} envs")
+
+
+def measure_cem(task: str, cfg: dict[str, Any], mode: str, seconds: float, label: str) -> dict[str, Any]:
+    """Env-steps per second of a CEM generation's population evaluation (module docstring, ``--cem``)."""
+    import gymnasium as gym
+
+    from agents.cem import CEM_DEFAULTS, BatchedLinearPolicies
+
+    opt = {**CEM_DEFAULTS, **dict(cfg.get("cem") or {})}
+    P, E = int(opt["popsize"]), int(opt["episodes"])
+    seeds = list(range(E))
+    native = mode == "native"
+    n = P * E if native else 8
+    pols = BatchedLinearPolicies(task, cfg, n, vectorization_mode="vector_entry_point" if native else "sync")
+    theta = float(opt["sigma"]) * np.random.default_rng(0).standard_normal((P, pols.n_params))
+    theta[0] = 0.0
+    single = gym.make(task, **dict(cfg.get("env_kwargs") or {}))
+    ep_len = int(single.unwrapped.cfg.control.n_steps)  # type: ignore[attr-defined]
+    single.close()
+    chunks = [(slice(0, P), slice(0, E))] if native else cem_chunks(P, E)
+    steps, wall, done = 0, 0.0, 0
+    while done < 2 or wall < seconds:  # the first block (a whole generation on native) is the warm-up
+        cs, js = chunks[done % len(chunks)]
+        t0 = time.perf_counter()
+        pols.returns(theta[cs], seeds[js])
+        dt = time.perf_counter() - t0
+        if done:
+            steps += (cs.stop - cs.start) * (js.stop - js.start) * ep_len
+            wall += dt
+        done += 1
+    pols.close()
+    return {"label": label, "group": task, "env_id": task, "algo": "cem", "vec": mode, "n_envs": n,
+            "env_steps": int(steps), "wall_s": round(wall, 3), "env_steps_per_s": steps / wall,
+            "chunks": done, "popsize": P, "episodes": E, "frame_stack": int(cfg.get("frame_stack", 1) or 1),
+            "obs_aids": sorted(cfg.get("obs_aids") or {}), "residual": dict(cfg["residual"]),
+            "n_params": int(pols.n_params)}
+
+
+def cem_configs(task: str) -> list[tuple[str, dict[str, Any]]]:
+    """(name, resolved config) of each shipped agent of ``task`` trained by CEM (agents/zoo/<task>/<name>.yml,
+    the configuration it was trained with); the task's configs/ppo.yml block if none is."""
+    import yaml
+
+    from agents.loader import ZOO_DIR, available_agents
+    from agents.train import load_algo_config
+
+    out = []
+    for name in available_agents(task):
+        cfg = yaml.safe_load((Path(ZOO_DIR) / task / f"{name}.yml").read_text())
+        if cfg.get("optimizer") == "cem":
+            out.append((name, cfg))
+    return out or [("configs/ppo.yml", load_algo_config("ppo", task))]
+
+
+def run_cem(tasks: list[str], seconds: float, progress: Any = None) -> dict[str, Any]:
+    """Per shipped CEM agent's configuration: SyncVectorEnv(8), native(popsize x episodes), SyncVectorEnv(8) again."""
+    load_start = list(os.getloadavg())
+    rows = []
+    for task in tasks:
+        for name, cfg in cem_configs(task):
+            group = f"{task} {name}"
+            for mode, label in (("sync", "SyncVectorEnv(8)"), ("native", "native"),
+                                ("sync", "SyncVectorEnv(8) (again)")):
+                if progress:
+                    progress(f"cem {group} {label}")
+                rows.append({**measure_cem(task, cfg, mode, seconds, label), "group": group, "agent": name})
+    ratios_ = {}
+    for group in dict.fromkeys(r["group"] for r in rows):
+        refs = [r["env_steps_per_s"] for r in rows if r["group"] == group and r["vec"] == "sync"]
+        nat = next(r for r in rows if r["group"] == group and r["vec"] == "native")
+        ref = float(np.mean(refs))
+        ratios_[group] = {"sync8_measurements": refs, "sync8_mean": ref, "native_n": nat["n_envs"],
+                          "native_vs_sync8": nat["env_steps_per_s"] / ref}
+    return {"seconds_per_config": seconds, "load_avg_start": load_start, "load_avg": list(os.getloadavg()),
+            "rows": rows, "ratios": ratios_,
+            "goal": {"native_vs_sync8": 10.0, "met": {t: r["native_vs_sync8"] >= 10.0 for t, r in ratios_.items()}}}
+
+
+def markdown_cem(res: dict[str, Any]) -> str:
+    lines = [f"CEM training (optimizer: cem, each shipped agent's resolved config: one generation's population "
+             f"evaluation; about "
+             f"{res['seconds_per_config']:g} s per reference measurement; load average at the start "
+             f"{', '.join(f'{x:.1f}' for x in res['load_avg_start'])}, at the end "
+             f"{', '.join(f'{x:.1f}' for x in res['load_avg'])})", "",
+             "| task | agent | VecEnv | N | popsize x episodes | base law, aids, frames | env-steps/s "
+             "| x SyncVectorEnv(8) |",
+             "|---|---|---|---:|---|---|---:|---:|"]
+    for r in res["rows"]:
+        ref = res["ratios"][r["group"]]["sync8_mean"]
+        law = ", ".join(f"{k} {v}" for k, v in r["residual"].items())
+        lines.append(f"| {r['env_id']} | {r['agent']} | {r['vec']} | {r['n_envs']} | {r['popsize']} x "
+                     f"{r['episodes']} | {law}; aids "
+                     f"{r['obs_aids'] or 'none'}; {r['frame_stack']} frames | {r['env_steps_per_s']:,.0f} | "
+                     f"{r['env_steps_per_s'] / ref:.1f} |")
+    lines.append("")
+    for t, x in res["ratios"].items():
+        lines.append(f"* {t}: CEM native({x['native_n']}) {x['native_vs_sync8']:.1f}x SyncVectorEnv(8) (its two "
+                     f"measurements {', '.join(f'{v:,.0f}' for v in x['sync8_measurements'])} env-steps/s; goal 10x: "
+                     f"{'met' if x['native_vs_sync8'] >= 10 else 'not met'}).")
+    return "\n".join(lines)
 
 
 def markdown_tasks(res: dict[str, Any]) -> str:
@@ -391,7 +519,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--force", action="store_true", help="replace existing outputs")
     p.add_argument("--tasks", default=None, metavar="current|A,B",
                    help="only the benchmark tasks' training configurations (current: valve_env.CURRENT_TASK_IDS)")
+    p.add_argument("--cem", action="store_true",
+                   help="with --tasks: also their CEM training (optimizer: cem), native against SyncVectorEnv(8)")
+    p.add_argument("--no-ppo", action="store_true", help="with --tasks --cem: the CEM measurement only")
     args = p.parse_args(argv)
+    if (args.cem or args.no_ppo) and not args.tasks or args.no_ppo and not args.cem:
+        print("thermovalve: error: --cem needs --tasks, and --no-ppo needs --cem", file=sys.stderr)
+        return 2
     if args.seconds <= 0 or args.threads < 1:
         print("thermovalve: error: --seconds must be > 0 and --threads >= 1", file=sys.stderr)
         return 2
@@ -419,8 +553,17 @@ def main(argv: list[str] | None = None) -> int:
     progress = lambda m: print(f"train_throughput: {m} ...", file=sys.stderr, flush=True)  # noqa: E731
     seconds = 3.0 if args.quick else args.seconds
     if tasks:
-        res = run_tasks(tasks, seconds, args.threads, args.quick, progress=progress)
-        text = markdown_tasks(res)
+        import torch
+
+        torch.set_num_threads(int(args.threads))
+        res, parts = {}, []
+        if not args.no_ppo:
+            res = run_tasks(tasks, seconds, args.threads, args.quick, progress=progress)
+            parts.append(markdown_tasks(res))
+        if args.cem:
+            res["cem"] = run_cem(tasks, seconds, progress=progress)
+            parts.append(markdown_cem(res["cem"]))
+        text = "\n\n".join(parts)
     else:
         res = run(seconds, args.threads, args.quick, progress=progress)
         text = markdown(res)

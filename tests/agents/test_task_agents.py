@@ -271,6 +271,19 @@ def test_cem_warm_start_with_more_features_is_the_old_policy(tmp_path: Path) -> 
     assert new.n_params > old.n_params
     theta2 = warm_start(zip_, new.k, new.feat_dim, new.n_act)
     np.testing.assert_allclose(new.returns(theta2[None], [3, 4]), old.returns(theta[None], [3, 4]), rtol=1e-9)
+    # the layout, on the run's final head (its best checkpoint may be the all-zero start): the old frames
+    # are the newest ones, the old columns the first of each frame, the rest 0; the source's frame count
+    # comes from its config (a 2-frame head also fits 4 frames of half the columns)
+    final = run / "model.zip"
+    theta_f = warm_start(final, old.k, old.feat_dim, old.n_act)[:-1].reshape(old.k, old.feat_dim)
+    assert np.all(theta_f != 0)
+    W2 = warm_start(final, new.k, new.feat_dim, new.n_act)[:-1].reshape(new.k, new.feat_dim)
+    np.testing.assert_array_equal(W2[new.k - old.k:, :old.feat_dim], theta_f)
+    assert not W2[: new.k - old.k].any() and not W2[:, old.feat_dim:].any()
+    more_frames = BatchedLinearPolicies(SMALL, {**cfg, "frame_stack": 2 * cfg["frame_stack"]}, 2)
+    W3 = warm_start(final, more_frames.k, more_frames.feat_dim, more_frames.n_act)[:-1].reshape(more_frames.k, -1)
+    np.testing.assert_array_equal(W3[more_frames.k - old.k:], theta_f)
+    assert not W3[: more_frames.k - old.k].any()
     with pytest.raises(ValueError, match="does not fit"):
         warm_start(zip_, 1, old.feat_dim, old.n_act)
     from agents.cem import warm_start_chain
@@ -303,3 +316,36 @@ def test_residual_shut_band_holds_the_integrator_while_the_valve_is_shut() -> No
     np.testing.assert_allclose(i_held[:, 0], [integ[0, 0], i_plain[1, 0], i_plain[2, 0]])
     with pytest.raises(ValueError, match="shut_band"):
         ResidualCore.from_config({**cfg, "shut_band": -1.0}, space, 30.0)
+
+
+def test_cem_population_on_sync_vector_env_earns_the_native_returns() -> None:
+    """The training-throughput benchmark's CEM reference (SyncVectorEnv over single envs, the same
+    features, residual and heads) evaluates exactly what the native batched env does, in blocks of 8
+    envs cut from the population as benchmarks/train_throughput.py cuts them."""
+    import importlib.util
+
+    from agents.cem import BatchedLinearPolicies
+    from agents.train import load_algo_config
+
+    spec = importlib.util.spec_from_file_location(
+        "train_throughput", Path(__file__).resolve().parents[2] / "benchmarks" / "train_throughput.py")
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    cem_chunks = bench.cem_chunks
+
+    cfg = load_algo_config("ppo", SMALL)
+    cfg["env_kwargs"] = {"control": {"horizon_h": 1.0}}
+    native = BatchedLinearPolicies(SMALL, cfg, 4 * 4)
+    sync = BatchedLinearPolicies(SMALL, cfg, 8, vectorization_mode="sync")
+    theta = 0.3 * np.random.default_rng(1).standard_normal((4, native.n_params))
+    seeds = [7, 8, 9, 10]
+    want = native.returns(theta, seeds)
+    got = np.full_like(want, np.nan)
+    for cs, js in cem_chunks(4, 4):
+        got[cs, js] = sync.returns(theta[cs], seeds[js])
+    np.testing.assert_array_equal(got, want)
+    assert np.ptp(want) > 0  # the candidates differ
+    assert [(c.start, j.start) for c, j in cem_chunks(2, 16)] == [(0, 0), (0, 8), (1, 0), (1, 8)]
+    with pytest.raises(ValueError, match="blocks of 8"):
+        cem_chunks(3, 4)
