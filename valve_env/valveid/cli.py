@@ -268,6 +268,16 @@ def run_fit(args: argparse.Namespace) -> int:
         # an estimate without a standard error is not a result (docs/estimation.md, "Bad input")
         why = next((m.split(": these parameters")[0] for m in summary["identifiability"] if any(k in m for k in flat)),
                    "no finite standard error")
+        mis = summary["misspecification"]
+        if mis.get("misspecified") and "at a bound" in why:
+            # the likelihood's maximum lies on a bound of a model the residuals reject: a structural misfit
+            # (a 60 s sensor lag drives the paper's sigma to its lower bound, as a slow friction imitates the
+            # lag), not a record too short to fit the model; the named effects are diagnose's
+            p_lb = min(e["ljung_box_p"] for e in mis["outputs"].values())
+            raise UsageError(f"{args.run}: the paper's model does not explain this record ({why.split(':')[0]}, "
+                             f"and the one-step residuals are not white, Ljung-Box p = {p_lb:.2g}): "
+                             f"an effect the model lacks, or too little excitation; `thermovalve diagnose "
+                             f"{args.run}` tries the named effects")
         raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} ({why}); "
                          "a longer record with wider temperature swings is needed")
     with outs:
