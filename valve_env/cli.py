@@ -16,7 +16,8 @@ Adding a sub-command (``loop-diagnose``, ``tasks``, ``benchmark``, ...):
    ``thermovalve: error: <message>`` on stderr and exit status 2; any other exception
    becomes one line and exit status 1 (the traceback only with ``THERMOVALVE_DEBUG=1``);
    a missing optional dependency (``ImportError`` of stable_baselines3/torch/dask) names
-   the extra to install;
+   the extra to install; a reader of stdout that leaves (``| head``) ends the command quietly
+   with status 141, an interrupt with 130;
 3. write every file through one :class:`~valve_env.outputs.OutputSet`: add ``--force``
    with :func:`add_force`, ``add()`` every output before the long work, stage, commit
    (or ``with OutputSet(...) as outs:``), then ``print(outs.summary())``;
@@ -105,7 +106,9 @@ def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse
             if not os.environ.get("THERMOVALVE_DEBUG"):
                 warnings.simplefilter("ignore", RuntimeWarning)
             try:
-                return int(func(args) or 0)
+                code = int(func(args) or 0)
+                sys.stdout.flush()  # a reader that left shows here, not at the interpreter's exit
+                return code
             finally:  # whatever a command staged and did not commit (an error, a signal) goes now
                 discard_uncommitted()
     except KeyboardInterrupt:
@@ -114,6 +117,12 @@ def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse
     except _Terminated:
         print("thermovalve: terminated; no output was replaced", file=sys.stderr)
         return 143
+    except BrokenPipeError:
+        # the reader of stdout left (`thermovalve tasks | head`): stop quietly as Unix tools do, with the status
+        # of a process ended by SIGPIPE, and keep the interpreter from reporting the flush at exit
+        # (the Python documentation's recipe, "Note on SIGPIPE")
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except ImportError as exc:
         advice = missing_extra(exc)
         if os.environ.get("THERMOVALVE_DEBUG"):

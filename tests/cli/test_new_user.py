@@ -199,3 +199,18 @@ def test_a_commit_that_fails_leaves_no_temporary(tmp_path: Path) -> None:
         (staged / "a.png").write_text("new")  # not declared: checked (and refused) at commit
     assert (d / "a.png").read_text() == "previous"
     assert [p.name for p in tmp_path.rglob("*") if p.name.endswith(".tmp")] == []
+
+
+def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly() -> None:
+    """``thermovalve tasks | head -1``: the reader closes the pipe before the command has written; the command
+    stops with SIGPIPE's status 141 and no error line (it printed ``BrokenPipeError`` as an error before)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from valve_env.cli import run_command\n"
+            "def cmd(args):\n"
+            "    raise BrokenPipeError(32, 'Broken pipe')\n"
+            "sys.exit(run_command(cmd, None))\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 141
+    assert p.stderr == ""
