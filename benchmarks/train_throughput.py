@@ -256,12 +256,17 @@ def run_cem(tasks: list[str], seconds: float, progress: Any = None) -> dict[str,
             "goal": {"native_vs_sync8": 10.0, "met": {t: r["native_vs_sync8"] >= 10.0 for t, r in ratios_.items()}}}
 
 
+def _loads(xs: list[float]) -> str:
+    """A load average (1, 5, 15 min) as the tables print it."""
+    return ", ".join(f"{x:.1f}" for x in xs)
+
+
 def markdown_cem(res: dict[str, Any]) -> str:
     lines = [f"CEM training (optimizer: cem, each shipped agent's resolved config: one generation's population "
              f"evaluation; about "
              f"{res['seconds_per_config']:g} s per reference measurement; load average at the start "
-             f"{', '.join(f'{x:.1f}' for x in res['load_avg_start'])}, at the end "
-             f"{', '.join(f'{x:.1f}' for x in res['load_avg'])})", "",
+             f"{_loads(res['load_avg_start'])}, at the end "
+             f"{_loads(res['load_avg'])})", "",
              "| task | agent | VecEnv | N | popsize x episodes | base law, aids, frames | env-steps/s "
              "| x SyncVectorEnv(8) |",
              "|---|---|---|---:|---|---|---:|---:|"]
@@ -285,8 +290,8 @@ def markdown_tasks(res: dict[str, Any]) -> str:
     lines = [f"Training throughput on the current tasks' training configurations (PPO, configs/ppo.yml, "
              f"{TASK_ROLLOUT} samples per update; torch threads {res['torch_threads']}, about "
              f"{res['seconds_per_config']:g} s per configuration, nice {m['nice']}; load average at the start "
-             f"{', '.join(f'{x:.1f}' for x in m['load_avg_start'])}, at the end "
-             f"{', '.join(f'{x:.1f}' for x in m['load_avg'])})", "",
+             f"{_loads(m['load_avg_start'])}, at the end "
+             f"{_loads(m['load_avg'])})", "",
              "| task | VecEnv | N | settings | env-steps/s | x DummyVecEnv(8) | collection share |",
              "|---|---|---:|---|---:|---:|---:|"]
     for r in res["rows"]:
@@ -471,8 +476,8 @@ def markdown(res: dict[str, Any]) -> str:
     lines = [
         f"Training throughput (torch threads {res['torch_threads']}, about {res['seconds_per_config']:g} s per "
         f"configuration, nice {m['nice']}; load average at the start "
-        f"{', '.join(f'{x:.1f}' for x in m['load_avg_start'])}, "
-        f"at the end {', '.join(f'{x:.1f}' for x in m['load_avg'])})",
+        f"{_loads(m['load_avg_start'])}, "
+        f"at the end {_loads(m['load_avg'])})",
         "",
         "| group | env | algo | VecEnv | N | settings | env-steps/s | x reference | collection share |",
         "|---|---|---|---|---:|---|---:|---:|---:|",
