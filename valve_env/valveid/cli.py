@@ -269,12 +269,14 @@ def run_fit(args: argparse.Namespace) -> int:
         why = next((m.split(": these parameters")[0] for m in summary["identifiability"] if any(k in m for k in flat)),
                    "no finite standard error")
         mis = summary["misspecification"]
-        if mis.get("misspecified") and "at a bound" in why:
+        bound = [k for k in flat if k in est.at_bound_]
+        if mis.get("misspecified") and bound:
             # the likelihood's maximum lies on a bound of a model the residuals reject: a structural misfit
             # (a 60 s sensor lag drives the paper's sigma to its lower bound, as a slow friction imitates the
             # lag), not a record too short to fit the model; the named effects are diagnose's
             p_lb = min(e["ljung_box_p"] for e in mis["outputs"].values())
-            raise UsageError(f"{args.run}: the paper's model does not explain this record ({why.split(':')[0]}, "
+            at = f"parameter {bound[0]!r} is at a bound ({est.params_[bound[0]]:.6g})"
+            raise UsageError(f"{args.run}: the paper's model does not explain this record ({at}, "
                              f"and the one-step residuals are not white, Ljung-Box p = {p_lb:.2g}): "
                              f"an effect the model lacks, or too little excitation; `thermovalve diagnose "
                              f"{args.run}` tries the named effects")
