@@ -219,14 +219,13 @@ def measure_cem(task: str, cfg: dict[str, Any], mode: str, seconds: float, label
 def cem_configs(task: str) -> list[tuple[str, dict[str, Any]]]:
     """(name, resolved config) of each shipped agent of ``task`` trained by CEM (agents/zoo/<task>/<name>.yml,
     the configuration it was trained with); the task's configs/ppo.yml block if none is."""
-    import yaml
-
+    from agents.cem import yaml_load
     from agents.loader import ZOO_DIR, available_agents
     from agents.train import load_algo_config
 
     out = []
     for name in available_agents(task):
-        cfg = yaml.safe_load((Path(ZOO_DIR) / task / f"{name}.yml").read_text())
+        cfg = yaml_load(Path(ZOO_DIR) / task / f"{name}.yml")
         if cfg.get("optimizer") == "cem":
             out.append((name, cfg))
     return out or [("configs/ppo.yml", load_algo_config("ppo", task))]
