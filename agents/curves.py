@@ -51,7 +51,7 @@ def read_run(run_dir: str | Path) -> dict[str, Any]:
 
 
 def plot_runs(runs: Sequence[dict[str, Any]], path: Any, title: str) -> None:
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
@@ -79,8 +79,7 @@ def plot_runs(runs: Sequence[dict[str, Any]], path: Any, title: str) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, format="png")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

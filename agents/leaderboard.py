@@ -143,7 +143,7 @@ def compare(per_ep: Mapping[str, pd.DataFrame], agent: str, ref: str = REFERENCE
 
 def plot_board(board: Mapping[str, Any], env_id: str, path: Path) -> Path:
     """Tracking (rmse_K) versus primary energy, one panel per scenario, mean +- std."""
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
@@ -178,9 +178,7 @@ def plot_board(board: Mapping[str, Any], env_id: str, path: Path) -> Path:
     fig.suptitle(f"{env_id}: tracking vs energy, mean ± std over the episodes", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def _fmt(mean: float, std: float) -> str:

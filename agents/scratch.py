@@ -215,7 +215,7 @@ def plot_curves(out: str | Path, path: Any) -> None:
     import numpy as np
 
     from agents.curves import read_run
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
@@ -240,8 +240,7 @@ def plot_curves(out: str | Path, path: Any) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, format="png")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -325,7 +325,7 @@ def scratch_markdown(summary: pd.DataFrame, eng: Sequence[Mapping[str, Any]], me
 
 
 def plot_scratch(summary: pd.DataFrame, eng: Sequence[Mapping[str, Any]], path: Any) -> None:
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
@@ -360,8 +360,7 @@ def plot_scratch(summary: pd.DataFrame, eng: Sequence[Mapping[str, Any]], path: 
         ax.set_xlabel("gap score (0 = pi, 1 = oracle; symlog): IQM, 95 % CI", fontsize=7)
         ax.set_xscale("symlog", linthresh=1.0)  # from-scratch runs can be thousands of pi's gaps behind
     fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, format="png")
 
 
 def _f(v: Any, digits: int = 3) -> str:
@@ -425,7 +424,7 @@ def markdown(boards: Mapping[str, Any], gen: Sequence[Mapping[str, Any]], meta: 
 
 
 def plot(boards: Mapping[str, Any], path: Any) -> None:
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
@@ -445,8 +444,7 @@ def plot(boards: Mapping[str, Any], path: Any) -> None:
         ax.set_title(task, fontsize=9)
         ax.set_xlabel("cost = -return (normalised score at the bar)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, format="png")
 
 
 def build(tasks: Sequence[str], episodes: int, seed: int, cache: Sequence[str], zoo: str | Path | None = None,

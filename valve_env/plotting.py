@@ -21,12 +21,13 @@ def headless() -> None:
         matplotlib.use("Agg")
 
 
-def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:
-    """Write ``fig`` to ``path`` at ``dpi`` and close it; returns the path."""
+def save_figure(fig: Any, path: str | Path, dpi: int = 110, format: str | None = None) -> Path:  # noqa: A002
+    """Write ``fig`` to ``path`` at ``dpi`` (in ``format``; default: from the path's suffix, so a staged file
+    without one names it) and close it; returns the path."""
     import matplotlib.pyplot as plt
 
     path = Path(path)
-    fig.savefig(path, dpi=dpi)
+    fig.savefig(path, dpi=dpi, format=format)
     plt.close(fig)
     return path
 

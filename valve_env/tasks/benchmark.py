@@ -378,7 +378,7 @@ def markdown_report(table: pd.DataFrame, found: Mapping[str, Mapping[str, Any]])
 def plot_scores(table: pd.DataFrame, path: Any) -> None:
     """Grouped bars: each task's cost per controller with its confidence interval, the gap score
     (0 = pi, 1 = oracle) at the bars where known, else the score (0 = self_acting, 1 = oracle)."""
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
@@ -402,13 +402,12 @@ def plot_scores(table: pd.DataFrame, path: Any) -> None:
         what = f"gap score, 0 = {GAP_REFERENCE}" if sub["gap_score"].notna().any() else "score, 0 = self_acting"
         ax.set_xlabel(f"cost = -return, {100 * CI_LEVEL:g} % CI ({what}, at the bar)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, format="png")
 
 
 def plot_kpis(table: pd.DataFrame, path: Any, kpis: Sequence[str] = ("iae_Kh", "reversals")) -> None:
     """Each task's tracking and wear KPIs per controller (the tradeoff the score hides)."""
-    from valve_env.plotting import headless
+    from valve_env.plotting import headless, save_figure
 
     headless()
     import matplotlib.pyplot as plt
@@ -425,8 +424,7 @@ def plot_kpis(table: pd.DataFrame, path: Any, kpis: Sequence[str] = ("iae_Kh", "
         ax.set_ylabel(kpis[0])
         ax.set_title(task, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, format="png")
 
 
 def report_json(table: pd.DataFrame, found: Mapping[str, Any], meta: Mapping[str, Any]) -> str:
