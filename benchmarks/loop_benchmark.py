@@ -7,7 +7,7 @@ Prints, in one run:
   and the learned rule's verdict (``--rule learned``), the balanced accuracy overall and per loop tag, and the time
   per loop. The learned rule is fitted on simulated loops only, so this leave-one-tag-out table is a plain
   evaluation per tag: nothing is fitted on any real loop. A file
-  the reader refuses counts as "not stiction" for every method;
+  the reader refuses, or that the diagnosis names ``insufficient_data``, counts as "not stiction" for every method;
 * on simulated loops of wide variety (``valve_env.loops.sim.random_case``, seeds ``--sim-seed`` ..
   ``+ --sim-n``; never the training seeds 0-1199 or the validation seeds 100000-100399 of
   benchmarks/loop_train_detector.py): stiction named per kind of loop (sticky, smooth, deadband without stick,
@@ -93,6 +93,11 @@ def real_loops(data: Path) -> None:
         cpu.append(time.process_time() - c0)
         sizes.append(loop.n)
         R = d.result
+        if d.cause == "insufficient_data":  # nothing any test can decide on: "not stiction" for every method
+            for k in names:
+                pred[k].append(False)
+            print(f"{r['file'][:36]:36s} {r['label'][:8]:8s} insufficient_data: {R['reason']}")
+            continue
         pred["diagnose"].append(d.cause == "stiction")
         det = {k: bool(f(loop)["stiction"]) for k, f in DETECTORS.items()}
         det["learned"] = bool(R.get("detection", {}).get("learned_stiction", False))

@@ -61,6 +61,26 @@ def test_short_record_is_insufficient_data(tmp_path: Path, capsys: pytest.Captur
     assert "126 samples" in (tmp_path / "rep" / "report.md").read_text()
 
 
+@pytest.mark.parametrize(("column", "values", "needle"), [
+    ("pv", np.full(300, 3.503246e-44), "PV holds 3.50325e-44 throughout while OP moves from 35 to 45 %"),
+    ("op", np.full(300, 42.0), "OP holds 42 % throughout"),
+])
+def test_still_channel_is_insufficient_data(tmp_path: Path, column: str, values: np.ndarray, needle: str) -> None:
+    """A historian export whose PV holds one (fill) value while OP moves, or whose OP never moves, is well formed
+    and cannot decide: insufficient_data with the reason in the JSON and the report, exit 0, not a refusal."""
+    k = np.arange(300)
+    cols = {"time_s": 10.0 * k, "sp": np.full(300, 50.0), "pv": 50 + np.sin(k / 30), "op": 40 + 5 * np.cos(k / 30)}
+    cols[column] = values
+    src = tmp_path / "still.csv"
+    src.write_text("time_s,sp,pv,op\n" + "".join(
+        ",".join(f"{cols[c][i]:.7g}" for c in ("time_s", "sp", "pv", "op")) + "\n" for i in range(300)))
+    out = tmp_path / "out.json"
+    assert main(["loop-diagnose", str(src), "--json", str(out), "--report", str(tmp_path / "rep")]) == 0
+    res = json.loads(out.read_text())
+    assert res["cause"] == "insufficient_data" and needle in res["reason"] and res["findings"] == []
+    assert needle in (tmp_path / "rep" / "report.md").read_text()
+
+
 def test_op_in_engineering_units_noted(tmp_path: Path) -> None:
     """An OP in engineering units is scaled by its observed range, with a note in the JSON and the report."""
     from valve_env.loops.sim import simulate_loop

@@ -1,11 +1,13 @@
 """Loop diagnosis: detect stiction with the shape tests' learned combination, then quantify its band with the grey-box
 model (docs/loops.md).
 
-1. **Enough data?** A record shorter than :data:`valve_env.loops.io.MIN_SAMPLES`, or one whose control error
-   oscillates with fewer than two periods in the record, gets the cause ``insufficient_data`` with the reason.
+1. **Enough data?** A record shorter than :data:`valve_env.loops.io.MIN_SAMPLES`, one whose OP or PV holds a
+   single value throughout (:func:`still_channel`), or one whose control error oscillates with fewer than two
+   periods in the record, gets the cause ``insufficient_data`` with the reason.
 2. **Detection** (:func:`valve_env.loops.detect.detect`): the published shape tests (Horch, He et al., Kano et al.,
-   Choudhury et al.'s bicoherence, the OP-PV ellipse's area) combined by a logistic regression fitted on simulated
-   loops only. It alone names ``stiction``; the grey-box model neither vetoes nor confirms it.
+   Choudhury et al.'s bicoherence, the OP-PV ellipse's area), all reported; the decision is Horch's test as
+   published (``rule="horch"``, the default) or their logistic combination fitted on simulated loops only
+   (``rule="learned"``). It alone names ``stiction``; the grey-box model neither vetoes nor confirms it.
 3. **Quantification** (when stiction is detected, or when asked: ``quantify=True``): the Hammerstein loop model
    (:mod:`valve_env.loops.model`: the two-parameter stick-slip valve, S and J in % of OP, behind a first-order or
    integrating process with dead time, a slow load and AR noise) fitted by maximum likelihood gives the band, its
@@ -29,7 +31,7 @@ import numpy as np
 from valve_env.ident.tests import delta_bic, lr_pvalue
 from valve_env.loops.detect import DEFAULT_RULE, detect
 from valve_env.loops.detectors import oscillation
-from valve_env.loops.io import MIN_SAMPLES, LoopData
+from valve_env.loops.io import MIN_OP_RANGE_PCT, MIN_SAMPLES, LoopData
 from valve_env.loops.model import (
     BAND_J_FRACTIONS,
     Settings,
@@ -168,6 +170,23 @@ def _insufficient(loop: LoopData, reason: str) -> LoopDiagnosis:
     return LoopDiagnosis(result, {}, Settings(dt=loop.dt), loop)
 
 
+def still_channel(loop: LoopData) -> str | None:
+    """Why the record holds no response to test, or None: an OP that never moves (the controller held the valve;
+    range below :data:`valve_env.loops.io.MIN_OP_RANGE_PCT`), or a PV that holds one value while the OP moves (a
+    valve that does not move, a transmitter that does not read or a flow below its range; the historian's
+    value, which may be a frozen or fill value, is named). Either is a well-formed record that cannot decide
+    (SPEC section 10: ``insufficient_data``), not bad input."""
+    op_range = float(np.ptp(loop.op))
+    if op_range < MIN_OP_RANGE_PCT:
+        return (f"OP holds {float(loop.op[0]):.6g} % throughout (range {op_range:.3g} %): the controller did not "
+                "move the valve, so the record holds no valve response to test")
+    if float(np.ptp(loop.pv)) == 0.0:
+        return (f"PV holds {float(loop.pv[0]):.6g} throughout while OP moves from {float(loop.op.min()):.4g} to "
+                f"{float(loop.op.max()):.4g} %: no process response to test (a valve that does not move, a "
+                "transmitter that does not read, or a flow below its range)")
+    return None
+
+
 def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settings | None = None,
              rule: str = DEFAULT_RULE) -> LoopDiagnosis:
     """Diagnose one loop record (module doc); returns the docs/reference.md section 10 result and the fits behind it.
@@ -175,6 +194,9 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
     detected; False never. ``rule``: the detection's decision rule (:data:`valve_env.loops.detect.RULES`)."""
     if loop.n < MIN_SAMPLES:
         return _insufficient(loop, f"too short a record ({loop.n} samples; at least {MIN_SAMPLES} needed)")
+    still = still_channel(loop)
+    if still is not None:
+        return _insufficient(loop, still)
     osc = oscillation(loop.pv - loop.sp, loop.dt)
     if osc["oscillating"] and loop.n * loop.dt < MIN_PERIODS * osc["period_s"]:
         return _insufficient(loop, f"the record ({loop.n * loop.dt:g} s) holds fewer than {MIN_PERIODS:g} periods of "
@@ -224,4 +246,5 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
 
 
 __all__ = ["CAUSES", "LoopDiagnosis", "diagnose_loop", "band_uncertainty", "sampling_offset", "band_resolved",
-           "crosses_back", "MODEL", "MIN_PERIODS", "fit_band", "finding", "model_label", "select_noise_order"]
+           "crosses_back", "MODEL", "MIN_PERIODS", "fit_band", "finding", "model_label", "select_noise_order",
+           "still_channel"]

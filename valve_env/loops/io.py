@@ -13,11 +13,12 @@ are merged with a note: exact duplicates dropped, differing rows averaged
 (:func:`merge_repeated_timestamps`); time that goes backwards stays an error.
 
 Every problem with a record raises :class:`LoopDataError` whose message is one line naming the
-problem (NaN, non-increasing time, constant OP, ...). A well-formed record that is merely short is read:
-the diagnosis names it ``insufficient_data`` (valve_env.loops.diagnose). Samples in manual mode are dropped
-with a note (the longest automatic stretch is kept). An OP outside the range a controller output in % can
-take (some DCS exports give OP in engineering units) is scaled by its observed range onto 0-100 %, with a
-note (:attr:`LoopData.op_scaled_from`).
+problem (NaN, non-increasing time, a missing column, ...). A well-formed record that cannot decide is read:
+one that is merely short, or whose OP or PV holds one value throughout (a historian's frozen tag, a closed loop
+at rest), and the diagnosis names it ``insufficient_data`` with the reason (valve_env.loops.diagnose). Samples
+in manual mode are dropped with a note (the longest automatic stretch is kept). An OP outside the range a
+controller output in % can take (some DCS exports give OP in engineering units) is scaled by its observed range
+onto 0-100 %, with a note (:attr:`LoopData.op_scaled_from`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import numpy as np
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
 MIN_SAMPLES = 240
-#: OP whose range is below this (in %) is constant
+#: OP whose range is below this (in %) is constant: the record is diagnosed ``insufficient_data``
 MIN_OP_RANGE_PCT = 1e-3
 #: the widest controller output read as %: 0-100 % and the overdrive some DCSs allow beyond it (Honeywell
 #: TDC/Experion: OP limits -6.9 to 106.9 %); an OP beyond it is in engineering units and is scaled by its observed
@@ -271,10 +272,6 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
                      f"({scaled[0]:.6g} -> 0 %, {scaled[1]:.6g} -> 100 %); bands are in % of that range")
         if "mv" in data and (float(data["mv"].min()) < OP_RANGE_PCT[0] or float(data["mv"].max()) > OP_RANGE_PCT[1]):
             data["mv"] = 100.0 * (data["mv"] - scaled[0]) / (scaled[1] - scaled[0])
-    if float(np.ptp(op)) < MIN_OP_RANGE_PCT:
-        raise LoopDataError(f"{where}: constant OP (range {float(np.ptp(op)):.3g} %): nothing to diagnose")
-    if float(np.ptp(data["pv"])) == 0.0:
-        raise LoopDataError(f"{where}: constant PV: nothing to diagnose")
     if not math.isfinite(h) or h <= 0:
         raise LoopDataError(f"{where}: bad sampling interval {h!r}")
     return LoopData(time_s=t, sp=data["sp"], pv=data["pv"], op=op, mv=data.get("mv"), tag=tag, source=source,
