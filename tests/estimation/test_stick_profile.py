@@ -17,6 +17,7 @@ from valve_env.valveid.bootstrap import (
     Summary,
     breakaway_band,
     breakaway_evident,
+    breakaway_unconfirmed,
     calibrated_ratio,
 )
 from valve_env.valveid.data import RunData
@@ -176,6 +177,35 @@ def test_breakaway_band_moves_force_and_keeps_reset(runs) -> None:  # type: igno
     assert out["applied"] is False
     assert sm.corrected["band_mm"] == J and sm.std["band_mm"] == sd and out["S_mm"] == J
     assert abs(J - S_TRUE) / S_TRUE < 0.1
+
+
+def test_unconfirmed_breakaway_widens_the_band_sd(runs, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Where the profile reads S > J but the stuck travel does not confirm it (here: the travel threshold raised out of
+    reach on the force valve), the band stays the slips' J, and its sd takes half the distance to the calibrated S in
+    quadrature: the 2-sd interval reaches that S, and J's own sd is the floor."""
+    import valve_env.valveid.bootstrap as B
+
+    monkeypatch.setattr(B, "BREAKAWAY_TRAVEL", 1e9)
+    m, run, vals = runs["force"]
+    J, sd = vals["band_mm"], 0.1 * vals["band_mm"]
+    sm = _summary(J, sd)
+    out = breakaway_band(m, run, _fit(vals), sm)
+    assert out["applied"] is False and out["profile_S_over_J"] >= BREAKAWAY_RATIO
+    S_alt = out["unconfirmed_S_mm"]
+    assert S_alt == pytest.approx(out["profile_S_over_J"] / BREAKAWAY_READ * J)
+    assert sm.corrected["band_mm"] == J and out["S_mm"] == J
+    assert sm.std["band_mm"] == pytest.approx(math.hypot(sd, 0.5 * (S_alt - J))) == out["S_sd_mm"]
+    assert J + 2.0 * sm.std["band_mm"] >= S_alt and sm.std["band_mm"] > sd
+    lo, hi = sm.interval_95["band_mm"]
+    assert lo == pytest.approx(J - 1.96 * sm.std["band_mm"]) and hi == pytest.approx(J + 1.96 * sm.std["band_mm"])
+
+
+def test_breakaway_unconfirmed_is_the_profile_without_the_travel() -> None:
+    assert breakaway_unconfirmed(0.9, BREAKAWAY_RATIO, 0.5)
+    assert breakaway_unconfirmed(math.nan, 3.0, 0.5)  # no slip's travel measured: not confirmed
+    assert not breakaway_unconfirmed(1.5, BREAKAWAY_RATIO, 0.5)  # confirmed: breakaway_evident's case
+    assert not breakaway_unconfirmed(0.9, BREAKAWAY_RATIO - 0.25, 0.1)
+    assert not breakaway_unconfirmed(0.9, BREAKAWAY_RATIO, 1.27)  # a flat profile reads nothing
 
 
 def test_breakaway_evident_needs_both_signs() -> None:
