@@ -642,15 +642,8 @@ def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float
     for k in range(n):
         if k > 0:
             _, m, P = ou_predict(t[k] - t[k - 1], tau_e, ve, m, P)
-        # the scalar case of ou_innovation and ou_update (no second state), written out: the likelihood of
-        # every output-error fit evaluation, where the second state's arithmetic cost a few per cent
-        S = P + vw
-        nu = r[k] - m
-        innov[k] = nu
-        Sout[k] = S
+        innov[k], Sout[k], lk = ou_innovation(r[k], m, P, vw)
         if mask[k]:
-            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
-            K = P / S
-            m = m + K * nu
-            P = P - K * P
+            ll += lk
+            m, P, _, _, _ = ou_update(innov[k], Sout[k], m, P)
     return ll, innov, Sout

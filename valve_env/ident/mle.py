@@ -35,7 +35,7 @@ import scipy.optimize
 
 from valve_env.ident.kalman import Arrays, FilterResult, rts_smooth, run_filter, to_arrays
 from valve_env.ident.sde import Parameter, SDEModel, dnat_dwork, from_work, to_work, work_bounds
-from valve_env.ident.tests import lr_test
+from valve_env.ident.tests import bic, lr_test
 from valve_env.ident.uncertainty import fd_hessian, identified_directions
 
 
@@ -51,9 +51,17 @@ class Estimator:
     loglik_: float
     n_obs_: int
     n_free_: int
-    aic_: float
-    bic_: float
     converged_: bool
+
+    @property
+    def aic_(self) -> float:
+        """Akaike's criterion -2 loglik + 2 k."""
+        return -2.0 * self.loglik_ + 2.0 * self.n_free_
+
+    @property
+    def bic_(self) -> float:
+        """Schwarz's criterion (:func:`valve_env.ident.tests.bic`)."""
+        return bic(self.loglik_, self.n_free_, self.n_obs_)
 
     def fit(self, data: Any) -> Estimator:  # pragma: no cover - interface
         raise NotImplementedError
@@ -229,8 +237,6 @@ class MLEstimator(Estimator):
         self.n_samples_ = int(len(arr.t))
         self.n_obs_ = int(np.isfinite(arr.Y).sum())
         self.n_free_ = len(free)
-        self.aic_ = 2.0 * self.nll_ + 2.0 * self.n_free_
-        self.bic_ = 2.0 * self.nll_ + np.log(max(self.n_obs_, 1)) * self.n_free_
         self.rms_ = {name: float(np.sqrt(np.nanmean(self.filter_.innov[:, j] ** 2)))
                      for j, name in enumerate(model.outputs)}
         self._uncertainty(theta, arr, base, free, qs, bounds)

@@ -34,8 +34,9 @@ estimated against an uncertain temperature. The Dahl friction's driver stays
 the rate of the denoised temperature: the derivative of an OU state is white
 noise, and a rate filtered from the noisy signal jitters through every spurious
 reversal (docs/estimation.md, why the temperature is a denoised input), so the
-reversal timing is not part of the error state. The valve version has a
-hand-written numba EKF (:func:`_fast_valve_eiv_kernel`: the exact Dahl step and
+reversal timing is not part of the error state. The valve version runs the base
+model's hand-written numba EKF with its errors-in-variables option
+(:func:`~valve_env.valveid.valve_model.fast_valve_filter`: the exact Dahl step and
 the exact OU step per interval, a joint update of the two outputs), about as
 fast as the base model's.
 
@@ -47,28 +48,17 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import numba as nb
 import numpy as np
 
-from valve_env.ident.kalman import _alloc
 from valve_env.ident.sde import Parameter, SDEModel, with_overrides
-from valve_env.params import I_P_BSET, I_STROKE
-from valve_env.physics import valve as phys
 from valve_env.valveid.valve_model import (
-    C_CLIP_W,
     C_SIGN_EPS,
     P_F_HMAX,
-    P_S_F,
-    P_S_X,
     P_SIGMA,
-    U_DP,
-    U_PS,
-    U_T,
     U_V,
     ValveModel,
-    _valve_vector,
-    clip_weight,
     denoise_temperature,
+    fast_valve_filter,
     noise_sd,
     smooth_sign,
 )
@@ -168,140 +158,6 @@ class InputErrorModel(SDEModel):
         return x0, P0
 
 
-# --------------------------------------------------------------------------- the valve's fast kernel
-@nb.njit(cache=True)
-def _scalar_update(F: float, d: float, P00: float, P01: float, P11: float, ek: float, h0: float, h1: float,
-                   Rk: float) -> tuple[float, float, float, float, float, float]:  # pragma: no cover - compiled
-    """One scalar measurement update of the 2-state filter (Joseph form) and its nll term."""
-    PH0 = P00 * h0 + P01 * h1
-    PH1 = P01 * h0 + P11 * h1
-    Sk = h0 * PH0 + h1 * PH1 + Rk
-    if not Sk > 0.0:
-        return F, d, P00, P01, P11, np.inf
-    K0 = PH0 / Sk
-    K1 = PH1 / Sk
-    B00 = 1.0 - K0 * h0
-    B01 = -K0 * h1
-    B10 = -K1 * h0
-    B11 = 1.0 - K1 * h1
-    M00 = B00 * P00 + B01 * P01
-    M01 = B00 * P01 + B01 * P11
-    M10 = B10 * P00 + B11 * P01
-    M11 = B10 * P01 + B11 * P11
-    n00 = M00 * B00 + M01 * B01 + K0 * K0 * Rk
-    n01 = M00 * B10 + M01 * B11 + K0 * K1 * Rk
-    n11 = M10 * B10 + M11 * B11 + K1 * K1 * Rk
-    term = 0.5 * np.log(Sk) + 0.5 * ek * ek / Sk + 0.5 * np.log(2.0 * np.pi)
-    return F + K0 * ek, d + K1 * ek, n00, n01, n11, term
-
-
-@nb.njit(cache=True)
-def _put2(m: np.ndarray, P: np.ndarray, m0: float, m1: float, P00: float, P01: float,
-          P11: float) -> None:  # pragma: no cover - compiled
-    """Store a 2-vector and a symmetric 2 x 2 matrix (one sample of the filter's output arrays)."""
-    m[0] = m0
-    m[1] = m1
-    P[0, 0] = P00
-    P[0, 1] = P[1, 0] = P01
-    P[1, 1] = P11
-
-
-@nb.njit(cache=True)
-def _fast_valve_eiv_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarray, c: np.ndarray,
-                           k_extra: int, s_e: float, x_pred: np.ndarray, P_pred: np.ndarray, x_filt: np.ndarray,
-                           P_filt: np.ndarray, y_pred: np.ndarray, S_out: np.ndarray, innov: np.ndarray,
-                           Phi_out: np.ndarray) -> float:  # pragma: no cover - compiled
-    """EKF of :class:`ValveEIVModel` (states F_h, d; outputs x_mm, T_tank_C), allocation-free: per
-    interval the exact OU step of d and the exact Dahl step for the interval's temperature travel
-    dT_s + dd (the denoised travel plus the error's), linearised in dd (the bulb is driven by the
-    true temperature); at each sample the update with whichever outputs are present."""
-    N = t.shape[0]
-    sig = p[P_SIGMA]
-    Fm = p[P_F_HMAX]
-    qF = p[P_S_F] ** 2
-    s_d = p[k_extra]
-    tau = p[k_extra + 1]
-    R0 = p[P_S_X] ** 2
-    R1 = s_e ** 2
-    stroke = c[I_STROKE]
-    w = c[C_CLIP_W]
-    eps = c[C_SIGN_EPS]
-    vp = _valve_vector(p, c)
-    F = 0.0
-    d = 0.0
-    P00 = Fm * Fm
-    P01 = 0.0
-    P11 = s_d * s_d
-    nll = 0.0
-    hT = 1e-4
-    for k in range(N):
-        A00 = 1.0
-        A01 = 0.0
-        A11 = 1.0
-        if k > 0:
-            dt = t[k] - t[k - 1]
-            v = U[k - 1, U_V]
-            sv = smooth_sign(v, eps)
-            a = np.exp(-dt / tau)
-            qd = s_d * s_d * (1.0 - a * a)
-            # F+ = s Fm + (F - s Fm) exp(-sigma s (dT_s + dd) / Fm), dd = (a - 1) d + w_d
-            e = np.exp(-sig * sv * (v * dt + (a - 1.0) * d) / Fm)
-            if e > 1.0 and sv != 0.0:  # the error's travel cannot reverse the interval's direction
-                e = 1.0
-            g = sig * sv * (sv * Fm - F) / Fm * e  # dF+/d(dd)
-            Fn = phys.dahl_relax(F, sv, e, vp)
-            A00 = e
-            A01 = g * (a - 1.0)
-            A11 = a
-            # P+ = A P A' + Q, Q = [[qF dt + g^2 qd, g qd], [g qd, qd]]
-            n00 = A00 * A00 * P00 + 2.0 * A00 * A01 * P01 + A01 * A01 * P11 + qF * dt + g * g * qd
-            n01 = A00 * A11 * P01 + A01 * A11 * P11 + g * qd
-            n11 = A11 * A11 * P11 + qd
-            P00, P01, P11 = n00, n01, n11
-            F = Fn
-            d = a * d
-        _put2(x_pred[k], P_pred[k], F, d, P00, P01, P11)
-        Phi_out[k, 0, 0] = A00
-        Phi_out[k, 0, 1] = A01
-        Phi_out[k, 1, 0] = 0.0
-        Phi_out[k, 1, 1] = A11
-        T_g = U[k, U_T] + d
-        dpk = U[k, U_DP]
-        psk = U[k, U_PS]
-        xd = phys.demanded_opening(T_g, F, dpk, psk, vp[I_P_BSET], vp)
-        wgt = clip_weight(xd, stroke, w)
-        hF = wgt / phys.stiffness(dpk, vp)
-        hd = wgt * (phys.demanded_opening(T_g + hT, F, dpk, psk, vp[I_P_BSET], vp)
-                    - phys.demanded_opening(T_g - hT, F, dpk, psk, vp[I_P_BSET], vp)) / (2.0 * hT)
-        y0 = min(max(xd, 0.0), stroke)
-        # S = H P H' + R with H = [[hF, hd], [0, 1]]
-        PH00 = P00 * hF + P01 * hd  # (P H')[:, 0]
-        PH10 = P01 * hF + P11 * hd
-        S00 = hF * PH00 + hd * PH10 + R0
-        S01 = PH10
-        S11 = P11 + R1
-        _put2(y_pred[k], S_out[k], y0, T_g, S00, S01, S11)
-        # the joint update of the present outputs as sequential scalar updates with the same
-        # linearisation (exact for independent measurement noises: same state, covariance and nll)
-        F0 = F
-        d0 = d
-        for j in range(2):
-            if not np.isfinite(Y[k, j]):
-                continue
-            if j == 0:
-                h0, h1, Rk, ek = hF, hd, R0, Y[k, 0] - y0
-            else:
-                h0, h1, Rk, ek = 0.0, 1.0, R1, Y[k, 1] - T_g
-            innov[k, j] = ek
-            ek -= h0 * (F - F0) + h1 * (d - d0)  # against the state updated by the first output
-            F, d, P00, P01, P11, term = _scalar_update(F, d, P00, P01, P11, ek, h0, h1, Rk)
-            if not np.isfinite(term):
-                return np.inf
-            nll += term
-        _put2(x_filt[k], P_filt[k], F, d, P00, P01, P11)
-    return nll
-
-
 class ValveEIVModel(InputErrorModel):
     """The base valve model (docs/reference.md, section 1) with the tank temperature as an
     uncertain input: the force balance reads ``T_tank_s + d``, the raw ``T_tank_C`` is observed with
@@ -350,25 +206,9 @@ class ValveEIVModel(InputErrorModel):
         assert isinstance(self.base, ValveModel)
         if not self.base.is_base:
             return None
-
-        res = _alloc(len(arr.t), 2, 2)
-        pp = np.ascontiguousarray(p, dtype=np.float64)
-        Y = arr.Y
-        s_e = 1.0
-        if self.measured:
-            s_e = float(pp[self.n_base_params + 2])
-        else:  # no measured temperature channel: the kernel's second output is never observed
-            Y = np.ascontiguousarray(np.column_stack([Y[:, 0], np.full(len(Y), np.nan)]))
-        res.nll = float(_fast_valve_eiv_kernel(arr.t, arr.U, Y, pp, self.constants, self.n_base_params, s_e,
-                                               res.x_pred, res.P_pred, res.x_filt, res.P_filt, res.y_pred,
-                                               res.S, res.innov, res.Phi))
-        if not self.measured:
-            res.y_pred = np.ascontiguousarray(res.y_pred[:, :1])
-            res.S = np.ascontiguousarray(res.S[:, :1, :1])
-            res.innov = np.ascontiguousarray(res.innov[:, :1])
-        return res
-
-
+        k = self.n_base_params
+        return fast_valve_filter(p, self.constants, arr, eiv=True, s_d=float(p[k]), tau=float(p[k + 1]),
+                                 s_e=float(p[k + 2]) if self.measured else 1.0)
 
 
 def denoising_error(T_C: np.ndarray, t: np.ndarray, *, tv_factor: float = 4.5, B: int = 4, seed: int = 0,

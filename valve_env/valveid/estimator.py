@@ -32,7 +32,6 @@ import pandas as pd
 from valve_env.data_io import load_run, validate_run
 from valve_env.effects import check_effects
 from valve_env.ident.mle import Estimator, MLEstimator
-from valve_env.ident.tests import bic
 from valve_env.params import ValveParams
 from valve_env.valveid.bootstrap import apply_bootstrap, bootstrap
 from valve_env.valveid.data import RunData
@@ -117,15 +116,8 @@ class ValveEstimator(Estimator):
         model = effect_model(self.effects, valve=self.valve) if self.effects else base_valve_model(self.valve)
         est = MLEstimator(model, fixed=self.fixed, **self.options).fit(df)
         self.backend_: Any = est
-        self.params_ = dict(est.params_)
-        self.std_ = dict(est.std_)
-        self.loglik_ = float(est.loglik_)
-        self.n_obs_ = int(est.n_obs_)
-        self.n_free_ = int(est.n_free_)
-        self.aic_ = float(est.aic_)
-        self.bic_ = float(est.bic_)
-        self.converged_ = bool(est.converged_)
-        self.rms_ = dict(est.rms_)
+        for name in ("params_", "std_", "loglik_", "n_obs_", "n_free_", "converged_", "rms_"):
+            setattr(self, name, getattr(est, name))
 
     def _fit_output_error(self, run: RunData) -> None:
 
@@ -139,8 +131,6 @@ class ValveEstimator(Estimator):
         self.loglik_ = float(res.loglik)
         self.n_obs_ = int(res.n)
         self.n_free_ = int(res.n_free)
-        self.aic_ = -2.0 * self.loglik_ + 2.0 * self.n_free_
-        self.bic_ = bic(self.loglik_, self.n_free_, self.n_obs_)
         self.converged_ = bool(res.converged)
         self.rms_ = {"x_mm": float(res.rms_mm)}
 

@@ -456,24 +456,17 @@ class Model:
         names = [q.name for q in BASE_PARAMS if q.name not in fixed] + [p.name for p in effects]
         if not names:
             return {}
-        z0 = self.to_work(start)
-        idx = [self.names.index(n) for n in names]
-        b = self.work_bounds()
-        lo = np.array([b[i][0] for i in idx])
-        hi = np.array([b[i][1] for i in idx])
-        z_start = np.clip(z0[idx], lo + 1e-9, hi - 1e-9)
+        _, z0, bounds, at, _ = self._objective(data, start, {n: start[n] for n in self.names if n not in names})
+        lo = np.array([b[0] for b in bounds])
+        hi = np.array([b[1] for b in bounds])
 
         def resid(zs: np.ndarray) -> np.ndarray:
-            z = z0.copy()
-            z[idx] = zs
-            xs, _, _ = self.simulate(data, self.from_work(z))
+            xs, _, _ = self.simulate(data, at(zs))
             return data.x - xs
 
-        res = least_squares(resid, z_start, bounds=(lo, hi), x_scale=np.full(len(names), 0.05), max_nfev=80,
-                            diff_step=1e-4)
-        z = z0.copy()
-        z[idx] = res.x
-        vals = self.from_work(z)
+        res = least_squares(resid, np.clip(z0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi),
+                            x_scale=np.full(len(names), 0.05), max_nfev=80, diff_step=1e-4)
+        vals = at(res.x)
         return {n: vals[n] for n in names}
 
     def _grid(self, data: RunData, p: EffectParameter) -> np.ndarray:

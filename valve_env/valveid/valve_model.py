@@ -270,62 +270,174 @@ def valve_obs_variance(t: float, x: np.ndarray, u: np.ndarray, pc: np.ndarray, c
     return R
 
 
-# --------------------------------------------------------------------------- fast kernel (base model)
+# --------------------------------------------------------------------------- fast kernel (base and EIV)
 @nb.njit(cache=True)
-def _fast_valve_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarray, c: np.ndarray,
-                       x0: float, P0: float, x_pred: np.ndarray, P_pred: np.ndarray,
-                       x_filt: np.ndarray, P_filt: np.ndarray, y_pred: np.ndarray, S_out: np.ndarray,
-                       innov: np.ndarray, Phi_out: np.ndarray) -> float:  # pragma: no cover - compiled
-    """EKF of the base valve model, allocation-free, with the exact time update: over an
-    interval the rate input is constant (zero-order hold of v), so the mean takes the exact
-    Dahl step F <- s F_hmax + (F - s F_hmax) exp(-sigma |dT| / F_hmax) (docs/reference.md, section 1) and the
-    variance P <- e^2 P + s_F^2 dt with e = dF+/dF."""
+def _scalar_update(F: float, d: float, P00: float, P01: float, P11: float, ek: float, h0: float, h1: float,
+                   Rk: float) -> tuple[float, float, float, float, float, float]:  # pragma: no cover - compiled
+    """One scalar measurement update of the 2-state filter (Joseph form) and its nll term."""
+    PH0 = P00 * h0 + P01 * h1
+    PH1 = P01 * h0 + P11 * h1
+    Sk = h0 * PH0 + h1 * PH1 + Rk
+    if not Sk > 0.0:
+        return F, d, P00, P01, P11, np.inf
+    K0 = PH0 / Sk
+    K1 = PH1 / Sk
+    B00 = 1.0 - K0 * h0
+    B01 = -K0 * h1
+    B10 = -K1 * h0
+    B11 = 1.0 - K1 * h1
+    M00 = B00 * P00 + B01 * P01
+    M01 = B00 * P01 + B01 * P11
+    M10 = B10 * P00 + B11 * P01
+    M11 = B10 * P01 + B11 * P11
+    n00 = M00 * B00 + M01 * B01 + K0 * K0 * Rk
+    n01 = M00 * B10 + M01 * B11 + K0 * K1 * Rk
+    n11 = M10 * B10 + M11 * B11 + K1 * K1 * Rk
+    term = 0.5 * np.log(Sk) + 0.5 * ek * ek / Sk + 0.5 * np.log(2.0 * np.pi)
+    return F + K0 * ek, d + K1 * ek, n00, n01, n11, term
+
+
+@nb.njit(cache=True)
+def _fast_valve_kernel(t: np.ndarray, U: np.ndarray, Y: np.ndarray, p: np.ndarray, c: np.ndarray, s_d: float,
+                       tau: float, s_e: float, x_pred: np.ndarray, P_pred: np.ndarray, x_filt: np.ndarray,
+                       P_filt: np.ndarray, y_pred: np.ndarray, S_out: np.ndarray, innov: np.ndarray,
+                       Phi_out: np.ndarray) -> float:  # pragma: no cover - compiled
+    """EKF of the base valve model, allocation-free, with the exact time update: over an interval the rate
+    input is constant (zero-order hold of v), so the mean takes the exact Dahl step F <- s F_hmax + (F - s
+    F_hmax) exp(-sigma |dT| / F_hmax) (docs/reference.md, section 1) and the variance P <- e^2 P + s_F^2 dt
+    with e = dF+/dF.
+
+    With two states (the arrays' shape), :class:`~valve_env.valveid.eiv_model.ValveEIVModel`'s errors in
+    variables (states F_h, d; outputs x_mm and, with a second column of ``Y``, T_tank_C): d the OU error of the
+    temperature (stationary sd ``s_d``, time constant ``tau``), T_tank_C its measurement (sd ``s_e``). Per
+    interval the exact OU step of d and the exact Dahl step for the interval's temperature travel dT_s + dd
+    (the denoised travel plus the error's), linearised in dd (the bulb is driven by the true temperature); at
+    each sample the update with whichever outputs are present."""
     N = t.shape[0]
+    eiv = x_pred.shape[1] == 2
+    ny = Y.shape[1]
     sig = p[P_SIGMA]
     Fm = p[P_F_HMAX]
     qF = p[P_S_F] ** 2
-    R = p[P_S_X] ** 2
+    R0 = p[P_S_X] ** 2
+    R1 = s_e ** 2
     stroke = c[I_STROKE]
     w = c[C_CLIP_W]
     eps = c[C_SIGN_EPS]
     vp = _valve_vector(p, c)
-    F = x0
-    P = P0
+    F = 0.0
+    d = 0.0
+    P00 = Fm * Fm
+    P01 = 0.0
+    P11 = s_d * s_d
     nll = 0.0
     log2pi = np.log(2.0 * np.pi)
+    hT = 1e-4
     for k in range(N):
         e = 1.0
+        A01 = 0.0
+        A11 = 1.0
         if k > 0:
             dt = t[k] - t[k - 1]
             v = U[k - 1, U_V]
             sv = smooth_sign(v, eps)
-            e = np.exp(-sig * v * sv * dt / Fm)
+            if eiv:
+                a = np.exp(-dt / tau)
+                qd = s_d * s_d * (1.0 - a * a)
+                # F+ = s Fm + (F - s Fm) exp(-sigma s (dT_s + dd) / Fm), dd = (a - 1) d + w_d
+                e = np.exp(-sig * sv * (v * dt + (a - 1.0) * d) / Fm)
+                if e > 1.0 and sv != 0.0:  # the error's travel cannot reverse the interval's direction
+                    e = 1.0
+                g = sig * sv * (sv * Fm - F) / Fm * e  # dF+/d(dd)
+                A01 = g * (a - 1.0)
+                A11 = a
+                # P+ = A P A' + Q, Q = [[qF dt + g^2 qd, g qd], [g qd, qd]]
+                n00 = e * e * P00 + 2.0 * e * A01 * P01 + A01 * A01 * P11 + qF * dt + g * g * qd
+                n01 = e * A11 * P01 + A01 * A11 * P11 + g * qd
+                n11 = A11 * A11 * P11 + qd
+                P00, P01, P11 = n00, n01, n11
+                d = a * d
+            else:
+                e = np.exp(-sig * v * sv * dt / Fm)
+                P00 = e * e * P00 + qF * dt
             F = phys.dahl_relax(F, sv, e, vp)  # the exact Dahl step of physics.valve
-            P = e * e * P + qF * dt
         x_pred[k, 0] = F
-        P_pred[k, 0, 0] = P
+        P_pred[k, 0, 0] = P00
         Phi_out[k, 0, 0] = e
-        T_g = U[k, U_T]
+        T_g = U[k, U_T] + d
         dpk = U[k, U_DP]
-        xd = phys.demanded_opening(T_g, F, dpk, U[k, U_PS], vp[I_P_BSET], vp)
-        H = clip_weight(xd, stroke, w) / phys.stiffness(dpk, vp)
-        yh = min(max(xd, 0.0), stroke)
-        S = H * H * P + R
-        y_pred[k, 0] = yh
-        S_out[k, 0, 0] = S
-        if np.isfinite(Y[k, 0]):
-            if S <= 0.0:
+        psk = U[k, U_PS]
+        xd = phys.demanded_opening(T_g, F, dpk, psk, vp[I_P_BSET], vp)
+        wgt = clip_weight(xd, stroke, w)
+        hF = wgt / phys.stiffness(dpk, vp)
+        y0 = min(max(xd, 0.0), stroke)
+        y_pred[k, 0] = y0
+        if not eiv:
+            S = hF * hF * P00 + R0
+            S_out[k, 0, 0] = S
+            if np.isfinite(Y[k, 0]):
+                if S <= 0.0:
+                    return np.inf
+                ek = Y[k, 0] - y0
+                nll += 0.5 * np.log(S) + 0.5 * ek * ek / S + 0.5 * log2pi
+                K = P00 * hF / S
+                F += K * ek
+                ikh = 1.0 - K * hF
+                P00 = ikh * ikh * P00 + K * K * R0
+                innov[k, 0] = ek
+            x_filt[k, 0] = F
+            P_filt[k, 0, 0] = P00
+            continue
+        x_pred[k, 1] = d
+        P_pred[k, 0, 1] = P_pred[k, 1, 0] = P01
+        P_pred[k, 1, 1] = P11
+        Phi_out[k, 0, 1] = A01
+        Phi_out[k, 1, 0] = 0.0
+        Phi_out[k, 1, 1] = A11
+        hd = wgt * (phys.demanded_opening(T_g + hT, F, dpk, psk, vp[I_P_BSET], vp)
+                    - phys.demanded_opening(T_g - hT, F, dpk, psk, vp[I_P_BSET], vp)) / (2.0 * hT)
+        # S = H P H' + R with H = [[hF, hd], [0, 1]]
+        PH00 = P00 * hF + P01 * hd  # (P H')[:, 0]
+        PH10 = P01 * hF + P11 * hd
+        S_out[k, 0, 0] = hF * PH00 + hd * PH10 + R0
+        if ny == 2:
+            y_pred[k, 1] = T_g
+            S_out[k, 0, 1] = S_out[k, 1, 0] = PH10
+            S_out[k, 1, 1] = P11 + R1
+        # the joint update of the present outputs as sequential scalar updates with the same
+        # linearisation (exact for independent measurement noises: same state, covariance and nll)
+        F0 = F
+        d0 = d
+        for j in range(ny):
+            if not np.isfinite(Y[k, j]):
+                continue
+            if j == 0:
+                h0, h1, Rk, ek = hF, hd, R0, Y[k, 0] - y0
+            else:
+                h0, h1, Rk, ek = 0.0, 1.0, R1, Y[k, 1] - T_g
+            innov[k, j] = ek
+            ek -= h0 * (F - F0) + h1 * (d - d0)  # against the state updated by the first output
+            F, d, P00, P01, P11, term = _scalar_update(F, d, P00, P01, P11, ek, h0, h1, Rk)
+            if not np.isfinite(term):
                 return np.inf
-            ek = Y[k, 0] - yh
-            nll += 0.5 * np.log(S) + 0.5 * ek * ek / S + 0.5 * log2pi
-            K = P * H / S
-            F += K * ek
-            ikh = 1.0 - K * H
-            P = ikh * ikh * P + K * K * R
-            innov[k, 0] = ek
+            nll += term
         x_filt[k, 0] = F
-        P_filt[k, 0, 0] = P
+        x_filt[k, 1] = d
+        P_filt[k, 0, 0] = P00
+        P_filt[k, 0, 1] = P_filt[k, 1, 0] = P01
+        P_filt[k, 1, 1] = P11
     return nll
+
+
+def fast_valve_filter(p: np.ndarray, c: np.ndarray, arr: Any, *, eiv: bool = False, s_d: float = 0.0,
+                      tau: float = 1.0, s_e: float = 1.0) -> Any:
+    """:func:`_fast_valve_kernel` on ``arr``: the :class:`~valve_env.ident.kalman.FilterResult` of the base
+    valve model or, with ``eiv``, of :class:`~valve_env.valveid.eiv_model.ValveEIVModel` (its outputs those of
+    ``arr.Y``)."""
+    res = _alloc(len(arr.t), 2 if eiv else 1, arr.Y.shape[1])
+    res.nll = float(_fast_valve_kernel(arr.t, arr.U, arr.Y, _f(p), c, s_d, tau, s_e, res.x_pred, res.P_pred,
+                                       res.x_filt, res.P_filt, res.y_pred, res.S, res.innov, res.Phi))
+    return res
 
 
 # --------------------------------------------------------------------------- the model class
@@ -470,13 +582,7 @@ class ValveModel(CompiledSDEModel):
         if not self.is_base:
             return None
 
-        res = _alloc(len(arr.t), 1, 1)
-        pp = _f(p)
-        x0, P0 = self.initial_state(pp, arr.Y[0], arr.U[0])
-        res.nll = float(_fast_valve_kernel(arr.t, arr.U, arr.Y, pp, self.constants, float(x0[0]), float(P0[0, 0]),
-                                           res.x_pred, res.P_pred, res.x_filt, res.P_filt, res.y_pred, res.S,
-                                           res.innov, res.Phi))
-        return res
+        return fast_valve_filter(p, self.constants, arr)
 
     # --- conveniences -------------------------------------------------------
     def valve_params(self, values: dict[str, float]) -> ValveParams:
