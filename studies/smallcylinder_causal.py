@@ -379,7 +379,8 @@ def _hhmm(h: float) -> str:
 
 # ----------------------------------------------------------------------------------- command line
 def main(argv: list[str] | None = None) -> int:
-    from valve_env.evaluation.evaluator import run_episodes
+    from valve_env.controllers import make_controller
+    from valve_env.evaluation.evaluator import rollout
     from valve_env.outputs import OutputError, OutputSet
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -391,7 +392,10 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--future-seed", type=int, default=1)
     r.add_argument("--true-future", action="store_true", help="every future the true day (the oracle)")
     r.add_argument("--set", nargs="*", default=[], metavar="K=V", help="planner settings (OracleSettings fields)")
+    r.add_argument("--controller", default="habit_mpc",
+                   help="habit_mpc (default), or any controller name of make_controller, or AGENT_base_law")
     r.add_argument("--out", required=True, help="the per-day CSV to write")
+    r.add_argument("--trace", help="also write every step of every day here (CSV: seed, t_h, observations, reward)")
     r.add_argument("--force", action="store_true")
     t = sub.add_parser("table", help="the cost table and the gap closed from per-day CSVs")
     t.add_argument("csv", nargs="*", help="NAME=per-day CSV of one controller (run's output)")
@@ -414,27 +418,39 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"bad --set {kv!r}: expected K=V", file=sys.stderr)
                 return 2
             settings[k] = yaml.safe_load(v)
-        ctrl = HabitMPC(ENV_ID, futures=args.futures, future_seed=args.future_seed, true_future=args.true_future,
-                        **settings)
+        ctrl: Any
+        if args.controller == "habit_mpc":
+            ctrl = HabitMPC(ENV_ID, futures=args.futures, future_seed=args.future_seed,
+                            true_future=args.true_future, **settings)
+        elif args.controller.endswith("_base_law"):
+            ctrl = make_controller(args.controller.removesuffix("_base_law"), ENV_ID).base_law()
+        else:
+            ctrl = make_controller(args.controller, ENV_ID, **settings)
         outs = OutputSet(force=args.force)
         try:
             outs.add(args.out, "per-day CSV")
+            if args.trace:
+                outs.add(args.trace, "trace CSV")
         except OutputError as e:
             print(e, file=sys.stderr)
             return 2
-        rows = []
+        rows, traces = [], []
         for i in range(args.episodes):  # one day at a time, so that a long run reports as it goes
+            seed = args.seed + i
             t0 = time.perf_counter()
-            df = run_episodes(ctrl, ENV_ID, 1, args.seed + i)
-            df["wall_s"] = time.perf_counter() - t0
-            rows.append(df)
-            print(f"seed {args.seed + i}: cost {-df['return'].iloc[0]:.2f} tdis_Kh {df['tdis_Kh'].iloc[0]:.3f} "
-                  f"({df['wall_s'].iloc[0]:.0f} s)", flush=True)
-        out = pd.concat(rows, ignore_index=True)
-        out["episode"] = np.arange(len(out))
+            steps = rollout(ctrl, ENV_ID, seed)
+            # the return summed in step order, as the evaluator's RecordEpisodeStatistics sums it
+            rows.append({"episode": i, "seed": seed, "return": float(np.cumsum(steps["reward"].to_numpy())[-1]),
+                         **steps.attrs["kpis"], "wall_s": time.perf_counter() - t0})
+            traces.append(steps.assign(seed=seed))
+            print(f"seed {seed}: cost {-rows[-1]['return']:.2f} tdis_Kh {rows[-1]['tdis_Kh']:.3f} "
+                  f"({rows[-1]['wall_s']:.0f} s)", flush=True)
         with outs:
-            outs.write_text(args.out, out.to_csv(index=False))
-        print(ctrl.describe())
+            outs.write_text(args.out, pd.DataFrame(rows).to_csv(index=False))
+            if args.trace:
+                outs.write_text(args.trace, pd.concat(traces, ignore_index=True).to_csv(index=False))
+        if isinstance(ctrl, HabitMPC):
+            print(ctrl.describe(), f"plans {ctrl.plans_made}, of them at a draw's start {ctrl.event_plans}")
         return 0
     per: dict[str, pd.DataFrame] = {}
     try:
