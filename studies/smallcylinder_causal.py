@@ -162,8 +162,19 @@ class HabitMPC(Oracle):
     name: ClassVar[str] = "habit_mpc"
 
     def __init__(self, env_id: str = ENV_ID, futures: int = 8, future_seed: int = 1, true_future: bool = False,
-                 replan_on_draw: bool = True, **settings: Any) -> None:
+                 replan_on_draw: bool = True, base_law: str | None = None, **settings: Any) -> None:
         super().__init__(env_id, **settings)
+        #: the law the plan perturbs: the oracle's PI (None), or a shipped agent's residual base law
+        #: (``"ppo"``: the PI with the draw feedforward, ``ppo_base_law``), whose feedforward reacts in
+        #: every sampled future to that future's draws
+        self.base_law = base_law
+        self._residual: Any = None
+        if base_law is not None:
+            from valve_env.controllers import make_controller
+
+            self._residual = make_controller(base_law, env_id).residual
+            if self._residual is None or self.act_dim != 1:
+                raise ValueError(f"{base_law!r} has no residual base law on a one-action task")
         if int(futures) != futures or futures < 1:
             raise ValueError(f"futures must be an integer >= 1, got {futures!r}")
         self.futures = int(futures)
@@ -175,9 +186,23 @@ class HabitMPC(Oracle):
         self._days: dict[tuple[int, int], Draws] = {}
         self._plan_futures: tuple[tuple[int, int, int], list[Any]] | None = None
 
+    def initial_state(self, obs: np.ndarray) -> np.ndarray:
+        mem = super().initial_state(obs)
+        if self._residual is not None:
+            mem[:, : self._n_pi] = 0.0  # the residual law's integrator starts at 0 (as the agent's)
+        return mem
+
+    def _base_action(self, obs: np.ndarray, pi_mem: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """The oracle's (the PI's output plus the plan), or with ``base_law`` the agent's residual law
+        with the plan as its residual (in units of the setting; its span bounds it)."""
+        if self._residual is None:
+            return super()._base_action(obs, pi_mem, delta)
+        u, pi_mem[:, :1] = self._residual.step(obs, delta / self._residual.span, pi_mem[:, :1])
+        return u
+
     def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "futures": self.futures, "future_seed": self.future_seed,
-                "true_future": self.true_future, "replan_on_draw": self.replan_on_draw}
+        return {**super().describe(), "base_law": self.base_law, "futures": self.futures,
+                "future_seed": self.future_seed, "true_future": self.true_future, "replan_on_draw": self.replan_on_draw}
 
     def _simulator(self, core: Any) -> Any:
         key = self._keys.get(id(core))
@@ -372,6 +397,28 @@ def per_day(per_episode: dict[str, pd.DataFrame], base: str, scored: list[str]) 
     return "\n".join(rows)
 
 
+def bath_table(traces: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """Per day, bath and controller (from ``run --trace`` CSVs): the bath's start, the cylinder's bottom
+    and pocket temperatures and the setting when it begins, the highest setting and the mean bottom
+    temperature over the hour before it, and the cost from an hour before to an hour after its start."""
+    rows = []
+    for name, tr in traces.items():
+        for seed, day in tr.groupby("seed"):
+            t = day["t_h"].to_numpy()
+            for which, start in zip(("morning", "evening"), bath_starts(int(seed)), strict=True):
+                k = int(np.searchsorted(t, start))  # the first observation after the bath began
+                before = (t > start - 1.0) & (t <= start)
+                around = (t > start - 1.0) & (t <= start + 1.0)
+                rows.append({"controller": name, "seed": int(seed), "bath": which, "start_h": start,
+                             "T_bottom_at_start": float(day["T_bottom_C"].iloc[max(k - 1, 0)]),
+                             "T_pocket_at_start": float(day["T_pocket_C"].iloc[max(k - 1, 0)]),
+                             "setting_at_start": float(day["setting_C"].iloc[max(k - 1, 0)]),
+                             "setting_max_1h_before": float(day["setting_C"][before].max()),
+                             "T_bottom_mean_1h_before": float(day["T_bottom_C"][before].mean()),
+                             "cost_pm_1h": float(-day["reward"][around].sum())})
+    return pd.DataFrame(rows)
+
+
 def _hhmm(h: float) -> str:
     hh, mm = divmod(int(round(h * 60.0)), 60)
     return f"{hh:02d}:{mm:02d}"
@@ -391,6 +438,8 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--futures", type=int, default=8)
     r.add_argument("--future-seed", type=int, default=1)
     r.add_argument("--true-future", action="store_true", help="every future the true day (the oracle)")
+    r.add_argument("--base-law", help="the law the plan perturbs: an agent with a residual base law (ppo); "
+                                      "default the oracle's PI")
     r.add_argument("--set", nargs="*", default=[], metavar="K=V", help="planner settings (OracleSettings fields)")
     r.add_argument("--controller", default="habit_mpc",
                    help="habit_mpc (default), or any controller name of make_controller, or AGENT_base_law")
@@ -421,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
         ctrl: Any
         if args.controller == "habit_mpc":
             ctrl = HabitMPC(ENV_ID, futures=args.futures, future_seed=args.future_seed,
-                            true_future=args.true_future, **settings)
+                            true_future=args.true_future, base_law=args.base_law, **settings)
         elif args.controller.endswith("_base_law"):
             ctrl = make_controller(args.controller.removesuffix("_base_law"), ENV_ID).base_law()
         else:

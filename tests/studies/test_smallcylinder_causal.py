@@ -113,3 +113,20 @@ def test_it_replans_when_a_draw_starts(midday) -> None:
         core.set_state(snap)
     assert habit.event_plans >= 1
     assert habit.plans_made >= 10 + habit.event_plans
+
+
+def test_with_the_agents_base_law_a_zero_plan_acts_as_that_law() -> None:
+    pytest.importorskip("stable_baselines3")
+    env = make_env(ENV_ID)
+    obs, _ = env.reset(seed=3)
+    law = make_controller("ppo", ENV_ID).base_law()
+    habit = HabitMPC(ENV_ID, futures=1, base_law="ppo", samples=4)
+    mem = habit.initial_state(obs[None])[:, : habit._n_pi]
+    state, start = None, np.ones(1, bool)
+    for _ in range(1000):  # through the first morning draws (07:00-08:20): the feedforward acts
+        a, state = law.predict(obs[None], state=state, episode_start=start)
+        start[:] = False
+        b = habit._base_action(obs[None].astype(np.float64), mem, np.zeros((1, 1)))
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-4)  # the agent's float32 action
+        obs, *_ = env.step(a[0])
+    env.close()
