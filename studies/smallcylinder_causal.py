@@ -162,8 +162,13 @@ class HabitMPC(Oracle):
     name: ClassVar[str] = "habit_mpc"
 
     def __init__(self, env_id: str = ENV_ID, futures: int = 8, future_seed: int = 1, true_future: bool = False,
-                 replan_on_draw: bool = True, base_law: str | None = None, **settings: Any) -> None:
+                 replan_on_draw: bool = True, base_law: str | None = None, event_iterations: int | None = None,
+                 **settings: Any) -> None:
         super().__init__(env_id, **settings)
+        #: CEM iterations of a plan made because a draw has started (None: ``iterations``): the plan must
+        #: then move far from the warm start (open the valve for a draw the last plan did not expect)
+        self.event_iterations = event_iterations
+        self._event = False
         #: the law the plan perturbs: the oracle's PI (None), or a shipped agent's residual base law
         #: (``"ppo"``: the PI with the draw feedforward, ``ppo_base_law``), whose feedforward reacts in
         #: every sampled future to that future's draws
@@ -202,7 +207,8 @@ class HabitMPC(Oracle):
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "base_law": self.base_law, "futures": self.futures,
-                "future_seed": self.future_seed, "true_future": self.true_future, "replan_on_draw": self.replan_on_draw}
+                "future_seed": self.future_seed, "event_iterations": self.event_iterations,
+                "true_future": self.true_future, "replan_on_draw": self.replan_on_draw}
 
     def _simulator(self, core: Any) -> Any:
         key = self._keys.get(id(core))
@@ -283,7 +289,9 @@ class HabitMPC(Oracle):
                 if new_draw and np.isfinite(age) and age < self.settings.replan_steps:
                     self.event_plans += 1
                 prev = np.zeros((H, ad)) if not np.isfinite(age) else _shifted(plan, int(age))
+                self._event = bool(new_draw)
                 plan = self.plan(core, st, obs[i], state[i, :p0], prev)
+                self._event = False
                 self._started_at_plan[id(core)] = started
                 age = 0
             pi_mem = state[i : i + 1, :p0]
@@ -295,7 +303,14 @@ class HabitMPC(Oracle):
 
     def plan(self, core: Any, st: Any, obs: np.ndarray, pi_mem: np.ndarray, prev: np.ndarray) -> np.ndarray:
         self._core = core  # whose futures _rollout scores the candidates on
-        return super().plan(core, st, obs, pi_mem, prev)
+        if not (self._event and self.event_iterations):
+            return super().plan(core, st, obs, pi_mem, prev)
+        kept = self.settings
+        self.settings = replace(kept, iterations=int(self.event_iterations))
+        try:
+            return super().plan(core, st, obs, pi_mem, prev)
+        finally:
+            self.settings = kept
 
     def _started(self, core: Any, st: Any) -> int:
         """How many of the day's draws have started by the snapshot's time."""
@@ -438,6 +453,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--futures", type=int, default=8)
     r.add_argument("--future-seed", type=int, default=1)
     r.add_argument("--true-future", action="store_true", help="every future the true day (the oracle)")
+    r.add_argument("--event-iterations", type=int, help="CEM iterations of a plan made at a draw's start")
     r.add_argument("--base-law", help="the law the plan perturbs: an agent with a residual base law (ppo); "
                                       "default the oracle's PI")
     r.add_argument("--set", nargs="*", default=[], metavar="K=V", help="planner settings (OracleSettings fields)")
@@ -470,7 +486,8 @@ def main(argv: list[str] | None = None) -> int:
         ctrl: Any
         if args.controller == "habit_mpc":
             ctrl = HabitMPC(ENV_ID, futures=args.futures, future_seed=args.future_seed,
-                            true_future=args.true_future, base_law=args.base_law, **settings)
+                            true_future=args.true_future, base_law=args.base_law,
+                            event_iterations=args.event_iterations, **settings)
         elif args.controller.endswith("_base_law"):
             ctrl = make_controller(args.controller.removesuffix("_base_law"), ENV_ID).base_law()
         else:
