@@ -1,9 +1,11 @@
-"""A causal bound on ThermoValveSmallCylinder-v0: the oracle's MPC without foresight of the draws
+"""A causal estimate on ThermoValveSmallCylinder-v0: the oracle's MPC without foresight of the draws
 (docs/history/smallcylinder_causal_bound.md).
 
     python studies/smallcylinder_causal.py run --seed 48000 --episodes 20 --futures 8 --out out/habit_k8.csv
+    python studies/smallcylinder_causal.py run ... --base-law ppo       # the plan on the agents' PI + feedforward
+    python studies/smallcylinder_causal.py run ... --controller ppo_pi --trace out/trace_ppo_pi.csv
     python studies/smallcylinder_causal.py table --episodes out/tl48000/task_episodes.csv \
-        --oracle out/benchmark_oracle48000/episodes.csv habit_k8=out/habit_k8.csv
+        --episodes out/benchmark_oracle48000/episodes.csv habit_k8=out/habit_k8.csv
 
 The oracle (:mod:`valve_env.controllers.oracle`) plans on exact copies of the plant loaded with the
 day's *whole* scenario, so it knows when today's bath starts. :class:`HabitMPC` is the same
@@ -464,8 +466,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--force", action="store_true")
     t = sub.add_parser("table", help="the cost table and the gap closed from per-day CSVs")
     t.add_argument("csv", nargs="*", help="NAME=per-day CSV of one controller (run's output)")
-    t.add_argument("--episodes", nargs="*", default=[],
-                   help="long per-episode CSVs (columns controller, seed, return, KPIs): task-leaderboard's "
+    t.add_argument("--episodes", action="append", default=[],
+                   help="a long per-episode CSV, the option repeated for more (columns controller, seed, "
+                        "return, KPIs): task-leaderboard's "
                         "task_episodes.csv, thermovalve benchmark's episodes.csv")
     t.add_argument("--scored", default="ppo,ppo_pi",
                    help="comma-separated controllers scored by the gap closed (not baselines; the run CSVs "
@@ -525,7 +528,7 @@ def main(argv: list[str] | None = None) -> int:
             if "task" in long.columns:
                 long = long[long["task"] == TASK]
             for name, df in long.groupby("controller", sort=False):
-                per[str(name)] = df.reset_index(drop=True)
+                per[str(name)] = df.drop_duplicates("seed").reset_index(drop=True)  # a cached row once
         for spec in args.csv:
             name, sep, path = spec.partition("=")
             if not sep:
