@@ -470,6 +470,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="a long per-episode CSV, the option repeated for more (columns controller, seed, "
                         "return, KPIs): task-leaderboard's "
                         "task_episodes.csv, thermovalve benchmark's episodes.csv")
+    t.add_argument("--baselines", default="", help="comma-separated NAMEs of the run CSVs that are baselines")
     t.add_argument("--scored", default="ppo,ppo_pi",
                    help="comma-separated controllers scored by the gap closed (not baselines; the run CSVs "
                         "are scored too); every other controller but the oracle is a baseline")
@@ -538,7 +539,10 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError, KeyError) as e:
         print(f"table: {e}", file=sys.stderr)
         return 2
-    scored = [c for c in args.scored.split(",") if c in per] + [spec.partition("=")[0] for spec in args.csv]
+    named = [spec.partition("=")[0] for spec in args.csv]
+    base_names = [b for b in args.baselines.split(",") if b]
+    scored = [c for c in args.scored.split(",") if c in per] + [
+        n for n in named if n != "oracle" and n not in base_names and n not in args.scored.split(",")]
     baselines = [c for c in per if c not in scored and c != "oracle"]
     try:
         a, b = table(per, baselines, scored)
