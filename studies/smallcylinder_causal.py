@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -50,75 +50,17 @@ from gymnasium.utils import seeding
 from scipy import stats
 
 from valve_env.controllers.oracle import Oracle, _shifted
-from valve_env.scenario import ScenarioParams, _spread, tapping_cycle
+from valve_env.scenario import Draws, ScenarioParams, draw_columns, sample_draws, tapping_cycle
 
 TASK = "ThermoValveSmallCylinder-v0"
 ENV_ID = "ThermoValveSmallCylinder-v0"
 
 
 # ----------------------------------------------------------------------------------- the day's draws
-@dataclass(frozen=True)
-class Draws:
-    """One day's draws as :func:`valve_env.scenario.make_scenario` samples them (one row each)."""
-
-    tabled_s: np.ndarray
-    """The tabled start (the habit), s."""
-    start_s: np.ndarray
-    """The actual start, s (jittered; wrapped into the day as make_scenario wraps it)."""
-    energy_J: np.ndarray
-    power_W: np.ndarray
-    T_draw_C: np.ndarray
-    f_kgs: np.ndarray
-
-    @property
-    def duration_s(self) -> np.ndarray:
-        return self.energy_J / self.power_W
-
-
-def sample_draws(params: ScenarioParams, rng: np.random.Generator, n_steps: int, dt_s: float, T_cold: float,
-                 cp: float) -> Draws:
-    """The draws of one episode from ``rng``, in the order and with the calls of make_scenario (so the
-    env's own generator, seeded as at reset, gives the env's draws; :func:`scenario_columns` checks it)."""
-    if params.tapping_profile == "none":
-        raise ValueError("no tapping profile: no draws")
-    horizon = n_steps * dt_s
-    cyc = tapping_cycle(params.tapping_profile)
-    tab = cyc["t_start_s"].to_numpy(dtype=float)
-    Q = cyc["Qtap_kWh"].to_numpy(dtype=float) * 3.6e6
-    f_kgs = cyc["f_l_min"].to_numpy(dtype=float) / 60.0
-    T_d = cyc["T_draw_C"].to_numpy(dtype=float)
-    n_days = max(1, int(np.ceil(horizon / 86400.0 - 1e-9)))
-    tabled, starts, energies = [], [], []
-    for day in range(n_days):
-        s_d, Q_d = tab + day * 86400.0, Q
-        tabled.append(s_d)
-        if params.stochastic_draws:
-            s_d = s_d + rng.normal(0.0, params.draw_jitter_min * 60.0, size=tab.size)
-            if params.draw_energy_cv > 0:
-                s2 = np.log1p(params.draw_energy_cv**2)
-                Q_d = Q * rng.lognormal(-0.5 * s2, np.sqrt(s2), size=Q.size)
-        starts.append(s_d)
-        energies.append(Q_d)
-    start = np.concatenate(starts)
-    f = np.tile(f_kgs, n_days)
-    T = np.tile(T_d, n_days)
-    power = f * cp * (T - T_cold)
-    start = np.mod(start, horizon) if horizon >= 86400.0 else start
-    return Draws(np.concatenate(tabled), start, np.concatenate(energies), power, T, f)
-
-
 def scenario_columns(draws: Draws, n_steps: int, dt_s: float) -> np.ndarray:
-    """The scenario's first three columns (draw_W, draw_T_C, draw_mmax) from ``draws``, as make_scenario
-    computes them (the same step averaging, :func:`valve_env.scenario._spread`)."""
-    vals = np.stack([draws.power_W, np.ones_like(draws.power_W), draws.T_draw_C, draws.f_kgs], axis=1)
-    spread = _spread(draws.start_s, draws.duration_s, vals, dt_s, n_steps)
-    out = np.zeros((n_steps, 3))
-    out[:, 1] = 45.0
-    out[:, 0] = spread[:, 0]
-    on = spread[:, 1] > 0
-    out[on, 1] = spread[on, 2] / spread[on, 1]
-    out[on, 2] = spread[on, 3] / spread[on, 1]
-    return out
+    """The scenario's first three columns (draw_W, draw_T_C, draw_mmax) from ``draws``, as make_scenario computes
+    them (:func:`valve_env.scenario.draw_columns`)."""
+    return np.stack(draw_columns(draws, n_steps, dt_s), axis=1)
 
 
 def day_draws(cfg: Any, seed: int) -> Draws:

@@ -154,43 +154,78 @@ def _spread(starts: np.ndarray, durations: np.ndarray, values: np.ndarray, dt: f
     return out
 
 
+@dataclass(frozen=True)
+class Draws:
+    """An episode's draws as :func:`make_scenario` samples them, one row each."""
+
+    tabled_s: np.ndarray
+    """The tabled start (the habit), s."""
+    start_s: np.ndarray
+    """The actual start, s (jittered; wrapped into the episode where it is a day or longer)."""
+    energy_J: np.ndarray
+    power_W: np.ndarray
+    T_draw_C: np.ndarray
+    f_kgs: np.ndarray
+
+    @property
+    def duration_s(self) -> np.ndarray:
+        return self.energy_J / self.power_W
+
+
+def sample_draws(params: ScenarioParams, rng: np.random.Generator, n_steps: int, dt_s: float, T_cold: float,
+                 cp: float) -> Draws:
+    """The episode's draws of the tapping cycle from ``rng``: each day the tabled starts jittered and the energies
+    scaled (the stochastic variant), in the order :func:`make_scenario` draws them."""
+    if params.tapping_profile == "none":
+        raise ValueError("no tapping profile: no draws")
+    horizon = n_steps * dt_s
+    cyc = tapping_cycle(params.tapping_profile)
+    tab = cyc["t_start_s"].to_numpy(dtype=float)
+    Q = cyc["Qtap_kWh"].to_numpy(dtype=float) * 3.6e6
+    f_kgs = cyc["f_l_min"].to_numpy(dtype=float) / 60.0
+    T_d = cyc["T_draw_C"].to_numpy(dtype=float)
+    n_days = max(1, int(np.ceil(horizon / 86400.0 - 1e-9)))
+    tabled, starts, energies = [], [], []
+    for day in range(n_days):  # the cycle repeats every day, each day with its own randomness
+        s_d, Q_d = tab + day * 86400.0, Q
+        tabled.append(s_d)
+        if params.stochastic_draws:
+            s_d = s_d + rng.normal(0.0, params.draw_jitter_min * 60.0, size=tab.size)
+            if params.draw_energy_cv > 0:
+                s2 = np.log1p(params.draw_energy_cv**2)
+                Q_d = Q * rng.lognormal(-0.5 * s2, np.sqrt(s2), size=Q.size)
+        starts.append(s_d)
+        energies.append(Q_d)
+    start = np.concatenate(starts)
+    f = np.tile(f_kgs, n_days)
+    T = np.tile(T_d, n_days)
+    power = f * cp * (T - T_cold)
+    start = np.mod(start, horizon) if horizon >= 86400.0 else start
+    return Draws(np.concatenate(tabled), start, np.concatenate(energies), power, T, f)
+
+
+def draw_columns(draws: Draws, n_steps: int, dt_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The draws averaged over each control step: (power W, draw temperature degC, mass flow kg/s); 45 degC and no
+    flow where none is drawn."""
+    vals = np.stack([draws.power_W, np.ones_like(draws.power_W), draws.T_draw_C, draws.f_kgs], axis=1)
+    spread = _spread(draws.start_s, draws.duration_s, vals, dt_s, n_steps)
+    draw_T = np.full(n_steps, 45.0)
+    draw_m = np.zeros(n_steps)
+    active = spread[:, 1]
+    on = active > 0
+    draw_T[on] = spread[on, 2] / active[on]
+    draw_m[on] = spread[on, 3] / active[on]
+    return spread[:, 0].copy(), draw_T, draw_m
+
+
 def make_scenario(
     params: ScenarioParams, rng: np.random.Generator, n_steps: int, dt_s: float, T_cold: float, cp: float
 ) -> ScenarioArrays:
     """Sample one episode's scenario from ``rng`` (the env's seeded generator)."""
-    horizon = n_steps * dt_s
-    draw_W = np.zeros(n_steps)
-    draw_T = np.full(n_steps, 45.0)
-    draw_m = np.zeros(n_steps)
     if params.tapping_profile != "none":
-        cyc = tapping_cycle(params.tapping_profile)
-        start = cyc["t_start_s"].to_numpy(dtype=float)
-        Q = cyc["Qtap_kWh"].to_numpy(dtype=float) * 3.6e6
-        f_kgs = cyc["f_l_min"].to_numpy(dtype=float) / 60.0
-        T_d = cyc["T_draw_C"].to_numpy(dtype=float)
-        n_days = max(1, int(np.ceil(horizon / 86400.0 - 1e-9)))
-        starts, energies = [], []
-        for day in range(n_days):  # the cycle repeats every day, each day with its own randomness
-            s_d, Q_d = start + day * 86400.0, Q
-            if params.stochastic_draws:
-                s_d = s_d + rng.normal(0.0, params.draw_jitter_min * 60.0, size=start.size)
-                if params.draw_energy_cv > 0:
-                    s2 = np.log1p(params.draw_energy_cv**2)
-                    Q_d = Q * rng.lognormal(-0.5 * s2, np.sqrt(s2), size=Q.size)
-            starts.append(s_d)
-            energies.append(Q_d)
-        start = np.concatenate(starts)
-        Q = np.concatenate(energies)
-        f_kgs = np.tile(f_kgs, n_days)
-        T_d = np.tile(T_d, n_days)
-        power = f_kgs * cp * (T_d - T_cold)
-        dur = Q / power
-        start = np.mod(start, horizon) if horizon >= 86400.0 else start
-        spread = _spread(start, dur, np.stack([power, np.ones_like(power), T_d, f_kgs], axis=1), dt_s, n_steps)
-        draw_W, active, Tw, mw = spread[:, 0].copy(), spread[:, 1], spread[:, 2], spread[:, 3]
-        on = active > 0
-        draw_T[on] = Tw[on] / active[on]
-        draw_m[on] = mw[on] / active[on]
+        draw_W, draw_T, draw_m = draw_columns(sample_draws(params, rng, n_steps, dt_s, T_cold, cp), n_steps, dt_s)
+    else:
+        draw_W, draw_T, draw_m = np.zeros(n_steps), np.full(n_steps, 45.0), np.zeros(n_steps)
     t = (np.arange(n_steps) + 0.5) * dt_s
     if params.supply_profile == "constant":
         supply = np.full(n_steps, params.supply_C)
