@@ -49,7 +49,7 @@ import pandas as pd
 from gymnasium.utils import seeding
 from scipy import stats
 
-from valve_env.controllers.oracle import Oracle, _shifted
+from valve_env.controllers.oracle import Oracle
 from valve_env.scenario import Draws, ScenarioParams, draw_columns, sample_draws, tapping_cycle
 
 TASK = "ThermoValveSmallCylinder-v0"
@@ -210,44 +210,23 @@ class HabitMPC(Oracle):
         self._plan_futures = (tag, out)
         return out
 
-    def step(self, obs: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The oracle's step, with one more reason to replan: a draw has started since the last plan
-        (the plan was scored on futures in which it had not; the oracle, which knows it, needs none)."""
-        n = obs.shape[0]
-        if len(self._envs) != n:
-            return super().step(obs, state)  # the oracle's own refusal
-        act = np.empty((n, self.act_dim))
-        ad, H = self.act_dim, self.horizon
-        p0, p1 = self._n_pi, self._n_pi + self._n_plan
-        for i, core in enumerate(self._envs):
-            st = core.get_state()
-            if int(st.k) >= int(core.cfg.control.n_steps):
-                act[i] = self._in_force(st)
-                continue
-            self._simulator(core)
-            plan = state[i, p0:p1].reshape(H, ad)
-            age = state[i, -1]
-            started = self._started(core, st)
-            new_draw = started != self._started_at_plan.get(id(core), started)
-            if not np.isfinite(age) or age >= self.settings.replan_steps or new_draw:
-                if new_draw and np.isfinite(age) and age < self.settings.replan_steps:
-                    self.event_plans += 1
-                prev = np.zeros((H, ad)) if not np.isfinite(age) else _shifted(plan, int(age))
-                self._event = bool(new_draw)
-                plan = self.plan(core, st, obs[i], state[i, :p0], prev)
-                self._event = False
-                self._started_at_plan[id(core)] = started
-                age = 0
-            pi_mem = state[i : i + 1, :p0]
-            act[i] = self._base_action(obs[i : i + 1], pi_mem, plan[int(age)][None, :])[0]
-            state[i, :p0] = pi_mem[0]
-            state[i, p0:p1] = plan.reshape(-1)
-            state[i, -1] = age + 1
-        return act, state
+    def _replan_due(self, core: Any, st: Any, age: float) -> bool:
+        """The oracle's reasons to replan, and one more: a draw has started since the last plan (the plan was scored
+        on futures in which it had not; the oracle, which knows it, needs none)."""
+        started = self._started(core, st)
+        new_draw = started != self._started_at_plan.get(id(core), started)
+        due = super()._replan_due(core, st, age)
+        if new_draw and not due:
+            self.event_plans += 1
+        if due or new_draw:
+            self._event = bool(new_draw)
+            self._started_at_plan[id(core)] = started
+        return due or new_draw
 
     def plan(self, core: Any, st: Any, obs: np.ndarray, pi_mem: np.ndarray, prev: np.ndarray) -> np.ndarray:
         self._core = core  # whose futures _rollout scores the candidates on
-        if not (self._event and self.event_iterations):
+        event, self._event = self._event, False
+        if not (event and self.event_iterations):
             return super().plan(core, st, obs, pi_mem, prev)
         kept = self.settings
         self.settings = replace(kept, iterations=int(self.event_iterations))

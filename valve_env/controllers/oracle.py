@@ -231,7 +231,7 @@ class Oracle(Controller):
             self._simulator(core)
             plan = state[i, p0:p1].reshape(H, ad)
             age = state[i, -1]
-            if not np.isfinite(age) or age >= self.settings.replan_steps:
+            if self._replan_due(core, st, age):
                 prev = np.zeros((H, ad)) if not np.isfinite(age) else _shifted(plan, int(age))
                 plan = self.plan(core, st, obs[i], state[i, :p0], prev)
                 age = 0
@@ -241,6 +241,11 @@ class Oracle(Controller):
             state[i, p0:p1] = plan.reshape(-1)
             state[i, -1] = age + 1
         return act, state
+
+    def _replan_due(self, core: Any, st: Any, age: float) -> bool:
+        """Whether :meth:`step` plans anew for ``core`` in state ``st``, its plan ``age`` steps old (nan: none yet):
+        every ``replan_steps``. A subclass that scores plans on other futures may add reasons."""
+        return not np.isfinite(age) or age >= self.settings.replan_steps
 
     # -- the optimiser ---------------------------------------------------------------
     def _base_action(self, obs: np.ndarray, pi_mem: np.ndarray, delta: np.ndarray) -> np.ndarray:
