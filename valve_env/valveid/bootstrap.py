@@ -465,21 +465,21 @@ def breakaway_band(model: Model, data: RunData, fit: FitResult, sm: Summary) -> 
         ratio, ratio_sd = calibrated_ratio(prof.ratio, prof.ratio_sd)
         S = ratio * J
         sd = math.sqrt((ratio * sd_J) ** 2 + (J * ratio_sd) ** 2)
-        sm.corrected[k] = S
-        sm.std[k] = sd
-        sm.interval_95[k] = (S - 1.96 * sd, S + 1.96 * sd)
-        out.update({"S_mm": S, "S_sd_mm": sd, "S_over_J": ratio, "S_over_J_sd": ratio_sd})
+        extra = {"S_over_J": ratio, "S_over_J_sd": ratio_sd}
     elif breakaway_unconfirmed(med, prof.ratio, prof.ratio_sd):
         # the profile reads S > J and the stuck travel does not confirm it: the band stays the slips' J, and its sd
         # takes the choice between the two readings (J = S, or the calibrated S) in quadrature, half their distance,
         # so that the 2-sd interval reaches the calibrated S
         ratio, _ = calibrated_ratio(prof.ratio, prof.ratio_sd)
-        sd = math.hypot(sd_J, 0.5 * (ratio - 1.0) * J)
-        sm.std[k] = sd
-        sm.interval_95[k] = (J - 1.96 * sd, J + 1.96 * sd)
-        out.update({"S_mm": J, "S_sd_mm": sd, "unconfirmed_S_mm": ratio * J})
-    else:
+        S, sd = J, math.hypot(sd_J, 0.5 * (ratio - 1.0) * J)
+        extra = {"unconfirmed_S_mm": ratio * J}
+    else:  # the slips' band and sd as they are
         out.update({"S_mm": J, "S_sd_mm": sd_J})
+        return out
+    sm.corrected[k] = S
+    sm.std[k] = sd
+    sm.interval_95[k] = (S - 1.96 * sd, S + 1.96 * sd)
+    out.update({"S_mm": S, "S_sd_mm": sd, **extra})
     return out
 
 
