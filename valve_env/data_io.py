@@ -144,7 +144,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         gap = ~np.isfinite(x)
         if gap.any():
             out["x_mm"] = np.where(gap, derived, x)
-        out.attrs["x_mm_derived_rows"] = int(gap.sum())
+        # a run validated before keeps its count: its derived cells are filled now
+        out.attrs["x_mm_derived_rows"] = int(gap.sum()) or int(data.attrs.get("x_mm_derived_rows", 0))
     else:
         out["x_mm"] = derived
         out.attrs["x_mm_derived_rows"] = n

@@ -190,6 +190,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: resample(df, 60.0), loses_information=True),
     Convention("spikes", "three isolated 3 K spikes on T_tank_C",
                lambda df, rng: spikes(df, 3, rng)),
+    Convention("spikes_opening", "three isolated 1 mm glitches of the opening x_mm (a position transducer's)",
+               lambda df, rng: spikes(df, 3, rng, column="x_mm", size=1.0)),
     Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
                lambda df, rng: extra_columns(df, rng)),
 )}

@@ -13,16 +13,21 @@ each convention is handled once, here, and reported:
   the quantisation sd q / sqrt(12) of a quantised or held channel, a resolution floor for a
   noiseless one). The data are not changed; the note says which level was used and why.
 * **isolated spikes** (one sample far from both neighbours, which agree) in the temperature and
-  pressure channels: replaced by the mean of the two neighbours, and each one named by its row. More
+  pressure channels, and glitches of the opening far larger than a stem can move out and back between
+  two samples: replaced by the mean of the two neighbours, and each one named by its row. More
   than :data:`MAX_SPIKE_FRACTION` of a channel's samples is not "a few": the run is refused in one
   line naming the first rows.
+* **an opening derived from the flow** (no ``x_mm`` column, or empty cells in it, which
+  :func:`~valve_env.data_io.validate_run` fills from ``q_kgh`` and ``dp_mbar`` with the valve
+  characteristic): the note says in how many rows.
 * **irregular sampling and gaps**: the likelihoods integrate over each interval as it is, so the
   data are not changed; the note gives the interval's spread, the rows missing against the median
   interval and the longest gap (nothing is filled in).
 
-Every note is a JSON-ready dict with ``what`` (``noise_level``, ``spikes_replaced``,
+Every note is a JSON-ready dict with ``what`` (``noise_level``, ``spikes_replaced``, ``x_mm_derived``,
 ``irregular_sampling``, ``gap``), the ``channel`` where it applies, and ``why``. The ``fit`` and
-``diagnose`` JSON carry them under ``preprocessing``, and their reports print them.
+``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
+through here twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
 """
 
 from __future__ import annotations
@@ -38,13 +43,20 @@ from valve_env.valveid.temperature import channel_noise, noise_sd
 
 #: the temperature channels whose noise level the likelihoods need
 TEMPERATURE_CHANNELS: tuple[str, ...] = ("T_tank_C", "T_med_C")
-#: the channels searched for isolated spikes; the opening is left to the likelihood (a slip of a
-#: sticky stem is a step, and two slips within two samples would look like a spike)
-SPIKE_CHANNELS: tuple[str, ...] = ("T_tank_C", "T_med_C", "dp_mbar", "ps_bar")
+#: the channels searched for isolated spikes (the opening, x_mm, with its own threshold: :data:`X_SPIKE_RANGE`)
+SPIKE_CHANNELS: tuple[str, ...] = ("T_tank_C", "T_med_C", "dp_mbar", "ps_bar", "x_mm")
 #: a spike departs from the mean of its neighbours by more than this many noise sd ...
 SPIKE_SD = 12.0
 #: ... and by more than this (in the channel's unit: K for temperatures; relative for the pressures)
 SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
+#: an opening's spike must also depart by more than this share of the opening's range (its 1st to 99th
+#: percentile). A sticky stem moves out and back between two samples only by slipping twice, which
+#: needs the demand to reverse by that much within two intervals; the stick bands of docs/reference.md,
+#: section 3 are 0.5-5 % of the stroke, so a slip pair stays far below it while a transducer's glitch
+#: (often to full scale) does not
+X_SPIKE_RANGE = 0.25
+#: notes that say what the pre-processing changed (kept when a checked run is checked again)
+CHANGE_NOTES: tuple[str, ...] = ("spikes_replaced", "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -66,6 +78,9 @@ def find_spikes(y: np.ndarray, threshold: float) -> np.ndarray:
 
 
 def _spike_threshold(channel: str, y: np.ndarray) -> float:
+    if channel == "x_mm":
+        lo, hi = np.percentile(y, [1.0, 99.0])
+        return max(SPIKE_SD * math.sqrt(1.5) * noise_sd(y), X_SPIKE_RANGE * float(hi - lo))
     if channel in TEMPERATURE_CHANNELS:
         sd = channel_noise(_without_spikes(y)).sd
         return max(SPIKE_SD * math.sqrt(1.5) * sd, SPIKE_MIN[channel])
@@ -90,8 +105,17 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
     (see the module doc). Raises :class:`~valve_env.data_io.DataError` (one line) where a channel
     holds more than a few spikes. ``df`` is not changed."""
     out = df.copy()
-    notes: list[dict[str, Any]] = []
+    # a run checked before (``df.attrs["preprocessing"]``) keeps what that pass changed: the data it
+    # holds now no longer shows it
+    notes: list[dict[str, Any]] = [nt for nt in df.attrs.get("preprocessing", []) if nt["what"] in CHANGE_NOTES]
+    done = {(nt["what"], nt.get("channel")) for nt in notes}
     n = len(out)
+    derived = int(df.attrs.get("x_mm_derived_rows", 0))
+    if derived and ("x_mm_derived", "x_mm") not in done:
+        notes.append({"what": "x_mm_derived", "channel": "x_mm", "rows": derived,
+                      "why": ("no x_mm column" if derived == n else f"x_mm empty in {derived} of {n} rows")
+                      + ": the opening is derived from q_kgh and dp_mbar with the valve characteristic "
+                        "(docs/reference.md, section 2)"})
     for ch in SPIKE_CHANNELS:
         if ch not in out.columns:
             continue
@@ -109,6 +133,7 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         notes.append({"what": "spikes_replaced", "channel": ch, "rows": [int(r) + 1 for r in rows],
                       "why": f"{rows.size} isolated one-sample spike(s) (row numbers as in the file, 1 = first data "
                              "row), each replaced by the mean of its two neighbours"})
+        done.add(("spikes_replaced", ch))
     for ch in TEMPERATURE_CHANNELS:
         if ch in out.columns:
             notes.append({"what": "noise_level", **channel_noise(out[ch].to_numpy(dtype=float)).describe(ch)})
@@ -146,6 +171,8 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
             rows = nt["rows"]
             lines.append(f"{nt['channel']}: {len(rows)} isolated spike(s) replaced by the mean of their neighbours "
                          f"(rows {', '.join(map(str, rows[:10]))}{', ...' if len(rows) > 10 else ''})")
+        elif what == "x_mm_derived":
+            lines.append(f"x_mm: derived from the flow in {nt['rows']} row(s) ({nt['why'].split(':')[0]})")
         elif what == "irregular_sampling":
             lines.append(f"sampling: median interval {nt['median_interval_s']:.3g} s, spread {nt['interval_cv']:.1%}, "
                          f"{nt['rows_missing']} row(s) missing against it; nothing interpolated")
@@ -155,5 +182,5 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-__all__ = ["preprocess_run", "describe", "find_spikes", "SPIKE_CHANNELS", "TEMPERATURE_CHANNELS", "MAX_SPIKE_FRACTION",
+__all__ = ["preprocess_run", "describe", "find_spikes", "SPIKE_CHANNELS", "X_SPIKE_RANGE", "CHANGE_NOTES", "TEMPERATURE_CHANNELS", "MAX_SPIKE_FRACTION",
            "GAP_FACTOR"]

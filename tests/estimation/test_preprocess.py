@@ -1,0 +1,81 @@
+"""Pre-processing of measured runs (valve_env.valveid.preprocess): what it changes, and that it says so."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from valve_env.data_io import DataError, validate_run
+from valve_env.experiment import simulate_experiment
+from valve_env.valveid.diagnose import check_run, read_run
+from valve_env.valveid.preprocess import X_SPIKE_RANGE, describe, find_spikes, preprocess_run
+
+
+@pytest.fixture(scope="module")
+def run() -> pd.DataFrame:
+    df = simulate_experiment(seed=5, duration_h=3.0, dt_s=20.0, effects={"stiction": {"band_mm": 0.06}})
+    return df[[c for c in df.columns if not c.startswith("true_")]]
+
+
+def _changes(notes: list[dict]) -> dict[tuple[str, str], object]:
+    return {(n["what"], n["channel"]): n.get("rows") for n in notes if n["what"] != "noise_level"}
+
+
+def test_a_glitch_of_the_opening_is_replaced_and_named(run) -> None:
+    df = run.copy()
+    x = df["x_mm"].to_numpy().copy()
+    x[[40, 200, 333]] += (1.0, -1.0, 1.0)
+    df["x_mm"] = x
+    out, notes = preprocess_run(validate_run(df))
+    assert _changes(notes) == {("spikes_replaced", "x_mm"): [41, 201, 334]}  # file rows, 1 = the first
+    assert np.allclose(out["x_mm"].to_numpy()[[40, 200, 333]], run["x_mm"].to_numpy()[[40, 200, 333]], atol=0.02)
+    assert "x_mm: 3 isolated spike(s) replaced" in " ".join(describe(notes))
+
+
+def test_a_sticky_stems_slips_are_not_glitches() -> None:
+    """A staircase of slips, and a slip out and back within two samples of a band's size (5 % of the range),
+    stay as they are; a departure of a third of the range does not."""
+    rng = np.random.default_rng(0)
+    x = np.repeat(np.linspace(0.2, 1.2, 40), 10) + 0.002 * rng.standard_normal(400)
+    x[100] += 0.05
+    assert find_spikes(x, 0.0).size >= 1  # it is a one-sample departure ...
+    from valve_env.valveid.preprocess import _spike_threshold
+
+    assert find_spikes(x, _spike_threshold("x_mm", x)).size == 0  # ... but far below a glitch
+    x[300] += (X_SPIKE_RANGE + 0.1) * 1.0
+    assert find_spikes(x, _spike_threshold("x_mm", x)).tolist() == [300]
+
+
+def test_a_checked_run_checked_again_keeps_what_was_changed(run, tmp_path) -> None:
+    """``diagnose`` checks a run that ``read_run`` checked already: the notes of the first pass (a spike
+    replaced, an opening derived from the flow) must survive the second, whose data no longer shows them."""
+    df = run.copy()
+    T = df["T_tank_C"].to_numpy().copy()
+    T[77] += 4.0
+    df["T_tank_C"] = T
+    df["x_mm"] = df["x_mm"].astype(object)
+    df.loc[10:14, "x_mm"] = ""  # empty cells: derived from the flow
+    path = tmp_path / "run.csv"
+    df.to_csv(path, index=False)
+    first = read_run(path)
+    second = check_run(first, "again")
+    want = {("spikes_replaced", "T_tank_C"): [78], ("x_mm_derived", "x_mm"): 5}
+    assert _changes(first.attrs["preprocessing"]) == want
+    assert _changes(second.attrs["preprocessing"]) == want
+    assert "x_mm: derived from the flow in 5 row(s) (x_mm empty in 5 of" in " ".join(describe(second.attrs["preprocessing"]))
+
+
+def test_no_opening_column_is_said(run) -> None:
+    _, notes = preprocess_run(validate_run(run.drop(columns=["x_mm"])))
+    assert _changes(notes) == {("x_mm_derived", "x_mm"): len(run)}
+    assert notes[0]["why"].startswith("no x_mm column")
+
+
+def test_more_than_a_few_glitches_are_refused_in_one_line(run) -> None:
+    df = run.copy()
+    x = df["x_mm"].to_numpy().copy()
+    x[10:500:40] += 1.0
+    df["x_mm"] = x
+    with pytest.raises(DataError, match=r"column x_mm has 13 isolated spikes \(rows 11, 51, 91"):
+        preprocess_run(validate_run(df))
