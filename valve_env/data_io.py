@@ -4,13 +4,15 @@
 
 The one validation path for a measured run: ``thermovalve fit``, ``thermovalve diagnose``
 and ``thermovalve experiment`` (its output is checked before it is written) all go through
-:func:`validate_run`. It checks, in order: the columns; every value numeric and finite; the
+:func:`validate_run`. It checks, in order: the columns; every value numeric and finite or empty; the
 physical ranges of :data:`RANGES` (dp_mbar > 0, flows >= 0, static pressure > 0 and
 plausible, temperatures within -30..150 degC); time strictly increasing with a plausible
 sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, times within
 :data:`MAX_ABS_TIME_S`); the record length; a temperature that moves; an opening that can be
 known (a flow that is zero everywhere with no x_mm column is rejected). Each failure is one
-line naming the column and the row (row 1 is the first data row, line 2 of the file).
+line naming the column and the row (row 1 is the first data row, line 2 of the file). An empty cell in
+a measured column drops its row, as a sample the logger missed (at most :data:`MAX_EMPTY_FRACTION` of
+the rows; the pre-processing's note names them); an empty time_s is refused.
 
 Required columns: time_s, T_tank_C, T_med_C, q_kgh, dp_mbar, ps_bar; optional x_mm
 (where absent, or where a cell is empty, it is derived from q_kgh and dp_mbar with
@@ -52,6 +54,10 @@ DT_RANGE_S: tuple[float, float] = (1.0e-3, 3600.0)
 MAX_GAP_S = 86400.0
 #: |time_s| beyond this (s, ~300 years) is not a time.
 MAX_ABS_TIME_S = 1.0e10
+#: The measured channels, whose empty cells drop their row (a logger that missed a value: the row is then
+#: a missing sample, which the identification takes), up to :data:`MAX_EMPTY_FRACTION` of the rows.
+MEASURED: tuple[str, ...] = REQUIRED[1:]
+MAX_EMPTY_FRACTION = 0.10
 
 
 class DataError(ValueError):
@@ -101,7 +107,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)})")
     out = raw.copy()
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
-        out[col] = _numeric(raw[col], col, source, allow_empty=col in OPTIONAL)
+        out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s")
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
             _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source)
@@ -129,6 +135,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         i = int(gap[0]) + 1
         raise DataError(f"{source}: column time_s, row {i + 1} (line {i + 2}): a gap of {dt[i - 1]:.3g} s after "
                         f"the previous sample (at most {MAX_GAP_S:g} s)")
+    out = _drop_empty_rows(out, source)
+    n = len(out)
     T = out["T_tank_C"].to_numpy()
     if float(np.max(T) - np.min(T)) < MIN_T_RANGE_K:
         raise DataError(f"{source}: T_tank_C is constant (range {np.max(T) - np.min(T):.3g} K < "
@@ -153,8 +161,31 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     return out.reset_index(drop=True)
 
 
+def _drop_empty_rows(out: pd.DataFrame, source: str) -> pd.DataFrame:
+    """The run without its rows that hold an empty cell in a measured channel (at most
+    :data:`MAX_EMPTY_FRACTION` of them, else one line naming the first), with ``attrs["rows_dropped_empty"]``
+    (their row numbers, 1 = the first data row) and ``attrs["file_rows"]`` (each kept row's number), so that
+    the pre-processing names rows as they are in the file."""
+    empty = np.zeros(len(out), dtype=bool)
+    for col in MEASURED:
+        empty |= ~np.isfinite(out[col].to_numpy(dtype=float))
+    if not empty.any():
+        return out
+    k, n = int(empty.sum()), len(out)
+    i = int(np.flatnonzero(empty)[0])
+    col = next(c for c in MEASURED if not np.isfinite(float(out[c].iloc[i])))
+    if k > MAX_EMPTY_FRACTION * n:
+        raise DataError(f"{source}: {k} of {n} rows ({k / n:.0%}) have an empty cell in a measured column (the first: "
+                        f"{col!r} at row {i + 1}, line {i + 2}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
+    rows = out.attrs.get("file_rows") or list(range(1, n + 1))
+    kept = out.loc[~empty].reset_index(drop=True)
+    kept.attrs["rows_dropped_empty"] = [int(rows[j]) for j in np.flatnonzero(empty)]
+    kept.attrs["file_rows"] = [int(rows[j]) for j in np.flatnonzero(~empty)]
+    return kept
+
+
 def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str) -> None:
-    known = np.isfinite(v) if col in OPTIONAL else np.ones(v.shape, dtype=bool)  # empty x_mm cells: derived
+    known = np.isfinite(v)  # empty cells: an opening derived from the flow, a measured channel's row dropped
     with np.errstate(invalid="ignore"):
         below = v <= lo if lo_open else v < lo
         bad = np.flatnonzero(known & (below | (v > hi) | ~np.isfinite(v)))
@@ -191,4 +222,4 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Se
 
 
 __all__ = ["DataError", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES",
-           "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S"]
+           "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION"]

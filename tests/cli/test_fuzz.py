@@ -43,7 +43,10 @@ DATA_CASES: dict[str, tuple[Mutation, str]] = {
     "all_q_zero_no_x": (lambda d: d.drop(columns=["x_mm"]).assign(q_kgh=0.0), "column q_kgh is 0 in every row"),
     "T_med_minus_100": (_set("T_med_C", 3, -100.0), "column T_med_C, row 4"),
     "T_tank_inf": (_set("T_tank_C", 2, "inf"), "T_tank_C"),
-    "nan_cell": (_set("T_med_C", 4, ""), "column 'T_med_C' at row 5"),
+    "empty_time_cell": (_set("time_s", 4, ""), "column 'time_s' at row 5"),
+    # one empty measured cell drops its row (a missed sample); more than 10 % of the rows is refused
+    "empty_cells_20_percent": (lambda d: d.assign(T_med_C=d.T_med_C.where(d.index % 5 != 2)),
+                               "empty cell in a measured column (the first: 'T_med_C' at row 3"),
     "non_numeric": (_set("q_kgh", 6, "abc"), "non-numeric value 'abc'"),
     "time_not_increasing": (_set("time_s", 10, 0.0), "time_s is not increasing at row 11"),
     "time_gap_2_days": (lambda d: d.assign(time_s=d.time_s + np.where(d.index >= 50, 2 * 86400.0, 0.0)),

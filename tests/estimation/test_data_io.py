@@ -48,12 +48,24 @@ def test_x_derived_from_flow_where_absent(tmp_path: Path, run_df: pd.DataFrame) 
     assert np.isfinite(out2["x_mm"]).all() and out2.attrs["x_mm_derived_rows"] == 1
 
 
+def test_a_row_with_an_empty_measured_cell_is_dropped(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A logger that missed a value: the row is a missing sample, named by its number in the file."""
+    partial = run_df.copy()
+    partial.loc[[3, 9], "T_med_C"] = np.nan
+    partial.loc[12, "ps_bar"] = np.nan
+    out = load_run(_write(partial, tmp_path / "partial.csv"))
+    assert len(out) == len(run_df) - 3 and np.isfinite(out[["T_med_C", "ps_bar"]].to_numpy()).all()
+    assert out.attrs["rows_dropped_empty"] == [4, 10, 13]
+    assert out.attrs["file_rows"][:5] == [1, 2, 3, 5, 6]
+
+
 @pytest.mark.parametrize(("mutate", "pattern"), [
     (lambda d: d.drop(columns=["dp_mbar"]), r"missing column 'dp_mbar'"),
     (lambda d: d.astype({"q_kgh": object}).assign(q_kgh=lambda x: x.q_kgh.where(x.index != 7, "abc")),
      r"non-numeric value 'abc' in column 'q_kgh' at row 8"),
-    (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where(x.index != 4, np.nan)),
-     r"NaN .* column 'T_med_C' at row 5"),
+    (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where((x.index < 4) | (x.index % 5 != 0), np.nan)),
+     r"have an empty cell in a measured column \(the first: 'T_med_C' at row 6, line 7\); at most 10%"),
+    (lambda d: d.assign(time_s=lambda x: x.time_s.where(x.index != 4, np.nan)), r"NaN .* column 'time_s' at row 5"),
     (lambda d: d.assign(time_s=lambda x: x.time_s.where(x.index != 10, 0.0)), r"time_s is not increasing at row 11"),
     (lambda d: d.iloc[:5], rf"too short a record, 5 rows; at least {MIN_ROWS}"),
     (lambda d: d.assign(T_tank_C=55.0), r"constant .* identifies nothing"),

@@ -9,7 +9,7 @@ import pytest
 from valve_env.data_io import DataError, validate_run
 from valve_env.experiment import simulate_experiment
 from valve_env.valveid.diagnose import check_run, read_run
-from valve_env.valveid.preprocess import X_SPIKE_RANGE, describe, find_spikes, preprocess_run
+from valve_env.valveid.preprocess import CHANGE_NOTES, X_SPIKE_RANGE, describe, find_spikes, preprocess_run
 
 
 @pytest.fixture(scope="module")
@@ -19,7 +19,7 @@ def run() -> pd.DataFrame:
 
 
 def _changes(notes: list[dict]) -> dict[tuple[str, str], object]:
-    return {(n["what"], n["channel"]): n.get("rows") for n in notes if n["what"] != "noise_level"}
+    return {(n["what"], n["channel"]): n["rows"] for n in notes if n["what"] in CHANGE_NOTES}
 
 
 def test_a_glitch_of_the_opening_is_replaced_and_named(run) -> None:
@@ -63,7 +63,8 @@ def test_a_checked_run_checked_again_keeps_what_was_changed(run, tmp_path) -> No
     want = {("spikes_replaced", "T_tank_C"): [78], ("x_mm_derived", "x_mm"): 5}
     assert _changes(first.attrs["preprocessing"]) == want
     assert _changes(second.attrs["preprocessing"]) == want
-    assert "x_mm: derived from the flow in 5 row(s) (x_mm empty in 5 of" in " ".join(describe(second.attrs["preprocessing"]))
+    lines = " ".join(describe(second.attrs["preprocessing"]))
+    assert "x_mm: derived from the flow in 5 row(s) (x_mm empty in 5 of" in lines
 
 
 def test_no_opening_column_is_said(run) -> None:
@@ -79,3 +80,18 @@ def test_more_than_a_few_glitches_are_refused_in_one_line(run) -> None:
     df["x_mm"] = x
     with pytest.raises(DataError, match=r"column x_mm has 13 isolated spikes \(rows 11, 51, 91"):
         preprocess_run(validate_run(df))
+
+
+def test_rows_with_an_empty_cell_are_dropped_and_every_row_keeps_its_file_number(run, tmp_path) -> None:
+    df = run.copy()
+    df.loc[[20, 21, 150], "T_med_C"] = np.nan
+    T = df["T_tank_C"].to_numpy().copy()
+    T[300] += 4.0
+    df["T_tank_C"] = T
+    path = tmp_path / "run.csv"
+    df.to_csv(path, index=False)
+    checked = check_run(read_run(path), "again")
+    assert len(checked) == len(run) - 3
+    assert _changes(checked.attrs["preprocessing"]) == {("rows_dropped", None): [21, 22, 151],
+                                                         ("spikes_replaced", "T_tank_C"): [301]}
+    assert "3 row(s) with an empty cell dropped (rows 21, 22, 151)" in describe(checked.attrs["preprocessing"])

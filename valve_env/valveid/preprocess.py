@@ -17,6 +17,8 @@ each convention is handled once, here, and reported:
   two samples: replaced by the mean of the two neighbours, and each one named by its row. More
   than :data:`MAX_SPIKE_FRACTION` of a channel's samples is not "a few": the run is refused in one
   line naming the first rows.
+* **rows with an empty cell** in a measured channel, which :func:`~valve_env.data_io.validate_run` drops as
+  samples the logger missed: the note names them (every row number in the notes is the file's).
 * **an opening derived from the flow** (no ``x_mm`` column, or empty cells in it, which
   :func:`~valve_env.data_io.validate_run` fills from ``q_kgh`` and ``dp_mbar`` with the valve
   characteristic): the note says in how many rows.
@@ -24,7 +26,7 @@ each convention is handled once, here, and reported:
   data are not changed; the note gives the interval's spread, the rows missing against the median
   interval and the longest gap (nothing is filled in).
 
-Every note is a JSON-ready dict with ``what`` (``noise_level``, ``spikes_replaced``, ``x_mm_derived``,
+Every note is a JSON-ready dict with ``what`` (``noise_level``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``,
 ``irregular_sampling``, ``gap``), the ``channel`` where it applies, and ``why``. The ``fit`` and
 ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
 through here twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
@@ -56,7 +58,7 @@ SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
 #: (often to full scale) does not
 X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
-CHANGE_NOTES: tuple[str, ...] = ("spikes_replaced", "x_mm_derived")
+CHANGE_NOTES: tuple[str, ...] = ("rows_dropped", "spikes_replaced", "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -110,6 +112,16 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
     notes: list[dict[str, Any]] = [nt for nt in df.attrs.get("preprocessing", []) if nt["what"] in CHANGE_NOTES]
     done = {(nt["what"], nt.get("channel")) for nt in notes}
     n = len(out)
+    file_rows = df.attrs.get("file_rows")  # where validation dropped rows: each row's number in the file
+
+    def row(i: int) -> int:
+        return int(file_rows[i]) if file_rows is not None else i + 1
+
+    dropped = df.attrs.get("rows_dropped_empty", [])
+    if dropped and ("rows_dropped", None) not in done:
+        notes.append({"what": "rows_dropped", "channel": None, "rows": list(dropped),
+                      "why": f"{len(dropped)} row(s) with an empty cell in a measured column (row numbers as in "
+                             "the file), dropped as samples the logger missed"})
     derived = int(df.attrs.get("x_mm_derived_rows", 0))
     if derived and ("x_mm_derived", "x_mm") not in done:
         notes.append({"what": "x_mm_derived", "channel": "x_mm", "rows": derived,
@@ -124,13 +136,13 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         if rows.size == 0:
             continue
         if rows.size > max(3, int(MAX_SPIKE_FRACTION * n)):
-            first = ", ".join(str(int(r) + 1) for r in rows[:5])
+            first = ", ".join(str(row(int(r))) for r in rows[:5])
             raise DataError(f"{source}: column {ch} has {rows.size} isolated spikes (rows {first}, ...): more than "
                             f"a few ({MAX_SPIKE_FRACTION:.1%} of the rows); remove them or clean the channel")
         y = y.copy()
         y[rows] = 0.5 * (y[rows - 1] + y[rows + 1])
         out[ch] = y
-        notes.append({"what": "spikes_replaced", "channel": ch, "rows": [int(r) + 1 for r in rows],
+        notes.append({"what": "spikes_replaced", "channel": ch, "rows": [row(int(r)) for r in rows],
                       "why": f"{rows.size} isolated one-sample spike(s) (row numbers as in the file, 1 = first data "
                              "row), each replaced by the mean of its two neighbours"})
         done.add(("spikes_replaced", ch))
@@ -150,9 +162,9 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         big = np.flatnonzero(dt > GAP_FACTOR * med)
         if big.size:
             i = int(big[np.argmax(dt[big])])
-            notes.append({"what": "gap", "after_row": i + 1, "seconds": float(dt[i]), "count": int(big.size),
+            notes.append({"what": "gap", "after_row": row(i), "seconds": float(dt[i]), "count": int(big.size),
                           "why": f"{big.size} interval(s) longer than {GAP_FACTOR:g} median intervals, the longest "
-                                 f"{dt[i]:.0f} s after row {i + 1}; the model is simulated across it from the "
+                                 f"{dt[i]:.0f} s after row {row(i)}; the model is simulated across it from the "
                                  "interpolated temperatures, nothing is filled in"})
     out.attrs["preprocessing"] = notes
     return out, notes
@@ -171,6 +183,10 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
             rows = nt["rows"]
             lines.append(f"{nt['channel']}: {len(rows)} isolated spike(s) replaced by the mean of their neighbours "
                          f"(rows {', '.join(map(str, rows[:10]))}{', ...' if len(rows) > 10 else ''})")
+        elif what == "rows_dropped":
+            rows = nt["rows"]
+            lines.append(f"{len(rows)} row(s) with an empty cell dropped (rows {', '.join(map(str, rows[:10]))}"
+                         f"{', ...' if len(rows) > 10 else ''})")
         elif what == "x_mm_derived":
             lines.append(f"x_mm: derived from the flow in {nt['rows']} row(s) ({nt['why'].split(':')[0]})")
         elif what == "irregular_sampling":
@@ -182,5 +198,5 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-__all__ = ["preprocess_run", "describe", "find_spikes", "SPIKE_CHANNELS", "X_SPIKE_RANGE", "CHANGE_NOTES", "TEMPERATURE_CHANNELS", "MAX_SPIKE_FRACTION",
-           "GAP_FACTOR"]
+__all__ = ["preprocess_run", "describe", "find_spikes", "SPIKE_CHANNELS", "X_SPIKE_RANGE", "CHANGE_NOTES",
+           "TEMPERATURE_CHANNELS", "MAX_SPIKE_FRACTION", "GAP_FACTOR"]
