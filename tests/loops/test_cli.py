@@ -125,10 +125,10 @@ def test_output_over_input_refused(tmp_path: Path, capsys: pytest.CaptureFixture
 def test_bad_csv_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     p = tmp_path / "bad.csv"
     t = np.arange(300) * 10.0
-    lines = ["time_s,sp,pv,op"] + [f"{v},1,{np.sin(v)},{'nan' if i == 5 else np.cos(v)}" for i, v in enumerate(t)]
+    lines = ["time_s,sp,pv,op"] + [f"{v},1,{np.sin(v)},{'inf' if i == 5 else np.cos(v)}" for i, v in enumerate(t)]
     p.write_text("\n".join(lines))
     out = tmp_path / "o.json"
     assert main(["loop-diagnose", str(p), "--json", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "column op has 1 NaN" in err[0]
+    assert len(err) == 1 and "column op has 1 NaN/infinite" in err[0]
     assert not out.exists()

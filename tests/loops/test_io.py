@@ -43,7 +43,9 @@ def test_loop_csv_round_trip(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("override", "needle"), [
-    ({"pv": np.where(np.arange(300) == 17, np.nan, 50.0)}, "column pv has 1 NaN"),
+    ({"pv": np.where(np.arange(300) % 5 == 2, np.nan, 50.0)},
+     r"60 of 300 samples \(20%\) miss a value \(column pv first, at sample 3\); at most 10%"),
+    ({"pv": np.where(np.arange(300) == 17, np.inf, 50.0)}, "column pv has 1 NaN/infinite"),
     ({"time_s": np.r_[np.arange(100) * 10.0, np.arange(200) * 10.0]}, "time is not strictly increasing at sample 101"),
 ])
 def test_bad_records_name_the_problem(tmp_path: Path, override: dict, needle: str) -> None:
@@ -51,6 +53,18 @@ def test_bad_records_name_the_problem(tmp_path: Path, override: dict, needle: st
     with pytest.raises(LoopDataError, match=needle) as exc:
         read_loop(p)
     assert "\n" not in str(exc.value)
+
+
+def test_samples_missing_a_value_are_dropped_and_resampled_over(tmp_path: Path) -> None:
+    """A historian that did not store a value (an empty cell, a NaN marker): the sample is dropped with a note and
+    the record resampled onto its interval, so the loop keeps its grid."""
+    p = _write_csv(tmp_path / "gaps.csv", pv=np.where(np.isin(np.arange(300), [17, 18, 200]), np.nan, 50.0))
+    text = p.read_text().replace(",nan,", ",,", 1).replace(",nan,", ",#N/A,", 1)
+    p.write_text(text)
+    loop = read_loop(p)
+    assert loop.n == 300 and loop.dt == pytest.approx(10.0) and np.isfinite(loop.pv).all()
+    assert any(n.startswith("dropped 3 sample(s) with a missing value (first: column pv at sample 18)")
+               for n in loop.notes)
 
 
 def test_op_in_engineering_units_is_scaled_by_its_range(tmp_path: Path) -> None:

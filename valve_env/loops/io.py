@@ -12,8 +12,12 @@ Rows that repeat a timestamp (historian exports do: duplicate rows, two values s
 are merged with a note: exact duplicates dropped, differing rows averaged
 (:func:`merge_repeated_timestamps`); time that goes backwards stays an error.
 
+Samples that miss a value (an empty cell or a NaN marker, :data:`MISSING_MARKERS`) are dropped with a note, up to
+:data:`MAX_MISSING_FRACTION` of them, and the record is resampled over them.
+
 Every problem with a record raises :class:`LoopDataError` whose message is one line naming the
-problem (NaN, non-increasing time, a missing column, ...). A well-formed record that cannot decide is read:
+problem (too many missing values, an infinite one, non-increasing time, a missing column, ...). A well-formed
+record that cannot decide is read:
 one that is merely short, or whose OP or PV holds one value throughout (a historian's frozen tag, a closed loop
 at rest), and the diagnosis names it ``insufficient_data`` with the reason (valve_env.loops.diagnose). Samples
 in manual mode are dropped with a note (the longest automatic stretch is kept). An OP outside the range a
@@ -41,6 +45,11 @@ MIN_OP_RANGE_PCT = 1e-3
 #: TDC/Experion: OP limits -6.9 to 106.9 %); an OP beyond it is in engineering units and is scaled by its observed
 #: range (docs/loops.md, "Input formats")
 OP_RANGE_PCT = (-10.0, 110.0)
+#: the share of samples that may miss a value (an empty cell or a NaN marker: a sample the historian did not
+#: store) before the record is refused; such samples are dropped and the record resampled over them
+MAX_MISSING_FRACTION = 0.10
+#: cells read as a missing value (case-insensitive), as in the valve runs' reader (valve_env.data_io)
+MISSING_MARKERS = frozenset({"", "nan", "na", "n/a", "#n/a", "null", "none"})
 
 
 class LoopDataError(ValueError):
@@ -84,6 +93,8 @@ class LoopData:
 
 
 def _float(text: str, where: str) -> float:
+    if text.lower() in MISSING_MARKERS:
+        return math.nan
     try:
         return float(text)
     except ValueError:
@@ -224,10 +235,25 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
         raise LoopDataError(f"{where}: {n} sample(s): a record needs at least two")
     for c in ("time_s", "sp", "pv", "op", "mv", "mode"):
         if c in cols:
-            bad = np.flatnonzero(~np.isfinite(cols[c]))
+            bad = np.flatnonzero(np.isinf(cols[c]) | (np.isnan(cols[c]) if c == "time_s" else False))
             if bad.size:
                 raise LoopDataError(f"{where}: column {c} has {bad.size} NaN/infinite value(s), first at "
                                     f"sample {bad[0] + 1}")
+    missing = np.zeros(n, dtype=bool)
+    for c in ("sp", "pv", "op", "mv", "mode"):
+        if c in cols:
+            missing |= np.isnan(cols[c])
+    if missing.any():
+        k = int(missing.sum())
+        first = int(np.flatnonzero(missing)[0])
+        col = next(c for c in ("sp", "pv", "op", "mv", "mode") if c in cols and np.isnan(cols[c][first]))
+        if k > MAX_MISSING_FRACTION * n:
+            raise LoopDataError(f"{where}: {k} of {n} samples ({k / n:.0%}) miss a value (column {col} first, at "
+                                f"sample {first + 1}); at most {MAX_MISSING_FRACTION:.0%} may")
+        cols = {c: v[~missing] for c, v in cols.items()}
+        n = cols["time_s"].size
+        notes.append(f"dropped {k} sample(s) with a missing value (first: column {col} at sample {first + 1}); "
+                     "the record is resampled over them")
     dt = np.diff(cols["time_s"])
     bad = np.flatnonzero(dt < 0)
     if bad.size:
@@ -256,7 +282,7 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
     data = {c: cols[c][keep] for c in ("sp", "pv", "op", "mv") if c in cols}
     step = np.diff(t)
     h = float(np.median(step))
-    if np.max(np.abs(step - h)) > 0.01 * h:
+    if np.max(np.abs(step - h)) > 0.01 * h:  # uneven sampling, or samples dropped above
         grid = np.arange(0.0, t[-1] + 0.5 * h, h)
         data = {c: np.interp(grid, t, v) for c, v in data.items()}
         notes.append(f"resampled onto a uniform {h:g} s grid (sampling varied from {step.min():g} to "
@@ -278,5 +304,6 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
                     notes=notes, op_scaled_from=scaled)
 
 
-__all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "read_loop", "read_loop_csv", "read_historian",
+__all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "MAX_MISSING_FRACTION", "MISSING_MARKERS", "read_loop",
+           "read_loop_csv", "read_historian",
            "check_loop", "merge_repeated_timestamps"]
