@@ -78,6 +78,10 @@ def test_op_in_engineering_units_is_scaled_by_its_range(tmp_path: Path) -> None:
     assert any("scaled by its observed range" in n and "1035" in n for n in loop.notes)
     plain = read_loop(_write_csv(tmp_path / "pct.csv"))
     assert plain.op_scaled_from is None and plain.notes == []
+    # an OP within 0-1 throughout may be a fraction: read as %, and said
+    frac = read_loop(_write_csv(tmp_path / "frac.csv", op=0.4 + 0.05 * np.cos(np.arange(300) / 30.0)))
+    assert frac.op_scaled_from is None and frac.op.max() < 1.0
+    assert any("if the export gives OP as a fraction" in n for n in frac.notes)
 
 
 def test_short_record_is_read_and_missing_column_refused(tmp_path: Path) -> None:

@@ -298,6 +298,9 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
                      f"({scaled[0]:.6g} -> 0 %, {scaled[1]:.6g} -> 100 %); bands are in % of that range")
         if "mv" in data and (float(data["mv"].min()) < OP_RANGE_PCT[0] or float(data["mv"].max()) > OP_RANGE_PCT[1]):
             data["mv"] = 100.0 * (data["mv"] - scaled[0]) / (scaled[1] - scaled[0])
+    elif float(np.ptp(op)) > 0 and float(op.min()) >= 0.0 and float(op.max()) <= 1.0:
+        notes.append(f"OP lies within 0 to 1 throughout ({float(op.min()):.4g} to {float(op.max()):.4g}): read as %; "
+                     "if the export gives OP as a fraction, the bands in % of OP are 100 times too small")
     if not math.isfinite(h) or h <= 0:
         raise LoopDataError(f"{where}: bad sampling interval {h!r}")
     return LoopData(time_s=t, sp=data["sp"], pv=data["pv"], op=op, mv=data.get("mv"), tag=tag, source=source,
