@@ -194,7 +194,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from valve_env.outputs import OutputSet
 
     outs = OutputSet(force=args.force)
-    gains = outs.add(args.gains or GAINS_PATH, "--gains") if args.write else None
+    gains = outs.add(args.gains or str(GAINS_PATH), "--gains") if args.write else None
     table = tune()
     for env_id, entry in table.items():
         m, g = entry["model"], entry["pi"]

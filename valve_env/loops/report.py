@@ -184,7 +184,8 @@ def write_loop_report(diag: LoopDiagnosis, outs: OutputSet, directory: Path) -> 
                          f"{f['delta_bic']:.1f} | {f['process']} |")
         lines.append("")
     lines += [f"Residuals of the {label}: Ljung-Box " + ", ".join(
-        f"lag {int(k)}: Q = {row.lb_stat:.1f}, p = {row.lb_pvalue:.2g}" for k, row in lb.iterrows()) + ".", "",
+        f"lag {k}: Q = {q:.1f}, p = {p:.2g}"
+        for k, q, p in zip(lb.index.to_numpy(dtype=int), lb["lb_stat"], lb["lb_pvalue"], strict=True)) + ".", "",
         "![phase](phase.png)", "", "![simulation](simulation.png)", "", "![residuals](residuals.png)", "",
         "![profile](profile.png)", ""]
     outs.write_text(paths["report.md"], "\n".join(lines))

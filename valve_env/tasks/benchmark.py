@@ -147,7 +147,7 @@ def gap_scores(cost: Mapping[str, float], ref: str = GAP_REFERENCE, oracle: str 
     return normalised_scores(cost, low=ref, high=oracle)
 
 
-def mean_ci(x: Sequence[float], level: float = CI_LEVEL) -> tuple[float, float]:
+def mean_ci(x: Sequence[float] | np.ndarray, level: float = CI_LEVEL) -> tuple[float, float]:
     """The t-interval of the mean of ``x`` at ``level`` (two-sided; Student's t with n - 1 degrees of
     freedom, the sample sd); NaN for fewer than two values."""
     from scipy import stats

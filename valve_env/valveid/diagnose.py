@@ -470,6 +470,7 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
         # until the next. It is validated where a held-out measure says it is real: the log-likelihood
         # gains, the open-loop simulation error (where the dead zones show) falls, or the held-out
         # opening itself slips by the fitted band (slips_show_band: the events judged directly)
+        assert f.training_slips is not None  # set above for every event effect
         if f.training_slips.get("resolved") is False:
             # a record that cannot show the slips cannot judge them held out either: the held-out
             # log-likelihood must gain, and by "very strong" evidence (Kass and Raftery 1995: 2 ln B > 10),
@@ -770,7 +771,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                "which the record cannot tell from a calibration error")
         if len(cands) == 1:
             raise DiagnosisError(f"{name}: {why}; it cannot identify medium_temperature")
-        cands = [c for c in cands if c != "medium_temperature"]
+        cands = tuple(c for c in cands if c != "medium_temperature")
         notes.append(f"medium_temperature not tried: {why}")
     if validate is not None:
         vdf = check_run(validate, "validation run")

@@ -30,7 +30,8 @@ from valve_env.valveid.preprocess import describe
 _LABELS = {"sigma": ("sigma", "N/K"), "F_hmax": ("F_h,max", "N"), "p_bset": ("p_b,set", "MPa"),
            "s_F": ("s_F (friction diffusion)", "N/sqrt(s)"), "s_x": ("s_x (observation sd)", "mm")}
 #: each output-error parameter's unit, as the fit and the effects' registry declare it
-UNITS = {q.name: q.unit for q in (*BASE_PARAMS, *NOISE_PARAMS, *(p for e in EFFECTS.values() for p in e.parameters))}
+UNITS: dict[str, str] = {**{q.name: q.unit for q in (*BASE_PARAMS, *NOISE_PARAMS)},
+                         **{p.name: p.unit for e in EFFECTS.values() for p in e.parameters}}
 MEANING = {"sigma": "Dahl stiffness", "F_hmax": "maximum friction force", "p_bset": "bellows pressure at the set point",
            "s_w": "measurement noise sd", "s_e": "model error sd (Ornstein-Uhlenbeck)",
            "tau_e": "model error time constant", "tau_s": "bulb time constant", "beta": "medium temperature weight",
