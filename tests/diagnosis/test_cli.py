@@ -98,8 +98,11 @@ def _bad_files(tmp: Path, good: Path) -> dict[str, tuple[Path, str]]:
     d.loc[50, "q_kgh"] = "abc"
     put("non_numeric", d, "non-numeric")
     d = df.copy()
-    d.loc[60, "T_med_C"] = np.nan
+    d.loc[60, "time_s"] = np.nan
     put("nan", d, "NaN")
+    d = df.copy()
+    d.loc[d.index % 4 == 1, "T_med_C"] = np.nan  # one empty cell drops its row; a quarter of the rows is refused
+    put("empty_cells", d, "have an empty cell in a measured column")
     d = df.copy()
     d.loc[70, "time_s"] = d.loc[69, "time_s"]
     put("time", d, "increasing")
