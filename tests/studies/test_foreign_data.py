@@ -93,6 +93,20 @@ def test_a_stepped_noiseless_medium_temperature_is_diagnosed(tmp_path, capsys, e
         assert all(math.isfinite(v) for v in f["params"].values())
 
 
+def test_a_run_without_noise_on_any_channel_is_fitted(tmp_path, capsys) -> None:
+    """A record without noise on any channel (a simulator's, or a rig logged in full precision): the likelihood is
+    steep, not broken, so ``fit`` gives finite standard errors instead of refusing the record as unidentified."""
+    df = simulate_experiment(seed=21, duration_h=6.0, dt_s=10.0, T_noise_C=0.0, x_noise_mm=0.0)
+    path = tmp_path / "run.csv"
+    df[[c for c in df.columns if not c.startswith("true_")]].to_csv(path, index=False)
+    for extra in ([], ["--ml"]):
+        out = tmp_path / f"f{len(extra)}.json"
+        assert main(["fit", str(path), "--json", str(out), "--bootstrap", "0", *extra]) == 0, capsys.readouterr().err
+        j = json.loads(out.read_text())
+        assert all(math.isfinite(j["std"][k]) and j["std"][k] > 0 for k in ("sigma", "F_hmax", "p_bset")), j["std"]
+        assert abs(j["params"]["sigma"] - 6.41) < 0.1 and abs(j["params"]["F_hmax"] - 1.31) < 0.01
+
+
 def test_fit_reports_one_fit_in_the_json_and_the_report(tmp_path) -> None:
     """The console, the JSON and report.md give the same estimates and sd (one result object), and the
     report's misspecification verdict is the JSON's."""

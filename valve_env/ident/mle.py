@@ -151,6 +151,7 @@ class MLEstimator(Estimator):
         self.tol = float(tol)
         self.max_restarts = int(max_restarts)
         self._evals = 0
+        self._failures = 0
         self._good: tuple[np.ndarray, float] | None = None
         unknown = sorted(set(self.fixed) - set(model.param_names))
         if unknown:
@@ -187,6 +188,7 @@ class MLEstimator(Estimator):
             return float(v)
         # the filter failed (e.g. an unstable discretisation): a large value that grows away from the
         # best point so far, so that the line search backs off instead of stalling on a flat plateau
+        self._failures += 1
         ref, fref = self._good if self._good is not None else (np.zeros_like(theta), 0.0)
         dist = float(np.sum((np.nan_to_num(np.asarray(theta, dtype=float), nan=1e3) - ref) ** 2))
         return abs(fref) + 1e6 * (1.0 + dist)
@@ -211,6 +213,7 @@ class MLEstimator(Estimator):
         qs = [model.parameters[i] for i in free]
         bounds = [work_bounds(q) for q in qs]
         self._evals = 0
+        self._failures = 0
         self._good = None
         best: scipy.optimize.OptimizeResult | None = None
         starts_nll = []
@@ -314,18 +317,18 @@ class MLEstimator(Estimator):
     def _hessian(self, theta: np.ndarray, arr: Arrays, base: np.ndarray, free: list[int],
                  inner: list[int]) -> np.ndarray:
         """The Hessian over the ``inner`` coordinates (:func:`valve_env.ident.uncertainty.fd_hessian`,
-        relative steps); NaN when the filter fails near the optimum."""
-        seen: list[float] = []
+        relative steps); NaN when the filter fails at one of its points. (A steep likelihood is not a failure:
+        a record without noise, or a long one at 1 s, changes the log-likelihood by far more than 1e5 over a
+        step.)"""
+        failures = self._failures
 
         def f(z: np.ndarray) -> float:
             th = theta.copy()
             th[inner] = z
-            v = self._nll_work(th, arr, base, free)
-            seen.append(v)
-            return v
+            return self._nll_work(th, arr, base, free)
 
         H = fd_hessian(f, theta[inner], self.hessian_step * np.maximum(1.0, np.abs(theta[inner])))
-        if max(seen) - seen[0] > 1e5:  # a failed filter near the optimum
+        if self._failures > failures:  # a failed filter near the optimum
             H[:] = np.nan
         return H
 
