@@ -95,3 +95,38 @@ def test_rows_with_an_empty_cell_are_dropped_and_every_row_keeps_its_file_number
     assert _changes(checked.attrs["preprocessing"]) == {("rows_dropped", None): [21, 22, 151],
                                                          ("spikes_replaced", "T_tank_C"): [301]}
     assert "3 row(s) with an empty cell dropped (rows 21, 22, 151)" in describe(checked.attrs["preprocessing"])
+
+
+# --------------------------------------------------------------------------- the opening's own conventions
+def test_the_openings_noise_level_follows_its_convention() -> None:
+    from valve_env.studies.conventions import store_on_change
+    from valve_env.valveid.stiction import OPENING_RESOLUTION_FLOOR_MM, opening_noise
+    from valve_env.valveid.temperature import noise_sd
+
+    smooth = 0.8 + 0.3 * np.sin(np.arange(3000) / 150.0)
+    noisy = smooth + 0.0024 * np.random.default_rng(1).standard_normal(smooth.size)
+    n = opening_noise(noisy)
+    assert n.method == "mad" and n.sd == noise_sd(noisy)  # a noisy opening keeps the sd it always had
+    q = opening_noise(np.round(noisy / 0.01) * 0.01)
+    assert q.method == "quantisation" and q.resolution == 0.01 and q.sd == pytest.approx(0.01 / np.sqrt(12))
+    soc = opening_noise(store_on_change(noisy, 0.01))
+    assert soc.method == "store_on_change" and 0.01 < soc.resolution < 0.0115 and soc.held_fraction > 0.8
+    assert soc.sd == pytest.approx(soc.resolution / np.sqrt(3))
+    flat = opening_noise(smooth)
+    assert flat.method == "resolution_floor" and flat.sd == pytest.approx(OPENING_RESOLUTION_FLOOR_MM / np.sqrt(12))
+    for each in (n, q, soc, flat):  # every convention says what it is, in the JSON's terms
+        d = each.describe()
+        assert d["method"] == each.method and d["noise_sd_mm"] == each.sd and d["why"]
+
+
+def test_the_slips_of_a_quantised_opening_are_the_stems_not_the_quantums(run) -> None:
+    """Quantised to a sixth of the band, the opening's quantum steps (the noise dithering between two levels) are
+    not slips: its noise level is the quantisation's, not the 0 of its second differences. Taken at that 0, a
+    dozen steps of one quantum were the slips, and the band their 0.01 mm."""
+    from valve_env.valveid.stiction import slips
+
+    x = run["x_mm"].to_numpy()
+    raw = slips(x, 2.0)
+    quantised = slips(np.round(x / 0.01) * 0.01, 2.0)
+    assert abs(np.median(raw) - 0.06) < 0.01
+    assert 1 <= quantised.size <= raw.size + 1 and abs(np.median(quantised) - 0.06) < 0.015

@@ -158,7 +158,8 @@ class Convention:
     ``loses_information``: the record holds less evidence than the original (a shorter or sparser
     one, or a tank temperature quantised to 0.1 K, which is as large as a 6 h set-point drift's
     whole effect and leaves the smoothed temperature 4-7 times further from the truth than 0.01 K
-    noise does), so a cause named on the original may fall back to ``none`` on it; never to another
+    noise does, or an opening stored on change, whose dead band hides a stick band up to about twice
+    its size), so a cause named on the original may fall back to ``none`` on it; never to another
     effect."""
 
     name: str
@@ -192,6 +193,11 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: spikes(df, 3, rng)),
     Convention("spikes_opening", "three isolated 1 mm glitches of the opening x_mm (a position transducer's)",
                lambda df, rng: spikes(df, 3, rng, column="x_mm", size=1.0)),
+    Convention("opening_quantised_0.01", "the opening x_mm quantised to 0.01 mm (a position transducer's resolution)",
+               lambda df, rng: quantise(df, 0.01, ("x_mm",))),
+    Convention("opening_stored_on_change", "the opening x_mm stored on change with a 0.01 mm dead band (a historian)",
+               lambda df, rng: df.assign(x_mm=store_on_change(df["x_mm"].to_numpy(dtype=float), 0.01)),
+               loses_information=True),
     Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
                lambda df, rng: extra_columns(df, rng)),
 )}

@@ -87,8 +87,8 @@ from valve_env.ident.bootstrap import (
 from valve_env.valveid.fitting import FitResult, Model, RunData
 from valve_env.valveid.robust import stick_slip_check
 from valve_env.valveid.stick_profile import sj_filter_loglik, sj_profile
-from valve_env.valveid.stiction import band_draws, band_spread, jump_band
-from valve_env.valveid.temperature import denoise_temperature, noise_sd
+from valve_env.valveid.stiction import band_draws, band_spread, jump_band, opening_noise
+from valve_env.valveid.temperature import denoise_temperature
 
 #: Name of the method, as written into the JSON.
 METHOD = "model-based bootstrap (residual blocks)"
@@ -175,7 +175,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
 
     ``x_true``: the bootstrap world's true opening, if already simulated (:func:`world_opening`).
     ``x_noise_sd``: with stiction, the sd of the white noise on the opening (default:
-    :func:`valve_env.valveid.temperature.noise_sd` of ``data``' opening).
+    :func:`valve_env.valveid.stiction.opening_noise` of ``data``' opening).
     ``resid_block``: without stiction, the opening's noise is the residuals ``data.x - x_true``
     resampled in circular blocks of this length (default: :func:`residual_block_length`)."""
     if x_true is None:
@@ -186,7 +186,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
         # resting steps, the slips set apart (the filter's s_w and s_e also absorb its misfit and would
         # overstate it; so would the median of all steps, slips included, at coarse sampling)
         if x_noise_sd is None:
-            x_noise_sd = noise_sd(data.x)
+            x_noise_sd = opening_noise(data.x).sd
         y = x_true + x_noise_sd * rng.standard_normal(n)
     else:
         resid = data.x - x_true
@@ -265,7 +265,7 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
         names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
     stuck = "stiction" in model.effects
     x_true = world_opening(model, data, fit.params, truth_step_s)
-    s_x = noise_sd(data.x) if stuck else None
+    s_x = opening_noise(data.x).sd if stuck else None
     block = None if stuck else residual_block_length(data.x - x_true)
     denoiser = replicate_denoiser(model, names)
     rows, _ = replicates(
@@ -412,6 +412,12 @@ def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float, stroke: floa
     measured within 2 % to 2-4 % off (6 of 12 development runs). ``sm`` is updated in place: spread,
     sd and the 95 % interval about the (corrected) estimate, the added-noise quantiles widened to the sd."""
     sd, parts, r = band_spread(x, stroke, s_x, draws, rng, band)
+    on = opening_noise(x)
+    if on.method in ("quantisation", "store_on_change") and on.resolution is not None:
+        # the band is measured no finer than the record's own steps (a quantum, a dead band): where the slips
+        # are one or none and the copies all read one band, their sd is 0, not the band's
+        parts["resolution_mm"] = on.resolution
+        sd = max(sd, on.resolution / math.sqrt(12.0))
     noise = parts["noise_sd_mm"]
     k = "band_mm"
     sm.spread[k] = noise

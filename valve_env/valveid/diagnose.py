@@ -70,7 +70,7 @@ from valve_env.valveid.estimator import ValveEstimator
 from valve_env.valveid.fitting import FitResult, Model, RunData
 from valve_env.valveid.preprocess import preprocess_run
 from valve_env.valveid.robust import robust_finding
-from valve_env.valveid.stiction import MIN_JUMPS, slips
+from valve_env.valveid.stiction import MIN_JUMPS, RESOLUTION_BAND_FACTOR, opening_noise, slips
 from valve_env.valveid.temperature import noise_sd, smooth_temperature
 
 MIN_SAMPLES = 200
@@ -456,6 +456,13 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
                     f.training_slips["resolved"] = False
         f.significant = f.significant and (shown or slips_stand_in)
     f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
+    if EFFECTS[effect].variance_gain:
+        on = opening_noise(train.x)
+        if on.method in ("quantisation", "store_on_change") and on.resolution is not None:
+            # the record's own resolution makes a smooth stem stick and slip by about that much
+            assert f.training_slips is not None
+            f.training_slips["opening_resolution_mm"] = on.resolution
+            f.relevant = f.relevant and float(fit.params["band_mm"]) > RESOLUTION_BAND_FACTOR * on.resolution
     if not EFFECTS[effect].variance_gain and train.quantised:
         f.input_resolution_mm = input_resolution_mm(model, train, fit.params)
         f.relevant = f.relevant and f.effect_size_mm >= f.input_resolution_mm
@@ -550,7 +557,7 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     (:func:`~valve_env.valveid.bootstrap.world_opening`), and each copy adds white noise of the run's
     measured sd to both temperature channels (smoothed again like a measured run, so that the smoothed
     temperatures lead the world's at its kinks as the run's lead the water) and to the opening (the resting
-    steps' sd, :func:`valve_env.valveid.temperature.noise_sd`, whose second differences set the slips apart
+    steps' sd, :func:`valve_env.valveid.stiction.opening_noise`, whose second differences set the slips apart
     as outliers). Under the null the stick-slip filter's
     gain comes from that misfit; copies driven by the run's smoothed
     temperatures, with the fitted noise model or the residuals resampled in blocks, lack it and gave a null
@@ -574,7 +581,7 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     # whose steps would make the world's valve slip, so there the smoother's level stands for them
     world = _null_world(train)
     x_w = world_opening(ref_model, world, ref)
-    sd = noise_sd(train.x)
+    sd = opening_noise(train.x).sd
 
     def copy(rng: np.random.Generator) -> RunData:
         T, M = train.remeasure(world.T, world.M, rng)  # as the run's channels were recorded
@@ -588,11 +595,11 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
             "band_factors": list(NULL_BAND_FACTORS)}
 
 
-def slip_sizes(x: np.ndarray, stroke: float) -> tuple[int, float | None]:
-    """The number of slips of the opening ``x`` (:func:`valve_env.valveid.stiction.slips`) and their median
-    size (mm; None without slips)."""
+def slip_sizes(x: np.ndarray, stroke: float, s_w: float | None = None) -> tuple[int, float | None]:
+    """The number of slips of the opening ``x`` (:func:`valve_env.valveid.stiction.slips`, noise sd ``s_w``: by
+    default the opening's own) and their median size (mm; None without slips)."""
 
-    sz = slips(np.asarray(x, dtype=float), stroke)
+    sz = slips(np.asarray(x, dtype=float), stroke, s_w)
     return int(sz.size), (float(np.median(sz)) if sz.size else None)
 
 
@@ -635,7 +642,8 @@ def expected_slips(model: Model, data: RunData, values: dict[str, float], stroke
     xs, _, _ = model.simulate(data, values)
     s_w = float(values["s_w"])
     noisy = xs + np.random.default_rng(seed).normal(0.0, s_w, xs.shape)
-    return int(slips(noisy, stroke).size)
+    # the copy's noise is white by construction, never held or quantised: its robust sd, however small
+    return int(slips(noisy, stroke, noise_sd(noisy)).size)
 
 
 def slips_below_noise(model: Model, data: RunData, values: dict[str, float], stroke: float, seed: int = 0) -> bool:
@@ -648,7 +656,7 @@ def slips_below_noise(model: Model, data: RunData, values: dict[str, float], str
     not stand aside for it (a band of 1.2 noise sd on a run without stiction: LR 37, held-out gain 6.7)."""
     xf = model.simulate_substeps(data, values)
     noisy = xf + np.random.default_rng(seed).normal(0.0, float(values["s_w"]), xf.shape)
-    return not band_shown(*slip_sizes(noisy, stroke), float(values["band_mm"]))
+    return not band_shown(*slip_sizes(noisy, stroke, noise_sd(noisy)), float(values["band_mm"]))
 
 
 def band_shown(n_slips: int, median_mm: float | None, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:

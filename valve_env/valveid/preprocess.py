@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.data_io import DataError
+from valve_env.valveid.stiction import opening_noise
 from valve_env.valveid.temperature import channel_noise, noise_sd
 
 #: the temperature channels whose noise level the likelihoods need
@@ -149,6 +150,10 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
     for ch in TEMPERATURE_CHANNELS:
         if ch in out.columns:
             notes.append({"what": "noise_level", **channel_noise(out[ch].to_numpy(dtype=float)).describe(ch)})
+    if "x_mm" in out.columns:
+        xn = opening_noise(out["x_mm"].to_numpy(dtype=float))
+        if xn.method != "mad":  # a noisy opening's sd is the fit's own s_w: nothing to say
+            notes.append({"what": "noise_level", **xn.describe()})
     t = out["time_s"].to_numpy(dtype=float)
     if n > 2:
         dt = np.diff(t)
@@ -175,7 +180,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
     lines = []
     for nt in notes:
         what = nt["what"]
-        if what == "noise_level":
+        if what == "noise_level" and "noise_sd_mm" in nt:
+            lines.append(f"x_mm: noise sd {nt['noise_sd_mm']:.3g} mm from {nt['why']}")
+        elif what == "noise_level":
             lines.append(f"{nt['channel']}: noise sd {nt['noise_sd_C']:.3g} degC from {nt['why']}"
                          + (f"; {nt['held_fraction']:.0%} of consecutive samples equal" if nt["held_fraction"] > 0.5
                             else ""))

@@ -19,8 +19,7 @@ import numpy as np
 
 from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.ident.tests import ROBUST_ADVICE, MisspecificationWarning, whiteness_check
-from valve_env.valveid.stiction import slips
-from valve_env.valveid.temperature import noise_sd
+from valve_env.valveid.stiction import opening_noise, slips
 
 if TYPE_CHECKING:
     from valve_env.valveid.data import RunData
@@ -70,7 +69,7 @@ def stuck_travel(x: np.ndarray, demand: np.ndarray, stroke: float, rest_sd: floa
 
     x = np.asarray(x, dtype=float)
     c = np.asarray(demand, dtype=float)
-    s = noise_sd(x)
+    s = opening_noise(x).sd
     events: list[tuple[int, float, float, float]] = []
     slips(x, stroke, events=events)
     out = []

@@ -18,10 +18,80 @@ band directly, without the valve model. Used by :class:`valve_env.valveid.fittin
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from valve_env.valveid.temperature import noise_sd
+from valve_env.valveid.temperature import noise_sd, quantum
+
+#: the finest opening resolution a channel is taken to have where the data shows none (mm; a position
+#: transducer's): its quantisation sd is the least noise sd the opening is given
+OPENING_RESOLUTION_FLOOR_MM = 1.0e-3
+#: a channel that holds its value between more than this share of consecutive samples, in full precision and
+#: off any grid, is stored on change (a historian's dead band) or written without noise
+HELD_SHARE = 0.5
+#: the quantile of the non-zero changes that measures a stored-on-change channel's dead band (all its changes
+#: exceed the dead band)
+DEAD_BAND_QUANTILE = 0.05
+#: an opening quantised to q, or stored on change with a dead band d, records a smooth stem that moves slowly as a
+#: staircase: stick-slip with S = J of about that resolution (1.1-1.3 d on a `none` run stored at d = 0.005, 0.01
+#: and 0.02 mm; 1.3 q on a set-point drift run quantised to 0.01 mm). Stiction is named there only with a band
+#: beyond this many resolutions
+RESOLUTION_BAND_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class OpeningNoise:
+    """The measurement-noise level of the opening channel and how it was found (the opening's counterpart of
+    :class:`valve_env.valveid.temperature.ChannelNoise`).
+
+    ``sd`` (mm): the robust second-difference sd (``method="mad"``) where the channel is noisy; else the
+    quantisation sd q / sqrt(12) of a quantised one (``"quantisation"``); else, where it holds its value
+    between most samples in full precision, the error of a historian's dead band d stored on change, uniform
+    within +-d, sd d / sqrt(3) (``"store_on_change"``, ``resolution`` = d, the least non-zero change); else the
+    floor :data:`OPENING_RESOLUTION_FLOOR_MM` / sqrt(12) (``"resolution_floor"``). Never 0 or NaN. A smooth stem
+    recorded on change looks like stick-slip with S = J = d; so does a sticky stem written without noise, which
+    no transducer gives."""
+
+    sd: float
+    method: str
+    resolution: float | None
+    held_fraction: float
+
+    def describe(self) -> dict[str, object]:
+        if self.method == "mad":
+            why = "the robust sd of its second differences"
+        elif self.method == "quantisation":
+            why = f"its quantisation step {self.resolution:g} mm (q / sqrt(12))"
+        elif self.method == "store_on_change":
+            why = (f"it holds its value between {self.held_fraction:.0%} of consecutive samples and changes by at "
+                   f"least {self.resolution:.3g} mm: a historian's dead band stored on change (or a record without "
+                   "noise), error uniform within it (d / sqrt(3)); a stick band up to about that size cannot be told "
+                   "from it")
+        else:
+            why = (f"the transducer resolution floor {OPENING_RESOLUTION_FLOOR_MM:g} mm (q / sqrt(12)): the channel "
+                   "shows no noise")
+        return {"channel": "x_mm", "noise_sd_mm": self.sd, "method": self.method, "resolution_mm": self.resolution,
+                "held_fraction": round(self.held_fraction, 4), "why": why}
+
+
+def opening_noise(x: np.ndarray) -> OpeningNoise:
+    """The noise level of the opening channel of any measurement convention (see :class:`OpeningNoise`)."""
+    x = np.asarray(x, dtype=float)
+    mad = noise_sd(x)
+    held = float(np.mean(np.diff(x) == 0.0)) if x.size > 1 else 1.0
+    floor = OPENING_RESOLUTION_FLOOR_MM / math.sqrt(12.0)
+    if math.isfinite(mad) and mad > floor:
+        return OpeningNoise(mad, "mad", None, held)
+    q = quantum(x)
+    if q is not None:
+        return OpeningNoise(max(q / math.sqrt(12.0), floor), "quantisation", q, held)
+    d = np.abs(np.diff(x))
+    d = d[d > 0.0]
+    if held > HELD_SHARE and d.size >= 3:
+        band = float(np.quantile(d, DEAD_BAND_QUANTILE))
+        return OpeningNoise(max(band / math.sqrt(3.0), floor), "store_on_change", band, held)
+    return OpeningNoise(floor, "resolution_floor", None, held)
 
 
 def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0, plateau: int = 3,
@@ -42,7 +112,7 @@ def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0
     from the estimator's. ``s_w``: the noise sd (default :func:`noise_sd`). ``events``: if given, each slip is appended
     to it as (index of the plateau's last sample, direction +-1, plateau level mm, size mm)."""
     x = np.asarray(x, dtype=float)
-    s = max(noise_sd(x) if s_w is None else float(s_w), 1e-6)
+    s = max(opening_noise(x).sd if s_w is None else float(s_w), 1e-6)
     n = x.size
     d = np.diff(x)
     thr = z * math.sqrt(2.0) * s
