@@ -58,6 +58,8 @@ MAX_ABS_TIME_S = 1.0e10
 #: a missing sample, which the identification takes), up to :data:`MAX_EMPTY_FRACTION` of the rows.
 MEASURED: tuple[str, ...] = REQUIRED[1:]
 MAX_EMPTY_FRACTION = 0.10
+#: Cells read as empty (case-insensitive, after stripping).
+MISSING_MARKERS: frozenset[str] = frozenset({"", "nan", "na", "null", "none"})
 
 
 class DataError(ValueError):
@@ -188,7 +190,7 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
     known = np.isfinite(v)  # empty cells: an opening derived from the flow, a measured channel's row dropped
     with np.errstate(invalid="ignore"):
         below = v <= lo if lo_open else v < lo
-        bad = np.flatnonzero(known & (below | (v > hi) | ~np.isfinite(v)))
+        bad = np.flatnonzero(known & (below | (v > hi)))
     if bad.size:
         i = int(bad[0])
         bound = f"{'>' if lo_open else '>='} {lo:g} and <= {hi:g}"
@@ -199,7 +201,7 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
 def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Series:
     if not pd.api.types.is_numeric_dtype(col):
         s = col.astype(str).str.strip()
-        empty = s.eq("") | s.str.lower().isin(["nan", "na", "null", "none"])
+        empty = s.str.lower().isin(MISSING_MARKERS)
         num = pd.to_numeric(s.where(~empty, None), errors="coerce")
         nonnum = num.isna() & ~empty
         if nonnum.any():
@@ -222,4 +224,5 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Se
 
 
 __all__ = ["DataError", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES",
-           "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION"]
+           "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
+           "MISSING_MARKERS"]

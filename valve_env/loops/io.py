@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
+
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
 MIN_SAMPLES = 240
@@ -48,8 +50,8 @@ OP_RANGE_PCT = (-10.0, 110.0)
 #: the share of samples that may miss a value (an empty cell or a NaN marker: a sample the historian did not
 #: store) before the record is refused; such samples are dropped and the record resampled over them
 MAX_MISSING_FRACTION = 0.10
-#: cells read as a missing value (case-insensitive), as in the valve runs' reader (valve_env.data_io)
-MISSING_MARKERS = frozenset({"", "nan", "na", "n/a", "#n/a", "null", "none"})
+#: cells read as a missing value (case-insensitive): the valve runs' reader's, and a spreadsheet's N/A
+MISSING_MARKERS = RUN_MISSING_MARKERS | {"n/a", "#n/a"}
 
 
 class LoopDataError(ValueError):
@@ -235,7 +237,8 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
         raise LoopDataError(f"{where}: {n} sample(s): a record needs at least two")
     for c in ("time_s", "sp", "pv", "op", "mv", "mode"):
         if c in cols:
-            bad = np.flatnonzero(np.isinf(cols[c]) | (np.isnan(cols[c]) if c == "time_s" else False))
+            # a missing value is dropped below, except a missing time
+            bad = np.flatnonzero(~np.isfinite(cols[c]) if c == "time_s" else np.isinf(cols[c]))
             if bad.size:
                 raise LoopDataError(f"{where}: column {c} has {bad.size} NaN/infinite value(s), first at "
                                     f"sample {bad[0] + 1}")

@@ -65,8 +65,10 @@ class Task:
         else:
             base = make_config(None, **{k: dict(v) for k, v in self.sections.items()})
             if config is not None:
-                is_file = isinstance(config, (str, Path))
-                sections = load_yaml(config) if isinstance(config, (str, Path)) else dict(config)
+                if isinstance(config, (str, Path)):
+                    is_file, sections = True, load_yaml(config)
+                else:
+                    is_file, sections = False, dict(config)
                 try:
                     base = layer_config(base, sections, owner=f"task {self.id}",
                                         source=f"config file {str(config)!r}" if is_file else "the config mapping")

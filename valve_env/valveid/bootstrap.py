@@ -413,7 +413,7 @@ def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float, stroke: floa
     sd and the 95 % interval about the (corrected) estimate, the added-noise quantiles widened to the sd."""
     sd, parts, r = band_spread(x, stroke, s_x, draws, rng, band)
     on = opening_noise(x)
-    if on.method in ("quantisation", "store_on_change") and on.resolution is not None:
+    if on.resolution is not None:  # quantised or stored on change
         # the band is measured no finer than the record's own steps (a quantum, a dead band): where the slips
         # are one or none and the copies all read one band, their sd is 0, not the band's
         parts["resolution_mm"] = on.resolution

@@ -458,7 +458,7 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
     f.relevant = f.effect_size_mm >= min_size * fit.params["s_w"]
     if EFFECTS[effect].variance_gain:
         on = opening_noise(train.x)
-        if on.method in ("quantisation", "store_on_change") and on.resolution is not None:
+        if on.resolution is not None:  # quantised or stored on change
             # the record's own resolution makes a smooth stem stick and slip by about that much
             assert f.training_slips is not None
             f.training_slips["opening_resolution_mm"] = on.resolution

@@ -55,6 +55,8 @@ class OpeningNoise:
 
     sd: float
     method: str
+    #: the record's own step (mm): the quantum of a quantised opening, the dead band of one stored on change; None
+    #: for the other two methods
     resolution: float | None
     held_fraction: float
 
