@@ -312,6 +312,47 @@ def test_record_slips_name_a_stiction_run_the_held_out_quarter_misses() -> None:
     assert abs(f.fit.params["band_mm"] / 0.0158 - 1.0) < 0.25
 
 
+def test_a_held_out_part_that_cannot_show_slips_does_not_veto_the_slips_band() -> None:
+    """A sticky run kept one row a minute (development seed 7001, stiction only, run 23: band 0.0367 mm, 16.5 h):
+    the likelihood's band (16 um) is not the two training slips' (43 um); with the band held at theirs stiction is
+    significant, and the held-out quarter shows no slip, but the model with that band would show fewer than two
+    there either. The held-out gain and the strict null guard decide (docs/diagnosis.md, "Method"); before,
+    the missing confirmation left the run `none`."""
+    from valve_env.experiment import random_cases, simulate_case
+    from valve_env.studies.conventions import apply_convention
+
+    case = random_cases(24, 7001, ("stiction",))[23]
+    assert abs(case["effects"]["stiction"]["band_mm"] - 0.0367) < 1e-4
+    df = apply_convention(simulate_case(case), "dt_60", np.random.default_rng(case["seed"]))
+    d = diagnose(df, effects=["stiction"], bootstrap_B=0)
+    f = d.findings[0]
+    assert f.training_slips is not None
+    assert f.training_slips["band_from"] == "slips" and not f.training_slips["held_out_show_band"], d.summary()
+    assert f.training_slips["held_out_expected"] < 2 and f.training_slips["held_out_resolved"] is False
+    assert f.validation_loglik_gain > 5.0
+    assert f.null_guard is not None and max(f.null_guard["null"]) < f.null_guard["statistic"]
+    assert d.cause == "stiction", d.summary()
+    assert abs(f.fit.params["band_mm"] / 0.0367 - 1.0) < 0.25
+
+
+def test_a_held_out_part_without_slips_at_any_sampling_does_not_confirm_the_slips_band() -> None:
+    """A set-point drift run (development seed 7003 under jitter and 5 % of the rows dropped, run 4: 5 s, 14.5 h):
+    two training slips measure 13 um and stiction with that band gains 333 nats held out, all from the drift's
+    misfit. The model's held-out opening slips nowhere, on its samples or its sub-steps, so the held-out part
+    holds no event and the band stays unconfirmed (docs/diagnosis.md, "Method")."""
+    from valve_env.experiment import random_cases, simulate_case
+    from valve_env.studies.conventions import apply_convention
+
+    case = {**random_cases(60, 7003)[4], "jitter": 0.2}
+    assert case["truth"] == "setpoint_drift" and case["dt_s"] == 5.0
+    df = apply_convention(simulate_case(case), "dropped_5", np.random.default_rng(case["seed"]))
+    d = diagnose(df, effects=["stiction"], bootstrap_B=0)
+    f = d.findings[0]
+    assert f.training_slips is not None and f.training_slips["n"] >= 2 and f.training_slips["slips_band_lr"] > 100
+    assert not f.training_slips["held_out_show_band"] and not f.accepted
+    assert d.cause == "none", d.summary()
+
+
 @pytest.mark.parametrize("base_improves", [False, True])
 def test_the_first_steps_null_guard_runs_once_on_the_step_that_is_kept(monkeypatch: pytest.MonkeyPatch,
                                                                          base_improves: bool) -> None:

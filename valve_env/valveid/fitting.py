@@ -215,16 +215,19 @@ class Model:
             x = x.copy()
         return x, Tg.copy(), F.copy()
 
-    def simulate_substeps(self, data: RunData, values: dict[str, float]) -> np.ndarray:
+    def simulate_substeps(self, data: RunData, values: dict[str, float],
+                          part: tuple[int, int] | None = None) -> np.ndarray:
         """The open-loop opening (mm) on the simulation's sub-step grid (at most ``max_step_s`` apart): the
         valve as a record sampled that finely would show it, with stiction's rests and slips between the
-        samples."""
+        samples; ``part``: only from sample ``part[0]`` to sample ``part[1] - 1`` of a record simulated whole."""
         vp, e = self._vectors(values)
-        _, _, _, x_sub, _ = self._valve_path(data, vp, e, self.delta(data, values), True)
+        _, _, _, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), True)
         if not self._stuck(values):
-            return x_sub.copy()
-        band = values["band_mm"]
-        return stick_simulate_sj(x_sub, np.arange(x_sub.shape[0]), band, band, float(vp[I_STROKE]))
+            x = x_sub.copy()
+        else:
+            band = values["band_mm"]
+            x = stick_simulate_sj(x_sub, np.arange(x_sub.shape[0]), band, band, float(vp[I_STROKE]))
+        return x if part is None else x[idx[part[0]]:idx[part[1] - 1] + 1]
 
     def demand(self, data: RunData, values: dict[str, float]) -> np.ndarray:
         """The opening the force balance demands without friction (mm, limited to the stroke) at the
