@@ -166,14 +166,17 @@ def test_slips_show_band_needs_slips_of_the_fitted_band() -> None:
     assert not slips_show_band(x, stroke, 0.0)
 
 
-@pytest.mark.parametrize(("significant_at_slips_band", "held_out_shows_it"), [(True, True), (True, False),
-                                                                           (False, True)])
+@pytest.mark.parametrize(("significant_at_slips_band", "held_out_shows_it", "held_out_hides_slips"),
+                         [(True, True, False), (True, False, False), (False, True, False), (True, False, True),
+                          (False, False, True)])
 def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
-        monkeypatch: pytest.MonkeyPatch, significant_at_slips_band: bool, held_out_shows_it: bool) -> None:
+        monkeypatch: pytest.MonkeyPatch, significant_at_slips_band: bool, held_out_shows_it: bool,
+        held_out_hides_slips: bool) -> None:
     """docs/diagnosis.md: where the training slips (two or more) do not show the likelihood's band,
     stiction is refitted with the band held at the slips' median; that finding replaces the first only if it
-    is significant and the held-out opening's slips show the band too; otherwise the first stays, with the
-    slips' band's statistic recorded."""
+    is significant and the held-out opening's slips show the band too, or the held-out part's sampling hides
+    the slips (the model with the band shows fewer than two there) and the held-out gain exceeds
+    ``UNRESOLVED_MIN_GAIN``; otherwise the first stays, with the slips' band's statistic recorded."""
     from valve_env.valveid import diagnose as dg
 
     calls: list[dict] = []
@@ -184,6 +187,8 @@ def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
             self.loglik = ll
 
     class Est:
+        backend_ = None
+
         def __init__(self, band: float, ll: float) -> None:
             self.result_ = Fit(band, ll)
 
@@ -201,6 +206,7 @@ def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
         f.lr_stat, f.estimator, f.validated = (40.0 if band > 0.02 else 280.0), est, True
         f.significant = shown and significant_at_slips_band
         f.training_slips = {"n": 2, "median_mm": 0.033, "show_band": shown}
+        f.validation_loglik_gain = 10.0
         return f
 
     monkeypatch.setattr(dg, "_fit", fake_fit)
@@ -208,13 +214,18 @@ def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
     monkeypatch.setattr(dg, "NULL_GUARD", False)  # the null guard is tested in test_diagnose.py
     monkeypatch.setattr(dg, "slips_show_band", lambda x, stroke, band: held_out_shows_it and band == 0.033)
     monkeypatch.setattr(dg, "record_shows_band", lambda parts, stroke, band: False)  # record's slips: test_diagnose.py
+    # the model's slips at the held-out samples (none where the sampling hides them) and on its sub-steps
+    monkeypatch.setattr(dg, "expected_slips", lambda *a, **k: 0 if held_out_hides_slips else 3)
+    monkeypatch.setattr(dg, "slips_below_noise", lambda *a, **k: False)
     valve = type("V", (), {"stroke": 2.0})()
     f = dg._try("stiction", (), Fit(0.0, 0.0), Data(), Data(), (0, 4), valve, 0.001, (0.0, 0.0, 0.0), None, 2.0,
                 1.0)
     assert calls[-1]["fixed"] == {"band_mm": 0.033} and calls[-1]["start"]["band_mm"] == 0.033
-    if significant_at_slips_band and held_out_shows_it:
+    if significant_at_slips_band and (held_out_shows_it or held_out_hides_slips):
         assert f.estimator.result_.params["band_mm"] == 0.033 and f.significant and f.validated
-        assert f.training_slips["band_from"] == "slips" and f.training_slips["held_out_show_band"]
+        assert f.training_slips["band_from"] == "slips"
+        assert f.training_slips["held_out_show_band"] is held_out_shows_it
+        assert f.training_slips.get("held_out_resolved", True) is not held_out_hides_slips
         assert f.training_slips["likelihood_band_mm"] == 0.012 and f.training_slips["likelihood_lr"] == 280.0
     else:
         assert f.estimator.result_.params["band_mm"] == 0.012 and not f.significant
