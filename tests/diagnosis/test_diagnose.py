@@ -350,6 +350,7 @@ def test_a_held_out_part_without_slips_at_any_sampling_does_not_confirm_the_slip
     f = d.findings[0]
     assert f.training_slips is not None and f.training_slips["n"] >= 2 and f.training_slips["slips_band_lr"] > 100
     assert not f.training_slips["held_out_show_band"] and not f.accepted
+    assert f.training_slips["held_out_expected"] < 2 and "held_out_resolved" not in f.training_slips
     assert d.cause == "none", d.summary()
 
 

@@ -231,3 +231,5 @@ def test_stiction_tests_the_slips_band_where_the_likelihood_band_is_not_shown(
         assert f.estimator.result_.params["band_mm"] == 0.012 and not f.significant
         assert f.training_slips["slips_band_lr"] == 40.0
         assert f.training_slips["held_out_show_band"] is held_out_shows_it
+        if significant_at_slips_band:  # the model's held-out slips were counted: reported with the first finding
+            assert f.training_slips["held_out_expected"] == 3 and "held_out_resolved" not in f.training_slips

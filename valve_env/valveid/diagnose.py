@@ -368,15 +368,15 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         # median against the reference; the slips propose the band, the likelihood tests it. Two or three
         # training slips are too few to measure a band on their own (that fit needs four), so the held-out
         # opening's slips must show it too (one null run of the development seeds, 31/21, was named without)
-        band = float(seen["median_mm"])
+        band, stroke = float(seen["median_mm"]), float(valve.stroke)
         held_x = valid.x[vr[0]:vr[1]]
-        held = slips_show_band(held_x, float(valve.stroke), band)
+        held = slips_show_band(held_x, stroke, band)
         # at 20-30 s sampling the held-out quarter
         # holds few slips, and two of them may miss a band that the record's slips measure. Where the slips
         # of the whole record (training and held-out pooled) are enough to measure a band on their own
         # (stiction.MIN_JUMPS, as the fit does) and measure this one, they confirm it, and they stand in
         # for the training part's two slips where that part holds only one
-        record = record_shows_band((train.x, held_x), float(valve.stroke), band)
+        record = record_shows_band((train.x, held_x), stroke, band)
         confirmed = held or record
         g = _finding(effect, _fit(effects, valve, train, {**est.result_.params, "band_mm": band},
                                   fixed={"band_mm": band}),
@@ -385,7 +385,8 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
         assert g.training_slips is not None
         g.training_slips.update(band_from="slips", held_out_show_band=held, record_show_band=record,
                                 likelihood_band_mm=float(f.fit.params["band_mm"]), likelihood_lr=float(f.lr_stat))
-        if not confirmed and g.significant and int(seen["n"]) >= 2:
+        held_part: dict[str, Any] = {}  # what the held-out part could show, reported whether or not g is kept
+        if not confirmed and g.significant and seen["n"] >= 2:
             # the held-out opening can confirm the band only where it can show its slips: the model with the
             # slips' band, simulated at the held-out samples with the fitted noise, must show two. At one row a
             # minute a held-out quarter of a few hours shows none of a band that two or three training slips
@@ -396,16 +397,16 @@ def _try(effect: str, ref_effects: tuple[str, ...], ref_fit: FitResult, train: R
             # stem does not slip there at any sampling, the held-out part holds no event to judge, and its gain
             # is not the events' (a set-point drift run of development seed 7003 at 5 s: 333 nats to the
             # drift's 386, the model's held-out opening slipping nowhere)
-            m_g, stroke = g.estimator.backend_, float(valve.stroke)
-            n_held = expected_slips(m_g, valid, g.fit.params, stroke, part=vr)
-            g.training_slips["held_out_expected"] = n_held
-            if n_held < 2 and not slips_below_noise(m_g, valid, g.fit.params, stroke, part=vr):
-                g.training_slips["held_out_resolved"] = False
+            m_g = g.estimator.backend_
+            held_part["held_out_expected"] = expected_slips(m_g, valid, g.fit.params, stroke, part=vr)
+            if held_part["held_out_expected"] < 2 and not slips_below_noise(m_g, valid, g.fit.params, stroke, part=vr):
+                held_part["held_out_resolved"] = False
                 confirmed = g.validation_loglik_gain > max(min_gain, UNRESOLVED_MIN_GAIN)
+            g.training_slips.update(held_part)
         g.validated = g.validated and confirmed
         if g.significant and confirmed:
             return _null_guarded(g, ref_fit, train, valve) if guard else g
-        seen.update(slips_band_lr=float(g.lr_stat), held_out_show_band=held, record_show_band=record)
+        seen.update(slips_band_lr=float(g.lr_stat), held_out_show_band=held, record_show_band=record, **held_part)
     return _null_guarded(f, ref_fit, train, valve) if guard else f
 
 
