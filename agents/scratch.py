@@ -60,10 +60,13 @@ def finished(d: Path) -> bool:
     return p.is_file() and "finished_utc" in json.loads(p.read_text())
 
 
-def train_command(algo: str, task: str, seed: int, out: str | Path) -> list[str]:
+def train_command(algo: str, task: str, seed: int, out: str | Path, timesteps: int | None = None) -> list[str]:
+    """The run's ``agents.train`` command; ``timesteps``: a budget in env steps other than the configs' (one for
+    every run), evaluated every tenth of it."""
+    budget = [] if timesteps is None else ["--timesteps", str(timesteps), "--eval-freq", str(timesteps // 10)]
     return [sys.executable, "-m", "agents.train", "--algo", algo, "--env", task, "--seed", str(seed),
             "--config-dir", str(CONFIG_DIR), "--out", str(run_dir(out, task, algo, seed)), "--no-progress",
-            "--force"]
+            "--force", *budget]
 
 
 def _children_cpu_s() -> float:
@@ -95,7 +98,8 @@ def claim(d: Path) -> bool:
     return False
 
 
-def train_all(algos: Sequence[str], tasks: Sequence[str], seeds: Sequence[int], out: str | Path) -> int:
+def train_all(algos: Sequence[str], tasks: Sequence[str], seeds: Sequence[int], out: str | Path,
+              timesteps: int | None = None) -> int:
     """Every run not yet finished and not claimed by another sweep (:func:`claim`), one process at
     a time, seed-major (a cut-short sweep still has every algo and task on its first seeds)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
@@ -107,7 +111,7 @@ def train_all(algos: Sequence[str], tasks: Sequence[str], seeds: Sequence[int], 
                 if finished(d) or not claim(d):
                     continue
                 t0, c0 = time.perf_counter(), _children_cpu_s()
-                rc = subprocess.call(train_command(algo, task, seed, out), env=env)
+                rc = subprocess.call(train_command(algo, task, seed, out, timesteps), env=env)
                 wall, cpu = time.perf_counter() - t0, _children_cpu_s() - c0
                 if rc == 0:  # the process's wall and CPU time (on a shared machine the CPU time is the cost)
                     (d / "cost.json").write_text(json.dumps({"wall_s": round(wall, 1), "cpu_s": round(cpu, 1)}))
@@ -253,6 +257,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     t.add_argument("--tasks", default=",".join(valve_env.CURRENT_TASK_IDS))
     t.add_argument("--seeds", default=",".join(map(str, TRAIN_SEEDS)))
     t.add_argument("--out", default=str(DEFAULT_OUT))
+    t.add_argument("--timesteps", type=int, default=None,
+                   help="every run's budget in env steps instead of the configs' (evaluation every tenth of it)")
     e = sub.add_parser("evaluate", help="score every finished run on the held-out seeds; write the summary")
     e.add_argument("--out", default=str(DEFAULT_OUT))
     e.add_argument("--episodes", type=int, default=EVAL_EPISODES)
@@ -291,10 +297,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         for x in tasks:
             if x not in valve_env.CURRENT_TASK_IDS:
                 raise ValueError(f"{x!r} is not a current task; current: {', '.join(valve_env.CURRENT_TASK_IDS)}")
+        if args.timesteps is not None and args.timesteps < 10:
+            raise ValueError(f"--timesteps must be at least 10 env steps, got {args.timesteps}")
     except ValueError as exc:
         print(f"python -m agents.scratch: error: {exc}", file=sys.stderr)
         return 2
-    return train_all(algos, tasks, seeds, args.out)
+    return train_all(algos, tasks, seeds, args.out, args.timesteps)
 
 
 def evaluate_main(args: argparse.Namespace) -> int:

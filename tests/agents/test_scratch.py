@@ -31,3 +31,14 @@ def test_a_run_is_claimed_once_and_a_dead_claim_is_taken_over(tmp_path: Path) ->
     dead = d.parent / "ppo_s2.claim"
     dead.write_text("999999999")  # no such process
     assert claim(run_dir(tmp_path, "T", "ppo", 2)) and dead.read_text() == str(os.getpid())
+
+
+def test_a_budget_other_than_the_configs_is_passed_to_every_run(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from agents.scratch import main, train_command
+
+    cmd = train_command("sac", "ThermoValveStickyValve-v0", 1, tmp_path, 230400)
+    assert cmd[cmd.index("--timesteps") + 1] == "230400" and cmd[cmd.index("--eval-freq") + 1] == "23040"
+    assert "--timesteps" not in train_command("sac", "ThermoValveStickyValve-v0", 1, tmp_path)
+    assert main(["train", "--timesteps", "5", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--timesteps" in err[0]
