@@ -98,15 +98,16 @@ def band_resolved(fit: ValveFit, op: np.ndarray) -> bool:
     return bool(fit.S >= sampling_offset(op) and crosses_back(fit.path(op)))
 
 
-def band_halves(loop: LoopData, s: Settings) -> tuple[float, float]:
+def band_halves(loop: LoopData, s: Settings, jittered: bool | None = None) -> tuple[float, float]:
     """The band (fitted band plus sampling offset, as ``band_pct``) read from each half of the record alone, by the
-    same fit (:func:`fit_band`): their difference measures how well the record reproduces its own band, which the
-    profile likelihood does not when the model is only near the truth (docs/loops.md, "Band uncertainty")."""
+    same fit (:func:`fit_band`, with the valve ``jittered`` or not as the whole record's): their difference measures
+    how well the record reproduces its own band, which the profile likelihood does not when the model is only near
+    the truth (docs/loops.md, "Band uncertainty")."""
     bands = []
     for a, b in ((0, loop.n // 2), (loop.n // 2, loop.n)):
         half = LoopData(time_s=loop.time_s[a:b] - loop.time_s[a], sp=loop.sp[a:b], pv=loop.pv[a:b], op=loop.op[a:b],
                         tag=loop.tag, source=loop.source)
-        bands.append(fit_band(half, s).S + sampling_offset(half.op))
+        bands.append(fit_band(half, s, jittered).S + sampling_offset(half.op))
     return bands[0], bands[1]
 
 
@@ -156,18 +157,29 @@ def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> S
     return best[1]
 
 
-def fit_band(loop: LoopData, s: Settings) -> ValveFit:
+def fit_band(loop: LoopData, s: Settings, jittered: bool | None = None) -> ValveFit:
     """The stick-slip valve's maximum-likelihood fit that gives the band (docs/loops.md, "Model"): J / S profiled over
     ``BAND_J_FRACTIONS``, the band grid holding the best distinct bands of a dense least-squares search
     (:func:`~valve_env.loops.model.scan_valve`: the likelihood is rugged in S, and the coarse grid alone misses its
-    narrow ridges). The valve runs at ``s.band_substeps`` steps per sample on the mean-preserving sub-sample OP, or,
-    when the record shows the controller's output jittering within its samples (a controller scanning every
-    ``s.scan_s``: :func:`~valve_env.loops.model.op_jitter`), at a step per scan driven by that jitter."""
+    narrow ridges). Two valves have the same parameters and samples, and the more likely is kept: the valve at
+    ``s.band_substeps`` steps per sample on the mean-preserving sub-sample OP, and, when the record shows the
+    controller's output jittering within its samples (a controller scanning every ``s.scan_s``:
+    :func:`~valve_env.loops.model.op_jitter`), the valve at a step per scan driven by that jitter. ``jittered`` True
+    or False fits only that one (the jitter valve falls back to the smooth one where the record shows no jitter)."""
     jitter = op_jitter(loop.op, loop.dt, s.scan_s)
-    substeps = max(s.band_substeps, round(loop.dt / s.scan_s)) if jitter > 0.0 else s.band_substeps
-    sb = replace(s, substeps=substeps, jitter=jitter)
-    scan = scan_valve(loop.pv, scan_paths(loop.op, sb.substeps, sb.jitter), sb)
-    return fit_valve(loop.op, loop.pv, MODEL, sb, extra_S=scan.starts or (scan.S,), j_fractions=BAND_J_FRACTIONS)
+    variants = []
+    if jittered is not True or jitter <= 0.0:
+        variants.append(replace(s, substeps=s.band_substeps, jitter=0.0))
+    if jittered is not False and jitter > 0.0:
+        variants.append(replace(s, substeps=max(s.band_substeps, round(loop.dt / s.scan_s)), jitter=jitter))
+    best: ValveFit | None = None
+    for sb in variants:
+        scan = scan_valve(loop.pv, scan_paths(loop.op, sb.substeps, sb.jitter), sb)
+        fit = fit_valve(loop.op, loop.pv, MODEL, sb, extra_S=scan.starts or (scan.S,), j_fractions=BAND_J_FRACTIONS)
+        if best is None or fit.loglik > best.loglik:
+            best = fit
+    assert best is not None
+    return best
 
 
 def model_label(st: dict[str, Any]) -> str:
@@ -239,7 +251,7 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
     if need_fit:
         fit = fits[MODEL] = fit_band(loop, s)
         offset = sampling_offset(loop.op)
-        halves = band_halves(loop, s)
+        halves = band_halves(loop, s, jittered=fit.jitter > 0.0)
         band, sd, lo, hi = band_uncertainty(fit, offset, halves)
         st = {"band_pct": band, "std_pct": sd, "ci95_pct": [lo, hi], "jump_pct": fit.J, "band_fitted_pct": fit.S,
               "sampling_offset_pct": offset, "band_resolved": band_resolved(fit, loop.op),
