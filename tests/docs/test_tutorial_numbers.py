@@ -319,6 +319,9 @@ def test_the_grey_box_on_the_two_loops(tmp_path: Path) -> None:
     assert res["level"]["cause"] == "aggressive_tuning"
     osc = res["level"]["oscillation"]
     assert osc["oscillating"] and 120 < osc["period_s"] < 190
-    # asked to quantify, the band is near the 2 % OP climbed before the flow moved, its interval wide
+    # asked to quantify, the band is above the 2 % OP climbed before the flow moved (the valve driven by the
+    # controller's jitter between the samples), but the fitted valve never crosses it back and the record's halves
+    # read far less: a record with one slip does not resolve the band
     band = res["flow"]["stiction"]
-    assert 1.0 < band["band_pct"] < 2.5 and band["ci95_pct"][0] < 0.5 * band["band_pct"]
+    assert 2.0 < band["band_pct"] < 5.0 and band["band_resolved"] is False
+    assert max(band["halves_band_pct"]) < 0.6 * band["band_pct"]

@@ -4,6 +4,8 @@ with a band a quarter short; the decision (the sample-rate fits) is unchanged.""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from valve_env.loops import diagnose as diag
@@ -29,9 +31,10 @@ def test_small_jump_band_within_20_percent(monkeypatch: pytest.MonkeyPatch) -> N
     assert abs(st["band_pct"] - S) / S <= 0.2
     assert abs(st["band_pct"] - S) <= 2.0 * st["std_pct"]
     assert st["jump_pct"] > 0.0 and st["kind"] == "stick-slip"  # the jump is resolved, not read as a deadband
-    # the decision's grid {0, 1/2, 1} in the band's fit: J = 0 and the band more than 20 % short
+    # the decision's grid {0, 1/2, 1} in the band's fit, with the valve driven by the smooth sub-sample OP (a
+    # controller taken to scan at the record's rate: no within-sample jitter): J = 0 and the band more than 20 % short
     monkeypatch.setattr(diag, "BAND_J_FRACTIONS", J_FRACTIONS)
-    old = diag.diagnose_loop(loop, quantify=True)
+    old = diag.diagnose_loop(loop, quantify=True, settings=replace(diag.select_noise_order(loop), scan_s=loop.dt))
     assert old.result["findings"][0] == d.result["findings"][0]  # the linear valve's fit is the same
     assert old.result["stiction"]["jump_pct"] == 0.0
     assert (S - old.result["stiction"]["band_pct"]) / S > 0.2

@@ -46,6 +46,10 @@ def test_quantify_gives_one_story(tmp_path: Path, capsys: pytest.CaptureFixture[
     headline = next(line for line in text.splitlines() if line.startswith("**Cause"))
     assert label in headline and f"| model | {label} |" in text
     assert label in capsys.readouterr().out
+    # the band's table names the valve's input and the halves' bands behind the sd (docs/loops.md, "Band uncertainty")
+    halves = res["stiction"]["halves_band_pct"]
+    assert f"| band read on the record's first and second half, % | {halves[0]:.3g}, {halves[1]:.3g} |" in text
+    assert "controller's output jitter within a sample driving the valve" in text
 
 
 def test_short_record_is_insufficient_data(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

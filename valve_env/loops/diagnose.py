@@ -37,6 +37,7 @@ from valve_env.loops.model import (
     Settings,
     ValveFit,
     fit_valve,
+    op_jitter,
     resolution,
     scan_paths,
     scan_valve,
@@ -97,10 +98,27 @@ def band_resolved(fit: ValveFit, op: np.ndarray) -> bool:
     return bool(fit.S >= sampling_offset(op) and crosses_back(fit.path(op)))
 
 
-def band_uncertainty(fit: ValveFit, offset: float = 0.0) -> tuple[float, float, float, float]:
+def band_halves(loop: LoopData, s: Settings, jittered: bool | None = None) -> tuple[float, float]:
+    """The band (fitted band plus sampling offset, as ``band_pct``) read from each half of the record alone, by the
+    same fit (:func:`fit_band`, with the valve ``jittered`` or not as the whole record's): their difference measures
+    how well the record reproduces its own band, which the profile likelihood does not when the model is only near
+    the truth (docs/loops.md, "Band uncertainty")."""
+    bands = []
+    for a, b in ((0, loop.n // 2), (loop.n // 2, loop.n)):
+        half = LoopData(time_s=loop.time_s[a:b] - loop.time_s[a], sp=loop.sp[a:b], pv=loop.pv[a:b], op=loop.op[a:b],
+                        tag=loop.tag, source=loop.source)
+        bands.append(fit_band(half, s, jittered).S + sampling_offset(half.op))
+    return bands[0], bands[1]
+
+
+def band_uncertainty(fit: ValveFit, offset: float = 0.0,
+                     halves: tuple[float, float] | None = None) -> tuple[float, float, float, float]:
     """The band, its sd and 95 % interval: the fitted band plus the sampling ``offset``; the sd combines the
     profile-likelihood interval (``{S: 2 (ll_max - ll(S)) <= 3.84}``, interpolated in log S, sd = width / 3.92), the
-    model-error sd ``BAND_REL_SD * band`` and the offset's own sd."""
+    model-error sd ``BAND_REL_SD * band``, the offset's own sd, for a valve driven by the controller's
+    within-sample jitter (``fit.jitter``) that jitter's sd at each of the band's two ends, and, given the bands of the
+    record's two ``halves`` (:func:`band_halves`), the sd of the band that their difference implies for the whole
+    record (``|b1 - b2| / 2``: each half's sd is ``|b1 - b2| / sqrt(2)``, the whole record's ``1 / sqrt(2)`` of it)."""
     S = np.array([p[0] for p in fit.profile])
     ll = np.array([p[1] for p in fit.profile])
     dev = 2.0 * (ll.max() - ll)
@@ -119,7 +137,11 @@ def band_uncertainty(fit: ValveFit, offset: float = 0.0) -> tuple[float, float, 
     lo, hi = edge(-1) + offset, edge(+1) + offset
     sd_prof = max(hi - lo, 0.0) / 3.92
     band = fit.S + offset
-    sd = math.sqrt(sd_prof ** 2 + (BAND_REL_SD * band) ** 2 + (SAMPLING_SD_SHARE * offset) ** 2)
+    # the valve slips where the controller's hidden within-sample jitter (sd fit.jitter) first reaches each of the
+    # band's two ends, so each end is known to within that jitter's sd
+    sd_halves = abs(halves[0] - halves[1]) / 2.0 if halves is not None else 0.0
+    sd = math.sqrt(sd_prof ** 2 + (BAND_REL_SD * band) ** 2 + (SAMPLING_SD_SHARE * offset) ** 2
+                   + 2.0 * fit.jitter ** 2 + sd_halves ** 2)
     return band, sd, min(lo, band - 1.96 * sd), max(hi, band + 1.96 * sd)
 
 
@@ -135,14 +157,29 @@ def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> S
     return best[1]
 
 
-def fit_band(loop: LoopData, s: Settings) -> ValveFit:
-    """The stick-slip valve's maximum-likelihood fit that gives the band: the valve at ``s.band_substeps`` steps per
-    sample on the mean-preserving sub-sample OP, J / S profiled over ``BAND_J_FRACTIONS``, the band grid holding the
-    best band of a dense least-squares search (:func:`~valve_env.loops.model.scan_valve`: the likelihood is rugged in
-    S, and the coarse grid alone misses its narrow ridges)."""
-    sb = replace(s, substeps=s.band_substeps)
-    seed = scan_valve(loop.pv, scan_paths(loop.op, sb.substeps), sb)
-    return fit_valve(loop.op, loop.pv, MODEL, sb, extra_S=(seed.S,), j_fractions=BAND_J_FRACTIONS)
+def fit_band(loop: LoopData, s: Settings, jittered: bool | None = None) -> ValveFit:
+    """The stick-slip valve's maximum-likelihood fit that gives the band (docs/loops.md, "Model"): J / S profiled over
+    ``BAND_J_FRACTIONS``, the band grid holding the best distinct bands of a dense least-squares search
+    (:func:`~valve_env.loops.model.scan_valve`: the likelihood is rugged in S, and the coarse grid alone misses its
+    narrow ridges). Two valves have the same parameters and samples, and the more likely is kept: the valve at
+    ``s.band_substeps`` steps per sample on the mean-preserving sub-sample OP, and, when the record shows the
+    controller's output jittering within its samples (a controller scanning every ``s.scan_s``:
+    :func:`~valve_env.loops.model.op_jitter`), the valve at a step per scan driven by that jitter. ``jittered`` True
+    or False fits only that one (the jitter valve falls back to the smooth one where the record shows no jitter)."""
+    jitter = op_jitter(loop.op, loop.dt, s.scan_s)
+    variants = []
+    if jittered is not True or jitter <= 0.0:
+        variants.append(replace(s, substeps=s.band_substeps, jitter=0.0))
+    if jittered is not False and jitter > 0.0:
+        variants.append(replace(s, substeps=max(s.band_substeps, round(loop.dt / s.scan_s)), jitter=jitter))
+    best: ValveFit | None = None
+    for sb in variants:
+        scan = scan_valve(loop.pv, scan_paths(loop.op, sb.substeps, sb.jitter), sb)
+        fit = fit_valve(loop.op, loop.pv, MODEL, sb, extra_S=scan.starts or (scan.S,), j_fractions=BAND_J_FRACTIONS)
+        if best is None or fit.loglik > best.loglik:
+            best = fit
+    assert best is not None
+    return best
 
 
 def model_label(st: dict[str, Any]) -> str:
@@ -214,11 +251,13 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
     if need_fit:
         fit = fits[MODEL] = fit_band(loop, s)
         offset = sampling_offset(loop.op)
-        band, sd, lo, hi = band_uncertainty(fit, offset)
+        halves = band_halves(loop, s, jittered=fit.jitter > 0.0)
+        band, sd, lo, hi = band_uncertainty(fit, offset, halves)
         st = {"band_pct": band, "std_pct": sd, "ci95_pct": [lo, hi], "jump_pct": fit.J, "band_fitted_pct": fit.S,
               "sampling_offset_pct": offset, "band_resolved": band_resolved(fit, loop.op),
               "kind": "deadband (J = 0)" if fit.J <= 0.0 else "stick-slip", "model": MODEL,
               "initial_direction": "up" if fit.direction > 0 else "down", "valve_substeps": fit.substeps,
+              "op_jitter_pct": fit.jitter, "halves_band_pct": list(halves),
               "detected": bool(stiction)}
         st["label"] = model_label(st)
         result["stiction"] = st
@@ -246,5 +285,5 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
 
 
 __all__ = ["CAUSES", "LoopDiagnosis", "diagnose_loop", "band_uncertainty", "sampling_offset", "band_resolved",
-           "crosses_back", "MODEL", "MIN_PERIODS", "fit_band", "finding", "model_label", "select_noise_order",
-           "still_channel"]
+           "crosses_back", "band_halves", "MODEL", "MIN_PERIODS", "fit_band", "finding", "model_label",
+           "select_noise_order", "still_channel"]

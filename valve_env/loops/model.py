@@ -91,19 +91,64 @@ def subsample_op(op: np.ndarray, substeps: int) -> np.ndarray:
     return np.interp(t, np.arange(op.size, dtype=float), c)
 
 
-def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1) -> np.ndarray:
+#: random draws of the hidden within-sample OP jitter whose valve positions are averaged (:func:`valve_path`)
+JITTER_DRAWS = 8
+#: the seed of those draws: the same draws for every candidate valve, so that their likelihoods compare (common
+#: random numbers) and the profile in S is not roughened by fresh noise at each S
+JITTER_SEED = 20261129
+
+
+@functools.lru_cache(maxsize=4)
+def _jitter_draws(size: int, draws: int) -> np.ndarray:
+    """Standard normal draws (``draws`` rows of ``size``) for the within-sample jitter, read-only."""
+    z = np.random.default_rng(JITTER_SEED).standard_normal((draws, size))
+    z.setflags(write=False)
+    return z
+
+
+def op_jitter(op: np.ndarray, dt: float, scan_s: float) -> float:
+    """The sd of the controller output's motion within a recorded sample that the record does not show, % of OP
+    (docs/loops.md, "Model"). A controller scanning every ``scan_s`` acts on each scan's measurement noise, so its
+    output jitters from scan to scan; the historian's interval mean over ``m = dt / scan_s`` scans keeps ``1/sqrt(m)``
+    of that jitter's sd. The kept part is read from the record's second differences, in which a slow OP (a ramp, a
+    load) cancels: for white jitter of sd ``s / sqrt(m)`` per sample, ``OP[k+1] - 2 OP[k] + OP[k-1]`` has sd
+    ``sqrt(6) s / sqrt(m)``, estimated robustly by its median absolute value / 0.6745. 0 when the controller scans at
+    the record's rate or slower (``m <= 1``: the record holds every move), or when the OP is held between samples."""
+    op = np.asarray(op, dtype=float)
+    m = dt / scan_s if scan_s > 0 else 1.0
+    if m <= 1.0 or op.size < 3:
+        return 0.0
+    d2 = np.abs(np.diff(op, 2))
+    return float(np.median(d2) / (0.6745 * math.sqrt(6.0)) * math.sqrt(m))
+
+
+def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1,
+               jitter: float = 0.0) -> np.ndarray:
     """The valve position (% of OP) for the controller output ``op``: at rest at ``op[0]``, stuck after a
     motion upwards (``direction`` +1, :func:`valve_env.physics.stickslip.initial_state`) or downwards (-1).
     With ``substeps`` > 1 the valve is driven by the sub-sample OP of :func:`subsample_op` and its position
-    averaged over each sample's interval (as the record averages OP); 1 is the sample-rate valve."""
+    averaged over each sample's interval (as the record averages OP); 1 is the sample-rate valve.
+
+    ``jitter`` > 0 (% of OP; :func:`op_jitter`) adds the controller's motion within a sample that the record does not
+    show, white at the sub-steps: a stuck valve slips when the jittering OP first reaches its band's end, and a
+    moving one sticks at each reversal of it (Kano's rule), neither of which the smooth sub-sample OP does. The
+    valve's position is then the mean over :data:`JITTER_DRAWS` fixed draws of the jitter (its expected position
+    given the record)."""
     op = np.ascontiguousarray(op, dtype=float)
     if S <= 0.0:
         return op.copy()
-    if substeps <= 1:
+    if substeps <= 1 and jitter <= 0.0:
         return _valve_path(op, float(S), float(J), float(direction), np.empty_like(op))
     fine = subsample_op(op, substeps)
-    x = _valve_path(fine, float(S), float(J), float(direction), np.empty_like(fine))
-    return x.reshape(op.size, substeps).mean(axis=1)
+    if jitter <= 0.0:
+        x = _valve_path(fine, float(S), float(J), float(direction), np.empty_like(fine))
+        return x.reshape(op.size, substeps).mean(axis=1)
+    z = _jitter_draws(fine.size, JITTER_DRAWS)
+    acc = np.zeros(fine.size)
+    buf = np.empty_like(fine)
+    for row in z:
+        acc += _valve_path(fine + jitter * row, float(S), float(J), float(direction), buf)
+    return (acc / JITTER_DRAWS).reshape(op.size, substeps).mean(axis=1)
 
 
 @njit(cache=True)
@@ -334,6 +379,12 @@ class Settings:
     #: uncertainty")
     substeps: int = 1
     band_substeps: int = 4
+    #: the controller's scan period, s: the band's valve takes a step per scan (at least ``band_substeps`` per sample)
+    #: and is driven by the OP's within-sample jitter read from the record (:func:`op_jitter`; docs/loops.md, "Model")
+    scan_s: float = 1.0
+    #: the within-sample OP jitter's sd (% of OP) that drives the valve (:func:`valve_path`); 0: none (the decision's
+    #: fits); the band's fit sets it from the record (``diagnose.fit_band``)
+    jitter: float = 0.0
 
     @property
     def k0(self) -> int:
@@ -423,6 +474,7 @@ class ValveFit:
     profile: list[tuple[float, float]] = field(default_factory=list)  # (S, loglik maximised over J and process)
     direction: float = 1.0  # the valve's last motion before the record (+1 up, -1 down)
     substeps: int = 1  # the valve's steps per recorded sample (Settings.substeps)
+    jitter: float = 0.0  # the within-sample OP jitter's sd driving the valve, % of OP (Settings.jitter)
 
     @property
     def loglik(self) -> float:
@@ -437,7 +489,7 @@ class ValveFit:
         return bic(self.loglik, self.n_params, self.n)
 
     def path(self, op: np.ndarray) -> np.ndarray:
-        return valve_path(op, self.S, self.J, self.direction, self.substeps)
+        return valve_path(op, self.S, self.J, self.direction, self.substeps, self.jitter)
 
 
 def op_scale(op: np.ndarray) -> float:
@@ -464,19 +516,21 @@ def fit_valve(op: np.ndarray, pv: np.ndarray, valve: str, s: Settings, extra_S: 
 
     def profile_ll(S: float) -> float:
         if S not in fits:
-            cand = [(fit_process(pv, valve_path(op, S, f * S, d0, s.substeps), s), f * S, d0)
+            cand = [(fit_process(pv, valve_path(op, S, f * S, d0, s.substeps, s.jitter), s), f * S, d0)
                     for f in fracs for d0 in DIRECTIONS]
             fits[S] = max(cand, key=lambda c: c[0].loglik)
         return fits[S][0].loglik
 
     S, _, profile = profile_maximum(profile_ll, grid, xatol=2e-3 * r, maxiter=12)
     pf, J, d0 = fits[S]
-    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile, d0, s.substeps)
+    return ValveFit(valve, S, J, pf, pf.n_params + VALVE_EXTRA_PARAMS[valve], profile, d0, s.substeps, s.jitter)
 
 
 #: the dense band search's J / S values and band grid (fractions of the OP range: from, to, points; docs/loops.md,
 #: "Model")
 SCAN_J_FRACTIONS: tuple[float, ...] = (0.0, 0.5, 1.0)
+#: how many of the scan's best distinct bands start the band's fit (:class:`Scan`)
+SCAN_STARTS = 3
 SCAN_S_FRACTIONS: tuple[float, float, int] = (0.01, 3.0, 24)
 
 
@@ -604,6 +658,10 @@ class Scan:
     S: float
     J: float
     direction: float
+    #: the bands of the scan's :data:`SCAN_STARTS` best distinct grid bands (best first, ``S`` among them): the band
+    #: fit's starts (the likelihood is rugged in S; a record with few slips can put its best band on a narrow ridge
+    #: that the best least-squares band alone misses)
+    starts: tuple[float, ...] = ()
 
 
 def resolution(op: np.ndarray) -> float:
@@ -615,9 +673,10 @@ def resolution(op: np.ndarray) -> float:
     return float(np.median(np.abs(np.diff(op))))
 
 
-def scan_paths(op: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
+def scan_paths(op: np.ndarray, substeps: int = 1,
+               jitter: float = 0.0) -> tuple[np.ndarray, list[tuple[float, float, float]]]:
     """The valve paths of the scan: the linear valve first, then every (S, J, direction) of the grid (the valve
-    at ``substeps`` steps per sample, :func:`valve_path`)."""
+    at ``substeps`` steps per sample, driven by the within-sample OP ``jitter``: :func:`valve_path`)."""
     op = np.ascontiguousarray(op, dtype=float)
     r = op_scale(op)
     lo = max(SCAN_S_FRACTIONS[0] * r, resolution(op))
@@ -629,7 +688,7 @@ def scan_paths(op: np.ndarray, substeps: int = 1) -> tuple[np.ndarray, list[tupl
     xs = np.empty((len(params), op.size))
     xs[0] = op
     for i, (S, J, d0) in enumerate(params[1:], start=1):
-        xs[i] = valve_path(op, S, J, d0, substeps)
+        xs[i] = valve_path(op, S, J, d0, substeps, jitter)
     return xs, params
 
 
@@ -666,9 +725,15 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
     n = pv.size - s.k0
     lr = n * math.log(rss[0] / min(rss[i], rss[0]))
     S, J, d0 = params[i]
-    return Scan(float(lr), S, J, d0)
+    starts: list[float] = []
+    for j in np.argsort(rss[1:]) + 1:
+        if params[j][0] not in starts:
+            starts.append(params[j][0])
+        if len(starts) == SCAN_STARTS:
+            break
+    return Scan(float(lr), S, J, d0, tuple(float(v) for v in starts))
 
 
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
            "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
-           "scan_paths", "resolution", "subsample_op", "disturbance_basis"]
+           "scan_paths", "resolution", "subsample_op", "disturbance_basis", "op_jitter", "JITTER_DRAWS"]

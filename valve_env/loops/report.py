@@ -172,6 +172,11 @@ def write_loop_report(diag: LoopDiagnosis, outs: OutputSet, directory: Path) -> 
                   f"| slip jump J, % of OP | {st['jump_pct']:.3g} |",
                   f"| fitted S before the sampling offset, % | {st['band_fitted_pct']:.3g} |",
                   f"| sampling offset (one sample's OP move), % | {st['sampling_offset_pct']:.2g} |",
+                  f"| controller's output jitter within a sample driving the valve (sd), % | "
+                  f"{st['op_jitter_pct']:.2g} |" if st.get("op_jitter_pct") else
+                  "| controller's output jitter within a sample driving the valve | none (the smooth sub-sample OP) |",
+                  f"| band read on the record's first and second half, % | {st['halves_band_pct'][0]:.3g}, "
+                  f"{st['halves_band_pct'][1]:.3g} |",
                   f"| band resolved by the record | {'yes' if st['band_resolved'] else 'no'} |",
                   f"| detected by the shape tests | {'yes' if st['detected'] else 'no (fitted on request)'} |", ""]
     if R["findings"]:
