@@ -1,6 +1,6 @@
 """Where the band goes wrong on simulated loops of wide variety (docs/loops.md, "The band"; docs/history/loops.md).
 
-    python benchmarks/loop_band_diagnosis.py --seeds 900000-900199
+    python studies/loop_band_diagnosis.py --seeds 900000-900199
 
 For every sticky loop of ``valve_env.loops.sim.random_case`` among ``--seeds`` (development seeds only: never the
 seeds a figure is reported on), prints the truth (S, J/S, process, lag, delay, sampling, record length, noise for the
