@@ -199,7 +199,12 @@ def test_fit_and_diagnose_give_finite_results_or_refuse_in_one_line(tmp_path_fac
         df = quantise(df, q)
     df = drop_rows(df, drop, rng)
     df = df[[c for c in df.columns if not c.startswith("true_")]]
-    tmp = tmp_path_factory.mktemp("prop")
+    _finite_or_one_line_refusal(tmp_path_factory.mktemp("prop"), df, capsys)
+
+
+def _finite_or_one_line_refusal(tmp, df: pd.DataFrame, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``fit`` and ``diagnose`` on the run ``df`` as a user calls them: finite estimates and finite sds, or a
+    refusal in one line (exit 2)."""
     path = tmp / "run.csv"
     df.to_csv(path, index=False)
     for cmd in (["fit", str(path), "--json", str(tmp / "f.json"), "--bootstrap", "2"],
@@ -217,3 +222,26 @@ def test_fit_and_diagnose_give_finite_results_or_refuse_in_one_line(tmp_path_fac
             assert code == 2 and len(lines) == 1 and lines[0].startswith("thermovalve: error: "), err
             assert "Traceback" not in err, err
             assert "Error" not in err.split(":", 2)[-1].split(" ")[1], err  # a refusal, not an exception's name
+
+
+#: the effects of the stacked-conventions test (one value each, as the corpus's)
+STACK_EFFECTS: tuple[dict[str, dict[str, float]], ...] = (
+    {}, {"stiction": {"band_mm": 0.04}}, {"sensor_lag": {"tau_s": 60.0}}, {"medium_temperature": {"beta": 0.2}},
+    {"setpoint_drift": {"rate_MPa_per_h": 2e-4}})
+
+
+@pytest.mark.slow
+@settings(max_examples=8, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(names=st.lists(st.sampled_from(sorted(CONVENTIONS)), min_size=3, max_size=4, unique=True),
+       effect=st.sampled_from(range(len(STACK_EFFECTS))), dt=st.sampled_from([1.0, 5.0, 10.0, 30.0]),
+       hours=st.sampled_from([3.0, 8.0, 24.0]), seed=st.integers(0, 10_000))
+def test_stacked_conventions_give_finite_results_or_refuse_in_one_line(tmp_path_factory, capsys, names, effect, dt,
+                                                                        hours, seed) -> None:
+    """Three or four conventions at once on one run (a quantised, jittered logger whose rig holds dp, with extra
+    columns, ...), any effect: ``fit`` and ``diagnose`` as above. The corpus applies them one at a time."""
+    df = simulate_experiment(seed=seed, duration_h=3.0 if dt < 5 else hours, dt_s=dt, effects=STACK_EFFECTS[effect])
+    for name in names:
+        df = apply_convention(df, name, np.random.default_rng(seed), keep_truth=True)
+    _finite_or_one_line_refusal(tmp_path_factory.mktemp("stack"),
+                                df[[c for c in df.columns if not c.startswith("true_")]], capsys)
