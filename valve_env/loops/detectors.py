@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from valve_env.loops.io import LoopData
+from valve_env.loops.model import second_difference_sd
 
 
 def _detrend(y: np.ndarray) -> np.ndarray:
@@ -144,9 +145,8 @@ def he_curve_fit(loop: LoopData, upper: float = 0.6, lower: float = 0.4, on: str
 def kano(loop: LoopData, threshold: float = 0.25) -> dict[str, Any]:
     dpv = np.diff(loop.pv)
     dop = np.diff(loop.op)
-    # white-noise sd from second differences (robust: 1.4826 MAD / sqrt(6)); a signal's smooth part cancels
-    noise = float(np.median(np.abs(np.diff(loop.pv, 2))) * 1.4826 / np.sqrt(6.0))
-    op_noise = 3.0 * float(np.median(np.abs(np.diff(loop.op, 2))) * 1.4826 / np.sqrt(6.0))
+    noise = second_difference_sd(loop.pv)
+    op_noise = 3.0 * second_difference_sd(loop.op)
     # sections of monotonic OP motion (sign of a smoothed increment)
     k = 3
     dop_s = np.convolve(loop.op, np.ones(k) / k, mode="same")

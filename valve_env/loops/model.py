@@ -112,14 +112,19 @@ def op_jitter(op: np.ndarray, dt: float, scan_s: float) -> float:
     output jitters from scan to scan; the historian's interval mean over ``m = dt / scan_s`` scans keeps ``1/sqrt(m)``
     of that jitter's sd. The kept part is read from the record's second differences, in which a slow OP (a ramp, a
     load) cancels: for white jitter of sd ``s / sqrt(m)`` per sample, ``OP[k+1] - 2 OP[k] + OP[k-1]`` has sd
-    ``sqrt(6) s / sqrt(m)``, estimated robustly by its median absolute value / 0.6745. 0 when the controller scans at
+    ``sqrt(6) s / sqrt(m)``, estimated robustly (:func:`second_difference_sd`). 0 when the controller scans at
     the record's rate or slower (``m <= 1``: the record holds every move), or when the OP is held between samples."""
     op = np.asarray(op, dtype=float)
     m = dt / scan_s if scan_s > 0 else 1.0
     if m <= 1.0 or op.size < 3:
         return 0.0
-    d2 = np.abs(np.diff(op, 2))
-    return float(np.median(d2) / (0.6745 * math.sqrt(6.0)) * math.sqrt(m))
+    return second_difference_sd(op) * math.sqrt(m)
+
+
+def second_difference_sd(y: np.ndarray) -> float:
+    """The sd of white noise on a smooth signal ``y``, read robustly from its second differences (in which the smooth
+    part cancels): their median absolute value times 1.4826 (the normal's MAD factor) / sqrt(6)."""
+    return float(np.median(np.abs(np.diff(np.asarray(y, dtype=float), 2))) * 1.4826 / math.sqrt(6.0))
 
 
 def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1,
@@ -736,4 +741,5 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
 
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
            "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
-           "scan_paths", "resolution", "subsample_op", "disturbance_basis", "op_jitter", "JITTER_DRAWS"]
+           "scan_paths", "resolution", "subsample_op", "disturbance_basis", "op_jitter", "JITTER_DRAWS",
+           "second_difference_sd"]
