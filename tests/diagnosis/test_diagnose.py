@@ -28,13 +28,20 @@ CASES = {
 }
 
 
+class _Diagnosed(dict):  # type: ignore[type-arg]
+    """Each case's run and diagnosis, made when a test first asks for it (so that the two workers of the suite share
+    the five diagnoses instead of one worker making all of them before its first test)."""
+
+    def __missing__(self, name: str) -> tuple[pd.DataFrame, Diagnosis]:
+        i = list(CASES).index(name)
+        df = simulate_experiment(seed=100 + i, duration_h=HOURS, effects=CASES[name])
+        self[name] = (df, diagnose(df))
+        return self[name]
+
+
 @pytest.fixture(scope="module")
 def results() -> dict[str, tuple[pd.DataFrame, Diagnosis]]:
-    out = {}
-    for i, (name, eff) in enumerate(CASES.items()):
-        df = simulate_experiment(seed=100 + i, duration_h=HOURS, effects=eff)
-        out[name] = (df, diagnose(df))
-    return out
+    return _Diagnosed()
 
 
 @pytest.mark.parametrize("truth", list(CASES))
@@ -155,9 +162,11 @@ def _small_study() -> list[tuple[str, pd.DataFrame]]:
     return out
 
 
+@pytest.mark.slow
 def test_small_randomised_study() -> None:
     """One run of each class but stiction (below), with random sizes, sampling, noise and length; all
-    named correctly."""
+    named correctly. Slow (a small study, 43 s on 2 cores): the default suite names each class on a fixed run
+    (test_hidden_effect_is_named) and the foreign-data corpus under every convention."""
     wrong = []
     for truth, df in _small_study():
         if truth == "stiction":
@@ -292,6 +301,28 @@ def test_stiction_fit_carries_on_past_a_kink_where_the_line_search_fails() -> No
     assert lr > 300.0, lr
     assert gain > 2.0, gain  # the held-out log-likelihood now validates it (min_validation_gain)
     assert abs(est.result_.params["sigma"] / base.params["sigma"] - 1.0) > 0.01  # it left its start
+
+
+def test_a_cold_fit_ends_where_a_fit_from_the_truth_does() -> None:
+    """docs/diagnosis.md, "Fitting": the 8 h stiction run of the bootstrap's coverage test (seed 23, band 0.02 mm,
+    20 s). From the cold start's guessed noise model L-BFGS-B's first line search left the optimum's basin on one
+    CPU and not on another (6090 against 6443: sigma 8.95 and F_hmax 0.71 for the generator's 6.41 and 1.31). The
+    cold fit now ends within a unit of the fit started from the generating valve with the same band held."""
+    from valve_env.experiment import simulate_experiment
+    from valve_env.params import ValveParams
+    from valve_env.valveid.diagnose import check_run, prepare
+    from valve_env.valveid.fitting import Model
+
+    df = simulate_experiment(seed=23, duration_h=8.0, dt_s=20.0, effects={"stiction": {"band_mm": 0.02}},
+                             T_noise_C=0.008, x_noise_mm=2.5e-3, jitter=0.2)
+    d = prepare(check_run(df))
+    m = Model(("stiction",))
+    cold = m.fit(d, with_std=False)
+    v = ValveParams()
+    truth = {"sigma": v.sigma, "F_hmax": v.F_hmax, "p_bset": v.p_bset, "band_mm": cold.params["band_mm"],
+             "s_w": 2.5e-3, "s_e": 1e-3, "tau_e": 300.0}
+    warm = m.fit(d, start=truth, fixed={"band_mm": cold.params["band_mm"]}, with_std=False)
+    assert cold.loglik > warm.loglik - 1.0, (cold.loglik, warm.loglik, cold.params)
 
 
 def test_record_slips_name_a_stiction_run_the_held_out_quarter_misses() -> None:
