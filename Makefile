@@ -35,11 +35,15 @@ install: venv
 demo: install-core
 	$(PY) -m valve_env.cli demo --out $(OUT)/demo --force
 
+# two pytest-xdist workers fill the two cores, each with one BLAS/OpenMP thread (with the libraries' own threads
+# beside the other worker the default suite took 978 s against 773 s on 2 cores); worksteal evens out the long tests
+SERIAL_BLAS := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
+
 test: install
-	$(PY) -m pytest -n 2 -q --durations=25
+	$(SERIAL_BLAS) $(PY) -m pytest -n 2 --dist worksteal -q --durations=25
 
 test-slow: install
-	$(PY) -m pytest -n 2 -q -m slow
+	$(SERIAL_BLAS) $(PY) -m pytest -n 2 --dist worksteal -q -m slow
 
 # the tests execute the tutorials (tests/docs/test_notebooks.py, with nbmake); this saves them with their outputs
 tutorials: install

@@ -4,8 +4,6 @@ shipped agents (scored by ``thermovalve evaluate``) and the task leaderboard."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -154,17 +152,34 @@ def test_cem_run_is_a_ppo_model_the_loader_replays_exactly(tmp_path: Path) -> No
 
 
 @pytest.mark.parametrize(("task", "name"), TASK_AGENTS)
-def test_shipped_task_agent_is_scored_by_thermovalve_evaluate(task: str, name: str, tmp_path: Path) -> None:
+def test_shipped_task_agent_is_scored_by_thermovalve_evaluate(task: str, name: str, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Through the command's own entry, ``valve_env.cli.main``, in this process (the next test runs one agent in a
+    fresh interpreter, as a shell does)."""
+    from valve_env.cli import main
+
     out = tmp_path / "eval.json"
-    res = subprocess.run([sys.executable, "-m", "valve_env.cli", "evaluate", "--env", task, "--controllers",
-                          f"{name},pi", "--episodes", "1", "--seed", "5000", "--json", str(out),
-                          "--env-kwargs", "horizon_h=2"],
-                         capture_output=True, text=True, timeout=300)
-    assert res.returncode == 0, res.stderr
+    code = main(["evaluate", "--env", task, "--controllers", f"{name},pi", "--episodes", "1", "--seed", "5000",
+                 "--json", str(out), "--env-kwargs", "horizon_h=2"])
+    assert code == 0, capsys.readouterr().err
     data = json.loads(out.read_text())
     assert data["env"] == task
     assert np.isfinite(data["results"][name]["return"]["mean"])
     assert data["results"][name]["kpis"]["tdis_Kh"]["mean"] >= 0
+
+
+def test_a_shipped_task_agent_through_a_fresh_interpreter(tmp_path: Path) -> None:
+    """``python -m valve_env.cli evaluate`` in a new process: the agent's plug-in is found and loaded there too."""
+    import subprocess
+    import sys
+
+    task, name = TASK_AGENTS[0]
+    out = tmp_path / "eval.json"
+    res = subprocess.run([sys.executable, "-m", "valve_env.cli", "evaluate", "--env", task, "--controllers", name,
+                          "--episodes", "1", "--seed", "5000", "--json", str(out), "--env-kwargs", "horizon_h=1"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert np.isfinite(json.loads(out.read_text())["results"][name]["return"]["mean"])
 
 
 def test_task_leaderboard_regenerates_into_out(tmp_path: Path, monkeypatch: Any) -> None:

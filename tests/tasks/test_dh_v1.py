@@ -1,7 +1,8 @@
 """ThermoValveDistrictHeating-v1 and -Power-v1: the store behind a thermostatic mixing valve
 (control.free_band_K; docs/tasks.md, "ThermoValveDistrictHeating-v1"). The free band is computed by the
-kernel on each sub-step; the default 0 leaves every existing id bit for bit as it was; a store held at
-62 degC costs no tracking on v1 and does on v0; the energy account closes; the oracle plans with the band."""
+kernel on each sub-step; the default 0 leaves every existing id as it was (to the last places: other CPUs
+round the sums differently); a store held at 62 degC costs no tracking on v1 and does on v0; the energy
+account closes; the oracle plans with the band."""
 
 from __future__ import annotations
 
@@ -23,7 +24,9 @@ V1 = ("ThermoValveDistrictHeating-v1", "ThermoValveDistrictHeatingPower-v1")
 V0 = ("ThermoValveDistrictHeating-v0", "ThermoValveDistrictHeatingPower-v0")
 
 #: return, rmse_K and iae_Kh of 2 h at seed 3 under the setting 62 + 12 sin(k / 20) degC, computed on the
-#: branch's start commit 4692acd (before the free band existed), as float.hex
+#: branch's start commit 4692acd (before the free band existed), as float.hex. Compared to within a few units in
+#: the last place: the compiled kernels' sums round differently on CPUs of other vector widths (the return of
+#: ThermoValveDistrictHeating-v0 is one unit lower on an AVX2 machine than on the AVX-512 one that wrote these)
 BEFORE = {
     "ThermoValve-v0": ("-0x1.b5fbb12404786p+7", "0x1.2494d8c70d1afp+2", "0x1.0cd5b725c6c38p+3"),
     "ThermoValveDistrictHeating-v0": ("-0x1.70539fba0daf2p+5", "0x1.bb2bfdbc4614ap+2", "0x1.a8f786b15377cp+3"),
@@ -44,9 +47,11 @@ def _wavy_episode(task_id: str) -> tuple[float, dict[str, float]]:
 
 
 @pytest.mark.parametrize("task_id", sorted(BEFORE))
-def test_existing_ids_are_bit_for_bit_as_before_the_free_band(task_id: str) -> None:
+def test_existing_ids_are_as_before_the_free_band_to_the_last_places(task_id: str) -> None:
     total, kpis = _wavy_episode(task_id)
-    assert (total.hex(), kpis["rmse_K"].hex(), kpis["iae_Kh"].hex()) == BEFORE[task_id]
+    now = (total, kpis["rmse_K"], kpis["iae_Kh"])
+    before = tuple(float.fromhex(h) for h in BEFORE[task_id])
+    np.testing.assert_array_max_ulp(np.array(now), np.array(before), maxulp=8)
 
 
 def test_the_free_band_is_a_checked_config_value_defaulting_to_zero() -> None:
