@@ -401,7 +401,7 @@ class Model:
         start whose noise model is far off, L-BFGS-B's first line search can leave the basin of the optimum: on
         the 8 h stiction run of the bootstrap's coverage test (seed 23) the joint fit stopped ABNORMAL at 6001, this
         path converged at 6443, and which of the two the joint fit found changed with the CPU's floating-point
-        rounding (docs/estimation.md, "The estimator")."""
+        rounding (docs/diagnosis.md, "Fitting")."""
         if all(n in fixed for n in NOISE_NAMES):
             return fit
         held = {**fixed, **{n: start[n] for n in self.names if n not in NOISE_NAMES and n not in fixed}}
