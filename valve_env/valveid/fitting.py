@@ -48,6 +48,7 @@ from valve_env.valveid.oe import (
     LANDING_SD,
     LOG2PI,
     simulate_valve,
+    stick_demand,
     stick_loglik,
     stick_simulate_sj,
 )
@@ -184,7 +185,8 @@ class Model:
     def _valve_path(self, data: RunData, vp: np.ndarray, e: np.ndarray, delta: float,
                     want_sub: bool) -> tuple[np.ndarray, ...]:
         """:func:`~valve_env.valveid.oe.simulate_valve` of ``data``, kept for the last :data:`PATH_CACHE`
-        distinct inputs. The path depends on the run's time, temperatures and pressures, the valve vector, the
+        distinct inputs, with the sub-step path the stick-slip's demand (:func:`~valve_env.valveid.oe.stick_demand`)
+        as a sixth array. The path depends on the run's time, temperatures and pressures, the valve vector, the
         effects that shape the demand (the bulb lag, the medium's weight, the drift: not the band or the slip,
         which act after it), the reversal threshold and whether the sub-step path is wanted; a run is one object
         (:class:`RunData` is frozen), held by its entry so that its identity cannot be reused. Callers only read
@@ -197,7 +199,10 @@ class Model:
         if hit is not None:  # its entry holds the run, so no other live run has its identity
             self._paths.move_to_end(key)
             return hit[1]
-        out = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e, self.max_step_s, delta, want_sub)
+        out: tuple[np.ndarray, ...] = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e,
+                                                     self.max_step_s, delta, want_sub)
+        if want_sub:  # the stick-slip's demand, freed of its noise's reversals: the same for every band on this path
+            out = (*out, stick_demand(out[3], out[4], float(vp[I_STROKE])))
         self._paths[key] = (data, out)
         if len(self._paths) > PATH_CACHE:
             self._paths.popitem(last=False)
@@ -210,10 +215,11 @@ class Model:
         stem, :func:`~valve_env.valveid.oe.stick_simulate_sj`), else the whole band (J = S)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
-        x, Tg, F, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), stuck)
+        x, Tg, F, x_sub, idx, *demand = self._valve_path(data, vp, e, self.delta(data, values), stuck)
         if stuck:  # a new array: the stem's stick-slip on the kept demand
             band = values["band_mm"]
-            x = stick_simulate_sj(x_sub, idx, band, slip if 0.0 < slip < band else band, float(vp[I_STROKE]))
+            x = stick_simulate_sj(x_sub, idx, band, slip if 0.0 < slip < band else band, float(vp[I_STROKE]),
+                                  demand[0])
         else:
             x = x.copy()
         return x, Tg.copy(), F.copy()
@@ -224,7 +230,7 @@ class Model:
         valve as a record sampled that finely would show it, with stiction's rests and slips between the
         samples; ``part``: only from sample ``part[0]`` to sample ``part[1] - 1`` of a record simulated whole."""
         vp, e = self._vectors(values)
-        _, _, _, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), True)
+        _, _, _, x_sub, idx, _ = self._valve_path(data, vp, e, self.delta(data, values), True)
         if not self._stuck(values):
             x = x_sub.copy()
         else:
@@ -249,13 +255,13 @@ class Model:
         ``slip`` is the stick-slip filter's (:func:`~valve_env.valveid.oe.stick_loglik`; negative: J = S)."""
         vp, e = self._vectors(values)
         stuck = self._stuck(values)
-        x, _, _, x_sub, idx = self._valve_path(data, vp, e, self.delta(data, values), stuck)
+        x, _, _, x_sub, idx, *demand = self._valve_path(data, vp, e, self.delta(data, values), stuck)
         if mask is None:
             mask = np.ones(len(data), dtype=np.bool_)
         if stuck:
             return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),
                                 values["s_w"], values["s_e"], values["tau_e"], mask, self.band_spread,
-                                self.landing_sd, slip=slip)
+                                self.landing_sd, slip, demand[0])
         ll, innov, S = ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
         return ll, innov, S, np.where(mask, -0.5 * (LOG2PI + np.log(S) + innov**2 / S), 0.0)
 

@@ -215,7 +215,8 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
 
 
 @njit(cache=True)
-def stick_simulate_sj(x_sub: np.ndarray, sub_idx: np.ndarray, S: float, J: float, stroke: float) -> np.ndarray:
+def stick_simulate_sj(x_sub: np.ndarray, sub_idx: np.ndarray, S: float, J: float, stroke: float,
+                      demand: np.ndarray | None = None) -> np.ndarray:
     """Open-loop stick-slip of the stem on the sub-step grid, sampled: the (S, J) model of
     :mod:`valve_env.physics.stickslip` (the generator's and the environments'): the resting stem
     sticks until the demanded opening has moved ``S`` away, slips by ``J`` towards it and follows it until
@@ -224,10 +225,16 @@ def stick_simulate_sj(x_sub: np.ndarray, sub_idx: np.ndarray, S: float, J: float
     computed (its deviation from the cleaned path included, as in the base model's opening) and a
     stuck one keeps the deviation it had when it stuck, so that ``S = 0`` is the base model. The
     diagnosis's stem is its ``J = S`` case (:func:`stick_simulate`); the (S, J) profile of the band
-    (valve_env.valveid.stick_profile) uses ``J < S``."""
+    (valve_env.valveid.stick_profile) uses ``J < S``. ``demand``: :func:`stick_demand` of ``x_sub``, where the
+    caller keeps it (``None`` computes it)."""
     n = sub_idx.shape[0]
     out = np.empty(n)
-    c = stick_demand(x_sub, sub_idx, stroke) if S > 0.0 else x_sub
+    if S <= 0.0:
+        c = x_sub
+    elif demand is None:
+        c = stick_demand(x_sub, sub_idx, stroke)
+    else:
+        c = demand
     y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(c[0], S, J, 0.0, stroke)
     # the demand's deviation from the cleaned path, which a moving stem follows and a stuck one keeps
     off = x_sub[0] - c[0]
@@ -263,7 +270,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                  stroke: float, s_w: float, s_e: float, tau_e: float,
                  mask: np.ndarray, spread: float = BAND_SPREAD,
                  landing: float = LANDING_SD,
-                 slip: float = -1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+                 slip: float = -1.0,
+                 demand: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
     The stem follows the (S, J = S) model of :mod:`valve_env.physics.stickslip` (:func:`stick_simulate`):
@@ -319,6 +327,9 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     and the moving stem follows the demand's increments with that lag (docs/diagnosis.md, "What
     ``band_mm`` is on a valve with J < S").
 
+    ``demand``: :func:`stick_demand` of ``x_sub`` where the caller keeps it (a fit evaluates the likelihood
+    many times on one path); ``None`` computes it.
+
     Returns (loglik, one-step prediction errors of the hypothesis followed, their variances, each
     sample's log-likelihood term: the mixture's where the filter weighed hypotheses, 0 off ``mask``)."""
     n = t.shape[0]
@@ -336,13 +347,20 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     Pes = 0.0
     Pss = 0.0
     dmax = 0.0
+    # the last breakaway probability computed: F(f_at) at sd f_sd is f_val
+    f_at, f_sd, f_val = -1.0, -1.0, 0.0
     moving = False
     p_slip = 0.0
     s_alt = ms
     s_hold = ms
     was_moving = False
     x_prev = ms
-    c = stick_demand(x_sub, sub_idx, stroke) if band > 0.0 else x_sub
+    if band <= 0.0:
+        c = x_sub
+    elif demand is None:
+        c = stick_demand(x_sub, sub_idx, stroke)
+    else:
+        c = demand
     c_prev = c[0]
     dc_prev = 0.0
     ll = 0.0
@@ -398,8 +416,10 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 # from the demand 'slipped' with probability 0.5 at band 1e-5 mm), so the statistic did not
                 # tend to the base model's (2 x 27 log-units at one sample of development seed 31's run 0)
                 sd = math.sqrt(vb + min(Pss, vb))
-                F0 = _band_cdf(dmax, band, sd)
+                # F(dmax) is most often the F(|d|) of the sub-step before (dmax was set to it, at the same sd)
+                F0 = f_val if (dmax == f_at and sd == f_sd) else _band_cdf(dmax, band, sd)
                 F1 = _band_cdf(ad, band, sd)
+                f_at, f_sd, f_val = ad, sd, F1
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
                 dmax = ad
                 if pi > 1e-12:

@@ -424,7 +424,8 @@ def _irw_pass(t: np.ndarray, y: np.ndarray, q: float, r: float, smooth: bool,
     """Kalman filter (and RTS smoother) of an integrated random walk observed with white noise.
 
     ``w[k]`` scales the process noise of the interval ending at sample k (1 = the nominal q).
-    Returns (log-likelihood, level, rate, e, res); level/rate are smoothed when ``smooth``. With
+    Returns (log-likelihood, level, rate, e, res); level/rate are smoothed when ``smooth``, and then the
+    log-likelihood is not computed (0). With
     ``smooth`` also the two posterior expectations the variational EM of :func:`smooth_temperature`
     needs: ``e[k] = tr(Q1(h_k)^-1 E[eta_k eta_k' | y])`` for the interval's process noise ``eta_k =
     x_k - F x_k-1`` in units of q (``Q1(h) = [[h^3/3, h^2/2], [h^2/2, h]]``; the lag-one smoothed
@@ -458,7 +459,8 @@ def _irw_pass(t: np.ndarray, y: np.ndarray, q: float, r: float, smooth: bool,
         Pp[k, 2] = p11
         S = p00 + r
         nu = y[k] - m0
-        ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
+        if not smooth:  # the smoothing passes (variational EM) do not use the likelihood
+            ll += -0.5 * (LOG2PI + math.log(S) + nu * nu / S)
         k0 = p00 / S
         k1 = p01 / S
         m0 = m0 + k0 * nu
