@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from valve_env.experiment import simulate_experiment
+from valve_env.params import I_STROKE
 from valve_env.valveid.diagnose import check_run, prepare
 from valve_env.valveid.fitting import Model
+from valve_env.valveid.oe import stick_loglik, stick_simulate
 
 
 def test_a_warm_start_is_kept_by_the_grid_scan_and_the_refit_does_not_lose() -> None:
@@ -73,6 +76,14 @@ def test_a_kept_valve_path_gives_the_likelihood_of_a_fresh_simulation() -> None:
     assert lag.loglik(d, lv) == _fresh_loglik(d, ("sensor_lag",), lv)
     assert lag.loglik(d, {**lv, "tau_s": 60.0}) == _fresh_loglik(d, ("sensor_lag",), {**lv, "tau_s": 60.0})
     assert len(lag._paths) == 2  # the lag shapes the demand: a path each
+    # the stick-slip's demand kept with the path is the one the filter and the stem compute without it
+    vp, e = m._vectors(vals)
+    _, _, _, x_sub, idx, _ = m._valve_path(d, vp, e, m.delta(d, vals), True)
+    mask = np.ones(len(d), dtype=np.bool_)
+    stroke = float(vp[I_STROKE])
+    own = stick_loglik(d.t, d.x, x_sub, idx, 0.03, stroke, vals["s_w"], vals["s_e"], vals["tau_e"], mask)[0]
+    assert m.loglik(d, {**vals, "band_mm": 0.03}) == own
+    np.testing.assert_array_equal(m.simulate(d, {**vals, "band_mm": 0.03})[0], stick_simulate(x_sub, idx, 0.03, stroke))
     for i in range(12):  # the oldest paths make room
         m.loglik(d, {**vals, "sigma": vals["sigma"] * (1.0 + 0.01 * i)})
     assert len(m._paths) == 8
