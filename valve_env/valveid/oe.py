@@ -215,6 +215,18 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
 
 
 @njit(cache=True)
+def _stick_path(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float, band: float,
+                demand: np.ndarray | None) -> np.ndarray:
+    """The path a stem of breakaway ``band`` runs on: ``x_sub`` itself without a band, else the demand freed of its
+    noise's reversals (``demand`` where the caller keeps it, else :func:`stick_demand` of ``x_sub``)."""
+    if band <= 0.0:
+        return x_sub
+    if demand is None:
+        return stick_demand(x_sub, sub_idx, stroke)
+    return demand
+
+
+@njit(cache=True)
 def stick_simulate_sj(x_sub: np.ndarray, sub_idx: np.ndarray, S: float, J: float, stroke: float,
                       demand: np.ndarray | None = None) -> np.ndarray:
     """Open-loop stick-slip of the stem on the sub-step grid, sampled: the (S, J) model of
@@ -229,12 +241,7 @@ def stick_simulate_sj(x_sub: np.ndarray, sub_idx: np.ndarray, S: float, J: float
     caller keeps it (``None`` computes it)."""
     n = sub_idx.shape[0]
     out = np.empty(n)
-    if S <= 0.0:
-        c = x_sub
-    elif demand is None:
-        c = stick_demand(x_sub, sub_idx, stroke)
-    else:
-        c = demand
+    c = _stick_path(x_sub, sub_idx, stroke, S, demand)
     y, u_prev, du_prev, u_s, stuck, d = stick_initial_state(c[0], S, J, 0.0, stroke)
     # the demand's deviation from the cleaned path, which a moving stem follows and a stuck one keeps
     off = x_sub[0] - c[0]
@@ -355,12 +362,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     s_hold = ms
     was_moving = False
     x_prev = ms
-    if band <= 0.0:
-        c = x_sub
-    elif demand is None:
-        c = stick_demand(x_sub, sub_idx, stroke)
-    else:
-        c = demand
+    c = _stick_path(x_sub, sub_idx, stroke, band, demand)
     c_prev = c[0]
     dc_prev = 0.0
     ll = 0.0
