@@ -354,8 +354,6 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     Pes = 0.0
     Pss = 0.0
     dmax = 0.0
-    # the last breakaway probability computed: F(f_at) at sd f_sd is f_val
-    f_at, f_sd, f_val = -1.0, -1.0, 0.0
     moving = False
     p_slip = 0.0
     s_alt = ms
@@ -418,10 +416,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                 # from the demand 'slipped' with probability 0.5 at band 1e-5 mm), so the statistic did not
                 # tend to the base model's (2 x 27 log-units at one sample of development seed 31's run 0)
                 sd = math.sqrt(vb + min(Pss, vb))
-                # F(dmax) is most often the F(|d|) of the sub-step before (dmax was set to it, at the same sd)
-                F0 = f_val if (dmax == f_at and sd == f_sd) else _band_cdf(dmax, band, sd)
+                F0 = _band_cdf(dmax, band, sd)
                 F1 = _band_cdf(ad, band, sd)
-                f_at, f_sd, f_val = ad, sd, F1
                 pi = 1.0 if F0 >= 1.0 - 1e-12 else (F1 - F0) / (1.0 - F0)
                 dmax = ad
                 if pi > 1e-12:
