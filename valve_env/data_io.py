@@ -10,9 +10,14 @@ plausible, temperatures within -30..150 degC); time strictly increasing with a p
 sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, times within
 :data:`MAX_ABS_TIME_S`); the record length; a temperature that moves; an opening that can be
 known (a flow that is zero everywhere with no x_mm column is rejected). Each failure is one
-line naming the column and the row (row 1 is the first data row, line 2 of the file). An empty cell in
+line naming the column and the row (row 1 is the first data row; the line is the file's own). An empty cell in
 a measured column drops its row, as a sample the logger missed (at most :data:`MAX_EMPTY_FRACTION` of
 the rows; the pre-processing's note names them); an empty time_s is refused.
+
+The file's dialect is read off its header (:func:`csv_dialect`): fields separated by commas, or by semicolons or
+tabs where the header has no comma (a spreadsheet's export in a locale that writes a decimal comma uses ``;``, and
+then the decimal comma is read too), and comment lines starting with ``#`` before the header skipped; line numbers
+in the messages are the file's own.
 
 Required columns: time_s, T_tank_C, T_med_C, q_kgh, dp_mbar, ps_bar; optional x_mm
 (where absent, or where a cell is empty, it is derived from q_kgh and dp_mbar with
@@ -23,6 +28,8 @@ problem raises :class:`DataError` with one line that names it. The file is only 
 from __future__ import annotations
 
 import os
+import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +73,50 @@ class DataError(ValueError):
     """A measured run that cannot be used; the message is one line naming the problem."""
 
 
+#: a number written with a decimal comma (``52,61``, ``-0,5``, ``1,2e-3``)
+_DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+([eE][+-]?\d+)?$")
+#: a number written with a decimal point
+_DECIMAL_POINT = re.compile(r"^[+-]?\d*\.\d+([eE][+-]?\d+)?$")
+
+
+@dataclass(frozen=True)
+class CsvDialect:
+    """How a measured CSV text is written: ``skip`` comment lines (``#``) or empty lines before the header, the
+    field ``sep`` and the ``decimal`` mark. ``header_line`` is the header's line number in the file (1-based)."""
+
+    skip: int = 0
+    sep: str = ","
+    decimal: str = "."
+
+    @property
+    def header_line(self) -> int:
+        return self.skip + 1
+
+
+def csv_dialect(lines: list[str]) -> CsvDialect:
+    """The dialect of a CSV text from its first lines: comment (``#``) and empty lines before the header are skipped;
+    the separator is a comma where the header has one, else a semicolon or a tab where it has one of those; with a
+    semicolon or tab separator the decimal mark is a comma where the data lines write numbers with a comma and none
+    with a point. A text that fits none of these is read as commas (its columns then go missing, one line)."""
+    skip = 0
+    while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith("#")):
+        skip += 1
+    header = lines[skip] if skip < len(lines) else ""
+    sep = "," if "," in header else ";" if ";" in header else "\t" if "\t" in header else ","
+    decimal = "."
+    if sep != ",":
+        fields = [f.strip().strip('"') for line in lines[skip + 1:skip + 51] for f in line.split(sep)]
+        if any(_DECIMAL_COMMA.match(f) for f in fields) and not any(_DECIMAL_POINT.match(f) for f in fields):
+            decimal = ","
+    return CsvDialect(skip=skip, sep=sep, decimal=decimal)
+
+
+def _head_lines(p: Path, n: int = 64) -> list[str]:
+    """The first ``n`` lines of a text file (a byte-order mark dropped)."""
+    with open(p, encoding="utf-8-sig", errors="replace", newline="") as fh:
+        return [line.rstrip("\r\n") for _, line in zip(range(n), fh, strict=False)]
+
+
 def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> pd.DataFrame:
     """Read and validate a docs/reference.md, section 2 CSV file; returns a DataFrame (float columns for
     the reference (docs/reference.md) names, x_mm derived where absent, extra columns kept as read)."""
@@ -74,24 +125,29 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         raise DataError(f"{p}: no such file")
     if p.is_dir():
         raise DataError(f"{p}: is a directory, not a CSV file")
+    dialect = csv_dialect(_head_lines(p))
     try:
-        raw = pd.read_csv(p, dtype=str, keep_default_na=False, skipinitialspace=True)
+        raw = pd.read_csv(p, dtype=str, keep_default_na=False, skipinitialspace=True, sep=dialect.sep,
+                          skiprows=dialect.skip, encoding="utf-8-sig")
     except pd.errors.EmptyDataError as exc:
         raise DataError(f"{p}: the file is empty") from exc
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise DataError(f"{p}: not a readable CSV file ({first})") from exc
-    _check_header(p)
+    _check_header(p, dialect)
+    if dialect.decimal != ".":
+        raw = raw.apply(lambda col: col.str.replace(dialect.decimal, ".", regex=False))
+    raw.attrs["header_line"] = dialect.header_line
     return validate_run(raw, source=str(p), valve=valve)
 
 
-def _check_header(p: Path) -> None:
+def _check_header(p: Path, dialect: CsvDialect) -> None:
     """Refuse a header that names a column twice: pandas renames the second copy (``T_tank_C.1``), so
     :func:`validate_run` would silently take the first."""
     import csv
 
-    with open(p, newline="", encoding="utf-8", errors="replace") as fh:
-        header = [c.strip() for c in next(csv.reader(fh), [])]
+    lines = _head_lines(p, dialect.skip + 1)
+    header = [c.strip() for c in next(csv.reader(lines[dialect.skip:], delimiter=dialect.sep), [])]
     dup = sorted({c for c in header if header.count(c) > 1})
     if dup:
         raise DataError(f"{p}: duplicate column(s) {dup} in the header")
@@ -101,6 +157,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     """Validate a run given as a DataFrame (strings or numbers); returns a validated copy."""
     raw = data.copy()
     raw.columns = [str(c).strip() for c in raw.columns]
+    first = int(data.attrs.get("header_line", 1)) + 1  # the file's line of the first data row
     dup = sorted({c for c in raw.columns if list(raw.columns).count(c) > 1})
     if dup:
         raise DataError(f"{source}: duplicate column(s) {dup}")
@@ -109,10 +166,10 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)})")
     out = raw.copy()
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
-        out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s")
+        out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", first=first)
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
-            _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source)
+            _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source, first)
     n = len(out)
     if n < MIN_ROWS:
         raise DataError(f"{source}: too short a record, {n} rows; at least {MIN_ROWS} are needed")
@@ -120,12 +177,12 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     far = np.flatnonzero(np.abs(t) > MAX_ABS_TIME_S)
     if far.size:
         i = int(far[0])
-        raise DataError(f"{source}: column time_s, row {i + 1} (line {i + 2}): {t[i]:.6g} s is not a plausible "
+        raise DataError(f"{source}: column time_s, row {i + 1} (line {i + first}): {t[i]:.6g} s is not a plausible "
                         f"time (|time_s| <= {MAX_ABS_TIME_S:g} s)")
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         i = int(bad[0]) + 1
-        raise DataError(f"{source}: time_s is not increasing at row {i + 1} (line {i + 2}) "
+        raise DataError(f"{source}: time_s is not increasing at row {i + 1} (line {i + first}) "
                         f"({t[i - 1]:.6g} then {t[i]:.6g}); times must be strictly increasing")
     dt = np.diff(t)
     med = float(np.median(dt))
@@ -135,9 +192,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     gap = np.flatnonzero(dt > MAX_GAP_S)
     if gap.size:
         i = int(gap[0]) + 1
-        raise DataError(f"{source}: column time_s, row {i + 1} (line {i + 2}): a gap of {dt[i - 1]:.3g} s after "
+        raise DataError(f"{source}: column time_s, row {i + 1} (line {i + first}): a gap of {dt[i - 1]:.3g} s after "
                         f"the previous sample (at most {MAX_GAP_S:g} s)")
-    out = _drop_empty_rows(out, source)
+    out = _drop_empty_rows(out, source, first)
     n = len(out)
     T = out["T_tank_C"].to_numpy()
     if float(np.max(T) - np.min(T)) < MIN_T_RANGE_K:
@@ -163,7 +220,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     return out.reset_index(drop=True)
 
 
-def _drop_empty_rows(out: pd.DataFrame, source: str) -> pd.DataFrame:
+def _drop_empty_rows(out: pd.DataFrame, source: str, first: int = 2) -> pd.DataFrame:
     """The run without its rows that hold an empty cell in a measured channel (at most
     :data:`MAX_EMPTY_FRACTION` of them, else one line naming the first), with ``attrs["rows_dropped_empty"]``
     (their row numbers, 1 = the first data row) and ``attrs["file_rows"]`` (each kept row's number), so that
@@ -178,7 +235,7 @@ def _drop_empty_rows(out: pd.DataFrame, source: str) -> pd.DataFrame:
     col = next(c for c in MEASURED if not np.isfinite(float(out[c].iloc[i])))
     if k > MAX_EMPTY_FRACTION * n:
         raise DataError(f"{source}: {k} of {n} rows ({k / n:.0%}) have an empty cell in a measured column (the first: "
-                        f"{col!r} at row {i + 1}, line {i + 2}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
+                        f"{col!r} at row {i + 1}, line {i + first}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
     rows = out.attrs.get("file_rows") or list(range(1, n + 1))
     kept = out.loc[~empty].reset_index(drop=True)
     kept.attrs["rows_dropped_empty"] = [int(rows[j]) for j in np.flatnonzero(empty)]
@@ -186,7 +243,8 @@ def _drop_empty_rows(out: pd.DataFrame, source: str) -> pd.DataFrame:
     return kept
 
 
-def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str) -> None:
+def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str,
+                 first: int = 2) -> None:
     known = np.isfinite(v)  # empty cells: an opening derived from the flow, a measured channel's row dropped
     with np.errstate(invalid="ignore"):
         below = v <= lo if lo_open else v < lo
@@ -194,11 +252,11 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
     if bad.size:
         i = int(bad[0])
         bound = f"{'>' if lo_open else '>='} {lo:g} and <= {hi:g}"
-        raise DataError(f"{source}: column {col}, row {i + 1} (line {i + 2}): {v[i]:.6g} is out of range "
+        raise DataError(f"{source}: column {col}, row {i + 1} (line {i + first}): {v[i]:.6g} is out of range "
                         f"(must be {bound}: {what})")
 
 
-def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Series:
+def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: int = 2) -> pd.Series:
     if not pd.api.types.is_numeric_dtype(col):
         s = col.astype(str).str.strip()
         empty = s.str.lower().isin(MISSING_MARKERS)
@@ -207,7 +265,7 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Se
         if nonnum.any():
             i = int(np.flatnonzero(nonnum.to_numpy())[0])
             raise DataError(f"{source}: non-numeric value {col.iloc[i]!r} in column {name!r} "
-                            f"at row {i + 1} (line {i + 2})")
+                            f"at row {i + 1} (line {i + first})")
         bad = empty.to_numpy()
     else:
         num = pd.to_numeric(col, errors="coerce")
@@ -216,13 +274,13 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool) -> pd.Se
     inf = np.isinf(vals)
     if inf.any():
         i = int(np.flatnonzero(inf)[0])
-        raise DataError(f"{source}: infinite value in column {name!r} at row {i + 1} (line {i + 2})")
+        raise DataError(f"{source}: infinite value in column {name!r} at row {i + 1} (line {i + first})")
     if bad.any() and not allow_empty:
         i = int(np.flatnonzero(bad)[0])
-        raise DataError(f"{source}: NaN (empty or missing value) in column {name!r} at row {i + 1} (line {i + 2})")
+        raise DataError(f"{source}: NaN (empty or missing value) in column {name!r} at row {i + 1} (line {i + first})")
     return pd.Series(vals, index=col.index, name=name)
 
 
-__all__ = ["DataError", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES",
-           "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
+__all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
+           "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS"]

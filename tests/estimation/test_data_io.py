@@ -85,3 +85,25 @@ def test_missing_and_empty_files(tmp_path: Path) -> None:
     (tmp_path / "empty.csv").write_text("")
     with pytest.raises(DataError, match="empty"):
         load_run(tmp_path / "empty.csv")
+
+
+@pytest.mark.parametrize(("sep", "decimal", "comments"), [
+    (";", ",", ""), ("\t", ".", ""), (",", ".", "# rig 2, valve 7\n\n# logged every 10 s\n"), (";", ".", "# export\n"),
+])
+def test_a_run_of_another_locale_is_read_as_written(tmp_path: Path, run_df: pd.DataFrame, sep: str, decimal: str,
+                                                    comments: str) -> None:
+    """A spreadsheet's export in a locale with a decimal comma (semicolons), a tab-separated file and comment lines
+    before the header give the same run as the comma file; a bad cell is named by the file's own line."""
+    plain = load_run(_write(run_df, tmp_path / "plain.csv"))
+    text = comments + run_df.to_csv(index=False, sep=sep, decimal=decimal)
+    path = tmp_path / "other.csv"
+    path.write_text(text)
+    pd.testing.assert_frame_equal(load_run(path), plain)
+    lines = text.splitlines()
+    line = len(comments.splitlines()) + 9  # the file's line of row 8
+    cells = lines[line - 1].split(sep)
+    cells[list(run_df.columns).index("q_kgh")] = "abc"
+    lines[line - 1] = sep.join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=rf"'abc' in column 'q_kgh' at row 8 \(line {line}\)"):
+        load_run(path)

@@ -153,3 +153,27 @@ def test_a_column_named_twice_is_refused(tmp_path: Path) -> None:
     p.write_text("\n".join([lines[0] + ",pv"] + [line + ",1" for line in lines[1:]]) + "\n")
     with pytest.raises(LoopDataError, match="names column.s. pv more than once"):
         read_loop(p)
+
+
+@pytest.mark.parametrize(("sep", "decimal", "comments"), [(";", ",", ""), ("\t", ".", "# exported by DCS X\n# unit: %\n")])
+def test_a_loop_csv_of_another_locale_is_read_as_written(tmp_path: Path, sep: str, decimal: str, comments: str) -> None:
+    """Semicolons or tabs with a decimal comma, and comment lines before the header: the same loop as the comma file
+    (a field read with the wrong dialect would miss its columns or fail to parse)."""
+    plain = read_loop(_write_csv(tmp_path / "plain.csv"))
+    text = (tmp_path / "plain.csv").read_text().replace(",", sep)
+    if decimal == ",":
+        text = text.replace(".", ",")
+    other = read_loop(_write_text(tmp_path / "other.csv", comments + text))
+    for c in ("time_s", "sp", "pv", "op"):
+        np.testing.assert_array_equal(getattr(other, c), getattr(plain, c))
+    lines = (comments + text).splitlines()
+    row = len(comments.splitlines()) + 6  # the file's line of the fifth sample
+    lines[row - 1] = sep.join([*lines[row - 1].split(sep)[:-1], "4O"])  # op, the last column, mistyped
+    bad = "\n".join(lines) + "\n"
+    with pytest.raises(LoopDataError, match=rf"line {row}, column op: '4O'"):
+        read_loop(_write_text(tmp_path / "bad.csv", bad))
+
+
+def _write_text(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path

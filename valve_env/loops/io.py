@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
+from valve_env.data_io import csv_dialect
 
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
@@ -110,7 +111,9 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
         text = p.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise LoopDataError(f"{p}: not a text file") from None
-    rows = list(csv.reader(io.StringIO(text)))
+    lines = text.splitlines()
+    dialect = csv_dialect(lines[:64])  # commas, or semicolons or tabs (with a decimal comma), after '#' comments
+    rows = list(csv.reader(io.StringIO("\n".join(lines[dialect.skip:])), delimiter=dialect.sep))
     if not rows:
         raise LoopDataError(f"{p}: empty file")
     header = [h.strip() for h in rows[0]]
@@ -123,13 +126,15 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
     wanted = [c for c in ("time_s", "sp", "pv", "op", "mv", "mode") if c in header]
     idx = {c: header.index(c) for c in wanted}
     cols: dict[str, list[float]] = {c: [] for c in wanted}
-    for lineno, row in enumerate(rows[1:], start=2):
+    for lineno, row in enumerate(rows[1:], start=dialect.header_line + 1):
         if not row or all(not x.strip() for x in row):
             continue
         if len(row) < len(header):
             raise LoopDataError(f"{p} line {lineno}: {len(row)} fields, the header has {len(header)}")
         for c in wanted:
-            cols[c].append(_float(row[idx[c]].strip(), f"{p} line {lineno}, column {c}"))
+            cell = row[idx[c]].strip()
+            cols[c].append(_float(cell.replace(",", ".") if dialect.decimal == "," else cell,
+                                  f"{p} line {lineno}, column {c}"))
     return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, p.stem
 
 
