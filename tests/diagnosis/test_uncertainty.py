@@ -307,3 +307,28 @@ def test_scattered_runaways_are_not_bias_corrected() -> None:
     kept = [summarise(["b"], {"b": 0.0}, {"b": 2.0 + rng.standard_normal(16)}).bias_corrected["b"]
             for _ in range(2000)]
     assert np.mean(kept) > 0.995
+
+
+@pytest.mark.parametrize("seed", [13, 14])
+def test_jump_band_reads_slips_against_the_noise_at_their_opening(seed: int) -> None:
+    """Noise that grows with the opening (a flow meter's relative error, in an opening derived from the flow) is
+    found by level, and the slips are judged against the noise at their own opening: the band comes back where
+    one sd for the record (too small at large openings) found noise steps of 3-7 um as slips (0.003-0.007 mm
+    against 0.03). White noise of the same rms keeps one sd (the code path of every measured opening before)."""
+    from valve_env.valveid.stiction import opening_noise
+
+    df = simulate_experiment(seed=seed, duration_h=12.0, dt_s=10.0, effects={"stiction": {"band_mm": 0.03}},
+                             x_noise_mm=0.0)
+    x_true = df["true_x_mm"].to_numpy()
+    rng = np.random.default_rng(seed)
+    g = x_true / np.sqrt(np.mean(x_true**2))
+    relative = x_true + 1.3e-3 * g * rng.standard_normal(x_true.size)
+    white = x_true + 1.3e-3 * rng.standard_normal(x_true.size)
+    stroke = ValveParams().stroke
+    on = opening_noise(relative)
+    assert on.level_sd is not None and max(on.level_sd) > 2.5 * min(on.level_sd)
+    assert on.describe()["noise_sd_by_level_mm"] == list(on.level_sd)
+    b, n = jump_band(relative, stroke)
+    assert n >= 8 and abs(b / 0.03 - 1.0) < 0.3, (b, n)
+    assert opening_noise(white).level_sd is None
+    assert abs(jump_band(white, stroke)[0] / 0.03 - 1.0) < 0.2

@@ -155,7 +155,8 @@ def test_a_column_named_twice_is_refused(tmp_path: Path) -> None:
         read_loop(p)
 
 
-@pytest.mark.parametrize(("sep", "decimal", "comments"), [(";", ",", ""), ("\t", ".", "# exported by DCS X\n# unit: %\n")])
+@pytest.mark.parametrize(("sep", "decimal", "comments"),
+                         [(";", ",", ""), ("\t", ".", "# exported by DCS X\n# unit: %\n")])
 def test_a_loop_csv_of_another_locale_is_read_as_written(tmp_path: Path, sep: str, decimal: str, comments: str) -> None:
     """Semicolons or tabs with a decimal comma, and comment lines before the header: the same loop as the comma file
     (a field read with the wrong dialect would miss its columns or fail to parse)."""

@@ -625,9 +625,10 @@ def ou_update(nu: float, S: float, m: float, P: float, s: float = 0.0, Pes: floa
 
 @nb.njit(cache=True)
 def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float,
-              mask: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+              mask: np.ndarray, w_scale: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray]:
     """The scalar OU filter: log-likelihood of residuals r = e + w (e an Ornstein-Uhlenbeck process of
-    stationary sd ``s_e`` and time constant ``tau_e``, w white of sd ``s_w``) over samples where ``mask``.
+    stationary sd ``s_e`` and time constant ``tau_e``, w white of sd ``s_w``, or ``s_w w_scale[k]`` at sample k)
+    over samples where ``mask``.
 
     The filter runs over every sample (the OU state carries across); only masked samples enter the
     likelihood and are used as observations. Returns (loglik, one-step prediction errors, their variance)."""
@@ -642,7 +643,7 @@ def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float
     for k in range(n):
         if k > 0:
             _, m, P = ou_predict(t[k] - t[k - 1], tau_e, ve, m, P)
-        innov[k], Sout[k], lk = ou_innovation(r[k], m, P, vw)
+        innov[k], Sout[k], lk = ou_innovation(r[k], m, P, vw if w_scale is None else vw * w_scale[k] * w_scale[k])
         if mask[k]:
             ll += lk
             m, P, _, _, _ = ou_update(innov[k], Sout[k], m, P)

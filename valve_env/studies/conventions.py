@@ -151,6 +151,13 @@ def extra_columns(df: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
     return out[cols]
 
 
+def _on_opening(apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
+                ) -> Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]:
+    """A convention of the measured opening: a run without x_mm (its opening derived from the flow) has none to
+    record, and is left as it is."""
+    return lambda df, rng: apply(df, rng) if "x_mm" in df.columns else df
+
+
 @dataclass(frozen=True)
 class Convention:
     """A named measurement convention: ``apply(df, rng)`` returns the run as such a record.
@@ -192,12 +199,14 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
     Convention("spikes", "three isolated 3 K spikes on T_tank_C",
                lambda df, rng: spikes(df, 3, rng)),
     Convention("spikes_opening", "three isolated 1 mm glitches of the opening x_mm (a position transducer's)",
-               lambda df, rng: spikes(df, 3, rng, column="x_mm", size=1.0)),
+               _on_opening(lambda df, rng: spikes(df, 3, rng, column="x_mm", size=1.0))),
     Convention("opening_quantised_0.01", "the opening x_mm quantised to 0.01 mm (a position transducer's resolution)",
-               lambda df, rng: quantise(df, 0.01, ("x_mm",))),
+               _on_opening(lambda df, rng: quantise(df, 0.01, ("x_mm",)))),
     Convention("opening_stored_on_change", "the opening x_mm stored on change with a 0.01 mm dead band (a historian)",
-               lambda df, rng: df.assign(x_mm=store_on_change(df["x_mm"].to_numpy(dtype=float), 0.01)),
+               _on_opening(lambda df, rng: df.assign(x_mm=store_on_change(df["x_mm"].to_numpy(dtype=float), 0.01))),
                loses_information=True),
+    Convention("opening_from_flow", "no x_mm column: the opening derived from the flow (the meter's relative error)",
+               lambda df, rng: df.drop(columns=["x_mm"])),
     Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
                lambda df, rng: extra_columns(df, rng)),
 )}

@@ -169,13 +169,13 @@ class BootstrapResult:
 
 
 def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np.random.Generator,
-                  truth_step_s: float = 1.0, x_noise_sd: float | None = None,
+                  truth_step_s: float = 1.0, x_noise_sd: float | np.ndarray | None = None,
                   x_true: np.ndarray | None = None, resid_block: int | None = None) -> RunData:
     """One bootstrap replicate of ``data`` under ``values`` (see the module docstring).
 
     ``x_true``: the bootstrap world's true opening, if already simulated (:func:`world_opening`).
-    ``x_noise_sd``: with stiction, the sd of the white noise on the opening (default:
-    :func:`valve_env.valveid.stiction.opening_noise` of ``data``' opening).
+    ``x_noise_sd``: with stiction, the sd of the white noise on the opening, one or one per sample (default:
+    :func:`valve_env.valveid.stiction.opening_noise` of ``data``' opening, at each sample's opening of ``x_true``).
     ``resid_block``: without stiction, the opening's noise is the residuals ``data.x - x_true``
     resampled in circular blocks of this length (default: :func:`residual_block_length`)."""
     if x_true is None:
@@ -186,7 +186,7 @@ def replicate_run(model: Model, data: RunData, values: dict[str, float], rng: np
         # resting steps, the slips set apart (the filter's s_w and s_e also absorb its misfit and would
         # overstate it; so would the median of all steps, slips included, at coarse sampling)
         if x_noise_sd is None:
-            x_noise_sd = opening_noise(data.x).sd
+            x_noise_sd = opening_noise(data.x).sd_at(x_true)
         y = x_true + x_noise_sd * rng.standard_normal(n)
     else:
         resid = data.x - x_true
@@ -265,7 +265,10 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
         names = [p.name for e in model.effects for p in EFFECTS[e].parameters]
     stuck = "stiction" in model.effects
     x_true = world_opening(model, data, fit.params, truth_step_s)
-    s_x = opening_noise(data.x).sd if stuck else None
+    # the opening's noise for the copies: its one sd, or, where it grows with the opening, the sd at each sample's
+    # opening (of the world's opening for the copies, of the record's for its slips' spread)
+    noise_x = opening_noise(data.x) if stuck else None
+    s_x = noise_x.sd_at(x_true) if noise_x is not None else None
     block = None if stuck else residual_block_length(data.x - x_true)
     denoiser = replicate_denoiser(model, names)
     rows, _ = replicates(
@@ -304,8 +307,9 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
     parts: dict[str, float] = {}
     sj: dict[str, object] = {}
     if stuck and s_x is not None:
-        parts = _band_spread_from_slips(sm, data.x, s_x, float(model.valve.stroke), band_B, fit.params["band_mm"],
-                                        rng)
+        assert noise_x is not None
+        parts = _band_spread_from_slips(sm, data.x, noise_x.sd_at(data.x), float(model.valve.stroke), band_B,
+                                        fit.params["band_mm"], rng)
         if "band_mm" in names and BREAKAWAY:
             sj = breakaway_band(model, data, fit, sm)
     return BootstrapResult(names, reps, est, sm.std, sm.bias, sm.interval_95, B, sm.corrected, sm.bias_corrected,
@@ -393,8 +397,8 @@ def apply_bootstrap(model: Model, data: RunData, fit: FitResult, b: BootstrapRes
     return source
 
 
-def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float, stroke: float, draws: int, band: float,
-                            rng: np.random.Generator) -> dict[str, float]:
+def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float | np.ndarray, stroke: float, draws: int,
+                            band: float, rng: np.random.Generator) -> dict[str, float]:
     """The band's sd from the measured opening's own slips, replacing the bootstrap world's spread
     (:func:`valve_env.valveid.stiction.band_spread`: the larger of the sd of the band re-estimated on
     copies of ``x`` with fresh white noise of its sd ``s_x``, and of the sd from the slips' own spread);

@@ -12,12 +12,26 @@ the raw channels with the smoothed temperatures (:func:`~valve_env.valveid.tempe
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
+from valve_env.valveid.stiction import OpeningNoise, opening_noise
 from valve_env.valveid.temperature import ChannelNoise, channel_noise, smooth_temperature
+
+
+def opening_scale(x: np.ndarray) -> tuple[np.ndarray | None, OpeningNoise | None, float]:
+    """Where the opening's noise grows with its level (:meth:`valve_env.valveid.stiction.OpeningNoise.sd_at`): each
+    sample's noise sd relative to the record's (root mean square 1), the opening's noise and the sd it is relative
+    to; else (None, None, 1.0)."""
+    on = opening_noise(x)
+    if on.level_sd is None:
+        return None, None, 1.0
+    g = np.asarray(on.sd_at(x), dtype=np.float64)
+    norm = math.sqrt(float(np.mean(g * g)))
+    return np.ascontiguousarray(g / norm), on, norm
 
 
 @dataclass(frozen=True)
@@ -44,6 +58,20 @@ class RunData:
     #: copy measured again (:meth:`remeasure`) follows the record's convention
     T_noise: ChannelNoise | None = None
     M_noise: ChannelNoise | None = None
+    #: where the opening's noise grows with its level (:func:`valve_env.valveid.stiction.noise_by_level`: an opening
+    #: derived from a flow meter's reading): each sample's noise sd relative to the record's (root mean square 1 over
+    #: the record), which scales the white noise of the likelihoods; None where one sd holds
+    x_scale: np.ndarray | None = None
+    #: the record's opening noise by level and the sd that ``x_scale`` is relative to (:meth:`noise_scale_at`)
+    x_noise: OpeningNoise | None = None
+    x_norm: float = 1.0
+
+    def noise_scale_at(self, x: np.ndarray) -> float | np.ndarray:
+        """The opening's white-noise sd at the openings ``x`` (a simulated path) relative to the record's, as
+        ``x_scale`` is for the record's own: 1.0 where one sd holds."""
+        if self.x_noise is None:
+            return 1.0
+        return np.asarray(self.x_noise.sd_at(x), dtype=np.float64) / self.x_norm
 
     @classmethod
     def from_arrays(cls, t: np.ndarray, T_tank: np.ndarray, T_med: np.ndarray, x: np.ndarray, dp: np.ndarray,
@@ -53,7 +81,7 @@ class RunData:
         T, vT, s_T, _ = smooth_temperature(t, T_tank)
         M, vM, s_M, _ = smooth_temperature(t, T_med)
         return cls(t, T_tank, T_med, x, dp, ps, T, vT, M, vM, s_T, s_M, name, channel_noise(T_tank),
-                   channel_noise(T_med))
+                   channel_noise(T_med), *opening_scale(x))
 
     @property
     def quantised(self) -> bool:
@@ -85,11 +113,12 @@ class RunData:
     def slice(self, a: int, b: int) -> RunData:
         s = slice(a, b)
         return RunData(self.t[s], self.T_raw[s], self.M_raw[s], self.x[s], self.dp[s], self.ps[s], self.T[s],
-                       self.vT[s], self.M[s], self.vM[s], self.s_T, self.s_M, self.name, self.T_noise, self.M_noise)
+                       self.vT[s], self.M[s], self.vM[s], self.s_T, self.s_M, self.name, self.T_noise, self.M_noise,
+                       None if self.x_scale is None else self.x_scale[s], self.x_noise, self.x_norm)
 
     @property
     def median_dt(self) -> float:
         return float(np.median(np.diff(self.t)))
 
 
-__all__ = ["RunData"]
+__all__ = ["RunData", "opening_scale"]

@@ -601,7 +601,7 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
     # whose steps would make the world's valve slip, so there the smoother's level stands for them
     world = _null_world(train)
     x_w = world_opening(ref_model, world, ref)
-    sd = opening_noise(train.x).sd
+    sd = opening_noise(train.x).sd if train.x_noise is None else train.x_noise.sd_at(x_w)
 
     def copy(rng: np.random.Generator) -> RunData:
         T, M = train.remeasure(world.T, world.M, rng)  # as the run's channels were recorded
@@ -615,7 +615,7 @@ def stiction_null(ref_fit: FitResult, stick_fit: FitResult, train: RunData, valv
             "band_factors": list(NULL_BAND_FACTORS)}
 
 
-def slip_sizes(x: np.ndarray, stroke: float, s_w: float | None = None) -> tuple[int, float | None]:
+def slip_sizes(x: np.ndarray, stroke: float, s_w: float | np.ndarray | None = None) -> tuple[int, float | None]:
     """The number of slips of the opening ``x`` (:func:`valve_env.valveid.stiction.slips`, noise sd ``s_w``: by
     default the opening's own) and their median size (mm; None without slips)."""
 
@@ -664,10 +664,11 @@ def expected_slips(model: Model, data: RunData, values: dict[str, float], stroke
     xs, _, _ = model.simulate(data, values)
     if part is not None:
         xs = xs[part[0]:part[1]]
-    s_w = float(values["s_w"])
-    noisy = xs + np.random.default_rng(seed).normal(0.0, s_w, xs.shape)
-    # the copy's noise is white by construction, never held or quantised: its robust sd, however small
-    return int(slips(noisy, stroke, noise_sd(noisy)).size)
+    sd = float(values["s_w"]) * data.noise_scale_at(xs)
+    noisy = xs + np.random.default_rng(seed).normal(0.0, sd, xs.shape)
+    # the copy's noise is white by construction, never held or quantised: its robust sd, however small (or, where the
+    # record's noise grows with the opening, the sd it was given at each opening)
+    return int(slips(noisy, stroke, noise_sd(noisy) if data.x_noise is None else sd).size)
 
 
 def slips_below_noise(model: Model, data: RunData, values: dict[str, float], stroke: float, seed: int = 0,
@@ -681,8 +682,10 @@ def slips_below_noise(model: Model, data: RunData, values: dict[str, float], str
     not stand aside for it (a band of 1.2 noise sd on a run without stiction: LR 37, held-out gain 6.7).
     ``part``: of samples ``part[0]`` to ``part[1]`` only (the held-out part of a record simulated whole)."""
     xf = model.simulate_substeps(data, values, part)
-    noisy = xf + np.random.default_rng(seed).normal(0.0, float(values["s_w"]), xf.shape)
-    return not band_shown(*slip_sizes(noisy, stroke, noise_sd(noisy)), float(values["band_mm"]))
+    sd = float(values["s_w"]) * data.noise_scale_at(xf)
+    noisy = xf + np.random.default_rng(seed).normal(0.0, sd, xf.shape)
+    return not band_shown(*slip_sizes(noisy, stroke, noise_sd(noisy) if data.x_noise is None else sd),
+                          float(values["band_mm"]))
 
 
 def band_shown(n_slips: int, median_mm: float | None, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:

@@ -261,8 +261,9 @@ class Model:
         if stuck:
             return stick_loglik(data.t, data.x, x_sub, idx, values["band_mm"], float(vp[I_STROKE]),
                                 values["s_w"], values["s_e"], values["tau_e"], mask, self.band_spread,
-                                self.landing_sd, slip, demand[0])
-        ll, innov, S = ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask)
+                                self.landing_sd, slip, demand[0], data.x_scale)
+        ll, innov, S = ou_loglik(data.t, data.x - x, values["s_w"], values["s_e"], values["tau_e"], mask,
+                                 data.x_scale)
         return ll, innov, S, np.where(mask, -0.5 * (LOG2PI + np.log(S) + innov**2 / S), 0.0)
 
     def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None,

@@ -278,7 +278,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                  mask: np.ndarray, spread: float = BAND_SPREAD,
                  landing: float = LANDING_SD,
                  slip: float = -1.0,
-                 demand: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+                 demand: np.ndarray | None = None,
+                 w_scale: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Log-likelihood of the measured opening under stick-slip (a decision-directed Kalman filter).
 
     The stem follows the (S, J = S) model of :mod:`valve_env.physics.stickslip` (:func:`stick_simulate`):
@@ -335,7 +336,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     ``band_mm`` is on a valve with J < S").
 
     ``demand``: :func:`stick_demand` of ``x_sub`` where the caller keeps it (a fit evaluates the likelihood
-    many times on one path); ``None`` computes it.
+    many times on one path); ``None`` computes it. ``w_scale``: the white noise's sd at sample k is ``s_w w_scale[k]``
+    (an opening whose noise grows with its level, :attr:`valve_env.valveid.data.RunData.x_scale`); None: ``s_w``.
 
     Returns (loglik, one-step prediction errors of the hypothesis followed, their variances, each
     sample's log-likelihood term: the mixture's where the filter weighed hypotheses, 0 off ``mask``)."""
@@ -433,7 +435,8 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
                         ms = xd - side * min(lag, ad) if lag > 0.0 else xd
                         Pss = vl
                         Pes = 0.0
-        nu, S, lk = ou_innovation(y[k], me, Pee, vw, ms, Pes, Pss)
+        vwk = vw if w_scale is None else vw * w_scale[k] * w_scale[k]
+        nu, S, lk = ou_innovation(y[k], me, Pee, vwk, ms, Pes, Pss)
         if mask[k] and band > 0.0 and k > 0 and moving:
             # the decision that the stem moves, revisited honestly: the measurement is scored once, under
             # the predictive mixture of three hypotheses with their prior probabilities (first-order
@@ -477,7 +480,7 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
             if lag > 0.0:
                 # a slip of J < S lands the lag short of the demand, on the side it broke away to
                 xk = xk - side * min(lag, abs(xk - ms))
-            S1 = Pee + vl + vw
+            S1 = Pee + vl + vwk
             nu1 = y[k] - xk - me
             l_s = math.log(1.0 - p_slip) - 0.5 * (math.log(S) + nu * nu / S) if p_slip < 1.0 else -math.inf
             l_1 = math.log(p_slip) - 0.5 * (math.log(S1) + nu1 * nu1 / S1)

@@ -152,7 +152,7 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
             notes.append({"what": "noise_level", **channel_noise(out[ch].to_numpy(dtype=float)).describe(ch)})
     if "x_mm" in out.columns:
         xn = opening_noise(out["x_mm"].to_numpy(dtype=float))
-        if xn.method != "mad":  # a noisy opening's sd is the fit's own s_w: nothing to say
+        if xn.method != "mad" or xn.level_sd is not None:  # a noisy opening's one sd is the fit's own s_w
             notes.append({"what": "noise_level", **xn.describe()})
     t = out["time_s"].to_numpy(dtype=float)
     if n > 2:

@@ -61,7 +61,7 @@ def sj_loglik(model: Model, data: RunData, values: dict[str, float], S: float, J
     :func:`~valve_env.ident.kalman.ou_loglik`."""
     xs = model.simulate(data, {**values, "band_mm": S}, slip=J)[0]
     mask = np.ones(len(data), dtype=np.bool_)
-    ll, _, _ = ou_loglik(data.t, data.x - xs, values["s_w"], values["s_e"], values["tau_e"], mask)
+    ll, _, _ = ou_loglik(data.t, data.x - xs, values["s_w"], values["s_e"], values["tau_e"], mask, data.x_scale)
     return float(ll)
 
 

@@ -38,6 +38,16 @@ DEAD_BAND_QUANTILE = 0.05
 #: and 0.02 mm; 1.3 q on a set-point drift run quantised to 0.01 mm). Stiction is named there only with a band
 #: beyond this many resolutions
 RESOLUTION_BAND_FACTOR = 2.0
+#: noise that grows with the opening (an opening derived from a flow meter's reading, whose error is relative to the
+#: flow: the section 2 run without x_mm): the opening's range off its two ends (by :data:`LEVEL_EDGE_MM`) is cut into
+#: up to :data:`LEVEL_BINS` bins of equal count (at least 3, of :data:`LEVEL_MIN_PER_BIN` samples or more), and where
+#: the noisiest bin's robust sd exceeds the quietest's :data:`LEVEL_RATIO` times the slips are judged against the
+#: noise at their own opening. White noise of a position transducer gives ratios of 1.2-1.3 on generated 12 h runs at
+#: 10 s; a flow meter's 0.1 % gives 3-14 (docs/diagnosis.md, "An opening derived from the flow")
+LEVEL_BINS = 5
+LEVEL_MIN_PER_BIN = 100
+LEVEL_RATIO = 2.5
+LEVEL_EDGE_MM = 0.02
 
 
 @dataclass(frozen=True)
@@ -59,6 +69,18 @@ class OpeningNoise:
     #: for the other two methods
     resolution: float | None
     held_fraction: float
+    #: where a noisy opening's noise grows with its level (:func:`noise_by_level`): the inner edges of the opening's
+    #: bins (mm) and each bin's robust sd (mm); None where one sd holds over the whole range
+    level_edges: tuple[float, ...] | None = None
+    level_sd: tuple[float, ...] | None = None
+
+    def sd_at(self, x: np.ndarray) -> float | np.ndarray:
+        """The noise sd at each opening of ``x`` (mm): the sd of its level's bin where the noise grows with the
+        opening, else the one ``sd`` (a float)."""
+        if self.level_edges is None or self.level_sd is None:
+            return self.sd
+        idx = np.searchsorted(np.asarray(self.level_edges), np.asarray(x, dtype=float), side="right")
+        return np.asarray(self.level_sd)[idx]
 
     def describe(self) -> dict[str, object]:
         if self.method == "mad":
@@ -70,11 +92,51 @@ class OpeningNoise:
                    f"least {self.resolution:.3g} mm: a historian's dead band stored on change (or a record without "
                    "noise), error uniform within it (d / sqrt(3)); a stick band up to about that size cannot be told "
                    "from it")
+        elif self.level_sd is not None:
+            why = (f"the transducer resolution floor {OPENING_RESOLUTION_FLOOR_MM:g} mm (q / sqrt(12)): most of the "
+                   "record shows less noise")
         else:
             why = (f"the transducer resolution floor {OPENING_RESOLUTION_FLOOR_MM:g} mm (q / sqrt(12)): the channel "
                    "shows no noise")
-        return {"channel": "x_mm", "noise_sd_mm": self.sd, "method": self.method, "resolution_mm": self.resolution,
-                "held_fraction": round(self.held_fraction, 4), "why": why}
+        out: dict[str, object] = {"channel": "x_mm", "noise_sd_mm": self.sd, "method": self.method,
+                                  "resolution_mm": self.resolution, "held_fraction": round(self.held_fraction, 4),
+                                  "why": why}
+        if self.level_sd is not None and self.level_edges is not None:
+            out["noise_sd_by_level_mm"] = [float(v) for v in self.level_sd]
+            out["level_edges_mm"] = [float(v) for v in self.level_edges]
+            out["why"] = (f"{why}; it grows with the opening, from {min(self.level_sd):.3g} to "
+                          f"{max(self.level_sd):.3g} mm over {len(self.level_sd)} bins of its range (an opening "
+                          "derived from a flow meter's reading has the meter's relative error): each slip is judged "
+                          "against the noise at its own opening")
+        return out
+
+
+def noise_by_level(x: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """Where the noise of the opening ``x`` grows with its level: (inner bin edges, each bin's robust sd), mm; None
+    where one sd holds (see :data:`LEVEL_RATIO`), or where the record is too short to tell. Each bin's sd is the
+    robust sd of the second differences (:func:`~valve_env.valveid.temperature.noise_sd`'s) centred in it."""
+    x = np.asarray(x, dtype=float)
+    if x.size < 3:
+        return None
+    d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    lev = x[1:-1]
+    inside = (lev > float(x.min()) + LEVEL_EDGE_MM) & (lev < float(x.max()) - LEVEL_EDGE_MM)
+    bins = min(LEVEL_BINS, int(inside.sum()) // LEVEL_MIN_PER_BIN)
+    if bins < 3:
+        return None
+    edges = np.quantile(lev[inside], np.linspace(0.0, 1.0, bins + 1))[1:-1]
+    which = np.searchsorted(edges, lev[inside], side="right")
+    d2 = d2[inside]
+    sds = []
+    for b in range(bins):
+        db = d2[which == b]
+        if db.size < LEVEL_MIN_PER_BIN:
+            return None
+        sds.append(max(float(1.4826 * np.median(np.abs(db - np.median(db))) / math.sqrt(6.0)),
+                       OPENING_RESOLUTION_FLOOR_MM / math.sqrt(12.0)))
+    if max(sds) <= LEVEL_RATIO * min(sds):
+        return None
+    return tuple(float(e) for e in edges), tuple(sds)
 
 
 def opening_noise(x: np.ndarray) -> OpeningNoise:
@@ -84,7 +146,10 @@ def opening_noise(x: np.ndarray) -> OpeningNoise:
     held = float(np.mean(np.diff(x) == 0.0)) if x.size > 1 else 1.0
     floor = OPENING_RESOLUTION_FLOOR_MM / math.sqrt(12.0)
     if math.isfinite(mad) and mad > floor:
-        return OpeningNoise(mad, "mad", None, held)
+        by_level = noise_by_level(x)
+        if by_level is None:
+            return OpeningNoise(mad, "mad", None, held)
+        return OpeningNoise(mad, "mad", None, held, *by_level)
     q = quantum(x)
     if q is not None:
         return OpeningNoise(max(q / math.sqrt(12.0), floor), "quantisation", q, held)
@@ -93,10 +158,15 @@ def opening_noise(x: np.ndarray) -> OpeningNoise:
     if held > HELD_SHARE and d.size >= 3:
         band = float(np.quantile(d, DEAD_BAND_QUANTILE))
         return OpeningNoise(max(band / math.sqrt(3.0), floor), "store_on_change", band, held)
+    # noise below the floor over most of the range, but not over all of it (an opening derived from the flow whose
+    # valve rests near its seat for most of the record: the flow meter's relative error vanishes there)
+    by_level = noise_by_level(x)
+    if by_level is not None:
+        return OpeningNoise(floor, "resolution_floor", None, held, *by_level)
     return OpeningNoise(floor, "resolution_floor", None, held)
 
 
-def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0, plateau: int = 3,
+def slips(x: np.ndarray, stroke: float, s_w: float | np.ndarray | None = None, z: float = 4.0, plateau: int = 3,
           after: int = 3, edge_mm: float = 0.02, flat: float = 3.5, persist: float = 3.0,
           ramp: float = 1.0, events: list[tuple[int, float, float, float]] | None = None) -> np.ndarray:
     """The sizes (mm) of the slips of a sticking stem in the measured opening ``x`` (module docstring).
@@ -111,10 +181,15 @@ def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0
     within the interval, and the straight line through the next samples, which slow down, measured it
     at a third to a half of the band (two of 14 slips of a generated day, seed 631); the bootstrap
     world's smoothed temperatures make fewer such fast slips, so these slips also set its bias apart
-    from the estimator's. ``s_w``: the noise sd (default :func:`noise_sd`). ``events``: if given, each slip is appended
+    from the estimator's. ``s_w``: the noise sd, one or one per sample (default: :func:`opening_noise`'s at each
+    sample, :meth:`OpeningNoise.sd_at`). ``events``: if given, each slip is appended
     to it as (index of the plateau's last sample, direction +-1, plateau level mm, size mm)."""
     x = np.asarray(x, dtype=float)
-    s = max(opening_noise(x).sd if s_w is None else float(s_w), 1e-6)
+    # the noise sd: one for the record, or (where the noise grows with the opening) the one at each sample's opening
+    s_at = opening_noise(x).sd_at(x) if s_w is None else s_w
+    local = np.ndim(s_at) > 0
+    s_k = np.maximum(np.asarray(s_at, dtype=float), 1e-6) if local else None
+    s = max(float(s_at), 1e-6) if not local else 0.0  # type: ignore[arg-type]
     n = x.size
     d = np.diff(x)
     thr = z * math.sqrt(2.0) * s
@@ -124,6 +199,10 @@ def slips(x: np.ndarray, stroke: float, s_w: float | None = None, z: float = 4.0
     k = plateau - 1
     while k < n - 1 - after:
         dk = d[k]
+        if s_k is not None:  # the noise at the plateau's end
+            s = float(s_k[k])
+            thr = z * math.sqrt(2.0) * s
+            lift = persist * s * math.sqrt(1.0 / plateau + 1.0 / after)
         if abs(dk) <= thr:
             k += 1
             continue
@@ -185,7 +264,7 @@ def slips_sd(sizes: np.ndarray, rng: np.random.Generator, resamples: int = 999) 
     return float(res.standard_error * stats.t.ppf(0.975, sz.size - 1) / stats.norm.ppf(0.975))
 
 
-def band_spread(x: np.ndarray, stroke: float, s_w: float, draws: int, rng: np.random.Generator,
+def band_spread(x: np.ndarray, stroke: float, s_w: float | np.ndarray, draws: int, rng: np.random.Generator,
                 band: float) -> tuple[float, dict[str, float], np.ndarray]:
     """The sampling sd (mm) of :func:`jump_band`'s band measured on the opening ``x``, its parts, and the
     added-noise re-estimates: (sd, parts, draws). The sd is the larger of two (docs/diagnosis.md,
@@ -232,14 +311,14 @@ def band_sampling(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: 
     return band_draws(x_true, noise_sd_mm, stroke, draws, np.random.default_rng(seed))
 
 
-def band_draws(x_true: np.ndarray, noise_sd_mm: float, stroke: float, draws: int,
+def band_draws(x_true: np.ndarray, noise_sd_mm: float | np.ndarray, stroke: float, draws: int,
                rng: np.random.Generator) -> np.ndarray:
-    """``draws`` band estimates (:func:`jump_band`) of ``x_true`` plus white noise of ``noise_sd_mm``
-    from ``rng``, nan where too few jumps: :func:`band_sampling` without its checks, and the band's
+    """``draws`` band estimates (:func:`jump_band`) of ``x_true`` plus white noise of ``noise_sd_mm`` (one, or one
+    per sample) from ``rng``, nan where too few jumps: :func:`band_sampling` without its checks, and the band's
     extra replicates of the bootstrap (:func:`valve_env.valveid.bootstrap.bootstrap`)."""
     return np.array([jump_band(x_true + noise_sd_mm * rng.standard_normal(x_true.shape[0]), stroke)[0]
                      for _ in range(draws)])
 
 
-__all__ = ["MIN_JUMPS", "band_sampling", "band_spread", "jump_band", "slips",
+__all__ = ["MIN_JUMPS", "band_sampling", "band_spread", "jump_band", "noise_by_level", "slips",
            "slips_sd"]
