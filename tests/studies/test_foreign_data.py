@@ -93,6 +93,7 @@ def test_a_stepped_noiseless_medium_temperature_is_diagnosed(tmp_path, capsys, e
         assert all(math.isfinite(v) for v in f["params"].values())
 
 
+@pytest.mark.slow  # 19 s; the default suite has the mechanism's test (test_uncertainty.py) and the corpus's case
 def test_a_run_without_an_opening_column_is_diagnosed_against_the_noise_at_each_opening(tmp_path, capsys) -> None:
     """A run without x_mm (docs/reference.md, section 2): the opening is derived from the flow, and its noise is the
     flow meter's, relative to the flow, so it grows with the opening. With one noise sd for the record, the noisy
