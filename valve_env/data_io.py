@@ -125,7 +125,8 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         raise DataError(f"{p}: no such file")
     if p.is_dir():
         raise DataError(f"{p}: is a directory, not a CSV file")
-    dialect = csv_dialect(_head_lines(p))
+    head = _head_lines(p)
+    dialect = csv_dialect(head)
     try:
         raw = pd.read_csv(p, dtype=str, keep_default_na=False, skipinitialspace=True, sep=dialect.sep,
                           skiprows=dialect.skip, encoding="utf-8-sig")
@@ -134,19 +135,19 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise DataError(f"{p}: not a readable CSV file ({first})") from exc
-    _check_header(p, dialect)
+    _check_header(p, dialect, head)
     if dialect.decimal != ".":
         raw = raw.apply(lambda col: col.str.replace(dialect.decimal, ".", regex=False))
     raw.attrs["header_line"] = dialect.header_line
     return validate_run(raw, source=str(p), valve=valve)
 
 
-def _check_header(p: Path, dialect: CsvDialect) -> None:
+def _check_header(p: Path, dialect: CsvDialect, head: list[str]) -> None:
     """Refuse a header that names a column twice: pandas renames the second copy (``T_tank_C.1``), so
-    :func:`validate_run` would silently take the first."""
+    :func:`validate_run` would silently take the first. ``head``: the file's first lines, as read for its dialect."""
     import csv
 
-    lines = _head_lines(p, dialect.skip + 1)
+    lines = head if dialect.skip < len(head) else _head_lines(p, dialect.skip + 1)
     header = [c.strip() for c in next(csv.reader(lines[dialect.skip:], delimiter=dialect.sep), [])]
     dup = sorted({c for c in header if header.count(c) > 1})
     if dup:

@@ -655,6 +655,16 @@ SLIPS_RESOLVED_CHECK = True
 UNRESOLVED_MIN_GAIN = 5.0
 
 
+def _noisy_copy(data: RunData, x: np.ndarray, values: dict[str, float], seed: int
+                ) -> tuple[np.ndarray, float | np.ndarray]:
+    """A simulated opening ``x`` measured with white noise of the fitted ``s_w`` (scaled by the record's noise at each
+    opening where it grows with the opening), and the noise sd its slips are judged against: the copy's noise is
+    white by construction, never held or quantised, so its robust sd however small, or the sd it was given."""
+    sd = float(values["s_w"]) * data.noise_scale_at(x)
+    noisy = x + np.random.default_rng(seed).normal(0.0, sd, x.shape)
+    return noisy, (noise_sd(noisy) if data.x_noise is None else sd)
+
+
 def expected_slips(model: Model, data: RunData, values: dict[str, float], stroke: float, seed: int = 0,
                    part: tuple[int, int] | None = None) -> int:
     """How many slips (:func:`valve_env.valveid.stiction.slips`) the fitted stick-slip model's open-loop
@@ -664,11 +674,8 @@ def expected_slips(model: Model, data: RunData, values: dict[str, float], stroke
     xs, _, _ = model.simulate(data, values)
     if part is not None:
         xs = xs[part[0]:part[1]]
-    sd = float(values["s_w"]) * data.noise_scale_at(xs)
-    noisy = xs + np.random.default_rng(seed).normal(0.0, sd, xs.shape)
-    # the copy's noise is white by construction, never held or quantised: its robust sd, however small (or, where the
-    # record's noise grows with the opening, the sd it was given at each opening)
-    return int(slips(noisy, stroke, noise_sd(noisy) if data.x_noise is None else sd).size)
+    noisy, sd = _noisy_copy(data, xs, values, seed)
+    return int(slips(noisy, stroke, sd).size)
 
 
 def slips_below_noise(model: Model, data: RunData, values: dict[str, float], stroke: float, seed: int = 0,
@@ -682,10 +689,8 @@ def slips_below_noise(model: Model, data: RunData, values: dict[str, float], str
     not stand aside for it (a band of 1.2 noise sd on a run without stiction: LR 37, held-out gain 6.7).
     ``part``: of samples ``part[0]`` to ``part[1]`` only (the held-out part of a record simulated whole)."""
     xf = model.simulate_substeps(data, values, part)
-    sd = float(values["s_w"]) * data.noise_scale_at(xf)
-    noisy = xf + np.random.default_rng(seed).normal(0.0, sd, xf.shape)
-    return not band_shown(*slip_sizes(noisy, stroke, noise_sd(noisy) if data.x_noise is None else sd),
-                          float(values["band_mm"]))
+    noisy, sd = _noisy_copy(data, xf, values, seed)
+    return not band_shown(*slip_sizes(noisy, stroke, sd), float(values["band_mm"]))
 
 
 def band_shown(n_slips: int, median_mm: float | None, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from valve_env.valveid.temperature import noise_sd, quantum
+from valve_env.valveid.temperature import noise_sd, quantum, second_difference_sd
 
 #: the finest opening resolution a channel is taken to have where the data shows none (mm; a position
 #: transducer's): its quantisation sd is the least noise sd the opening is given
@@ -114,7 +114,7 @@ class OpeningNoise:
 def noise_by_level(x: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
     """Where the noise of the opening ``x`` grows with its level: (inner bin edges, each bin's robust sd), mm; None
     where one sd holds (see :data:`LEVEL_RATIO`), or where the record is too short to tell. Each bin's sd is the
-    robust sd of the second differences (:func:`~valve_env.valveid.temperature.noise_sd`'s) centred in it."""
+    robust sd of the second differences centred in it (:func:`~valve_env.valveid.temperature.second_difference_sd`)."""
     x = np.asarray(x, dtype=float)
     if x.size < 3:
         return None
@@ -132,8 +132,7 @@ def noise_by_level(x: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]
         db = d2[which == b]
         if db.size < LEVEL_MIN_PER_BIN:
             return None
-        sds.append(max(float(1.4826 * np.median(np.abs(db - np.median(db))) / math.sqrt(6.0)),
-                       OPENING_RESOLUTION_FLOOR_MM / math.sqrt(12.0)))
+        sds.append(max(second_difference_sd(db), OPENING_RESOLUTION_FLOOR_MM / math.sqrt(12.0)))
     if max(sds) <= LEVEL_RATIO * min(sds):
         return None
     return tuple(float(e) for e in edges), tuple(sds)
@@ -146,10 +145,7 @@ def opening_noise(x: np.ndarray) -> OpeningNoise:
     held = float(np.mean(np.diff(x) == 0.0)) if x.size > 1 else 1.0
     floor = OPENING_RESOLUTION_FLOOR_MM / math.sqrt(12.0)
     if math.isfinite(mad) and mad > floor:
-        by_level = noise_by_level(x)
-        if by_level is None:
-            return OpeningNoise(mad, "mad", None, held)
-        return OpeningNoise(mad, "mad", None, held, *by_level)
+        return OpeningNoise(mad, "mad", None, held, *(noise_by_level(x) or (None, None)))
     q = quantum(x)
     if q is not None:
         return OpeningNoise(max(q / math.sqrt(12.0), floor), "quantisation", q, held)
@@ -160,10 +156,7 @@ def opening_noise(x: np.ndarray) -> OpeningNoise:
         return OpeningNoise(max(band / math.sqrt(3.0), floor), "store_on_change", band, held)
     # noise below the floor over most of the range, but not over all of it (an opening derived from the flow whose
     # valve rests near its seat for most of the record: the flow meter's relative error vanishes there)
-    by_level = noise_by_level(x)
-    if by_level is not None:
-        return OpeningNoise(floor, "resolution_floor", None, held, *by_level)
-    return OpeningNoise(floor, "resolution_floor", None, held)
+    return OpeningNoise(floor, "resolution_floor", None, held, *(noise_by_level(x) or (None, None)))
 
 
 def slips(x: np.ndarray, stroke: float, s_w: float | np.ndarray | None = None, z: float = 4.0, plateau: int = 3,

@@ -121,7 +121,11 @@ def noise_sd(y: np.ndarray) -> float:
     y = np.asarray(y, dtype=float)
     if len(y) < 4:
         return 0.0
-    d2 = np.diff(y, 2)
+    return second_difference_sd(np.diff(y, 2))
+
+
+def second_difference_sd(d2: np.ndarray) -> float:
+    """The white-noise sd behind second differences ``d2``: their MAD (scaled to an sd) / sqrt(6)."""
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
