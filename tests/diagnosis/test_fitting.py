@@ -56,8 +56,9 @@ def _fresh_loglik(d, effects: tuple[str, ...], values: dict[str, float]) -> floa
 
 def test_a_kept_valve_path_gives_the_likelihood_of_a_fresh_simulation() -> None:
     """Model._valve_path (docs/diagnosis.md, "Speed"): a finite-difference step in a noise parameter or in
-    stiction's band reuses the valve path, a step in a valve parameter or an effect that shapes the demand
-    simulates anew, and every likelihood equals, to the last bit, that of a model simulating from scratch."""
+    stiction's band reuses the valve path, a step in a valve parameter or the set point's drift runs the valve anew
+    on the kept drive (Model._drive), a step in an effect that shapes the sensed temperature simulates anew, and every
+    likelihood equals, to the last bit, that of a model simulating from scratch."""
     df = simulate_experiment(seed=5, duration_h=4.0, dt_s=10.0, effects={"stiction": {"band_mm": 0.02}})
     d = prepare(check_run(df))
     m = Model(("stiction",))
@@ -67,15 +68,26 @@ def test_a_kept_valve_path_gives_the_likelihood_of_a_fresh_simulation() -> None:
     for s in steps:
         assert m.loglik(d, {**vals, **s}) == _fresh_loglik(d, ("stiction",), {**vals, **s})
     assert len(m._paths) == 1  # the noise and band steps ran the filter on the one path
-    for s in ({"sigma": vals["sigma"] * 1.01}, {"F_hmax": vals["F_hmax"] * 0.9}):
+    m._drives.clear()
+    for s in ({"sigma": vals["sigma"] * 1.01}, {"F_hmax": vals["F_hmax"] * 0.9}, {"p_bset": vals["p_bset"] * 1.001}):
         assert m.loglik(d, {**vals, **s}) == _fresh_loglik(d, ("stiction",), {**vals, **s})
-    assert len(m._paths) == 3
+    assert len(m._paths) == 4
+    assert len(m._drives) == 1  # the valve parameters' steps run the valve on the one kept drive
     lag = Model(("sensor_lag",))
     lv = {**lag.default_start(d), "tau_s": 30.0}
     lag._paths.clear()
+    lag._drives.clear()
     assert lag.loglik(d, lv) == _fresh_loglik(d, ("sensor_lag",), lv)
     assert lag.loglik(d, {**lv, "tau_s": 60.0}) == _fresh_loglik(d, ("sensor_lag",), {**lv, "tau_s": 60.0})
-    assert len(lag._paths) == 2  # the lag shapes the demand: a path each
+    assert len(lag._paths) == 2 and len(lag._drives) == 2  # the lag shapes the demand: a path and a drive each
+    # the medium's weight moves the sensed temperature (a drive each); the set point's drift acts after the drive
+    for effect, key, a, b in (("medium_temperature", "beta", 0.05, 0.1), ("setpoint_drift", "rate_MPa_per_h", 2e-5, -3e-5)):
+        em = Model((effect,))
+        ev = em.default_start(d)
+        em._drives.clear()
+        for value in (a, b):
+            assert em.loglik(d, {**ev, key: value}) == _fresh_loglik(d, (effect,), {**ev, key: value})
+        assert len(em._drives) == (2 if effect == "medium_temperature" else 1)
     # the stick-slip's demand kept with the path is the one the filter and the stem compute without it
     vp, e = m._vectors(vals)
     _, _, _, x_sub, idx, _ = m._valve_path(d, vp, e, m.delta(d, vals), True)

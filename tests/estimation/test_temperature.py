@@ -49,3 +49,21 @@ def test_smoother_keeps_the_heating_kink() -> None:
     before = heat - 2
     jump = true_rate[heat + 2] - true_rate[before]
     assert np.all(np.abs(rate[before] - true_rate[before]) < 0.1 * jump)
+
+
+def test_the_compiled_em_sums_as_numpy_does() -> None:
+    """The smoother's EM runs compiled; its one sum (the M-step's q) is NumPy's pairwise summation, so its figures
+    are those of the NumPy loop it replaced to the last digit. A plain running sum differs in the last bits on most
+    of these arrays, which a long EM carries into the smoothed temperatures."""
+    from valve_env.valveid.temperature import _pairwise_sum
+
+    rng = np.random.default_rng(7)
+    lengths = [0, 1, 7, 8, 9, 127, 128, 129, 255, 256, 1000, 8639, 8640, 86399, 200001]
+    plain_differs = 0
+    for n in lengths:
+        a = rng.standard_normal(n) * np.exp(3.0 * rng.standard_normal(n))
+        assert _pairwise_sum(a, 0, n) == np.sum(a), n
+        plain_differs += float(np.cumsum(a)[-1]) != float(np.sum(a)) if n else 0
+        if n > 10:  # a part of an array, as the M-step sums e[1:]
+            assert _pairwise_sum(a, 1, n - 1) == np.sum(a[1:]), n
+    assert plain_differs > 0  # the order matters on these arrays

@@ -596,10 +596,13 @@ def run_filter(model: SDEModel, p: np.ndarray, arr: Arrays, *, method: str = "ek
 
 
 @nb.njit(cache=True)
-def ou_predict(dt: float, tau: float, var: float, m: float, P: float) -> tuple[float, float, float]:
+def ou_predict(dt: float, tau: float, var: float, m: float, P: float, dt_last: float = -1.0,
+               phi_last: float = 0.0) -> tuple[float, float, float]:
     """The time update over ``dt`` of an Ornstein-Uhlenbeck state (time constant ``tau``, stationary
-    variance ``var``) with mean ``m`` and variance ``P``: (phi = exp(-dt / tau), the mean, the variance)."""
-    phi = math.exp(-dt / tau)
+    variance ``var``) with mean ``m`` and variance ``P``: (phi = exp(-dt / tau), the mean, the variance).
+    ``phi_last``: the phi of an update over ``dt_last``, taken as it is where ``dt`` is the same (a regularly
+    sampled record computes its exponential once)."""
+    phi = phi_last if dt == dt_last else math.exp(-dt / tau)
     return phi, phi * m, phi * phi * P + var * (1.0 - phi * phi)
 
 
@@ -640,9 +643,12 @@ def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float
     ll = 0.0
     innov = np.empty(n)
     Sout = np.empty(n)
+    dt = -1.0
+    phi = 0.0
     for k in range(n):
         if k > 0:
-            _, m, P = ou_predict(t[k] - t[k - 1], tau_e, ve, m, P)
+            phi, m, P = ou_predict(t[k] - t[k - 1], tau_e, ve, m, P, dt, phi)
+            dt = t[k] - t[k - 1]
         innov[k], Sout[k], lk = ou_innovation(r[k], m, P, vw if w_scale is None else vw * w_scale[k] * w_scale[k])
         if mask[k]:
             ll += lk

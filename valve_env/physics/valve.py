@@ -75,10 +75,17 @@ def demanded_opening(T_g_C, F_h_N, dp_k_mbar, ps_bar, p_bset_MPa, vp):
 
     ``ps_bar`` is the static pressure difference dp_s = p_1 - p_0 in bar.
     """
+    return opening_at_pressure(vapour_pressure(T_g_C, vp), F_h_N, dp_k_mbar, ps_bar, p_bset_MPa, vp)
+
+
+@register_jitable
+def opening_at_pressure(p_b_MPa, F_h_N, dp_k_mbar, ps_bar, p_bset_MPa, vp):
+    """:func:`demanded_opening` with the bellows' charge pressure ``p_b_MPa`` (:func:`vapour_pressure` of the
+    gas temperature) given: a simulation that keeps the pressure along a path evaluates only this."""
     num = (
         vp[I_A_K] * (dp_k_mbar * MBAR_TO_MPA - vp[I_DP_K_SP])
         + vp[I_A_S] * (ps_bar * BAR_TO_MPA - vp[I_DP_S_SP])
-        - vp[I_A_B] * (vapour_pressure(T_g_C, vp) - p_bset_MPa)
+        - vp[I_A_B] * (p_b_MPa - p_bset_MPa)
         + F_h_N
     )
     return num / stiffness(dp_k_mbar, vp)

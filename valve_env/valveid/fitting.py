@@ -29,6 +29,7 @@ import math
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -47,10 +48,11 @@ from valve_env.valveid.oe import (
     BAND_SPREAD,
     LANDING_SD,
     LOG2PI,
-    simulate_valve,
     stick_demand,
     stick_loglik,
     stick_simulate_sj,
+    valve_drive,
+    valve_pass,
 )
 from valve_env.valveid.stiction import jump_band
 
@@ -111,6 +113,10 @@ NOISE_FIRST_MARGIN = 1.0
 #: time, and the three noise parameters and stiction's band leave the path as it is: with the base point and
 #: the valve parameters' steps kept, those evaluations run only the filter (docs/diagnosis.md, "Speed")
 PATH_CACHE = 8
+#: the valve drives (:func:`~valve_env.valveid.oe.valve_drive`: the gas temperature's path and the bellows' pressure
+#: along it) that a :class:`Model` keeps: the valve parameters and the set point's drift leave a drive as it is, so
+#: the paths of their steps evaluate only :func:`~valve_env.valveid.oe.valve_pass` on it
+DRIVE_CACHE = 4
 
 
 def _clip(v: float, q: Parameter) -> float:
@@ -138,15 +144,18 @@ class Model:
         self.landing_sd = LANDING_SD
         self._paths: OrderedDict[tuple[int, bytes, bytes, float, bool], tuple[RunData, tuple[np.ndarray, ...]]] = (
             OrderedDict())
+        self._drives: OrderedDict[tuple[int, bytes, float, float, float, bool], tuple[RunData, tuple[Any, ...]]] = (
+            OrderedDict())
 
     def forget_paths(self) -> None:
         """Drop the kept valve paths (:meth:`_valve_path`, about 0.5 MB each for 24 h at 10 s): a fitted model kept
         beside its result (an estimator's ``backend_``, a diagnosis's findings) need not hold them."""
         self._paths.clear()
+        self._drives.clear()
 
     def __getstate__(self) -> dict[str, object]:
         # the kept valve paths hold runs and their simulations: a copied or pickled model starts without them
-        return {**self.__dict__, "_paths": OrderedDict()}
+        return {**self.__dict__, "_paths": OrderedDict(), "_drives": OrderedDict()}
 
     # --- the work (optimiser) scale: the transforms of valve_env.ident.sde ----------
     def to_work(self, values: dict[str, float]) -> np.ndarray:
@@ -199,13 +208,34 @@ class Model:
         if hit is not None:  # its entry holds the run, so no other live run has its identity
             self._paths.move_to_end(key)
             return hit[1]
-        out: tuple[np.ndarray, ...] = simulate_valve(data.t, data.T, data.M, data.dp, data.ps, vp, e,
-                                                     self.max_step_s, delta, want_sub)
+        dT, pb, tt, kk, Tg, pb0 = self._drive(data, vp, e, delta, want_sub)
+        rate = float(e[ENGINE_INDEX["rate_MPa_per_h"]])
+        x, F, x_sub, sub_idx = valve_pass(dT, pb, tt, kk, pb0, data.dp, data.ps, vp, rate, want_sub)
+        out: tuple[np.ndarray, ...] = (x, Tg, F, x_sub, sub_idx)
         if want_sub:  # the stick-slip's demand, freed of its noise's reversals: the same for every band on this path
             out = (*out, stick_demand(out[3], out[4], float(vp[I_STROKE])))
         self._paths[key] = (data, out)
         if len(self._paths) > PATH_CACHE:
             self._paths.popitem(last=False)
+        return out
+
+    def _drive(self, data: RunData, vp: np.ndarray, e: np.ndarray, delta: float, want_sub: bool) -> tuple[Any, ...]:
+        """:func:`~valve_env.valveid.oe.valve_drive` of ``data``, kept for the last :data:`DRIVE_CACHE` distinct inputs.
+        A drive depends on the run, the bulb lag, the medium's weight, the reversal threshold, the sub-step flag and
+        the valve vector apart from the fitted sigma, F_hmax and p_bset; :meth:`_valve_path` runs the valve on it
+        (:func:`~valve_env.valveid.oe.simulate_valve` is the two in one)."""
+        unfitted = vp.copy()
+        unfitted[[I_SIGMA, I_F_HMAX, I_P_BSET]] = 0.0
+        key = (id(data), unfitted.tobytes(), float(e[ENGINE_INDEX["tau_s"]]), float(e[ENGINE_INDEX["beta"]]),
+               float(delta), bool(want_sub))
+        hit = self._drives.get(key)
+        if hit is not None:  # its entry holds the run, so no other live run has its identity
+            self._drives.move_to_end(key)
+            return hit[1]
+        out = valve_drive(data.t, data.T, data.M, vp, e, self.max_step_s, delta, want_sub)
+        self._drives[key] = (data, out)
+        if len(self._drives) > DRIVE_CACHE:
+            self._drives.popitem(last=False)
         return out
 
     def simulate(self, data: RunData, values: dict[str, float],

@@ -69,6 +69,108 @@ DECIDE_PRIOR = 0.999
 
 
 @njit(cache=True)
+def valve_drive(t: np.ndarray, T: np.ndarray, M: np.ndarray, vp: np.ndarray, e: np.ndarray, max_step_s: float,
+                delta: float, want_sub: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                        float]:
+    """The part of :func:`simulate_valve` that the fitted valve parameters (sigma, F_hmax, p_bset) and the set
+    point's drift leave as it is: the gas temperature's path and the bellows' pressure along it.
+
+    Returns, per step of the simulation grid (``m`` steps between samples k-1 and k, m = 1 unless the bulb lags or
+    ``want_sub``): the gas temperature's increment ``dT``, the bellows' pressure ``pb`` (:func:`vapour_pressure
+    <valve_env.physics.valve.vapour_pressure>` of the gas temperature) and the time since the start ``tt`` where
+    the opening is evaluated (every step with ``want_sub``, else each sample's last), the sample index ``kk`` of
+    each step; then the gas temperature at the samples and the bellows' pressure at the first.
+    :func:`valve_pass` turns them into the opening and the friction force."""
+    n = t.shape[0]
+    tau = e[E_TAU]
+    beta = e[E_BETA]
+    t0 = t[0]
+    lagged = tau > 1e-9
+    fine = lagged or want_sub
+    n_steps = 0
+    for k in range(1, n):
+        m = 1
+        if fine:
+            m = max(int(math.ceil((t[k] - t[k - 1]) / max_step_s - 1e-9)), 1)
+        n_steps += m
+    dT = np.empty(n_steps)
+    pb = np.empty(n_steps)
+    tt = np.empty(n_steps)
+    kk = np.empty(n_steps, dtype=np.int64)
+    Tg_out = np.empty(n)
+    env_raw = np.empty(n)
+    for k in range(n):
+        env_raw[k] = sensed_temperature(T[k], M[k], beta)
+    env_s = monotone_path(env_raw, delta)
+    Tg = env_s[0]
+    Tg_out[0] = Tg
+    s = 0
+    for k in range(1, n):
+        h = t[k] - t[k - 1]
+        m = 1
+        if fine:
+            m = max(int(math.ceil(h / max_step_s - 1e-9)), 1)
+        hs = h / m
+        a, b = bulb_coefficients(hs, tau if lagged else 0.0)
+        e0 = env_s[k - 1]
+        de = (env_s[k] - e0) / m
+        for j in range(1, m + 1):
+            env_prev = e0 + (j - 1) * de
+            env = e0 + j * de
+            Tg_new = bulb_lag(Tg, env_prev, env, a, b)
+            dT[s] = Tg_new - Tg
+            Tg = Tg_new
+            kk[s] = k
+            if j == m or want_sub:
+                tt[s] = t[k] - t0 if j == m else t[k - 1] + j * hs - t0
+                pb[s] = phys.vapour_pressure(Tg, vp)
+            s += 1
+        Tg_out[k] = Tg
+    return dT, pb, tt, kk, Tg_out, phys.vapour_pressure(env_s[0], vp)
+
+
+@njit(cache=True)
+def valve_pass(dT: np.ndarray, pb: np.ndarray, tt: np.ndarray, kk: np.ndarray, pb0: float, dp: np.ndarray,
+               ps: np.ndarray, vp: np.ndarray, rate: float,
+               want_sub: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The valve on a drive of :func:`valve_drive`: (x, F_h) at the samples, and with ``want_sub`` the opening
+    at every step (``x_sub``) and the index of each sample in it (``sub_idx``), as :func:`simulate_valve` returns
+    them. The Dahl step runs on each step's increment of the gas temperature; the opening is the force balance at
+    the step's pressures (those of the sample the step ends in or leads to) and drifted set pressure, clipped to
+    [0, stroke]."""
+    n = dp.shape[0]
+    p0 = vp[I_P_BSET]
+    stroke = vp[I_STROKE]
+    n_steps = dT.shape[0]
+    x_out = np.empty(n)
+    F_out = np.empty(n)
+    x_sub = np.empty(n_steps + 1 if want_sub else 0)
+    sub_idx = np.zeros(n, dtype=np.int64)
+    F = 0.0
+    x_out[0] = min(max(phys.opening_at_pressure(pb0, F, dp[0], ps[0], p0, vp), 0.0), stroke)
+    F_out[0] = F
+    if want_sub:
+        x_sub[0] = x_out[0]
+    for s in range(n_steps):
+        k = kk[s]
+        if dT[s] != 0.0:  # a step of no change leaves the force as it is (the Dahl step's decay is 1)
+            F = phys.dahl_update(F, dT[s], vp)
+        last = s + 1 == n_steps or kk[s + 1] != k
+        if last or want_sub:
+            p_set = p0 if rate == 0.0 else drifted_set_pressure(p0, rate, tt[s])
+            xd = phys.opening_at_pressure(pb[s], F, dp[k], ps[k], p_set, vp)
+            xc = min(max(xd, 0.0), stroke)
+            if want_sub:
+                x_sub[s + 1] = xc
+            if last:
+                x_out[k] = xc
+                F_out[k] = F
+                if want_sub:
+                    sub_idx[k] = s + 1
+    return x_out, F_out, x_sub, sub_idx
+
+
+@njit(cache=True)
 def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, ps: np.ndarray,
                    vp: np.ndarray, e: np.ndarray, max_step_s: float, delta: float,
                    want_sub: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -85,72 +187,13 @@ def simulate_valve(t: np.ndarray, T: np.ndarray, M: np.ndarray, dp: np.ndarray, 
     functions of :mod:`valve_env.physics.trajectory` that the generator and the environments run.
     T_env is interpolated linearly between samples on sub-steps of at most ``max_step_s``. ``x`` is
     the opening clipped to [0, stroke]; with ``want_sub`` the clipped opening at every sub-step is
-    returned in ``x_sub`` and ``sub_idx[k]`` is the index of sample k in it."""
-    n = t.shape[0]
-    x_out = np.empty(n)
-    Tg_out = np.empty(n)
-    F_out = np.empty(n)
-    sub_idx = np.zeros(n, dtype=np.int64)
-    tau = e[E_TAU]
-    beta = e[E_BETA]
-    rate = e[E_RATE]
-    p0 = vp[I_P_BSET]
-    stroke = vp[I_STROKE]
-    t0 = t[0]
-    lagged = tau > 1e-9
-    fine = lagged or want_sub
-    n_sub = 1
-    if fine:
-        for k in range(1, n):
-            mk = int(math.ceil((t[k] - t[k - 1]) / max_step_s - 1e-9))
-            n_sub += mk if mk > 1 else 1
-    x_sub = np.empty(n_sub if want_sub else 0)
-    env_raw = np.empty(n)
-    for k in range(n):
-        env_raw[k] = sensed_temperature(T[k], M[k], beta)
-    env_s = monotone_path(env_raw, delta)
-    Tg = env_s[0]
-    F = 0.0
-    xd = phys.demanded_opening(Tg, F, dp[0], ps[0], p0, vp)
-    x_out[0] = min(max(xd, 0.0), stroke)
-    Tg_out[0] = Tg
-    F_out[0] = F
-    pos = 0
-    if want_sub:
-        x_sub[0] = x_out[0]
-    for k in range(1, n):
-        h = t[k] - t[k - 1]
-        m = 1
-        if fine:
-            m = int(math.ceil(h / max_step_s - 1e-9))
-            if m < 1:
-                m = 1
-        hs = h / m
-        a, b = bulb_coefficients(hs, tau if lagged else 0.0)
-        e0 = env_s[k - 1]
-        de = (env_s[k] - e0) / m
-        for j in range(1, m + 1):
-            env_prev = e0 + (j - 1) * de
-            env = e0 + j * de
-            Tg_new = bulb_lag(Tg, env_prev, env, a, b)
-            F = phys.dahl_update(F, Tg_new - Tg, vp)
-            Tg = Tg_new
-            if want_sub and j < m:
-                tt = t[k - 1] + j * hs
-                xd = phys.demanded_opening(Tg, F, dp[k], ps[k], drifted_set_pressure(p0, rate, tt - t0), vp)
-                pos += 1
-                x_sub[pos] = min(max(xd, 0.0), stroke)
-        xd = phys.demanded_opening(Tg, F, dp[k], ps[k], drifted_set_pressure(p0, rate, t[k] - t0), vp)
-        x_out[k] = min(max(xd, 0.0), stroke)
-        if want_sub:
-            pos += 1
-            x_sub[pos] = x_out[k]
-            sub_idx[k] = pos
-        Tg_out[k] = Tg
-        F_out[k] = F
-    return x_out, Tg_out, F_out, x_sub, sub_idx
+    returned in ``x_sub`` and ``sub_idx[k]`` is the index of sample k in it.
 
-
+    It is :func:`valve_pass` on :func:`valve_drive`: a fit keeps the drive, which its valve parameters' steps
+    leave as it is (:meth:`valve_env.valveid.fitting.Model._valve_path`)."""
+    dT, pb, tt, kk, Tg, pb0 = valve_drive(t, T, M, vp, e, max_step_s, delta, want_sub)
+    x, F, x_sub, sub_idx = valve_pass(dT, pb, tt, kk, pb0, dp, ps, vp, e[E_RATE], want_sub)
+    return x, Tg, F, x_sub, sub_idx
 
 
 @njit(cache=True)
@@ -369,10 +412,13 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     innov = np.empty(n)
     Sout = np.empty(n)
     terms = np.zeros(n)
+    dt = -1.0
+    phi = 0.0
     for k in range(n):
         if k > 0:
             # the model error's OU step (the scalar OU filter's), then the stem's between the samples
-            phi, me, Pee = ou_predict(t[k] - t[k - 1], tau_e, ve, me, Pee)
+            phi, me, Pee = ou_predict(t[k] - t[k - 1], tau_e, ve, me, Pee, dt, phi)
+            dt = t[k] - t[k - 1]
             Pes = phi * Pes
             s_hold = ms
             was_moving = moving

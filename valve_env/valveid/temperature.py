@@ -598,21 +598,96 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, nu: float = STUDENT_NU, max
     w = np.ones(n)
     lq = minimize_scalar(lambda z: -_irw_pass(t, y, math.exp(z), r, False, w)[0], bounds=(-40.0, 0.0),
                          method="bounded", options={"xatol": 1e-2}).x
-    q = math.exp(lq)
-    level_prev = None
-    for _ in range(max_iter):
+    q, r = _variational_em(t, y, math.exp(lq), r, r_floor, float(nu), int(max_iter), float(tol), w)
+    _, level, rate, _, _ = _irw_pass(t, y, q, r, True, w)
+    return level, rate, math.sqrt(r), math.sqrt(q)
+
+
+@njit(cache=True)
+def _variational_em(t: np.ndarray, y: np.ndarray, q: float, r: float, r_floor: float, nu: float, max_iter: int,
+                    tol: float, w: np.ndarray) -> tuple[float, float]:  # pragma: no cover - compiled
+    """The iterations of :func:`smooth_temperature`'s variational EM from ``q``, ``r``: the converged (q, r), with the
+    weights ``w`` (1 / E[lambda_k]) updated in place. Its sum is NumPy's (:func:`_pairwise_sum`)."""
+    n = t.shape[0]
+    level_prev = np.empty(0)
+    for it in range(max_iter):
         _, level, _, e, res = _irw_pass(t, y, q, r, True, w)
         lam = (nu + 2.0) / (nu + e[1:] / q)
-        q_new = max(float(np.sum(lam * e[1:])) / (2.0 * (n - 1)), 1e-300)
+        q_new = max(_pairwise_sum(lam * e[1:], 0, n - 1) / (2.0 * (n - 1)), 1e-300)
         r_new = max(res / n, r_floor)
         w[1:] = 1.0 / lam
-        done = (level_prev is not None and abs(math.log(r_new / r)) < tol
-                and float(np.max(np.abs(level - level_prev))) < tol * math.sqrt(r_new))
+        done = (it > 0 and abs(math.log(r_new / r)) < tol
+                and np.max(np.abs(level - level_prev)) < tol * math.sqrt(r_new))
         q, r, level_prev = q_new, r_new, level
         if done:
             break
-    _, level, rate, _, _ = _irw_pass(t, y, q, r, True, w)
-    return level, rate, math.sqrt(r), math.sqrt(q)
+    return q, r
+
+
+@njit(cache=True)
+def _block_sum(a: np.ndarray, lo: int, n: int) -> float:  # pragma: no cover - compiled
+    """NumPy's sum of a run of at most 128 values (:func:`_pairwise_sum`): eight interleaved partial sums."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    stop = n - n % 8
+    while i < stop:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:  # pragma: no cover - compiled
+    """The sum of ``a[lo:lo + n]`` in the order of NumPy's ``np.sum`` of a contiguous float64 array, so that a
+    compiled loop gives NumPy's figures to the last digit: its pairwise summation, a run longer than 128 split
+    in two at half its length rounded down to a multiple of 8, the halves summed and added (the recursion
+    unrolled on a stack: numba's cache does not keep recursive functions)."""
+    run_lo = np.empty(64, dtype=np.int64)
+    run_n = np.empty(64, dtype=np.int64)
+    right = np.zeros(64, dtype=np.bool_)  # the run's left half is summed (into ``left``), its right half is next
+    left = np.empty(64)
+    top = 0
+    run_lo[0] = lo
+    run_n[0] = n
+    while True:
+        m = run_n[top]
+        if m > 128:  # split: the left half first
+            half = m // 2 - (m // 2) % 8
+            right[top] = False
+            run_lo[top + 1] = run_lo[top]
+            run_n[top + 1] = half
+            top += 1
+            continue
+        v = _block_sum(a, run_lo[top], m)
+        top -= 1
+        while top >= 0 and right[top]:  # both halves done: their sum is this run's
+            v = left[top] + v
+            top -= 1
+        if top < 0:
+            return v
+        left[top] = v
+        right[top] = True
+        half = run_n[top] // 2 - (run_n[top] // 2) % 8
+        run_lo[top + 1] = run_lo[top] + half
+        run_n[top + 1] = run_n[top] - half
+        top += 1
 
 
 __all__ = ["ChannelNoise", "RESOLUTION_FLOOR_C", "channel_noise", "quantum", "smooth_temperature", "STUDENT_NU",
