@@ -81,7 +81,8 @@ def test_a_kept_valve_path_gives_the_likelihood_of_a_fresh_simulation() -> None:
     assert lag.loglik(d, {**lv, "tau_s": 60.0}) == _fresh_loglik(d, ("sensor_lag",), {**lv, "tau_s": 60.0})
     assert len(lag._paths) == 2 and len(lag._drives) == 2  # the lag shapes the demand: a path and a drive each
     # the medium's weight moves the sensed temperature (a drive each); the set point's drift acts after the drive
-    for effect, key, a, b in (("medium_temperature", "beta", 0.05, 0.1), ("setpoint_drift", "rate_MPa_per_h", 2e-5, -3e-5)):
+    for effect, key, a, b in (("medium_temperature", "beta", 0.05, 0.1),
+                              ("setpoint_drift", "rate_MPa_per_h", 2e-5, -3e-5)):
         em = Model((effect,))
         ev = em.default_start(d)
         em._drives.clear()
