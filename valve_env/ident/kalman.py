@@ -647,8 +647,9 @@ def ou_loglik(t: np.ndarray, r: np.ndarray, s_w: float, s_e: float, tau_e: float
     phi = 0.0
     for k in range(n):
         if k > 0:
-            phi, m, P = ou_predict(t[k] - t[k - 1], tau_e, ve, m, P, dt, phi)
-            dt = t[k] - t[k - 1]
+            h = t[k] - t[k - 1]
+            phi, m, P = ou_predict(h, tau_e, ve, m, P, dt, phi)
+            dt = h
         innov[k], Sout[k], lk = ou_innovation(r[k], m, P, vw if w_scale is None else vw * w_scale[k] * w_scale[k])
         if mask[k]:
             ll += lk

@@ -417,8 +417,9 @@ def stick_loglik(t: np.ndarray, y: np.ndarray, x_sub: np.ndarray, sub_idx: np.nd
     for k in range(n):
         if k > 0:
             # the model error's OU step (the scalar OU filter's), then the stem's between the samples
-            phi, me, Pee = ou_predict(t[k] - t[k - 1], tau_e, ve, me, Pee, dt, phi)
-            dt = t[k] - t[k - 1]
+            h = t[k] - t[k - 1]
+            phi, me, Pee = ou_predict(h, tau_e, ve, me, Pee, dt, phi)
+            dt = h
             Pes = phi * Pes
             s_hold = ms
             was_moving = moving
