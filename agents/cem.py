@@ -105,11 +105,13 @@ class BatchedLinearPolicies:
         b = np.repeat(b, e, axis=0)
         obs, _ = self.vec.reset(seed=[int(s) for _ in range(c) for s in seeds])
         hist = np.zeros((self.n, self.k, self.feat_dim))
+        memory = self.features.initial_memory(self.n)
         integ = self.core.initial_state(self.n)
         starts = np.ones(self.n, bool)
         ret = np.zeros(self.n)
         while True:
-            hist = push_history(hist, self.features(obs).astype(np.float64), starts)
+            feat, memory = self.features.step(obs, memory, starts)
+            hist = push_history(hist, feat.astype(np.float64), starts)
             starts = np.zeros(self.n, bool)
             x = hist.reshape(self.n, -1).astype(np.float32).astype(np.float64)
             a = np.einsum("nmd,nd->nm", W, x) + b

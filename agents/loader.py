@@ -12,9 +12,9 @@ with ``ppo.yml`` (the resolved training config) and ``ppo_obs_norm.json``
 or (n, 12)); ``action`` is in the env's action space (physical units). The
 controller replays what the agent was trained with: the observation history
 (frame stack), observation normalisation and the residual / rescaled action.
-``state`` is a float64 array (n, state_size): the last k (scaled) observations and the
-residual's PI integrators; rows flagged in ``episode_start`` (or every row when
-``state`` is None) start a new episode.
+``state`` is a float64 array (n, state_size): the last k (scaled) observations, the memory of
+the observation aids that keep one (``draw_owed``) and the residual's PI integrators; rows flagged
+in ``episode_start`` (or every row when ``state`` is None) start a new episode.
 """
 
 from __future__ import annotations
@@ -105,9 +105,10 @@ class AgentController:
     # -- SB3 interface ----------------------------------------------------------
     @property
     def state_size(self) -> int:
-        """Memory per env: the last k observations, then the residual's integrators."""
+        """Memory per env: the last k observations, the observation aids' memory, then the residual's
+        integrators."""
         m = self.residual.n_act if self.residual is not None else 0
-        return self.k * self.feat_dim + m
+        return self.k * self.feat_dim + self.features.memory_size + m
 
     def predict(
         self,
@@ -120,6 +121,7 @@ class AgentController:
         single = obs.ndim == 1
         obs2 = obs.reshape(1, -1) if single else obs
         n, kd = obs2.shape[0], self.k * self.feat_dim
+        km = kd + self.features.memory_size
         if self.trained_on != self.env_id and obs2.shape[1] > self.obs_dim:
             obs2 = obs2[:, : self.obs_dim]
         if obs2.shape[1] != self.obs_dim:
@@ -132,8 +134,8 @@ class AgentController:
             starts = np.zeros(n, bool)
         else:
             starts = np.broadcast_to(np.asarray(episode_start, bool).reshape(-1), (n,))
-        feat = self.features(obs2).astype(np.float64)
-        hist = push_history(state_arr[:, :kd].reshape(n, self.k, self.feat_dim), feat, starts)
+        feat, memory = self.features.step(obs2, state_arr[:, kd:km], starts)
+        hist = push_history(state_arr[:, :kd].reshape(n, self.k, self.feat_dim), feat.astype(np.float64), starts)
         x = hist.reshape(n, kd).astype(np.float32)
         if self.norm:
             x = np.clip((x - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
@@ -144,9 +146,10 @@ class AgentController:
             a = np.asarray(a, np.float64).reshape(n, -1)
         new_state = np.empty_like(state_arr)
         new_state[:, :kd] = hist.reshape(n, kd)
+        new_state[:, kd:km] = memory
         if self.residual is not None:
-            integ = np.where(starts[:, None], 0.0, state_arr[:, kd:])
-            u, new_state[:, kd:] = self.residual.step(obs2, a, integ)
+            integ = np.where(starts[:, None], 0.0, state_arr[:, km:])
+            u, new_state[:, km:] = self.residual.step(obs2, a, integ)
         else:
             a = np.clip(a, -1.0, 1.0)
             u = self._low + (a + 1.0) * 0.5 * (self._high - self._low)

@@ -426,11 +426,16 @@ class VecScaleObservation(_ObsTransform):
         super().__init__(venv, observation_space=gym.spaces.Box(-np.inf, np.inf, shape=(self.features.size(shape[0]),),
                                                                 dtype=np.float32))
 
+        self._memory = self.features.initial_memory(self.num_envs)
+
     def transform(self, obs: np.ndarray, dones: np.ndarray | None) -> np.ndarray:
-        return self.features(obs)
+        starts = np.ones(self.num_envs, bool) if dones is None else np.asarray(dones, bool)
+        feat, self._memory = self.features.step(obs, self._memory, starts)
+        return feat
 
     def terminal(self, i: int, obs: np.ndarray) -> np.ndarray:
-        return self.features(obs)
+        # the episode's last observation, with the memory it ended with (before the reset clears it)
+        return self.features.step(np.atleast_2d(obs), self._memory[i:i + 1], np.zeros(1, bool))[0][0]
 
 
 class VecHistory(_ObsTransform):

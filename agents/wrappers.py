@@ -229,6 +229,54 @@ def time_of_day_s(obs: np.ndarray) -> np.ndarray:
     return np.mod(ang, 2.0 * np.pi) * 86400.0 / (2.0 * np.pi)
 
 
+def _started_kWh(t_s: np.ndarray, starts_s: np.ndarray, energy_kWh: np.ndarray, sigma_s: float,
+                 lo_s: np.ndarray, hi_s: np.ndarray) -> np.ndarray:
+    """The habitual draw energy, kWh, expected to start between ``t + lo`` and ``t + hi`` (seconds; rows:
+    the times ``t_s``; columns: the windows, ``lo_s``/``hi_s`` (windows,) or (rows, windows)): the
+    tabled draws on the day before, the day and the day after, each under a Gaussian start-time jitter
+    of sd ``sigma_s`` (0: at its tabled time). Rows with the same times and windows are computed once
+    (envs that started together share them)."""
+    from scipy.special import ndtr
+
+    n = np.shape(t_s)[0]
+    lo = np.broadcast_to(np.asarray(lo_s, np.float64), (n, np.shape(lo_s)[-1]))
+    hi = np.broadcast_to(np.asarray(hi_s, np.float64), lo.shape)
+    key = np.concatenate([np.asarray(t_s, np.float64)[:, None], lo, hi], axis=1)
+    if (key == key[0]).all():  # the common case: every env at the same time and window
+        k_u, inv = key[:1], np.zeros(n, np.intp)
+    else:
+        k_u, inv = np.unique(key, axis=0, return_inverse=True)
+    s = (starts_s[None, :] + np.array([-86400.0, 0.0, 86400.0])[:, None])[None]  # (1, 3 days, draws)
+    t = k_u[:, :1, None]  # (distinct rows, 1, 1)
+    w = lo.shape[1]
+
+    def cdf(x_s: np.ndarray) -> np.ndarray:  # P(the draw starts before t + x) over its jittered start
+        x = t + x_s[:, :, None] - s
+        return ndtr(x / sigma_s) if sigma_s > 0 else (x >= 0).astype(np.float64)
+
+    out = [((cdf(k_u[:, 1 + w + j:2 + w + j]) - cdf(k_u[:, 1 + j:2 + j])) * energy_kWh).sum(axis=(1, 2))
+           for j in range(w)]
+    return np.stack(out, axis=1)[inv.reshape(-1)]
+
+
+def _times_columns(aid_name: str, aid: Mapping[str, Any]) -> tuple[str, ...]:
+    """An aid's ``times: [obs column, ...]`` (see :class:`DrawForecast`), checked."""
+    times = tuple(str(c) for c in aid.get("times", ()))
+    bad = [c for c in times if c not in OBS_SCALING or c == "T_target_C"]
+    if bad:
+        raise ValueError(f"obs_aids.{aid_name}.times: {bad} are not observation columns with a fixed scaling")
+    return times
+
+
+def _times_products(cols: np.ndarray, obs: np.ndarray, times: tuple[str, ...]) -> np.ndarray:
+    """``cols`` followed by ``cols`` times each of the ``times`` columns' physically scaled values."""
+    if not times:
+        return cols
+    o = np.atleast_2d(np.asarray(obs, np.float64))
+    prods = [cols * ((o[:, OBS_NAMES.index(c)] - OBS_SCALING[c][0]) / OBS_SCALING[c][1])[:, None] for c in times]
+    return np.concatenate([cols, *prods], axis=1)
+
+
 @dataclass(frozen=True)
 class DrawForecast:
     """Observation aid ``draw_forecast``: the household's *habitual* draws ahead.
@@ -254,9 +302,10 @@ class DrawForecast:
     times: tuple[str, ...] = ()
 
     @classmethod
-    def from_config(cls, aid: Mapping[str, Any], scenario: Any) -> DrawForecast:
+    def from_config(cls, aid: Mapping[str, Any], env_cfg: Any) -> DrawForecast:
         from valve_env.scenario import tapping_cycle
 
+        scenario = env_cfg.scenario
         if scenario.tapping_profile == "none":
             raise ValueError("obs_aids.draw_forecast needs a tapping profile (scenario.tapping_profile is 'none')")
         cyc = tapping_cycle(scenario.tapping_profile)
@@ -264,11 +313,8 @@ class DrawForecast:
         if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) or edges[0] < 0:
             raise ValueError(f"obs_aids.draw_forecast.edges_h must increase from >= 0, got {edges}")
         sigma = float(scenario.draw_jitter_min) * 60.0 if scenario.stochastic_draws else 0.0
-        times = tuple(str(c) for c in aid.get("times", ()))
-        bad = [c for c in times if c not in OBS_SCALING or c == "T_target_C"]
-        if bad:
-            raise ValueError(f"obs_aids.draw_forecast.times: {bad} are not observation columns with a fixed scaling")
-        return cls(cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma, edges, times)
+        return cls(cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma, edges,
+                   _times_columns("draw_forecast", aid))
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -276,26 +322,103 @@ class DrawForecast:
         return win + tuple(f"{w}*{c}" for c in self.times for w in win)
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
-        from scipy.special import ndtr
+        e = np.asarray(self.edges_h) * 3600.0
+        win = _started_kWh(time_of_day_s(obs), self.starts_s, self.energy_kWh, self.sigma_s, e[:-1], e[1:])
+        return _times_products(win, obs, self.times)
 
-        # the windows depend on the time of day alone: each distinct time is computed once (envs
-        # that started together share it) and the rows are gathered back
-        t_all = time_of_day_s(obs)
-        t_u, inv = np.unique(t_all, return_inverse=True)
-        t = t_u[:, None, None]  # (distinct times, 1, 1)
-        s = (self.starts_s[None, :] + np.array([-86400.0, 0.0, 86400.0])[:, None])[None]  # (1, 3, draws)
-        cdf = []
-        for h in self.edges_h:  # P(the draw starts before t + h) over the draw's jittered start
-            x = t + h * 3600.0 - s
-            cdf.append(ndtr(x / self.sigma_s) if self.sigma_s > 0 else (x >= 0).astype(np.float64))
-        out = [((cdf[j + 1] - cdf[j]) * self.energy_kWh).sum(axis=(1, 2)) for j in range(len(self.edges_h) - 1)]
-        win = np.stack(out, axis=1)[inv.reshape(-1)]
-        if not self.times:
-            return win
+
+@dataclass(frozen=True)
+class DrawOwed:
+    """Observation aid ``draw_owed``: the household's habitual draws that have not come yet.
+
+    For each window of the last ``windows_h`` hours: the tabled draw energy, kWh, expected to have
+    started in it (the published cycle under the scenario's start-time jitter, as :class:`DrawForecast`)
+    less the energy the tank delivered in it (the observed ``draw_l_min`` at the outlet's ``T_out_C``
+    above the cold mains), at least 0. A bath later than its habit shows here as energy still owed,
+    after the forecast ahead has let it go: what a thermostat that remembers what it saw can know.
+    Only the part of a window since the episode began counts. With ``lead_h`` the delivered energy is
+    counted from that much earlier, so that a draw that came before its habitual window still pays for it.
+
+    The one aid with memory (``memory_size`` numbers per env, carried by :meth:`ObsFeatures.step`; see
+    :meth:`step`). docs/agents.md, "Observation aids"."""
+
+    starts_s: np.ndarray
+    energy_kWh: np.ndarray
+    sigma_s: float
+    windows_h: tuple[float, ...]
+    dt_s: float
+    #: the water's heat per litre and kelvin, kWh/(l K) (rho cp), and the cold mains, degC (TankParams)
+    kWh_per_lK: float
+    T_cold_C: float
+    #: as :class:`DrawForecast`'s ``times``: also each window's owed energy times these columns
+    times: tuple[str, ...] = ()
+    #: ``lead_h``: the delivered energy is counted from this much before each window (a draw that came
+    #: early, before its habitual window began, still pays for it); 0: the same window
+    lead_h: float = 0.0
+
+    @classmethod
+    def from_config(cls, aid: Mapping[str, Any], env_cfg: Any) -> DrawOwed:
+        from valve_env.scenario import tapping_cycle
+
+        sc, tank = env_cfg.scenario, env_cfg.tank
+        if sc.tapping_profile == "none":
+            raise ValueError("obs_aids.draw_owed needs a tapping profile (scenario.tapping_profile is 'none')")
+        cyc = tapping_cycle(sc.tapping_profile)
+        win = tuple(float(h) for h in aid.get("windows_h", (1.0, 2.0, 3.0)))
+        if not win or any(not h > 0 for h in win) or len(set(win)) != len(win):
+            raise ValueError(f"obs_aids.draw_owed.windows_h must be distinct positive hours, got {list(win)}")
+        lead = float(aid.get("lead_h", 0.0))
+        if not lead >= 0:
+            raise ValueError(f"obs_aids.draw_owed.lead_h must be hours >= 0, got {lead}")
+        sigma = float(sc.draw_jitter_min) * 60.0 if sc.stochastic_draws else 0.0
+        return cls(cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma, win,
+                   float(env_cfg.control.dt_s), float(tank.rho) * float(tank.cp) / 3.6e6, float(tank.T_cold),
+                   _times_columns("draw_owed", aid), lead)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        win = tuple(f"owed_kWh_{h:g}h" for h in self.windows_h)
+        return win + tuple(f"{w}*{c}" for c in self.times for w in win)
+
+    @property
+    def steps(self) -> int:
+        """Control steps in the longest window of delivered energy (with the lead)."""
+        return int(np.ceil((max(self.windows_h) + self.lead_h) * 3600.0 / self.dt_s - 1e-9))
+
+    @property
+    def memory_size(self) -> int:
+        return self.steps + 1 + len(self.windows_h)
+
+    def step(self, obs: np.ndarray, memory: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The owed energy per window for ``obs`` (n, d), and the memory (n, memory_size) after it; rows
+        flagged in ``starts`` begin an episode (``obs`` is its first observation: nothing delivered yet).
+
+        The memory is a ring of the energy delivered in the last ``steps`` control steps (step k in slot
+        k mod steps), the steps since the episode began, and each window's running sum: a step adds its
+        energy to every sum and takes out what left each window, so a step costs the same whatever the
+        windows' length."""
         o = np.atleast_2d(np.asarray(obs, np.float64))
-        cols = [win * ((o[:, OBS_NAMES.index(c)] - OBS_SCALING[c][0]) / OBS_SCALING[c][1])[:, None]
-                for c in self.times]
-        return np.concatenate([win, *cols], axis=1)
+        L, W = self.steps, len(self.windows_h)
+        fresh = np.asarray(starts, bool)
+        new = np.array(memory, np.float64, copy=True)
+        new[fresh] = 0.0  # an episode's first observation: nothing delivered yet, no step taken
+        kWh = o[:, I_DRAW] * (self.dt_s / 60.0) * self.kWh_per_lK * np.maximum(o[:, I_T_OUT] - self.T_cold_C, 0.0)
+        kWh[fresh] = 0.0
+        k = new[:, L] + np.where(fresh, 0.0, 1.0)
+        new[:, L] = k
+        win = np.array([int(round(h * 3600.0 / self.dt_s)) for h in self.windows_h])
+        paid = np.minimum(win + int(round(self.lead_h * 3600.0 / self.dt_s)), L)  # the delivered energy's windows
+        rows = np.arange(o.shape[0])
+        ki = k.astype(np.intp)
+        leaving = new[rows[:, None], (ki[:, None] - paid[None, :]) % L]  # slots not yet written this episode hold 0
+        sums = new[:, L + 1:L + 1 + W]
+        sums += kWh[:, None] - leaving
+        new[rows, ki % L] = kWh
+        delivered = np.maximum(sums, 0.0)
+        since_s = np.minimum(win[None, :].astype(np.float64), k[:, None]) * self.dt_s  # the window since the start
+        expected = _started_kWh(time_of_day_s(o), self.starts_s, self.energy_kWh, self.sigma_s, -since_s,
+                                np.zeros_like(since_s))
+        return _times_products(np.maximum(expected - delivered, 0.0), o, self.times), new
 
 
 @dataclass(frozen=True)
@@ -308,7 +431,7 @@ class TimeOfDay:
     harmonics: tuple[int, ...]
 
     @classmethod
-    def from_config(cls, aid: Mapping[str, Any], scenario: Any) -> TimeOfDay:
+    def from_config(cls, aid: Mapping[str, Any], env_cfg: Any) -> TimeOfDay:
         ks = tuple(int(k) for k in aid.get("harmonics", (2, 3)))
         if not ks or any(k < 2 for k in ks):
             raise ValueError(f"obs_aids.time_of_day.harmonics must be integers >= 2, got {list(ks)}")
@@ -324,7 +447,7 @@ class TimeOfDay:
 
 
 #: the observation aids a config may name (``obs_aids:``), docs/agents.md
-OBS_AIDS: dict[str, Any] = {"draw_forecast": DrawForecast, "time_of_day": TimeOfDay}
+OBS_AIDS: dict[str, Any] = {"draw_forecast": DrawForecast, "draw_owed": DrawOwed, "time_of_day": TimeOfDay}
 
 
 @dataclass(frozen=True)
@@ -347,7 +470,7 @@ class ObsFeatures:
         for name, spec in (cfg.get("obs_aids") or {}).items():
             if name not in OBS_AIDS:
                 raise ValueError(f"unknown observation aid {name!r}; known: {', '.join(OBS_AIDS)}")
-            aids.append(OBS_AIDS[name].from_config(spec or {}, env_cfg.scenario))
+            aids.append(OBS_AIDS[name].from_config(spec or {}, env_cfg))
         return cls(cfg.get("obs_scaling") == "physical", names, tuple(aids))
 
     @property
@@ -357,14 +480,43 @@ class ObsFeatures:
     def size(self, obs_dim: int) -> int:
         return obs_dim + sum(len(a.names) for a in self.aids)
 
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
+    @property
+    def memory_size(self) -> int:
+        """Numbers per env that the aids with memory (:class:`DrawOwed`) carry from step to step."""
+        return sum(int(getattr(a, "memory_size", 0)) for a in self.aids)
+
+    def initial_memory(self, n: int) -> np.ndarray:
+        return np.zeros((n, self.memory_size))
+
+    def step(self, obs: np.ndarray, memory: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The features of ``obs`` (n, d) or (d,), with the aids' ``memory`` (n, memory_size) carried;
+        rows flagged in ``starts`` (n,) begin an episode. Returns (features, the memory after them).
+        Every caller (the training wrappers, CEM's batched policies, the deployed controller) steps
+        this one map, so training and deployment see the same features."""
         o = np.asarray(obs)
         x = scale_obs(o, self.extra_names) if self.scaled else o.astype(np.float32)
         if not self.aids:
-            return x
+            return x, memory
         o2 = np.atleast_2d(o)
-        cols = np.concatenate([a(o2) for a in self.aids], axis=1).astype(np.float32)
-        return np.concatenate([np.atleast_2d(x), cols], axis=1).reshape(*x.shape[:-1], -1)
+        cols, mems, i = [], [], 0
+        for a in self.aids:
+            m = int(getattr(a, "memory_size", 0))
+            if m:
+                c, new = a.step(o2, memory[:, i:i + m], np.asarray(starts, bool).reshape(-1))
+                mems.append(new)
+                i += m
+            else:
+                c = a(o2)
+            cols.append(c)
+        feat = np.concatenate([np.atleast_2d(x), np.concatenate(cols, axis=1).astype(np.float32)], axis=1)
+        return feat.reshape(*x.shape[:-1], -1), (np.concatenate(mems, axis=1) if mems else memory)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """The features of aids without memory (:meth:`step` carries the memory of those with it)."""
+        if self.memory_size:
+            raise TypeError("an observation aid with memory (draw_owed) needs ObsFeatures.step(obs, memory, starts)")
+        o = np.asarray(obs)
+        return self.step(o, np.zeros((np.atleast_2d(o).shape[0], 0)), np.zeros(np.atleast_2d(o).shape[0], bool))[0]
 
 
 class ScaleObservation(gym.ObservationWrapper[np.ndarray, np.ndarray, np.ndarray]):
@@ -377,9 +529,17 @@ class ScaleObservation(gym.ObservationWrapper[np.ndarray, np.ndarray, np.ndarray
         assert shape is not None
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.features.size(shape[0]),),
                                                 dtype=np.float32)
+        self._memory = self.features.initial_memory(1)
+        self._start = True
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
+        self._start = True
+        return super().reset(**kwargs)
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
-        return self.features(observation)
+        feat, self._memory = self.features.step(np.atleast_2d(observation), self._memory, np.array([self._start]))
+        self._start = False
+        return feat[0]
 
 
 def push_history(hist: np.ndarray, obs: np.ndarray, starts: np.ndarray, in_place: bool = False) -> np.ndarray:

@@ -15,6 +15,7 @@ import pytest
 import valve_env
 from agents.loader import available_agents, load_agent
 from agents.wrappers import DrawForecast, ObsFeatures, ResidualCore, time_of_day_s
+from valve_env.config import EnvConfig
 from valve_env.scenario import ScenarioParams, tapping_cycle
 
 SMALL = "ThermoValveSmallCylinder-v0"
@@ -39,7 +40,7 @@ def test_draw_forecast_windows_add_up_to_the_tabled_cycle(jitter: float) -> None
     jitter a window holds exactly the draws tabled in it."""
     sc = ScenarioParams.from_dict({"tapping_profile": "L", "draw_jitter_min": jitter,
                                    "stochastic_draws": jitter > 0})
-    fc = DrawForecast.from_config({"edges_h": [0, 6, 12, 18, 24]}, sc)
+    fc = DrawForecast.from_config({"edges_h": [0, 6, 12, 18, 24]}, EnvConfig(scenario=sc))
     total = float(tapping_cycle("L")["Qtap_kWh"].sum())
     f = fc(_obs_at(np.array([0.0, 5000.0])))
     np.testing.assert_allclose(f.sum(axis=1), total, rtol=1e-9)
@@ -58,7 +59,8 @@ def test_batched_features_and_history_are_the_single_env_s_bit_for_bit() -> None
     from agents.wrappers import push_history
 
     sc = ScenarioParams.from_dict({"tapping_profile": "M", "draw_jitter_min": 20.0, "stochastic_draws": True})
-    fc = DrawForecast.from_config({"edges_h": [0.0, 0.5, 1.0, 2.0, 4.0], "times": ["T_bottom_C"]}, sc)
+    fc = DrawForecast.from_config({"edges_h": [0.0, 0.5, 1.0, 2.0, 4.0], "times": ["T_bottom_C"]},
+                                  EnvConfig(scenario=sc))
     rng = np.random.default_rng(0)
     obs = _obs_at(rng.choice([0.0, 30.0, 25200.0, 61230.0, 86370.0], size=40))
     obs[:, 2] = rng.uniform(30.0, 60.0, size=40)
@@ -124,6 +126,80 @@ def test_features_with_aids_are_the_same_in_training_and_deployment(tmp_path: Pa
         u, state = ctrl.predict(raw, state, np.array([t == 0]))
         raw, r, _, _, _ = env.step(u)
         assert r == pytest.approx(float(venv.get_original_reward()[0]), rel=1e-5, abs=1e-6)
+
+
+def test_draw_owed_is_the_habit_since_the_start_less_what_the_tank_delivered() -> None:
+    """draw_owed, without jitter: the tabled energy of the draws started in each window of the last hours
+    (only since the episode began) less the energy delivered at the outlet above the cold mains, at
+    least 0; a row that begins an episode starts with an empty memory."""
+    from agents.wrappers import DrawOwed
+
+    cfg = EnvConfig(scenario=ScenarioParams.from_dict({"tapping_profile": "L", "stochastic_draws": False}))
+    owed = DrawOwed.from_config({"windows_h": [1.0, 3.0]}, cfg)
+    assert owed.names == ("owed_kWh_1h", "owed_kWh_3h") and owed.memory_size == 3 * 120 + 1 + 2
+    cyc = tapping_cycle("L")
+
+    def tabled(lo_h: float, hi_h: float) -> float:  # draws started in (lo, hi], hours of the day
+        s = cyc["t_start_s"] / 3600.0
+        return float(cyc.loc[(s > lo_h) & (s <= hi_h), "Qtap_kWh"].sum())
+
+    def run(start_h: float, end_h: float, draw_at_h: float | None = None, rate: float = 10.0) -> np.ndarray:
+        mem = np.full((1, owed.memory_size), 7.0)  # an episode's leftovers: its start clears them
+        k_end = int(round((end_h - start_h) * 120))
+        for k in range(k_end + 1):
+            o = _obs_at(np.array([start_h * 3600.0 + 30.0 * k]))
+            o[0, 0] = 55.0  # T_out_C
+            if draw_at_h is not None and 0 <= k - int(round((draw_at_h - start_h) * 120)) < 2:
+                o[0, 7] = rate  # l/min over the step that ended here
+            f, mem = owed.step(o, mem, np.array([k == 0]))
+        return f[0]
+
+    delivered = 2 * 10.0 * 0.5 * 1.0 * 4180.0 / 3.6e6 * (55.0 - 10.0)  # two steps of 10 l/min at 45 K
+    np.testing.assert_allclose(run(0.0, 8 + 1 / 6), [tabled(7 + 1 / 6, 8 + 1 / 6), tabled(5 + 1 / 6, 8 + 1 / 6)],
+                               rtol=1e-6)
+    np.testing.assert_allclose(run(0.0, 8 + 1 / 6, draw_at_h=8.1),
+                               [tabled(7 + 1 / 6, 8 + 1 / 6) - delivered, tabled(5 + 1 / 6, 8 + 1 / 6) - delivered],
+                               rtol=1e-6)
+    assert tabled(7 + 1 / 6, 8 + 1 / 6) > 3.6  # the morning bath is in the window
+    # an episode begun at 21:15: its 3 h window at 22:15 holds only the 21:30 draw, not the 21:00 bath
+    np.testing.assert_allclose(run(21.25, 22.25)[1], tabled(21.25, 22.25), rtol=1e-6)
+    assert tabled(21.25, 22.25) < tabled(19.25, 22.25) - 3.0
+    # more delivered than the habit expects: nothing owed
+    assert tabled(6.5, 7.5) < 4 * delivered
+    assert run(0.0, 7.5, draw_at_h=7.25, rate=40.0)[0] == 0.0
+    # lead_h: energy delivered up to that much before the window pays for the window's habit (an early bath)
+    led = DrawOwed.from_config({"windows_h": [1.0, 3.0], "lead_h": 1.0}, cfg)
+    assert led.memory_size == 4 * 120 + 1 + 2
+    owed = led
+    np.testing.assert_allclose(run(0.0, 8 + 1 / 6, draw_at_h=6.75)[0], tabled(7 + 1 / 6, 8 + 1 / 6) - delivered,
+                               rtol=1e-6)
+    owed = DrawOwed.from_config({"windows_h": [1.0, 3.0]}, cfg)
+    np.testing.assert_allclose(run(0.0, 8 + 1 / 6, draw_at_h=6.75)[0], tabled(7 + 1 / 6, 8 + 1 / 6), rtol=1e-6)
+    with pytest.raises(ValueError, match="windows_h"):
+        DrawOwed.from_config({"windows_h": [0.0]}, cfg)
+    with pytest.raises(ValueError, match="lead_h"):
+        DrawOwed.from_config({"lead_h": -1.0}, cfg)
+
+
+def test_a_memory_aid_is_replayed_exactly_by_the_deployed_controller(tmp_path: Path) -> None:
+    """A CEM run with draw_owed on 9 h episodes (the morning's first draws): the saved model, loaded as a
+    controller on the raw env (the aid's memory in its state), earns exactly the returns the search
+    measured; a plain call of the features of such an aid is refused."""
+    from agents.train import train
+    from agents.wrappers import ObsFeatures
+    from valve_env.evaluation.evaluator import run_episodes
+
+    nine = {"control": {"horizon_h": 9.0}}
+    run = train("ppo", SMALL, seed=0, out=tmp_path / "cem", env_kwargs=nine, progress_bar=False, command="pytest",
+                overrides=["cem={popsize: 4, episodes: 2, elite: 2, generations: 1, sigma: 0.3, eval_every: 1}",
+                           "eval.episodes=2", "obs_aids.draw_owed={windows_h: [0.5, 2.0]}"])
+    ev = np.load(run / "best" / "evaluations.npz")
+    ctrl = load_agent("ppo", SMALL, run_dir=run)
+    assert ctrl.features.memory_size == 4 * 60 + 1 + 2
+    got = run_episodes(ctrl, SMALL, 2, 10_000, nine)["return"].to_numpy()
+    np.testing.assert_allclose(got, ev["results"][int(np.argmax(ev["results"].mean(axis=1)))], rtol=1e-9)
+    with pytest.raises(TypeError, match="memory"):
+        ObsFeatures.from_config({"obs_aids": {"draw_owed": {}}}, gym.make(SMALL))(np.zeros(12))
 
 
 def test_cem_run_is_a_ppo_model_the_loader_replays_exactly(tmp_path: Path) -> None:
@@ -247,8 +323,8 @@ def test_time_of_day_harmonics_and_forecast_interactions() -> None:
     with pytest.raises(ValueError, match="harmonics"):
         TimeOfDay.from_config({"harmonics": [1]}, None)
     sc = ScenarioParams.from_dict({"tapping_profile": "L"})
-    plain = DrawForecast.from_config({"edges_h": [0, 1, 2]}, sc)
-    crossed = DrawForecast.from_config({"edges_h": [0, 1, 2], "times": ["T_bottom_C"]}, sc)
+    plain = DrawForecast.from_config({"edges_h": [0, 1, 2]}, EnvConfig(scenario=sc))
+    crossed = DrawForecast.from_config({"edges_h": [0, 1, 2], "times": ["T_bottom_C"]}, EnvConfig(scenario=sc))
     assert crossed.names[2:] == ("draw_kWh_0-1h*T_bottom_C", "draw_kWh_1-2h*T_bottom_C")
     obs = _obs_at(np.array([25000.0, 70000.0]))
     obs[:, 2] = [25.0, 55.0]
@@ -256,7 +332,7 @@ def test_time_of_day_harmonics_and_forecast_interactions() -> None:
     np.testing.assert_allclose(g[:, :2], f)
     np.testing.assert_allclose(g[:, 2:], f * np.array([[-1.0], [1.0]]))
     with pytest.raises(ValueError, match="times"):
-        DrawForecast.from_config({"times": ["T_target_C"]}, sc)
+        DrawForecast.from_config({"times": ["T_target_C"]}, EnvConfig(scenario=sc))
 
 
 def test_cem_warm_start_with_more_features_is_the_old_policy(tmp_path: Path) -> None:

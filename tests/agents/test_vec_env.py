@@ -118,6 +118,34 @@ def test_training_stack_native_equals_dummy(env_id: str) -> None:
     np.testing.assert_allclose(native.get_original_reward(), dummy.get_original_reward(), rtol=1e-6)
 
 
+def test_training_stack_with_a_memory_aid_native_equals_dummy() -> None:
+    """draw_owed keeps a memory: the batched stack (one memory array, rows cleared at autoreset) and the
+    single envs' (a memory per wrapper, cleared at reset) give the same observations and terminal
+    observations over 8 h episodes, which hold the morning's first draws, and across an autoreset."""
+    cfg = load_algo_config("ppo", "ThermoValveSmallCylinder-v0")
+    cfg["obs_aids"] = {**cfg["obs_aids"], "draw_owed": {"windows_h": [0.5, 1.0]}}
+    cfg["env_kwargs"] = {"control": {"horizon_h": 8.0}}
+    native = make_vec_env("ThermoValveSmallCylinder-v0", cfg, seed=5, n_envs=N, vec="native")
+    dummy = make_vec_env("ThermoValveSmallCylinder-v0", cfg, seed=5, n_envs=N, vec="dummy")
+    assert native.observation_space == dummy.observation_space
+    native.seed(5)
+    dummy.seed(5)
+    np.testing.assert_array_equal(native.reset(), dummy.reset())
+    rng = np.random.default_rng(5)
+    seen = 0.0
+    for t in range(8 * 120 + 20):
+        act = _actions(native.action_space, rng, N)
+        on, _, dn, infn = native.step(act)
+        od, _, dd, infd = dummy.step(act)
+        np.testing.assert_allclose(on, od, rtol=1e-5, atol=1e-6, err_msg=f"obs at step {t}")
+        np.testing.assert_array_equal(dn, dd)
+        for i in np.flatnonzero(dd):
+            np.testing.assert_allclose(infn[i]["terminal_observation"], infd[i]["terminal_observation"],
+                                       rtol=1e-5, atol=1e-6)
+        seen = max(seen, float(np.abs(od[:, -2:]).max()))
+    assert seen > 0.5  # the morning's habit was owed at some step
+
+
 def test_sb3_conventions_and_wrappers() -> None:
     venv = ThermoValveVecEnv("ThermoValveDual-v0", 4, **HALF_HOUR)
     check_env(gym.make("ThermoValveDual-v0", **HALF_HOUR))  # the single env passes SB3's checker
