@@ -119,6 +119,21 @@ PATH_CACHE = 8
 DRIVE_CACHE = 4
 
 
+def _kept(cache: OrderedDict[Any, tuple[RunData, Any]], key: Any, data: RunData, limit: int,
+          make: Callable[[], Any]) -> Any:
+    """The value ``cache`` keeps under ``key``, else ``make()``'s, kept beside ``data`` (the last ``limit`` keys used
+    stay). An entry holds its run, so no other live run has its identity: a key with ``id(data)`` cannot be reused."""
+    hit = cache.get(key)
+    if hit is not None:
+        cache.move_to_end(key)
+        return hit[1]
+    out = make()
+    cache[key] = (data, out)
+    if len(cache) > limit:
+        cache.popitem(last=False)
+    return out
+
+
 def _clip(v: float, q: Parameter) -> float:
     """``v`` clipped to ``q``'s bounds (an open side does not clip)."""
     lo = -math.inf if q.lower is None else q.lower
@@ -204,20 +219,17 @@ class Model:
         shape[ENGINE_INDEX["band_mm"]] = 0.0
         shape[ENGINE_INDEX["jump_mm"]] = 0.0
         key = (id(data), vp.tobytes(), shape.tobytes(), float(delta), bool(want_sub))
-        hit = self._paths.get(key)
-        if hit is not None:  # its entry holds the run, so no other live run has its identity
-            self._paths.move_to_end(key)
-            return hit[1]
-        dT, pb, tt, kk, Tg, pb0 = self._drive(data, vp, e, delta, want_sub)
-        rate = float(e[ENGINE_INDEX["rate_MPa_per_h"]])
-        x, F, x_sub, sub_idx = valve_pass(dT, pb, tt, kk, pb0, data.dp, data.ps, vp, rate, want_sub)
-        out: tuple[np.ndarray, ...] = (x, Tg, F, x_sub, sub_idx)
-        if want_sub:  # the stick-slip's demand, freed of its noise's reversals: the same for every band on this path
-            out = (*out, stick_demand(out[3], out[4], float(vp[I_STROKE])))
-        self._paths[key] = (data, out)
-        if len(self._paths) > PATH_CACHE:
-            self._paths.popitem(last=False)
-        return out
+
+        def path() -> tuple[np.ndarray, ...]:
+            dT, pb, tt, kk, Tg, pb0 = self._drive(data, vp, e, delta, want_sub)
+            rate = float(e[ENGINE_INDEX["rate_MPa_per_h"]])
+            x, F, x_sub, sub_idx = valve_pass(dT, pb, tt, kk, pb0, data.dp, data.ps, vp, rate, want_sub)
+            out: tuple[np.ndarray, ...] = (x, Tg, F, x_sub, sub_idx)
+            if want_sub:  # the stick-slip's demand, freed of its noise's reversals: the same for every band here
+                out = (*out, stick_demand(x_sub, sub_idx, float(vp[I_STROKE])))
+            return out
+
+        return _kept(self._paths, key, data, PATH_CACHE, path)
 
     def _drive(self, data: RunData, vp: np.ndarray, e: np.ndarray, delta: float, want_sub: bool) -> tuple[Any, ...]:
         """:func:`~valve_env.valveid.oe.valve_drive` of ``data``, kept for the last :data:`DRIVE_CACHE` distinct inputs.
@@ -228,15 +240,8 @@ class Model:
         unfitted[[I_SIGMA, I_F_HMAX, I_P_BSET]] = 0.0
         key = (id(data), unfitted.tobytes(), float(e[ENGINE_INDEX["tau_s"]]), float(e[ENGINE_INDEX["beta"]]),
                float(delta), bool(want_sub))
-        hit = self._drives.get(key)
-        if hit is not None:  # its entry holds the run, so no other live run has its identity
-            self._drives.move_to_end(key)
-            return hit[1]
-        out = valve_drive(data.t, data.T, data.M, vp, e, self.max_step_s, delta, want_sub)
-        self._drives[key] = (data, out)
-        if len(self._drives) > DRIVE_CACHE:
-            self._drives.popitem(last=False)
-        return out
+        return _kept(self._drives, key, data, DRIVE_CACHE,
+                     lambda: valve_drive(data.t, data.T, data.M, vp, e, self.max_step_s, delta, want_sub))
 
     def simulate(self, data: RunData, values: dict[str, float],
                  slip: float = -1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
