@@ -259,6 +259,18 @@ def _started_kWh(t_s: np.ndarray, starts_s: np.ndarray, energy_kWh: np.ndarray, 
     return np.stack(out, axis=1)[inv.reshape(-1)]
 
 
+def _habit(aid_name: str, scenario: Any) -> tuple[np.ndarray, np.ndarray, float]:
+    """The scenario's habitual draws for an aid: the tapping cycle's start times (s) and energies (kWh), and the
+    start-time jitter's sd (s; 0 when ``stochastic_draws`` is off)."""
+    from valve_env.scenario import tapping_cycle
+
+    if scenario.tapping_profile == "none":
+        raise ValueError(f"obs_aids.{aid_name} needs a tapping profile (scenario.tapping_profile is 'none')")
+    cyc = tapping_cycle(scenario.tapping_profile)
+    sigma = float(scenario.draw_jitter_min) * 60.0 if scenario.stochastic_draws else 0.0
+    return cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma
+
+
 def _times_columns(aid_name: str, aid: Mapping[str, Any]) -> tuple[str, ...]:
     """An aid's ``times: [obs column, ...]`` (see :class:`DrawForecast`), checked."""
     times = tuple(str(c) for c in aid.get("times", ()))
@@ -303,18 +315,10 @@ class DrawForecast:
 
     @classmethod
     def from_config(cls, aid: Mapping[str, Any], env_cfg: Any) -> DrawForecast:
-        from valve_env.scenario import tapping_cycle
-
-        scenario = env_cfg.scenario
-        if scenario.tapping_profile == "none":
-            raise ValueError("obs_aids.draw_forecast needs a tapping profile (scenario.tapping_profile is 'none')")
-        cyc = tapping_cycle(scenario.tapping_profile)
         edges = tuple(float(h) for h in aid.get("edges_h", (0.0, 0.5, 1.0, 2.0, 4.0)))
         if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) or edges[0] < 0:
             raise ValueError(f"obs_aids.draw_forecast.edges_h must increase from >= 0, got {edges}")
-        sigma = float(scenario.draw_jitter_min) * 60.0 if scenario.stochastic_draws else 0.0
-        return cls(cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma, edges,
-                   _times_columns("draw_forecast", aid))
+        return cls(*_habit("draw_forecast", env_cfg.scenario), edges, _times_columns("draw_forecast", aid))
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -358,22 +362,15 @@ class DrawOwed:
 
     @classmethod
     def from_config(cls, aid: Mapping[str, Any], env_cfg: Any) -> DrawOwed:
-        from valve_env.scenario import tapping_cycle
-
-        sc, tank = env_cfg.scenario, env_cfg.tank
-        if sc.tapping_profile == "none":
-            raise ValueError("obs_aids.draw_owed needs a tapping profile (scenario.tapping_profile is 'none')")
-        cyc = tapping_cycle(sc.tapping_profile)
         win = tuple(float(h) for h in aid.get("windows_h", (1.0, 2.0, 3.0)))
         if not win or any(not h > 0 for h in win) or len(set(win)) != len(win):
             raise ValueError(f"obs_aids.draw_owed.windows_h must be distinct positive hours, got {list(win)}")
         lead = float(aid.get("lead_h", 0.0))
         if not lead >= 0:
             raise ValueError(f"obs_aids.draw_owed.lead_h must be hours >= 0, got {lead}")
-        sigma = float(sc.draw_jitter_min) * 60.0 if sc.stochastic_draws else 0.0
-        return cls(cyc["t_start_s"].to_numpy(float), cyc["Qtap_kWh"].to_numpy(float), sigma, win,
-                   float(env_cfg.control.dt_s), float(tank.rho) * float(tank.cp) / 3.6e6, float(tank.T_cold),
-                   _times_columns("draw_owed", aid), lead)
+        tank = env_cfg.tank
+        return cls(*_habit("draw_owed", env_cfg.scenario), win, float(env_cfg.control.dt_s),
+                   float(tank.rho) * float(tank.cp) / 3.6e6, float(tank.T_cold), _times_columns("draw_owed", aid), lead)
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -143,15 +143,16 @@ def test_draw_owed_is_the_habit_since_the_start_less_what_the_tank_delivered() -
         s = cyc["t_start_s"] / 3600.0
         return float(cyc.loc[(s > lo_h) & (s <= hi_h), "Qtap_kWh"].sum())
 
-    def run(start_h: float, end_h: float, draw_at_h: float | None = None, rate: float = 10.0) -> np.ndarray:
-        mem = np.full((1, owed.memory_size), 7.0)  # an episode's leftovers: its start clears them
+    def run(start_h: float, end_h: float, draw_at_h: float | None = None, rate: float = 10.0,
+            aid: DrawOwed = owed) -> np.ndarray:
+        mem = np.full((1, aid.memory_size), 7.0)  # an episode's leftovers: its start clears them
         k_end = int(round((end_h - start_h) * 120))
         for k in range(k_end + 1):
             o = _obs_at(np.array([start_h * 3600.0 + 30.0 * k]))
             o[0, 0] = 55.0  # T_out_C
             if draw_at_h is not None and 0 <= k - int(round((draw_at_h - start_h) * 120)) < 2:
                 o[0, 7] = rate  # l/min over the step that ended here
-            f, mem = owed.step(o, mem, np.array([k == 0]))
+            f, mem = aid.step(o, mem, np.array([k == 0]))
         return f[0]
 
     delivered = 2 * 10.0 * 0.5 * 1.0 * 4180.0 / 3.6e6 * (55.0 - 10.0)  # two steps of 10 l/min at 45 K
@@ -170,10 +171,8 @@ def test_draw_owed_is_the_habit_since_the_start_less_what_the_tank_delivered() -
     # lead_h: energy delivered up to that much before the window pays for the window's habit (an early bath)
     led = DrawOwed.from_config({"windows_h": [1.0, 3.0], "lead_h": 1.0}, cfg)
     assert led.memory_size == 4 * 120 + 1 + 2
-    owed = led
-    np.testing.assert_allclose(run(0.0, 8 + 1 / 6, draw_at_h=6.75)[0], tabled(7 + 1 / 6, 8 + 1 / 6) - delivered,
-                               rtol=1e-6)
-    owed = DrawOwed.from_config({"windows_h": [1.0, 3.0]}, cfg)
+    np.testing.assert_allclose(run(0.0, 8 + 1 / 6, draw_at_h=6.75, aid=led)[0],
+                               tabled(7 + 1 / 6, 8 + 1 / 6) - delivered, rtol=1e-6)
     np.testing.assert_allclose(run(0.0, 8 + 1 / 6, draw_at_h=6.75)[0], tabled(7 + 1 / 6, 8 + 1 / 6), rtol=1e-6)
     with pytest.raises(ValueError, match="windows_h"):
         DrawOwed.from_config({"windows_h": [0.0]}, cfg)
