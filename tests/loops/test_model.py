@@ -34,6 +34,10 @@ def test_sticky_simulated_loop_gives_its_band(process: str, S: float, J: float) 
 
     floor = np.hypot(BAND_REL_SD * st["band_pct"], SAMPLING_SD_SHARE * st["sampling_offset_pct"])
     assert st["std_pct"] >= floor - 1e-12 and st["std_pct"] > 0
+    # each valve that could have moved between the samples reads a band; the more likely one gives it, and half
+    # their difference enters the sd
+    bands = st["valves_band_pct"]
+    assert st["band_pct"] in bands.values() and st["std_pct"] >= (max(bands.values()) - min(bands.values())) / 2
     # the band is the stick-slip candidate's, and this slow loop's record resolves it
     # (refitted with the valve between the samples: Settings.band_substeps, tests/loops/test_substeps.py)
     assert d.band_fit is not None and d.band_fit.valve == "stiction"  # MODEL
@@ -72,3 +76,18 @@ def test_scan_nests_the_linear_valve_and_finds_a_simulated_band() -> None:
         lrs.append(sc)
     assert abs(lrs[0].S - 3.0) < 0.5 * 3.0
     assert lrs[0].lr > 10.0 * max(lrs[1].lr, 1.0)
+
+
+def test_the_band_sd_holds_half_the_two_valves_difference() -> None:
+    """``band_uncertainty``: the record does not say which valve moved between its samples, so half the difference
+    of the two valves' bands adds to the sd in quadrature, and a single valve adds nothing."""
+    from valve_env.loops.diagnose import band_uncertainty
+    from valve_env.loops.model import ValveFit
+
+    fit = ValveFit("stiction", S=1.5, J=0.5, process=None, n_params=4,  # type: ignore[arg-type]
+                   profile=[(1.0, -5.0), (1.5, 0.0), (2.0, -5.0)])
+    band, sd1, _, _ = band_uncertainty(fit, 0.0, (1.4, 1.6), (1.5,))
+    band2, sd2, lo, hi = band_uncertainty(fit, 0.0, (1.4, 1.6), (1.5, 0.9))
+    assert band == band2 == 1.5
+    assert sd2 == pytest.approx(np.hypot(sd1, 0.3)) and sd2 > sd1
+    assert lo <= band - 1.96 * sd2 + 1e-12 and hi >= band + 1.96 * sd2 - 1e-12

@@ -111,14 +111,16 @@ def band_halves(loop: LoopData, s: Settings, jittered: bool | None = None) -> tu
     return bands[0], bands[1]
 
 
-def band_uncertainty(fit: ValveFit, offset: float = 0.0,
-                     halves: tuple[float, float] | None = None) -> tuple[float, float, float, float]:
+def band_uncertainty(fit: ValveFit, offset: float = 0.0, halves: tuple[float, float] | None = None,
+                     valves: tuple[float, ...] = ()) -> tuple[float, float, float, float]:
     """The band, its sd and 95 % interval: the fitted band plus the sampling ``offset``; the sd combines the
     profile-likelihood interval (``{S: 2 (ll_max - ll(S)) <= 3.84}``, interpolated in log S, sd = width / 3.92), the
     model-error sd ``BAND_REL_SD * band``, the offset's own sd, for a valve driven by the controller's
     within-sample jitter (``fit.jitter``) that jitter's sd at each of the band's two ends, and, given the bands of the
     record's two ``halves`` (:func:`band_halves`), the sd of the band that their difference implies for the whole
-    record (``|b1 - b2| / 2``: each half's sd is ``|b1 - b2| / sqrt(2)``, the whole record's ``1 / sqrt(2)`` of it)."""
+    record (``|b1 - b2| / 2``: each half's sd is ``|b1 - b2| / sqrt(2)``, the whole record's ``1 / sqrt(2)`` of it),
+    and, given the bands of the two ``valves`` that could have moved between the samples (:func:`fit_bands`), half
+    their difference: the record does not say which valve it was."""
     S = np.array([p[0] for p in fit.profile])
     ll = np.array([p[1] for p in fit.profile])
     dev = 2.0 * (ll.max() - ll)
@@ -140,8 +142,9 @@ def band_uncertainty(fit: ValveFit, offset: float = 0.0,
     # the valve slips where the controller's hidden within-sample jitter (sd fit.jitter) first reaches each of the
     # band's two ends, so each end is known to within that jitter's sd
     sd_halves = abs(halves[0] - halves[1]) / 2.0 if halves is not None else 0.0
+    sd_valves = (max(valves) - min(valves)) / 2.0 if valves else 0.0
     sd = math.sqrt(sd_prof ** 2 + (BAND_REL_SD * band) ** 2 + (SAMPLING_SD_SHARE * offset) ** 2
-                   + 2.0 * fit.jitter ** 2 + sd_halves ** 2)
+                   + 2.0 * fit.jitter ** 2 + sd_halves ** 2 + sd_valves ** 2)
     return band, sd, min(lo, band - 1.96 * sd), max(hi, band + 1.96 * sd)
 
 
@@ -157,29 +160,32 @@ def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> S
     return best[1]
 
 
-def fit_band(loop: LoopData, s: Settings, jittered: bool | None = None) -> ValveFit:
-    """The stick-slip valve's maximum-likelihood fit that gives the band (docs/loops.md, "Model"): J / S profiled over
-    ``BAND_J_FRACTIONS``, the band grid holding the best distinct bands of a dense least-squares search
+def fit_bands(loop: LoopData, s: Settings, jittered: bool | None = None) -> tuple[ValveFit, ...]:
+    """The stick-slip valve's maximum-likelihood fits that give the band (docs/loops.md, "Model"), one per valve: J / S
+    profiled over ``BAND_J_FRACTIONS``, the band grid holding the best distinct bands of a dense least-squares search
     (:func:`~valve_env.loops.model.scan_valve`: the likelihood is rugged in S, and the coarse grid alone misses its
-    narrow ridges). Two valves have the same parameters and samples, and the more likely is kept: the valve at
-    ``s.band_substeps`` steps per sample on the mean-preserving sub-sample OP, and, when the record shows the
-    controller's output jittering within its samples (a controller scanning every ``s.scan_s``:
-    :func:`~valve_env.loops.model.op_jitter`), the valve at a step per scan driven by that jitter. ``jittered`` True
-    or False fits only that one (the jitter valve falls back to the smooth one where the record shows no jitter)."""
+    narrow ridges). The valves have the same parameters and samples: the valve at ``s.band_substeps`` steps per sample
+    on the mean-preserving sub-sample OP, and, when the record shows the controller's output jittering within its
+    samples (a controller scanning every ``s.scan_s``: :func:`~valve_env.loops.model.op_jitter`), the valve at a step
+    per scan driven by that jitter. ``jittered`` True or False fits only that one (the jitter valve falls back to the
+    smooth one where the record shows no jitter)."""
     jitter = op_jitter(loop.op, loop.dt, s.scan_s)
     variants = []
     if jittered is not True or jitter <= 0.0:
         variants.append(replace(s, substeps=s.band_substeps, jitter=0.0))
     if jittered is not False and jitter > 0.0:
         variants.append(replace(s, substeps=max(s.band_substeps, round(loop.dt / s.scan_s)), jitter=jitter))
-    best: ValveFit | None = None
+    fits = []
     for sb in variants:
         scan = scan_valve(loop.pv, scan_paths(loop.op, sb.substeps, sb.jitter), sb)
-        fit = fit_valve(loop.op, loop.pv, MODEL, sb, extra_S=scan.starts or (scan.S,), j_fractions=BAND_J_FRACTIONS)
-        if best is None or fit.loglik > best.loglik:
-            best = fit
-    assert best is not None
-    return best
+        fits.append(fit_valve(loop.op, loop.pv, MODEL, sb, extra_S=scan.starts or (scan.S,),
+                              j_fractions=BAND_J_FRACTIONS))
+    return tuple(fits)
+
+
+def fit_band(loop: LoopData, s: Settings, jittered: bool | None = None) -> ValveFit:
+    """The more likely of :func:`fit_bands`' valves: the fit that gives the band."""
+    return max(fit_bands(loop, s, jittered), key=lambda f: f.loglik)
 
 
 def model_label(st: dict[str, Any]) -> str:
@@ -249,15 +255,17 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
         fits["linear"] = fit_valve(loop.op, loop.pv, "linear", s)
     result: dict[str, Any] = {"cause": "stiction" if stiction else "none"}
     if need_fit:
-        fit = fits[MODEL] = fit_band(loop, s)
+        valves = fit_bands(loop, s)
+        fit = fits[MODEL] = max(valves, key=lambda f: f.loglik)
         offset = sampling_offset(loop.op)
         halves = band_halves(loop, s, jittered=fit.jitter > 0.0)
-        band, sd, lo, hi = band_uncertainty(fit, offset, halves)
+        band, sd, lo, hi = band_uncertainty(fit, offset, halves, tuple(v.S for v in valves))
         st = {"band_pct": band, "std_pct": sd, "ci95_pct": [lo, hi], "jump_pct": fit.J, "band_fitted_pct": fit.S,
               "sampling_offset_pct": offset, "band_resolved": band_resolved(fit, loop.op),
               "kind": "deadband (J = 0)" if fit.J <= 0.0 else "stick-slip", "model": MODEL,
               "initial_direction": "up" if fit.direction > 0 else "down", "valve_substeps": fit.substeps,
               "op_jitter_pct": fit.jitter, "halves_band_pct": list(halves),
+              "valves_band_pct": {("jitter" if v.jitter > 0.0 else "sub-sample"): v.S + offset for v in valves},
               "detected": bool(stiction)}
         st["label"] = model_label(st)
         result["stiction"] = st
@@ -285,5 +293,5 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
 
 
 __all__ = ["CAUSES", "LoopDiagnosis", "diagnose_loop", "band_uncertainty", "sampling_offset", "band_resolved",
-           "crosses_back", "band_halves", "MODEL", "MIN_PERIODS", "fit_band", "finding", "model_label",
+           "crosses_back", "band_halves", "MODEL", "MIN_PERIODS", "fit_band", "fit_bands", "finding", "model_label",
            "select_noise_order", "still_channel"]
