@@ -522,18 +522,6 @@ class ValveModel(CompiledSDEModel):
     def compiled_constants(self) -> np.ndarray:
         return self.constants
 
-    def gas_temperature(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> float:
-        return float(type(self).gas_temperature_hook(float(t), _f(x), _f(u), _f(p), self.constants))
-
-    def gas_rate(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> float:
-        return float(type(self).gas_rate_hook(float(t), _f(x), _f(u), _f(p), self.constants))
-
-    def set_pressure(self, t: float, p: np.ndarray, x: np.ndarray | None = None,
-                     u: np.ndarray | None = None) -> float:
-        x = np.zeros(self.n_states) if x is None else x
-        u = np.zeros(len(self.inputs)) if u is None else u
-        return float(type(self).set_pressure_hook(float(t), _f(x), _f(u), _f(p), self.constants))
-
     def demanded_opening(self, t: float, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> float:
         cf = self.compiled()
         pp, c = _f(p), self.constants
