@@ -91,3 +91,11 @@ def test_the_band_sd_holds_half_the_two_valves_difference() -> None:
     assert band == band2 == 1.5
     assert sd2 == pytest.approx(np.hypot(sd1, 0.3)) and sd2 > sd1
     assert lo <= band - 1.96 * sd2 + 1e-12 and hi >= band + 1.96 * sd2 - 1e-12
+
+
+def test_the_band_label_keeps_two_significant_digits() -> None:
+    """The sd in the band's one label reads 1.0, not 1, so it is not taken for a rounded integer."""
+    from valve_env.loops.diagnose import model_label, sd_text
+
+    assert [sd_text(v) for v in (1.0, 0.224, 12.3, 0.00123)] == ["1.0", "0.22", "12", "0.0012"]
+    assert "+/- 1.0 % of OP" in model_label({"band_pct": 3.45, "std_pct": 1.0, "jump_pct": 0.855})

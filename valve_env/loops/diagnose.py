@@ -188,9 +188,14 @@ def fit_band(loop: LoopData, s: Settings, jittered: bool | None = None) -> Valve
     return max(fit_bands(loop, s, jittered), key=lambda f: f.loglik)
 
 
+def sd_text(sd: float) -> str:
+    """An sd to two significant digits, a trailing zero kept (1.0, not 1)."""
+    return f"{sd:#.2g}".rstrip(".")
+
+
 def model_label(st: dict[str, Any]) -> str:
     """The one name of the fitted valve, used alike in the report's headline, table and figure."""
-    return (f"stick-slip valve, band S = {st['band_pct']:.3g} +/- {st['std_pct']:.2g} % of OP, "
+    return (f"stick-slip valve, band S = {st['band_pct']:.3g} +/- {sd_text(st['std_pct'])} % of OP, "
             f"slip jump J = {st['jump_pct']:.3g} %")
 
 
@@ -294,4 +299,4 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
 
 __all__ = ["CAUSES", "LoopDiagnosis", "diagnose_loop", "band_uncertainty", "sampling_offset", "band_resolved",
            "crosses_back", "band_halves", "MODEL", "MIN_PERIODS", "fit_band", "fit_bands", "finding", "model_label",
-           "select_noise_order", "still_channel"]
+           "sd_text", "select_noise_order", "still_channel"]

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from valve_env.loops.diagnose import MODEL, LoopDiagnosis
+from valve_env.loops.diagnose import MODEL, LoopDiagnosis, sd_text
 from valve_env.loops.model import ValveFit, fit_valve, residuals, simulate
 from valve_env.outputs import OutputSet
 
@@ -167,7 +167,7 @@ def write_loop_report(diag: LoopDiagnosis, outs: OutputSet, directory: Path) -> 
                   "| quantity | value |", "|---|---|",
                   f"| model | {st['label']} |",
                   f"| band S, % of OP | {st['band_pct']:.3g} |",
-                  f"| sd of S, % | {st['std_pct']:.2g} |",
+                  f"| sd of S, % | {sd_text(st['std_pct'])} |",
                   f"| 95 % interval of S, % | {st['ci95_pct'][0]:.3g} to {st['ci95_pct'][1]:.3g} |",
                   f"| slip jump J, % of OP | {st['jump_pct']:.3g} |",
                   f"| fitted S before the sampling offset, % | {st['band_fitted_pct']:.3g} |",
