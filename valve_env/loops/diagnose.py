@@ -183,9 +183,14 @@ def fit_bands(loop: LoopData, s: Settings, jittered: bool | None = None) -> tupl
     return tuple(fits)
 
 
+def likeliest(fits: tuple[ValveFit, ...]) -> ValveFit:
+    """The more likely of :func:`fit_bands`' valves: the fit that gives the band (the first on a tie)."""
+    return max(fits, key=lambda f: f.loglik)
+
+
 def fit_band(loop: LoopData, s: Settings, jittered: bool | None = None) -> ValveFit:
-    """The more likely of :func:`fit_bands`' valves: the fit that gives the band."""
-    return max(fit_bands(loop, s, jittered), key=lambda f: f.loglik)
+    """The fit that gives the band: :func:`likeliest` of :func:`fit_bands`."""
+    return likeliest(fit_bands(loop, s, jittered))
 
 
 def sd_text(sd: float) -> str:
@@ -261,7 +266,7 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
     result: dict[str, Any] = {"cause": "stiction" if stiction else "none"}
     if need_fit:
         valves = fit_bands(loop, s)
-        fit = fits[MODEL] = max(valves, key=lambda f: f.loglik)
+        fit = fits[MODEL] = likeliest(valves)
         offset = sampling_offset(loop.op)
         halves = band_halves(loop, s, jittered=fit.jitter > 0.0)
         band, sd, lo, hi = band_uncertainty(fit, offset, halves, tuple(v.S for v in valves))
@@ -298,5 +303,5 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
 
 
 __all__ = ["CAUSES", "LoopDiagnosis", "diagnose_loop", "band_uncertainty", "sampling_offset", "band_resolved",
-           "crosses_back", "band_halves", "MODEL", "MIN_PERIODS", "fit_band", "fit_bands", "finding", "model_label",
-           "sd_text", "select_noise_order", "still_channel"]
+           "crosses_back", "band_halves", "MODEL", "MIN_PERIODS", "fit_band", "fit_bands", "likeliest", "finding",
+           "model_label", "sd_text", "select_noise_order", "still_channel"]

@@ -178,7 +178,7 @@ def write_loop_report(diag: LoopDiagnosis, outs: OutputSet, directory: Path) -> 
                   f"| band read on the record's first and second half, % | {st['halves_band_pct'][0]:.3g}, "
                   f"{st['halves_band_pct'][1]:.3g} |",
                   "| band read by each valve that could have moved between the samples, % | "
-                  + ", ".join(f"{k} {v:.3g}" for k, v in st.get("valves_band_pct", {}).items()) + " |",
+                  + ", ".join(f"{k} {v:.3g}" for k, v in st["valves_band_pct"].items()) + " |",
                   f"| band resolved by the record | {'yes' if st['band_resolved'] else 'no'} |",
                   f"| detected by the shape tests | {'yes' if st['detected'] else 'no (fitted on request)'} |", ""]
     if R["findings"]:
