@@ -265,3 +265,16 @@ def test_stacked_conventions_give_finite_results_or_refuse_in_one_line(tmp_path_
         df = apply_convention(df, name, np.random.default_rng(seed), keep_truth=True)
     _finite_or_one_line_refusal(tmp_path_factory.mktemp("stack"),
                                 df[[c for c in df.columns if not c.startswith("true_")]], capsys)
+
+
+def test_a_temperature_rounded_to_a_tenth_of_a_kelvin_is_noted() -> None:
+    """The diagnosis says where a temperature channel is rounded coarsely enough for its rounding to mislead it (an
+    input error the likelihood does not hold: docs/diagnosis.md, "Known limits"), and says nothing of a channel
+    rounded to 0.01 K or of a noisy one."""
+    from valve_env.valveid.diagnose import check_run, prepare, rounding_notes
+
+    df = simulate_experiment(seed=4, duration_h=2.0, dt_s=10.0, T_noise_C=0.002)
+    assert rounding_notes(prepare(check_run(df))) == []
+    coarse = rounding_notes(prepare(check_run(quantise(df, 0.1))))
+    assert len(coarse) == 2 and coarse[0].startswith("T_tank_C is rounded to 0.1 K")
+    assert rounding_notes(prepare(check_run(quantise(df, 0.01)))) == []

@@ -313,6 +313,24 @@ class Diagnosis:
 
 
 # --------------------------------------------------------------------------- the procedure
+#: the smallest temperature step (degC) whose rounding is noted (:func:`rounding_notes`): at
+#: 0.01 K its error (3 mK sd) is a sensor's noise; at 0.1 K (29 mK) it misled the diagnosis (docs/diagnosis.md)
+ROUNDING_NOTE_STEP_C = 0.05
+
+
+def rounding_notes(data: RunData) -> list[str]:
+    """A note for each temperature channel rounded to a step of at least :data:`ROUNDING_NOTE_STEP_C` with its
+    noise below the step: its rounding error is an error of the model's input that the likelihood does not hold
+    (docs/diagnosis.md, "Known limits")."""
+    out = []
+    for ch, noise in (("T_tank_C", data.T_noise), ("T_med_C", data.M_noise)):
+        if noise is not None and noise.method == "quantisation" and (noise.quantum or 0.0) >= ROUNDING_NOTE_STEP_C:
+            out.append(f"{ch} is rounded to {noise.quantum:g} K with its noise below the step: the rounding is an "
+                       "error of the input that the likelihood does not hold, so a small stiction band or a slow "
+                       "set-point drift is less certain than on a noisy channel (docs/diagnosis.md, \"Known limits\")")
+    return out
+
+
 def _held_out(model: Model, data: RunData, values: dict[str, float], a: int, b: int) -> tuple[float, float, float]:
     """(one-step RMS mm, log-likelihood, simulation RMS mm) over samples a..b of ``data``. The
     log-likelihood is the sum of the samples' terms (:meth:`Model.loglik_terms`: for the stick-slip filter
@@ -832,6 +850,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         valid = full
         vr = (n_train, len(full))
         mode = f"hold-out: last {holdout:.0%} of the run"
+    notes += rounding_notes(train)
 
     base_est = _fit((), valve, train)
     base_model, base = base_est.backend_, base_est.result_
