@@ -7,11 +7,14 @@ import json
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from agents.sweep import Cell, make_grid, pending, run_cell, run_sweep, write_json_atomic
 
 TINY = ("n_envs=1", "hyperparams.n_steps=64", "hyperparams.batch_size=32", "hyperparams.n_epochs=1")
 
 
+@pytest.mark.slow  # 18 s; the default suite has a Dask LocalCluster (test_agents_benchmark.py) and the retry below
 def test_sweep_on_a_local_cluster_and_resume(tmp_path: Path, short: dict[str, Any]) -> None:
     cells = make_grid(["ppo"], [0, 1], ["default"], timesteps=128, eval_episodes=1, overrides=TINY, env_kwargs=short)
     out = tmp_path / "sweep"
