@@ -305,6 +305,7 @@ def test_he_and_kano_call_neither_loop_sticky(real_loops: dict) -> None:
     assert kano(real_loops["flow"])["statistic"] < 0.15 and kano(real_loops["level"])["statistic"] < 0.05
 
 
+@pytest.mark.slow  # 17 s: both loops through loop-diagnose --quantify; the default suite executes tutorial 05 itself
 def test_the_grey_box_on_the_two_loops(tmp_path: Path) -> None:
     from valve_env.cli import main
 
