@@ -9,6 +9,7 @@ from dataclasses import replace
 import pytest
 
 from valve_env.loops import diagnose as diag
+from valve_env.loops.io import LoopData
 from valve_env.loops.model import BAND_J_FRACTIONS, J_FRACTIONS
 from valve_env.loops.sim import simulate_loop
 
@@ -23,22 +24,28 @@ def test_band_j_grid_nests_the_decisions() -> None:
     assert any(0.0 < f < 0.5 for f in BAND_J_FRACTIONS)  # a jump below half the band is on the grid
 
 
-def test_small_jump_band_within_20_percent() -> None:
+@pytest.fixture(scope="module")
+def small_jump() -> tuple[LoopData, diag.LoopDiagnosis]:
+    """The small-jump loop and its diagnosis with the band fitted (made once for this module's tests)."""
     loop, _ = simulate_loop(SMALL_JUMP["process"], S=SMALL_JUMP["S"], J=SMALL_JUMP["J"], seed=SMALL_JUMP["seed"])
+    return loop, diag.diagnose_loop(loop, quantify=True)
+
+
+def test_small_jump_band_within_20_percent(small_jump: tuple[LoopData, diag.LoopDiagnosis]) -> None:
     S = SMALL_JUMP["S"]
-    st = diag.diagnose_loop(loop, quantify=True).result["stiction"]
+    st = small_jump[1].result["stiction"]
     assert abs(st["band_pct"] - S) / S <= 0.2
     assert abs(st["band_pct"] - S) <= 2.0 * st["std_pct"]
     assert st["jump_pct"] > 0.0 and st["kind"] == "stick-slip"  # the jump is resolved, not read as a deadband
 
 
-@pytest.mark.slow  # 12 s: the same loop diagnosed twice more; the default suite keeps the test above
-def test_the_decisions_grid_reads_the_small_jump_as_a_deadband(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.slow  # 6 s: the same loop diagnosed again on the decision's grid; the default suite keeps the test above
+def test_the_decisions_grid_reads_the_small_jump_as_a_deadband(small_jump: tuple[LoopData, diag.LoopDiagnosis],
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
     """What the finer grid fixed: with the decision's grid the same loop's band fit reads J = 0 and the band more
     than 20 % short."""
-    loop, _ = simulate_loop(SMALL_JUMP["process"], S=SMALL_JUMP["S"], J=SMALL_JUMP["J"], seed=SMALL_JUMP["seed"])
+    loop, d = small_jump
     S = SMALL_JUMP["S"]
-    d = diag.diagnose_loop(loop, quantify=True)
     # the decision's grid {0, 1/2, 1} in the band's fit, with the valve driven by the smooth sub-sample OP (a
     # controller taken to scan at the record's rate: no within-sample jitter): J = 0 and the band more than 20 % short
     monkeypatch.setattr(diag, "BAND_J_FRACTIONS", J_FRACTIONS)
