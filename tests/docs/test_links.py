@@ -52,7 +52,7 @@ def test_relative_links_resolve(page: Path) -> None:
 
 def test_readme_is_short_and_starts_with_the_two_commands() -> None:
     readme = (ROOT / "README.md").read_text()
-    assert len(readme.encode()) <= 10 * 1024
+    assert len(readme.encode()) <= 7 * 1024  # about Gymnasium's README: what it is, install, one example, links
     first_block = readme.split("```bash\n", 1)[1].split("```", 1)[0]
     assert [line.split()[:2] for line in first_block.splitlines()] == [["make", "demo"], ["make", "test"]]
     makefile = (ROOT / "Makefile").read_text()
