@@ -154,6 +154,21 @@ def _check_header(p: Path, dialect: CsvDialect, head: list[str]) -> None:
         raise DataError(f"{p}: duplicate column(s) {dup} in the header")
 
 
+def _clock_time_hint(raw: pd.DataFrame) -> str:
+    """Where a run has no ``time_s`` but a column of date-times (a logger's clock), the refusal's hint: the
+    time is seconds from any origin in ``time_s`` (SPEC section 2), so that column must be converted."""
+    for col in raw.columns:
+        head = raw[col].dropna().astype(str).str.strip().head(5)
+        if head.empty or not head.str.contains(r"\d[-/.:]\d", regex=True).all():
+            continue
+        if pd.to_numeric(head, errors="coerce").notna().all():  # numbers, not clock times
+            continue
+        if pd.to_datetime(head, errors="coerce", format="mixed").notna().all():
+            return (f"; column {col!r} holds date-times: give the time as seconds in a column time_s, "
+                    f"e.g. (t - t[0]).total_seconds()")
+    return ""
+
+
 def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | None = None) -> pd.DataFrame:
     """Validate a run given as a DataFrame (strings or numbers); returns a validated copy."""
     raw = data.copy()
@@ -164,7 +179,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raise DataError(f"{source}: duplicate column(s) {dup}")
     missing = [c for c in REQUIRED if c not in raw.columns]
     if missing:
-        raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)})")
+        hint = _clock_time_hint(raw) if missing[0] == "time_s" else ""
+        raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)}){hint}")
     out = raw.copy()
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
         out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", first=first)

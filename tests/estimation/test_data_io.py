@@ -61,6 +61,13 @@ def test_a_row_with_an_empty_measured_cell_is_dropped(tmp_path: Path, run_df: pd
 
 @pytest.mark.parametrize(("mutate", "pattern"), [
     (lambda d: d.drop(columns=["dp_mbar"]), r"missing column 'dp_mbar'"),
+    # a logger's clock instead of seconds: the refusal says which column and what to give
+    (lambda d: d.assign(stamp=pd.Timestamp("2026-03-01 06:00") + pd.to_timedelta(d.time_s, unit="s"))
+     .drop(columns=["time_s"]), r"missing column 'time_s' .*; column 'stamp' holds date-times: give the time as "
+                                r"seconds in a column time_s"),
+    (lambda d: d.assign(stamp="01.03.2026 " + (d.time_s // 3600 + 10).astype(int).astype(str) + ":00")
+     .drop(columns=["time_s"]), r"column 'stamp' holds date-times"),
+    (lambda d: d.drop(columns=["time_s"]), r"missing column 'time_s' \(required: [a-zA-Z_, ]+\)$"),
     (lambda d: d.astype({"q_kgh": object}).assign(q_kgh=lambda x: x.q_kgh.where(x.index != 7, "abc")),
      r"non-numeric value 'abc' in column 'q_kgh' at row 8"),
     (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where((x.index < 4) | (x.index % 5 != 0), np.nan)),
