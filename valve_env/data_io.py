@@ -154,11 +154,12 @@ def _check_header(p: Path, dialect: CsvDialect, head: list[str]) -> None:
         raise DataError(f"{p}: duplicate column(s) {dup} in the header")
 
 
-def _clock_time_hint(raw: pd.DataFrame) -> str:
-    """Where a run has no ``time_s`` but a column of date-times (a logger's clock), the refusal's hint: the
-    time is seconds from any origin in ``time_s`` (SPEC section 2), so that column must be converted."""
-    for col in raw.columns:
-        head = raw[col].dropna().astype(str).str.strip().head(5)
+def clock_time_hint(columns: dict[str, list[str]]) -> str:
+    """Where a record has no ``time_s`` but a column of date-times (a logger's or historian's clock), the
+    refusal's hint: the time is seconds from any origin in ``time_s`` (SPEC sections 2 and 10), so that column
+    must be converted. ``columns``: each column's first cells, as text."""
+    for col, cells in columns.items():
+        head = pd.Series([c.strip() for c in cells if c is not None and str(c).strip()][:5], dtype=str)
         if head.empty or not head.str.contains(r"\d[-/.:]\d", regex=True).all():
             continue
         if pd.to_numeric(head, errors="coerce").notna().all():  # numbers, not clock times
@@ -179,7 +180,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raise DataError(f"{source}: duplicate column(s) {dup}")
     missing = [c for c in REQUIRED if c not in raw.columns]
     if missing:
-        hint = _clock_time_hint(raw) if missing[0] == "time_s" else ""
+        heads = {str(c): raw[c].dropna().astype(str).head(5).tolist() for c in raw.columns}
+        hint = clock_time_hint(heads) if missing[0] == "time_s" else ""
         raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)}){hint}")
     out = raw.copy()
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):

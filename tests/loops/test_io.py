@@ -91,8 +91,13 @@ def test_short_record_is_read_and_missing_column_refused(tmp_path: Path) -> None
         read_loop(_write_csv(tmp_path / "one.csv", n=1))
     p = tmp_path / "nocol.csv"
     p.write_text("time_s,sp,pv\n0,1,2\n")
-    with pytest.raises(LoopDataError, match="missing column"):
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) op \(need time_s, sp, pv, op\)$"):
         read_loop(p)
+    # a historian's clock instead of time_s: the refusal names the clock column and what to give
+    clock = tmp_path / "clock.csv"
+    clock.write_text("stamp,sp,pv,op\n" + "".join(f"2026-03-01 06:{m:02d}:00,1,2,{40 + m % 3}\n" for m in range(30)))
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) time_s .*; column 'stamp' holds date-times"):
+        read_loop(clock)
 
 
 def test_manual_mode_dropped_with_a_note(tmp_path: Path) -> None:

@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
-from valve_env.data_io import csv_dialect
+from valve_env.data_io import clock_time_hint, csv_dialect
 
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
@@ -122,7 +122,9 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
         raise LoopDataError(f"{p}: the header names column(s) {', '.join(twice)} more than once")
     missing = [c for c in ("time_s", "sp", "pv", "op") if c not in header]
     if missing:
-        raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op)")
+        hint = clock_time_hint({h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)}) \
+            if "time_s" in missing else ""
+        raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
     wanted = [c for c in ("time_s", "sp", "pv", "op", "mv", "mode") if c in header]
     idx = {c: header.index(c) for c in wanted}
     cols: dict[str, list[float]] = {c: [] for c in wanted}
