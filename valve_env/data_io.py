@@ -198,10 +198,13 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         i = int(far[0])
         raise DataError(f"{source}: column time_s, row {i + 1} (line {i + first}): {t[i]:.6g} s is not a plausible "
                         f"time (|time_s| <= {MAX_ABS_TIME_S:g} s)")
+    out = _drop_repeated_rows(out, [c for c in (*REQUIRED, *OPTIONAL) if c in out.columns])
+    t = out["time_s"].to_numpy()
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         i = int(bad[0]) + 1
-        raise DataError(f"{source}: time_s is not increasing at row {i + 1} (line {i + first}) "
+        r = _file_row(out, i)
+        raise DataError(f"{source}: time_s is not increasing at row {r} (line {r + first - 1}) "
                         f"({t[i - 1]:.6g} then {t[i]:.6g}); times must be strictly increasing")
     dt = np.diff(t)
     med = float(np.median(dt))
@@ -211,7 +214,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     gap = np.flatnonzero(dt > MAX_GAP_S)
     if gap.size:
         i = int(gap[0]) + 1
-        raise DataError(f"{source}: column time_s, row {i + 1} (line {i + first}): a gap of {dt[i - 1]:.3g} s after "
+        r = _file_row(out, i)
+        raise DataError(f"{source}: column time_s, row {r} (line {r + first - 1}): a gap of {dt[i - 1]:.3g} s after "
                         f"the previous sample (at most {MAX_GAP_S:g} s)")
     out = _drop_empty_rows(out, source, first)
     n = len(out)
@@ -239,6 +243,28 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     return out.reset_index(drop=True)
 
 
+def _file_row(out: pd.DataFrame, i: int) -> int:
+    """The file's row number (1 = the first data row) of the run's ``i``-th row, where rows were dropped."""
+    rows = out.attrs.get("file_rows")
+    return int(rows[i]) if rows else i + 1
+
+
+def _drop_repeated_rows(out: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
+    """The run without the rows that repeat the row before them in every column it reads, time included: a
+    logger or an export that wrote one sample twice. They are dropped and named (``attrs["rows_repeated"]``,
+    1 = the first data row; ``attrs["file_rows"]``, each kept row's number). A time repeated with other
+    values is left for the time check to refuse: which of the two is the sample is not known."""
+    v = out[columns].to_numpy(dtype=float)
+    same = np.zeros(len(out), dtype=bool)
+    same[1:] = np.all((v[1:] == v[:-1]) | (np.isnan(v[1:]) & np.isnan(v[:-1])), axis=1)
+    if not same.any():
+        return out
+    kept = out.loc[~same].reset_index(drop=True)
+    kept.attrs = {**out.attrs, "rows_repeated": [int(j) + 1 for j in np.flatnonzero(same)],
+                  "file_rows": [int(j) + 1 for j in np.flatnonzero(~same)]}
+    return kept
+
+
 def _drop_empty_rows(out: pd.DataFrame, source: str, first: int = 2) -> pd.DataFrame:
     """The run without its rows that hold an empty cell in a measured channel (at most
     :data:`MAX_EMPTY_FRACTION` of them, else one line naming the first), with ``attrs["rows_dropped_empty"]``
@@ -257,6 +283,7 @@ def _drop_empty_rows(out: pd.DataFrame, source: str, first: int = 2) -> pd.DataF
                         f"{col!r} at row {i + 1}, line {i + first}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
     rows = out.attrs.get("file_rows") or list(range(1, n + 1))
     kept = out.loc[~empty].reset_index(drop=True)
+    kept.attrs = dict(out.attrs)
     kept.attrs["rows_dropped_empty"] = [int(rows[j]) for j in np.flatnonzero(empty)]
     kept.attrs["file_rows"] = [int(rows[j]) for j in np.flatnonzero(~empty)]
     return kept

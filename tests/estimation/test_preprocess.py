@@ -97,6 +97,41 @@ def test_rows_with_an_empty_cell_are_dropped_and_every_row_keeps_its_file_number
     assert "3 row(s) with an empty cell dropped (rows 21, 22, 151)" in describe(checked.attrs["preprocessing"])
 
 
+def test_rows_written_twice_are_dropped_and_named_with_the_files_numbers(run, tmp_path) -> None:
+    """A sample the logger wrote twice (every column the same, time included) is dropped and named; the rows after
+    it keep their file numbers, through an empty cell and a spike; a time repeated with other values is refused
+    with the file's row and line."""
+    df = run.copy()
+    df.loc[[20], "T_med_C"] = np.nan
+    T = df["T_tank_C"].to_numpy().copy()
+    T[300] += 4.0
+    df["T_tank_C"] = T
+    twice = pd.concat([df.iloc[:10], df.iloc[[9]], df.iloc[10:200], df.iloc[[199, 199]], df.iloc[200:]],
+                      ignore_index=True)
+    path = tmp_path / "twice.csv"
+    twice.to_csv(path, index=False)
+    checked = check_run(read_run(path), "again")
+    assert len(checked) == len(run) - 1
+    # file rows: sample 9 is rows 10 and 11, sample 199 rows 201-203; sample 20 (empty) is row 22, sample 300 row 304
+    assert _changes(checked.attrs["preprocessing"]) == {("rows_repeated", None): [11, 202, 203],
+                                                         ("rows_dropped", None): [22],
+                                                         ("spikes_replaced", "T_tank_C"): [304]}
+    assert "3 repeated row(s) dropped (rows 11, 202, 203)" in describe(checked.attrs["preprocessing"])
+    clean = df.drop(index=[20]).reset_index(drop=True)
+    np.testing.assert_array_equal(checked["time_s"].to_numpy(), clean["time_s"].to_numpy())
+    clash = twice.copy()
+    clash.loc[10, "dp_mbar"] += 1.0  # file row 11 repeats row 10's time with another pressure
+    path2 = tmp_path / "clash.csv"
+    clash.to_csv(path2, index=False)
+    with pytest.raises(DataError, match=r"time_s is not increasing at row 11 \(line 12\)"):
+        read_run(path2)
+    late = twice.copy()
+    late.loc[210, "time_s"] = late.loc[209, "time_s"]  # after three dropped rows: named by the file's row
+    late.to_csv(path2, index=False)
+    with pytest.raises(DataError, match=r"time_s is not increasing at row 211 \(line 212\)"):
+        read_run(path2)
+
+
 # --------------------------------------------------------------------------- the opening's own conventions
 def test_the_openings_noise_level_follows_its_convention() -> None:
     from valve_env.studies.conventions import store_on_change

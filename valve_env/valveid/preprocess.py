@@ -17,6 +17,8 @@ each convention is handled once, here, and reported:
   two samples: replaced by the mean of the two neighbours, and each one named by its row. More
   than :data:`MAX_SPIKE_FRACTION` of a channel's samples is not "a few": the run is refused in one
   line naming the first rows.
+* **rows written twice** (every column the same as the row before, time included), which
+  :func:`~valve_env.data_io.validate_run` drops: the note names them.
 * **rows with an empty cell** in a measured channel, which :func:`~valve_env.data_io.validate_run` drops as
   samples the logger missed: the note names them (every row number in the notes is the file's).
 * **an opening derived from the flow** (no ``x_mm`` column, or empty cells in it, which
@@ -26,8 +28,9 @@ each convention is handled once, here, and reported:
   data are not changed; the note gives the interval's spread, the rows missing against the median
   interval and the longest gap (nothing is filled in).
 
-Every note is a JSON-ready dict with ``what`` (``noise_level``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``,
-``irregular_sampling``, ``gap``), the ``channel`` where it applies, and ``why``. The ``fit`` and
+Every note is a JSON-ready dict with ``what`` (``noise_level``, ``rows_repeated``, ``rows_dropped``,
+``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``), the ``channel`` where it applies, and
+``why``. The ``fit`` and
 ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
 through here twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
 """
@@ -59,7 +62,7 @@ SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
 #: (often to full scale) does not
 X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
-CHANGE_NOTES: tuple[str, ...] = ("rows_dropped", "spikes_replaced", "x_mm_derived")
+CHANGE_NOTES: tuple[str, ...] = ("rows_repeated", "rows_dropped", "spikes_replaced", "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -118,6 +121,11 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
     def row(i: int) -> int:
         return int(file_rows[i]) if file_rows is not None else i + 1
 
+    repeated = df.attrs.get("rows_repeated", [])
+    if repeated and ("rows_repeated", None) not in done:
+        notes.append({"what": "rows_repeated", "channel": None, "rows": list(repeated),
+                      "why": f"{len(repeated)} row(s) that repeat the row before them in every column, time included "
+                             "(row numbers as in the file), dropped as one sample written twice"})
     dropped = df.attrs.get("rows_dropped_empty", [])
     if dropped and ("rows_dropped", None) not in done:
         notes.append({"what": "rows_dropped", "channel": None, "rows": list(dropped),
@@ -190,6 +198,10 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
             rows = nt["rows"]
             lines.append(f"{nt['channel']}: {len(rows)} isolated spike(s) replaced by the mean of their neighbours "
                          f"(rows {', '.join(map(str, rows[:10]))}{', ...' if len(rows) > 10 else ''})")
+        elif what == "rows_repeated":
+            rows = nt["rows"]
+            lines.append(f"{len(rows)} repeated row(s) dropped (rows {', '.join(map(str, rows[:10]))}"
+                         f"{', ...' if len(rows) > 10 else ''})")
         elif what == "rows_dropped":
             rows = nt["rows"]
             lines.append(f"{len(rows)} row(s) with an empty cell dropped (rows {', '.join(map(str, rows[:10]))}"
