@@ -11,8 +11,9 @@ sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, tim
 :data:`MAX_ABS_TIME_S`); the record length; a temperature that moves; an opening that can be
 known (a flow that is zero everywhere with no x_mm column is rejected). Each failure is one
 line naming the column and the row (row 1 is the first data row; the line is the file's own). An empty cell in
-a measured column drops its row, as a sample the logger missed (at most :data:`MAX_EMPTY_FRACTION` of
-the rows; the pre-processing's note names them); an empty time_s is refused.
+a measured column (blank, a NaN marker or a historian's state: :data:`MISSING_MARKERS`) drops its row, as a
+sample the logger missed (at most :data:`MAX_EMPTY_FRACTION` of the rows; the pre-processing's note names
+them); an empty time_s is refused. A row that repeats the row before it in every column is dropped and named.
 
 The file's dialect is read off its header (:func:`csv_dialect`): fields separated by commas, or by semicolons or
 tabs where the header has no comma (a spreadsheet's export in a locale that writes a decimal comma uses ``;``, and
@@ -65,8 +66,15 @@ MAX_ABS_TIME_S = 1.0e10
 #: a missing sample, which the identification takes), up to :data:`MAX_EMPTY_FRACTION` of the rows.
 MEASURED: tuple[str, ...] = REQUIRED[1:]
 MAX_EMPTY_FRACTION = 0.10
-#: Cells read as empty (case-insensitive, after stripping).
-MISSING_MARKERS: frozenset[str] = frozenset({"", "nan", "na", "null", "none"})
+#: A plant historian's words for a sample without a usable value, written in its place: the commonly met states
+#: of the PI System's SYSTEM digital state set (AVEVA, PI Data Archive administration, "The SYSTEM digital state
+#: set"), which a PI export writes into numeric columns, and the bare "Bad" of other historians.
+HISTORIAN_STATES: frozenset[str] = frozenset({
+    "bad", "bad input", "bad data", "i/o timeout", "no data", "pt created", "shutdown", "intf shut", "arc off-line",
+    "calc failed", "comm fail", "scan off", "scan timeout", "over range", "under range", "invalid data", "configure",
+})
+#: Cells read as empty (case-insensitive, after stripping): blanks, NaN markers and the historian states.
+MISSING_MARKERS: frozenset[str] = frozenset({"", "nan", "na", "null", "none"}) | HISTORIAN_STATES
 
 
 class DataError(ValueError):
@@ -329,4 +337,4 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
-           "MISSING_MARKERS"]
+           "MISSING_MARKERS", "HISTORIAN_STATES", "clock_time_hint"]

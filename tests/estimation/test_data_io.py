@@ -59,6 +59,19 @@ def test_a_row_with_an_empty_measured_cell_is_dropped(tmp_path: Path, run_df: pd
     assert out.attrs["file_rows"][:5] == [1, 2, 3, 5, 6]
 
 
+def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A PI export writes a SYSTEM digital state where a sample has no usable value: read as an empty cell (its
+    row dropped and named); other text is still refused."""
+    export = run_df.astype({"T_med_C": object, "dp_mbar": object})
+    export.loc[5, "T_med_C"] = "I/O Timeout"
+    export.loc[17, "dp_mbar"] = " bad input "
+    out = load_run(_write(export, tmp_path / "pi.csv"))
+    assert len(out) == len(run_df) - 2 and out.attrs["rows_dropped_empty"] == [6, 18]
+    export.loc[30, "dp_mbar"] = "Tuesday"
+    with pytest.raises(DataError, match=r"non-numeric value 'Tuesday' in column 'dp_mbar' at row 31"):
+        load_run(_write(export, tmp_path / "pi2.csv"))
+
+
 @pytest.mark.parametrize(("mutate", "pattern"), [
     (lambda d: d.drop(columns=["dp_mbar"]), r"missing column 'dp_mbar'"),
     # a logger's clock instead of seconds: the refusal says which column and what to give
