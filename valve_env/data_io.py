@@ -287,8 +287,9 @@ def _drop_empty_rows(out: pd.DataFrame, source: str, first: int = 2) -> pd.DataF
     i = int(np.flatnonzero(empty)[0])
     col = next(c for c in MEASURED if not np.isfinite(float(out[c].iloc[i])))
     if k > MAX_EMPTY_FRACTION * n:
+        r = _file_row(out, i)
         raise DataError(f"{source}: {k} of {n} rows ({k / n:.0%}) have an empty cell in a measured column (the first: "
-                        f"{col!r} at row {i + 1}, line {i + first}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
+                        f"{col!r} at row {r}, line {r + first - 1}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
     rows = out.attrs.get("file_rows") or list(range(1, n + 1))
     kept = out.loc[~empty].reset_index(drop=True)
     kept.attrs = dict(out.attrs)
