@@ -151,6 +151,24 @@ def extra_columns(df: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
     return out[cols]
 
 
+def historian_export(df: pd.DataFrame, rng: np.random.Generator, repeated: float = 0.01, states: float = 0.004
+                     ) -> pd.DataFrame:
+    """A historian's export: ``repeated`` of the rows written twice, and in each measured column ``states`` of
+    the cells holding a PI System state instead of a value (``I/O Timeout``, ``Bad Input``, ``No Data``: a
+    sample without a usable value), at random rows away from the ends."""
+    from valve_env.data_io import MEASURED
+
+    n = len(df)
+    out = df.copy()
+    for col in MEASURED:
+        rows = rng.choice(np.arange(1, n - 1), size=max(1, int(round(states * n))), replace=False)
+        out[col] = out[col].astype(object)
+        out.loc[rows, col] = rng.choice(["I/O Timeout", "Bad Input", "No Data"], size=rows.size)
+    twice = np.sort(rng.choice(np.arange(1, n - 1), size=max(1, int(round(repeated * n))), replace=False))
+    order = np.sort(np.concatenate([np.arange(n), twice]))
+    return out.iloc[order].reset_index(drop=True)
+
+
 def _on_opening(apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
                 ) -> Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]:
     """A convention of the measured opening: a run without x_mm (its opening derived from the flow) has none to
@@ -209,6 +227,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: df.drop(columns=["x_mm"])),
     Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
                lambda df, rng: extra_columns(df, rng)),
+    Convention("historian_export", "1 % of the rows written twice, 0.4 % of each measured channel's cells a PI "
+               "state (I/O Timeout, Bad Input, No Data) instead of a value", historian_export),
 )}
 
 
@@ -227,4 +247,4 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
 
 
 __all__ = ["CONVENTIONS", "Convention", "apply_convention", "drop_rows", "extra_columns", "gap", "held_constant",
-           "noiseless", "quantise", "resample", "spikes", "stepped", "store_on_change", "truncate"]
+           "historian_export", "noiseless", "quantise", "resample", "spikes", "stepped", "store_on_change", "truncate"]

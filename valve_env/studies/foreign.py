@@ -3,7 +3,7 @@
 Each case is a run of the project's generator (:func:`valve_env.experiment.simulate_experiment`)
 with one effect hidden (or none), recorded under one convention: a measurement convention of
 :mod:`valve_env.studies.conventions` (quantised, stepped, noiseless, held, dropped rows, a gap,
-a longer interval, spikes, extra columns), or a generation convention of :data:`GENERATIONS`
+a longer interval, spikes, extra columns, a historian's export), or a generation convention of :data:`GENERATIONS`
 (jittered sampling, a 1 s or 60 s logger, a 2 h or 7 day record, a medium temperature held constant
 or by a thermostat in noiseless steps). The case is written as a CSV file and read back the way a
 user's file is (:func:`valve_env.valveid.diagnose.read_run`), then diagnosed.
@@ -13,7 +13,7 @@ cause, or the truth where the original missed it; or ``none`` where the conventi
 (:attr:`Convention.loses_information`);
 or a one-line refusal where refusal is the right answer (:data:`MAY_REFUSE`). Anything else raised
 is a failure. The default test suite runs :func:`corpus_cases` ``("default")`` (30 transformed
-runs), the slow suite ``("full")`` (345); ``studies/foreign_data.py`` prints the table.
+runs), the slow suite ``("full")`` (360); ``studies/foreign_data.py`` prints the table.
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ _DEFAULT_PLAN: dict[str, tuple[str, ...]] = {
                  "opening_from_flow"),
     "setpoint_drift": ("quantised_0.01", "dp_constant", "medium_thermostat", "dt_60_gen"),
 }
-#: the full corpus's cases whose outcome is wrong today (343 of 345 right): a 1 h gap makes a sensor lag read as a
+#: the full corpus's cases whose outcome is wrong today (358 of 360 right): a 1 h gap makes a sensor lag read as a
 #: set-point drift; with the opening derived from the flow, a 0.06 mm band on a valve that moves within 0.6 mm and
 #: rests on its seat for a third of the record is named `none` (the opening's noise, 0.5 um, lies below its motion's
 #: own second differences at 20 s, and the slips found are 2 um)
