@@ -2,7 +2,7 @@
 # ($(VENV), default .venv) with $(PYTHON) and installs the versions CI tested (constraints.txt).
 #   make demo                 core only (no torch): simulate, evaluate the baselines, write out/demo/
 #   make test                 core + RL + test tools, then the default test suite
-#   make test-slow            the long statistical studies and full training (marked slow)
+#   make test-slow            the long statistical studies, the full foreign-data corpus, the wheel test (marked slow)
 #   make test-latest          the default suite against the newest versions pyproject.toml allows
 #   make tutorials            re-run docs/tutorials/*.ipynb and save them with their outputs (figures inline)
 PYTHON ?= python3
