@@ -149,7 +149,7 @@ def test_fit_reports_one_fit_in_the_json_and_the_report(tmp_path) -> None:
 # --------------------------------------------------------------------------- the corpus
 @pytest.mark.parametrize("cls", CLASSES)
 def test_the_foreign_data_corpus(cls) -> None:
-    """Each class's run as generated and under four to seven conventions (30 transformed runs in all, every
+    """Each class's run as generated and under four to seven conventions (31 transformed runs in all, every
     convention on one to three classes): no traceback, the right outcome on each, and a spike's replacement
     reported in the diagnosis's notes (the run is read and checked, then diagnosed: two passes)."""
     cases = [c for c in corpus_cases("default") if c["class"] == cls]
