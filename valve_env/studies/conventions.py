@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from valve_env.data_io import MEASURED
+
 TEMPERATURES: tuple[str, ...] = ("T_tank_C", "T_med_C")
 
 
@@ -156,8 +158,6 @@ def historian_export(df: pd.DataFrame, rng: np.random.Generator, repeated: float
     """A historian's export: ``repeated`` of the rows written twice, and in each measured column ``states`` of
     the cells holding a PI System state instead of a value (``I/O Timeout``, ``Bad Input``, ``No Data``: a
     sample without a usable value), at random rows away from the ends."""
-    from valve_env.data_io import MEASURED
-
     n = len(df)
     out = df.copy()
     for col in MEASURED:
