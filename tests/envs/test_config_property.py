@@ -153,7 +153,7 @@ def _run(cfg: EnvConfig, env_id: str, u: np.ndarray, seed: int) -> None:
     _check(env, cfg, u[:, : env.action_space.shape[0]], seed)
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 @given(cfg=configs(max_horizon_h=48.0), env_id=st.sampled_from(IDS), u=actions(30, 2), seed=st.integers(0, 2**31))
 def test_every_accepted_config_gives_finite_observations_in_the_box(cfg, env_id, u, seed):
     _run(cfg, env_id, u, seed)

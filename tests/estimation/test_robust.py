@@ -67,6 +67,7 @@ def test_sandwich_equals_hessian_when_the_model_is_right(white_fit: MLEstimator)
     assert set(chk["outputs"]) == {"y1", "y2"}
 
 
+@pytest.mark.slow  # the flag also fires in the default suite's diagnoses (MisspecificationWarning)
 def test_correlated_noise_is_flagged() -> None:
     est = _fit(_ornstein_data(6, ar=0.8))
     with pytest.warns(MisspecificationWarning, match="not white"):

@@ -22,7 +22,8 @@ def test_valve_is_the_project_stick_slip() -> None:
     np.testing.assert_array_equal(valve_path(op, 0.0, 0.0), op)
 
 
-@pytest.mark.parametrize(("process", "S", "J"), [("pressure", 3.0, 1.5), ("temperature", 2.5, 2.0)])
+@pytest.mark.parametrize(("process", "S", "J"), [pytest.param("pressure", 3.0, 1.5, marks=pytest.mark.slow),
+                                             ("temperature", 2.5, 2.0)])
 def test_sticky_simulated_loop_gives_its_band(process: str, S: float, J: float) -> None:
     loop, truth = simulate_loop(process, S=S, J=J, seed=101)
     d = diagnose_loop(loop, rule="learned")  # the simulated loops' detection is the learned rule's (docs/loops.md)

@@ -64,6 +64,7 @@ def test_substeps_fit_an_interval_mean_record_better_near_its_band() -> None:
     assert ll(4) > ll(1) + 50.0
 
 
+@pytest.mark.slow  # the sub-sample valve's nesting and fit stay in the default suite (the tests above)
 def test_sub_sample_valve_recovers_the_flow_band() -> None:
     """The band's fit with the valve between the samples recovers the flow loop's band (within 20 %, closer than the
     sample-rate valve's); the linear valve's fit is the same either way."""
