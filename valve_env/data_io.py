@@ -257,27 +257,30 @@ def _file_row(out: pd.DataFrame, i: int) -> int:
     return int(rows[i]) if rows else i + 1
 
 
+def _drop_rows(out: pd.DataFrame, drop: np.ndarray, key: str) -> pd.DataFrame:
+    """The run without the rows of mask ``drop``, their file numbers in ``attrs[key]`` and each kept row's in
+    ``attrs["file_rows"]`` (1 = the first data row, through any rows dropped before), so that the pre-processing
+    names rows as they are in the file."""
+    rows = out.attrs.get("file_rows") or list(range(1, len(out) + 1))
+    kept = out.loc[~drop].reset_index(drop=True)
+    kept.attrs = {**out.attrs, key: [int(rows[j]) for j in np.flatnonzero(drop)],
+                  "file_rows": [int(rows[j]) for j in np.flatnonzero(~drop)]}
+    return kept
+
+
 def _drop_repeated_rows(out: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
     """The run without the rows that repeat the row before them in every column it reads, time included: a
-    logger or an export that wrote one sample twice. They are dropped and named (``attrs["rows_repeated"]``,
-    1 = the first data row; ``attrs["file_rows"]``, each kept row's number). A time repeated with other
-    values is left for the time check to refuse: which of the two is the sample is not known."""
+    logger or an export that wrote one sample twice, named in ``attrs["rows_repeated"]``. A time repeated with
+    other values is left for the time check to refuse: which of the two is the sample is not known."""
     v = out[columns].to_numpy(dtype=float)
     same = np.zeros(len(out), dtype=bool)
     same[1:] = np.all((v[1:] == v[:-1]) | (np.isnan(v[1:]) & np.isnan(v[:-1])), axis=1)
-    if not same.any():
-        return out
-    kept = out.loc[~same].reset_index(drop=True)
-    kept.attrs = {**out.attrs, "rows_repeated": [int(j) + 1 for j in np.flatnonzero(same)],
-                  "file_rows": [int(j) + 1 for j in np.flatnonzero(~same)]}
-    return kept
+    return _drop_rows(out, same, "rows_repeated") if same.any() else out
 
 
 def _drop_empty_rows(out: pd.DataFrame, source: str, first: int = 2) -> pd.DataFrame:
     """The run without its rows that hold an empty cell in a measured channel (at most
-    :data:`MAX_EMPTY_FRACTION` of them, else one line naming the first), with ``attrs["rows_dropped_empty"]``
-    (their row numbers, 1 = the first data row) and ``attrs["file_rows"]`` (each kept row's number), so that
-    the pre-processing names rows as they are in the file."""
+    :data:`MAX_EMPTY_FRACTION` of them, else one line naming the first), named in ``attrs["rows_dropped_empty"]``."""
     empty = np.zeros(len(out), dtype=bool)
     for col in MEASURED:
         empty |= ~np.isfinite(out[col].to_numpy(dtype=float))
@@ -290,12 +293,7 @@ def _drop_empty_rows(out: pd.DataFrame, source: str, first: int = 2) -> pd.DataF
         r = _file_row(out, i)
         raise DataError(f"{source}: {k} of {n} rows ({k / n:.0%}) have an empty cell in a measured column (the first: "
                         f"{col!r} at row {r}, line {r + first - 1}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
-    rows = out.attrs.get("file_rows") or list(range(1, n + 1))
-    kept = out.loc[~empty].reset_index(drop=True)
-    kept.attrs = dict(out.attrs)
-    kept.attrs["rows_dropped_empty"] = [int(rows[j]) for j in np.flatnonzero(empty)]
-    kept.attrs["file_rows"] = [int(rows[j]) for j in np.flatnonzero(~empty)]
-    return kept
+    return _drop_rows(out, empty, "rows_dropped_empty")
 
 
 def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str,

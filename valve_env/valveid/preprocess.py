@@ -183,6 +183,11 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
     return out, notes
 
 
+def _row_list(rows: list[int]) -> str:
+    """``rows 3, 9, ...``: the first ten row numbers of a note."""
+    return f"rows {', '.join(map(str, rows[:10]))}{', ...' if len(rows) > 10 else ''}"
+
+
 def describe(notes: list[dict[str, Any]]) -> list[str]:
     """One line per note, for the reports."""
     lines = []
@@ -195,17 +200,12 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
                          + (f"; {nt['held_fraction']:.0%} of consecutive samples equal" if nt["held_fraction"] > 0.5
                             else ""))
         elif what == "spikes_replaced":
-            rows = nt["rows"]
-            lines.append(f"{nt['channel']}: {len(rows)} isolated spike(s) replaced by the mean of their neighbours "
-                         f"(rows {', '.join(map(str, rows[:10]))}{', ...' if len(rows) > 10 else ''})")
+            lines.append(f"{nt['channel']}: {len(nt['rows'])} isolated spike(s) replaced by the mean of their "
+                         f"neighbours ({_row_list(nt['rows'])})")
         elif what == "rows_repeated":
-            rows = nt["rows"]
-            lines.append(f"{len(rows)} repeated row(s) dropped (rows {', '.join(map(str, rows[:10]))}"
-                         f"{', ...' if len(rows) > 10 else ''})")
+            lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
         elif what == "rows_dropped":
-            rows = nt["rows"]
-            lines.append(f"{len(rows)} row(s) with an empty cell dropped (rows {', '.join(map(str, rows[:10]))}"
-                         f"{', ...' if len(rows) > 10 else ''})")
+            lines.append(f"{len(nt['rows'])} row(s) with an empty cell dropped ({_row_list(nt['rows'])})")
         elif what == "x_mm_derived":
             lines.append(f"x_mm: derived from the flow in {nt['rows']} row(s) ({nt['why'].split(':')[0]})")
         elif what == "irregular_sampling":
