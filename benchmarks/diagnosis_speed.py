@@ -7,6 +7,11 @@ generated 24 h runs at 10 s: no effect, a sensor lag and stiction (:func:`valve_
 which ``thermovalve bench`` runs too). Numba's compilation is timed apart, first.
 
     python benchmarks/diagnosis_speed.py [--seed 2024] [--bootstrap B]
+    python benchmarks/diagnosis_speed.py --first-run [--seed 2024]
+
+``--first-run`` times what a new install's first diagnosis costs instead: ``thermovalve diagnose`` of one generated
+run in a fresh interpreter with an empty numba cache (every kernel compiles), then again with the cache that run
+left (the kernels load), each as wall and CPU seconds of the child process, at diagnose's defaults.
 
 Prints one line per case (wall and CPU seconds) and the slowest against the target; the machine's
 load average is printed too. The project's machine is shared: under load the wall time measures the
@@ -17,7 +22,34 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
+import subprocess
 import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def first_run(seed: int) -> int:
+    """Time ``thermovalve diagnose`` in a fresh interpreter, with an empty numba cache and then with the cache it
+    left; print one line each."""
+    with tempfile.TemporaryDirectory() as tmp:
+        run = Path(tmp) / "run.csv"
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"))
+        cli = [sys.executable, "-m", "valve_env.cli"]
+        # run from the temporary directory: ``-m`` puts the working directory first on the path
+        subprocess.run([*cli, "experiment", "--seed", str(seed), "--out", str(run)], env=env, check=True,
+                       stdout=subprocess.DEVNULL, cwd=tmp)
+        for label in ("empty cache (compiles)", "cache of that run"):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            subprocess.run([*cli, "diagnose", str(run), "--json", str(Path(tmp) / "d.json"), "--force"],
+                           env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp)
+            wall = time.perf_counter() - t0
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            print(f"first diagnosis of 24 h at 10 s, seed {seed}, {label}: wall {wall:.1f} s, CPU {cpu:.1f} s")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -28,7 +60,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--bootstrap", type=int, default=None,
                     help=f"bootstrap replicates (default: diagnose's default, {default_bootstrap_b()})")
+    ap.add_argument("--first-run", action="store_true",
+                    help="time a new install's first diagnosis instead (empty numba cache, then warm)")
     a = ap.parse_args(argv)
+    if a.first_run:
+        return first_run(a.seed)
     if a.bootstrap is not None and a.bootstrap < 0:
         print(f"thermovalve: error: --bootstrap must be >= 0, got {a.bootstrap}", file=sys.stderr)
         return 2

@@ -80,6 +80,20 @@ def test_smoother_beats_the_noise_and_adds_no_lag(run) -> None:  # type: ignore[
     assert abs(np.corrcoef(err, v)[0, 1]) < 0.2
 
 
+def test_a_run_is_read_only_and_leaves_the_callers_arrays_writable(run) -> None:  # type: ignore[no-untyped-def]
+    x = np.ascontiguousarray(run["x_mm"].to_numpy(dtype=float)).copy()
+    t = run["time_s"].to_numpy(dtype=float).copy()
+    d = RunData.from_arrays(t, run["T_tank_C"].to_numpy(), run["T_med_C"].to_numpy(), x, run["dp_mbar"].to_numpy(),
+                            run["ps_bar"].to_numpy())
+    for a in (d.t, d.x, d.T, d.M, d.dp, d.ps, d.T_raw, d.M_raw, d.vT, d.vM):
+        assert not a.flags.writeable and a.flags.c_contiguous and a.dtype == np.float64
+    with pytest.raises(ValueError, match="read-only"):
+        d.x[0] = 0.0
+    assert x.flags.writeable and t.flags.writeable  # the caller's own arrays keep their flags
+    e = dataclasses.replace(d, T=run["true_T_tank_C"].to_numpy().copy())  # a new run is frozen too
+    assert not e.T.flags.writeable
+
+
 def test_simulation_reproduces_the_generator(run) -> None:  # type: ignore[no-untyped-def]
     d = _data(run, truth=True)
     m = Model(())

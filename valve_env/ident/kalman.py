@@ -83,9 +83,11 @@ def to_arrays(model: SDEModel, data: pd.DataFrame, time: str = "time_s") -> Arra
         else:
             raise KeyError(f"{model.name}: the data have no time column {time!r}")
     check_names(model, list(data.columns))
-    t = np.ascontiguousarray(data[time].to_numpy(dtype=float))
-    U = np.ascontiguousarray(data[list(model.inputs)].to_numpy(dtype=float).reshape(len(t), len(model.inputs)))
-    Y = np.ascontiguousarray(data[list(model.outputs)].to_numpy(dtype=float).reshape(len(t), len(model.outputs)))
+    # own, writable C copies: pandas may hand out read-only views, and numba compiles its kernels once per
+    # read-only flag, so a mix would compile each twice
+    t = np.array(data[time].to_numpy(dtype=float), order="C")
+    U = np.array(data[list(model.inputs)].to_numpy(dtype=float).reshape(len(t), len(model.inputs)), order="C")
+    Y = np.array(data[list(model.outputs)].to_numpy(dtype=float).reshape(len(t), len(model.outputs)), order="C")
     if len(t) < 2 or np.any(np.diff(t) <= 0):
         raise ValueError(f"{model.name}: time must be strictly increasing with at least 2 samples")
     if not np.all(np.isfinite(U)):

@@ -274,7 +274,8 @@ def _oe_fit_moments(pv: np.ndarray, w: np.ndarray, bidx: np.ndarray, bval: np.nd
         b1 = k1 - 1 - l2
         WW[l1 + 1, l2 + 1] = WW[l1, l2] + w[a0] * w[b0] - w[a1] * w[b1]
         WP[l1 + 1, l2 + 1] = WP[l1, l2] + w[a0] * pv[b0] - w[a1] * pv[b1]
-        WB[l1 + 1, l2 + 1, :] = WB[l1, l2, :]
+        for u in range(WB.shape[2]):  # elementwise: a slice assignment compiles numba's shape-error formatting
+            WB[l1 + 1, l2 + 1, u] = WB[l1, l2, u]
         for u in range(wd):
             WB[l1 + 1, l2 + 1, bidx[b0, u]] += w[a0] * bval[b0, u]
             WB[l1 + 1, l2 + 1, bidx[b1, u]] -= w[a1] * bval[b1, u]
@@ -613,7 +614,8 @@ def _scan_rss(pv: np.ndarray, xs: np.ndarray, bidx: np.ndarray, bval: np.ndarray
                     if f == 0.0:
                         ww = WW[i]
                         wp = WP[i]
-                        wb[:] = WB[i]
+                        for j in range(q):
+                            wb[j] = WB[i, j]
                     else:  # (1 - f) w[k - d] + f w[k - d - 1]
                         ww = (1.0 - f) ** 2 * WW[i] + 2.0 * f * (1.0 - f) * WC[i] + f * f * WW[i + 1]
                         wp = (1.0 - f) * WP[i] + f * WP[i + 1]

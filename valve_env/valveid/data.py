@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.valveid.stiction import OpeningNoise, opening_noise
-from valve_env.valveid.temperature import ChannelNoise, channel_noise, smooth_temperature
+from valve_env.valveid.temperature import ChannelNoise, channel_noise, read_only, smooth_temperature
 
 
 def opening_scale(x: np.ndarray) -> tuple[np.ndarray | None, OpeningNoise | None, float]:
@@ -65,6 +65,14 @@ class RunData:
     #: the record's opening noise by level and the sd that ``x_scale`` is relative to (:meth:`noise_scale_at`)
     x_noise: OpeningNoise | None = None
     x_norm: float = 1.0
+
+    def __post_init__(self) -> None:
+        # the arrays as read-only views (:func:`~valve_env.valveid.temperature.read_only`): the run is not to be
+        # written in place, and its kernels then compile once
+        for f in ("t", "T_raw", "M_raw", "x", "dp", "ps", "T", "vT", "M", "vM", "x_scale"):
+            a = getattr(self, f)
+            if a is not None:
+                object.__setattr__(self, f, read_only(a))
 
     def noise_scale_at(self, x: np.ndarray) -> float | np.ndarray:
         """The opening's white-noise sd at the openings ``x`` (a simulated path) relative to the record's, as

@@ -29,6 +29,16 @@ from scipy.optimize import minimize_scalar
 from valve_env.ident.kalman import LOG2PI
 
 
+def read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only, C-contiguous float64 view of ``a`` (a copy only where ``a`` is not already one; the caller's
+    own array keeps its flags). The output-error path hands its compiled kernels read-only arrays only, because
+    numba compiles a kernel once per read-only flag of each argument: a mix would compile each kernel twice or
+    more in one process."""
+    v = np.ascontiguousarray(a, dtype=np.float64).view()
+    v.setflags(write=False)
+    return v
+
+
 # --------------------------------------------------------------------------- TV denoising
 @njit(cache=True)
 def _fill(x: np.ndarray, k0: int, last: int, v: float) -> int:  # pragma: no cover - compiled
@@ -259,7 +269,7 @@ def relaxed_tv(y: np.ndarray, lam: float) -> np.ndarray:
     the more extreme end of a straight line fitted to the block's data (which overshoots:
     sigma -0.5-1 %); on 30 simulated runs the midpoint leaves sigma unbiased to 0.1 %. The new
     level lies beyond both neighbours, so TV's monotone runs, and its reversals, are kept."""
-    y = np.ascontiguousarray(y, dtype=float)
+    y = read_only(y)
     x = tv_denoise(y, lam)
     if len(x) < 3:
         return x
@@ -310,7 +320,7 @@ def denoise_temperature(y: np.ndarray, t: np.ndarray, tv_factor: float = 4.5,
         ys = monotone_path(smooth_temperature(t, y)[0], 5.0 * noise.sd)
     else:
         lam = tv_factor * noise.sd
-        ys = relaxed_tv(y, lam) if denoiser == "relaxed" else tv_denoise(y, lam)
+        ys = relaxed_tv(y, lam) if denoiser == "relaxed" else tv_denoise(read_only(y), lam)
     v = np.zeros_like(ys)
     if len(ys) > 1:
         v[:-1] = np.diff(ys) / np.diff(np.asarray(t, dtype=float))
@@ -392,10 +402,7 @@ def monotone_path(y: np.ndarray, delta: float) -> np.ndarray:
             ext = y[k]
             iext = k
         k += 1
-    if direction == 0:
-        inc = y[n - 1] >= y[0]
-        _pava(y, 0, n, inc, out)
-        return out
+    # a path that never retraces delta is one monotone run, from 0 to n - 1 (the loops below add its end)
     while k < n:
         # in the direction of travel (signs flip exactly): a new extreme, or a retrace of delta from it
         v = direction * y[k]
@@ -585,8 +592,8 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, nu: float = STUDENT_NU, max
 
     Returns (level degC, rate K/s, s_T degC, s_v K/s/sqrt(s)), with s_T = sqrt(r) and s_v = sqrt(q)
     the nominal (lambda = 1) scale of the rate's random walk."""
-    t = np.ascontiguousarray(t, dtype=np.float64)
-    y = np.ascontiguousarray(y, dtype=np.float64)
+    t = read_only(t)
+    y = read_only(y)
     n = t.shape[0]
     if n < 4:
         raise ValueError(f"smooth_temperature needs at least 4 samples, got {n}")
@@ -598,24 +605,26 @@ def smooth_temperature(t: np.ndarray, y: np.ndarray, nu: float = STUDENT_NU, max
     w = np.ones(n)
     lq = minimize_scalar(lambda z: -_irw_pass(t, y, math.exp(z), r, False, w)[0], bounds=(-40.0, 0.0),
                          method="bounded", options={"xatol": 1e-2}).x
-    q, r = _variational_em(t, y, math.exp(lq), r, r_floor, float(nu), int(max_iter), float(tol), w)
+    q, r = _variational_em(t, y, math.exp(lq), r, r_floor, float(nu), int(max_iter), float(tol), w, True)
     _, level, rate, _, _ = _irw_pass(t, y, q, r, True, w)
     return level, rate, math.sqrt(r), math.sqrt(q)
 
 
 @njit(cache=True)
 def _variational_em(t: np.ndarray, y: np.ndarray, q: float, r: float, r_floor: float, nu: float, max_iter: int,
-                    tol: float, w: np.ndarray) -> tuple[float, float]:  # pragma: no cover - compiled
+                    tol: float, w: np.ndarray, smooth: bool) -> tuple[float, float]:  # pragma: no cover - compiled
     """The iterations of :func:`smooth_temperature`'s variational EM from ``q``, ``r``: the converged (q, r), with the
-    weights ``w`` (1 / E[lambda_k]) updated in place. Its sum is NumPy's (:func:`_pairwise_sum`)."""
+    weights ``w`` (1 / E[lambda_k]) updated in place. Its sum is NumPy's (:func:`_pairwise_sum`). ``smooth`` (True) is
+    handed to :func:`_irw_pass` as an argument: a constant there would compile a second, literal-typed copy of it."""
     n = t.shape[0]
     level_prev = np.empty(0)
     for it in range(max_iter):
-        _, level, _, e, res = _irw_pass(t, y, q, r, True, w)
+        _, level, _, e, res = _irw_pass(t, y, q, r, smooth, w)
         lam = (nu + 2.0) / (nu + e[1:] / q)
         q_new = max(_pairwise_sum(lam * e[1:], 0, n - 1) / (2.0 * (n - 1)), 1e-300)
         r_new = max(res / n, r_floor)
-        w[1:] = 1.0 / lam
+        for k in range(1, n):  # elementwise: a slice assignment would compile numba's shape-error formatting
+            w[k] = 1.0 / lam[k - 1]
         done = (it > 0 and abs(math.log(r_new / r)) < tol
                 and np.max(np.abs(level - level_prev)) < tol * math.sqrt(r_new))
         q, r, level_prev = q_new, r_new, level
