@@ -13,7 +13,9 @@ known (a flow that is zero everywhere with no x_mm column is rejected). Each fai
 line naming the column and the row (row 1 is the first data row; the line is the file's own). An empty cell in
 a measured column (blank, a NaN marker or a historian's state: :data:`MISSING_MARKERS`) drops its row, as a
 sample the logger missed (at most :data:`MAX_EMPTY_FRACTION` of the rows; the pre-processing's note names
-them); an empty time_s is refused. A row that repeats the row before it in every column is dropped and named.
+them); an empty time_s is refused. A row that repeats the row before it in every column is dropped and named. A units
+row under the header (``s, degC, degC, kg/h, mbar, bar, mm``, as loggers write one) is read as a second header line
+where its units are the format's (:data:`UNITS`), and refused in one line naming the column where one is not.
 
 The file's dialect is read off its header (:func:`csv_dialect`): fields separated by commas, or by semicolons or
 tabs where the header has no comma (a spreadsheet's export in a locale that writes a decimal comma uses ``;``, and
@@ -75,6 +77,24 @@ HISTORIAN_STATES: frozenset[str] = frozenset({
 })
 #: Cells read as empty (case-insensitive, after stripping): blanks, NaN markers and the historian states.
 MISSING_MARKERS: frozenset[str] = frozenset({"", "nan", "na", "null", "none"}) | HISTORIAN_STATES
+#: The format's unit of each column (docs/reference.md, section 2) and the ways a logger writes it, lower case with
+#: spaces, brackets and the degree sign's variants removed (:func:`unit_key`). A units row under the header (a
+#: logger's or a spreadsheet's second header line) is read where it names these; any other unit is refused.
+UNITS: dict[str, tuple[str, frozenset[str]]] = {
+    "time_s": ("s", frozenset({"s", "sec", "secs", "second", "seconds"})),
+    "T_tank_C": ("degC", frozenset({"degc", "c", "celsius", "degcelsius", "oc"})),
+    "T_med_C": ("degC", frozenset({"degc", "c", "celsius", "degcelsius", "oc"})),
+    "q_kgh": ("kg/h", frozenset({"kg/h", "kgh", "kgh-1", "kg/hr", "kgperh"})),
+    "dp_mbar": ("mbar", frozenset({"mbar", "mbarg", "mbard"})),
+    "ps_bar": ("bar", frozenset({"bar", "barg", "bara"})),
+    "x_mm": ("mm", frozenset({"mm"})),
+}
+
+
+def unit_key(cell: str) -> str:
+    """A unit as :data:`UNITS` lists it: ``[°C]``, ``(deg C)`` and ``ºC`` all become ``degc``/``c``."""
+    u = cell.strip().strip("[]()").strip().lower().replace(" ", "").replace("\u00b7", "")
+    return u.replace("\u00b0", "deg").replace("\u00ba", "deg").replace("\u02da", "deg").replace("\u2103", "degc")
 
 
 class DataError(ValueError):
@@ -191,6 +211,11 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         heads = {str(c): raw[c].dropna().astype(str).head(5).tolist() for c in raw.columns}
         hint = clock_time_hint(heads) if missing[0] == "time_s" else ""
         raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)}){hint}")
+    units = _units_row(raw, source, first)
+    if units:  # a second header line: the data begin a line later, and the rows are counted from there
+        raw = raw.iloc[1:].reset_index(drop=True)
+        raw.attrs["units_row"] = {"line": first, "units": units}
+        first += 1
     out = raw.copy()
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
         out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", first=first)
@@ -249,6 +274,35 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         out.attrs["x_mm_derived_rows"] = n
     out.attrs["source"] = source
     return out.reset_index(drop=True)
+
+
+def _units_row(raw: pd.DataFrame, source: str, first: int) -> dict[str, str]:
+    """The units of a units row under the header, by column, where the first data row is one: text, not numbers, in
+    every column of the format it fills (at least two of them), one of them a unit. {} where it is not. Raises
+    :class:`DataError` naming the first column whose unit is not the format's (:data:`UNITS`), with what to do."""
+    if len(raw) < 2:
+        return {}
+    cells = {c: str(raw[c].iloc[0]).strip() for c in (*REQUIRED, *OPTIONAL) if c in raw.columns}
+    filled = {c: v for c, v in cells.items() if v.lower() not in MISSING_MARKERS}
+    if len(filled) < 2 or any(is_number(v) for v in filled.values()):
+        return {}
+    if not any(unit_key(v) in ways for v in filled.values() for _, ways in UNITS.values()):
+        return {}  # text that names no unit at all: left for the numeric check to refuse as it is
+    for c, v in filled.items():
+        want, ways = UNITS[c]
+        if unit_key(v) not in ways:
+            raise DataError(f"{source}: line {first} is a units row, and column {c} is given in {v!r}: the format's "
+                            f"unit is {want} (docs/reference.md, section 2); convert the column to {want}")
+    return filled
+
+
+def is_number(cell: str) -> bool:
+    """Whether a cell reads as a number, with a decimal point or comma."""
+    try:
+        float(cell.replace(",", "."))
+    except ValueError:
+        return False
+    return True
 
 
 def _file_row(out: pd.DataFrame, i: int) -> int:
@@ -336,4 +390,4 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
-           "MISSING_MARKERS", "HISTORIAN_STATES", "clock_time_hint"]
+           "MISSING_MARKERS", "HISTORIAN_STATES", "UNITS", "clock_time_hint", "unit_key", "is_number"]

@@ -127,3 +127,42 @@ def test_a_run_of_another_locale_is_read_as_written(tmp_path: Path, run_df: pd.D
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(DataError, match=rf"'abc' in column 'q_kgh' at row 8 \(line {line}\)"):
         load_run(path)
+
+
+@pytest.mark.parametrize("sep", [",", ";"])
+def test_a_units_row_under_the_header_is_read_as_a_second_header_line(tmp_path: Path, run_df: pd.DataFrame,
+                                                                      sep: str) -> None:
+    """A logger's second header line with the format's units (in the ways loggers write them) gives the same run as
+    the file without it, the row numbers counted from the line after it, and a note; another unit is refused in one
+    line naming the column and the unit to convert to."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    plain = load_run(_write(run_df, tmp_path / "plain.csv"))
+    units = {"time_s": "s", "T_tank_C": "[°C]", "T_med_C": "deg C", "q_kgh": "kg/h", "dp_mbar": "mbar",
+             "ps_bar": "bar", "x_mm": "(mm)"}
+    decimal = "," if sep == ";" else "."
+    lines = run_df.to_csv(index=False, sep=sep, decimal=decimal).splitlines()
+    row = sep.join(units.get(c, "") for c in run_df.columns)
+    path = tmp_path / "units.csv"
+    path.write_text("\n".join([lines[0], row, *lines[1:]]) + "\n", encoding="utf-8")
+    out = load_run(path)
+    pd.testing.assert_frame_equal(out[plain.columns].reset_index(drop=True), plain, check_like=True, check_dtype=False)
+    assert out.attrs["units_row"] == {"line": 2, "units": units}
+    notes = preprocess_run(out)[1]
+    assert [nt["line"] for nt in notes if nt["what"] == "units_row"] == [2]
+    assert any(line.startswith("line 2: a units row") for line in describe(notes))
+    # a bad cell is named by its row after the units row and by the file's own line
+    bad = [lines[0], row, *lines[1:]]
+    cells = bad[9].split(sep)  # the file's line 10: row 8
+    cells[list(run_df.columns).index("q_kgh")] = "abc"
+    bad[9] = sep.join(cells)
+    path.write_text("\n".join(bad) + "\n", encoding="utf-8")
+    with pytest.raises(DataError, match=r"'abc' in column 'q_kgh' at row 8 \(line 10\)"):
+        load_run(path)
+    for col, unit, want in (("dp_mbar", "Pa", "mbar"), ("T_med_C", "K", "degC"), ("time_s", "ms", "s"),
+                            ("x_mm", "%", "mm")):
+        other = sep.join({**units, col: unit}.get(c, "") for c in run_df.columns)
+        path.write_text("\n".join([lines[0], other, *lines[1:]]) + "\n", encoding="utf-8")
+        with pytest.raises(DataError, match=rf"line 2 is a units row, and column {col} is given in '{unit}': the "
+                                            rf"format's unit is {want} .*convert the column to {want}$"):
+            load_run(path)

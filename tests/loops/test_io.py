@@ -183,3 +183,22 @@ def test_a_loop_csv_of_another_locale_is_read_as_written(tmp_path: Path, sep: st
 def _write_text(path: Path, text: str) -> Path:
     path.write_text(text)
     return path
+
+
+def test_a_units_row_under_the_header_is_read_and_noted(tmp_path: Path) -> None:
+    """A loop CSV with a second header line of units reads as the same loop with a note; sp and pv may be in the
+    plant's units, time_s must be seconds (else one line)."""
+    plain = read_loop(_write_csv(tmp_path / "plain.csv", n=120))
+    lines = (tmp_path / "plain.csv").read_text().splitlines()
+    p = tmp_path / "units.csv"
+    p.write_text("\n".join([lines[0], "s,m3/h,m3/h,%", *lines[1:]]) + "\n")
+    loop = read_loop(p)
+    assert loop.n == plain.n and np.array_equal(loop.op, plain.op) and np.array_equal(loop.pv, plain.pv)
+    assert loop.notes[0] == ("line 2 is a units row (time_s [s], sp [m3/h], pv [m3/h], op [%]): read as a second "
+                             "header line")
+    p.write_text("\n".join([lines[0], "min,m3/h,m3/h,%", *lines[1:]]) + "\n")
+    with pytest.raises(LoopDataError, match=r"line 2 is a units row, and time_s is given in 'min': give it in second"):
+        read_loop(p)
+    p.write_text("\n".join([lines[0], "0,m3/h,oops,%", *lines[1:]]) + "\n")  # a number in it: a bad data line
+    with pytest.raises(LoopDataError, match=r"line 2, column sp: 'm3/h' is not a number"):
+        read_loop(p)

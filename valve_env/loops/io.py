@@ -30,6 +30,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -37,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
-from valve_env.data_io import clock_time_hint, csv_dialect
+from valve_env.data_io import UNITS, clock_time_hint, csv_dialect, is_number, unit_key
 
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
@@ -104,8 +105,9 @@ def _float(text: str, where: str) -> float:
         raise LoopDataError(f"{where}: {text!r} is not a number") from None
 
 
-def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
-    """Columns of a loop CSV (docs/reference.md, section 10) as float arrays, and the tag (the file stem)."""
+def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[str]]:
+    """Columns of a loop CSV (docs/reference.md, section 10) as float arrays, the tag (the file stem) and the notes
+    of what was read as other than data (a units row under the header: :func:`_units_row`)."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8-sig")
@@ -126,9 +128,16 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
             if "time_s" in missing else ""
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
     wanted = [c for c in ("time_s", "sp", "pv", "op", "mv", "mode") if c in header]
-    idx = {c: header.index(c) for c in wanted}
+    idx: dict[str, int] = {c: header.index(c) for c in wanted}
     cols: dict[str, list[float]] = {c: [] for c in wanted}
-    for lineno, row in enumerate(rows[1:], start=dialect.header_line + 1):
+    body = rows[1:]
+    units = _units_row(body[0], idx, p, dialect.header_line + 1) if body else {}
+    notes: list[str] = []
+    if units:  # a second header line: sp and pv in the plant's units (the band is in % of OP either way)
+        body = body[1:]
+        notes.append(f"line {dialect.header_line + 1} is a units row "
+                     f"({', '.join(f'{c} [{u}]' for c, u in units.items())}): read as a second header line")
+    for lineno, row in enumerate(body, start=dialect.header_line + 1 + bool(units)):
         if not row or all(not x.strip() for x in row):
             continue
         if len(row) < len(header):
@@ -137,7 +146,22 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
             cell = row[idx[c]].strip()
             cols[c].append(_float(cell.replace(",", ".") if dialect.decimal == "," else cell,
                                   f"{p} line {lineno}, column {c}"))
-    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, p.stem
+    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, p.stem, notes
+
+
+def _units_row(row: list[str], idx: Mapping[str, int], p: Path, lineno: int) -> dict[str, str]:
+    """The units of a units row under the header, by column, where the first data line is one: text, not numbers,
+    in at least two of the columns read, none a missing marker's word only. sp, pv, op and mv may be in any unit (a
+    plant's engineering units; OP's scale is read off its range, :func:`check_loop`); time_s must be seconds, else
+    one line says so."""
+    cells = {c: row[j].strip() for c, j in idx.items() if j < len(row)}
+    filled = {c: v for c, v in cells.items() if v and v.lower() not in MISSING_MARKERS}
+    if len(filled) < 2 or any(is_number(v) for v in filled.values()):
+        return {}
+    t = filled.get("time_s")
+    if t is not None and unit_key(t) not in UNITS["time_s"][1]:
+        raise LoopDataError(f"{p} line {lineno} is a units row, and time_s is given in {t!r}: give it in seconds")
+    return filled
 
 
 def read_historian(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
@@ -196,8 +220,14 @@ def read_loop(path: str | Path) -> LoopData:
         raise LoopDataError(f"{p}: no such file")
     if p.is_dir():
         raise LoopDataError(f"{p}: is a directory")
-    cols, tag = read_historian(p) if _is_historian(p) else read_loop_csv(p)
-    return check_loop(cols, tag=tag, source=str(p))
+    notes: list[str] = []
+    if _is_historian(p):
+        cols, tag = read_historian(p)
+    else:
+        cols, tag, notes = read_loop_csv(p)
+    data = check_loop(cols, tag=tag, source=str(p))
+    data.notes[:0] = notes
+    return data
 
 
 def _longest_true_run(mask: np.ndarray) -> tuple[int, int]:

@@ -17,6 +17,8 @@ each convention is handled once, here, and reported:
   two samples: replaced by the mean of the two neighbours, and each one named by its row. More
   than :data:`MAX_SPIKE_FRACTION` of a channel's samples is not "a few": the run is refused in one
   line naming the first rows.
+* **a units row** under the header, which :func:`~valve_env.data_io.validate_run` reads as a second header line
+  where its units are the format's: the note gives the line and the units.
 * **rows written twice** (every column the same as the row before, time included), which
   :func:`~valve_env.data_io.validate_run` drops: the note names them.
 * **rows with an empty cell** in a measured channel, which :func:`~valve_env.data_io.validate_run` drops as
@@ -28,7 +30,7 @@ each convention is handled once, here, and reported:
   data are not changed; the note gives the interval's spread, the rows missing against the median
   interval and the longest gap (nothing is filled in).
 
-Every note is a JSON-ready dict with ``what`` (``noise_level``, ``rows_repeated``, ``rows_dropped``,
+Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``rows_repeated``, ``rows_dropped``,
 ``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``), the ``channel`` where it applies, and
 ``why``. The ``fit`` and
 ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
@@ -62,7 +64,7 @@ SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
 #: (often to full scale) does not
 X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
-CHANGE_NOTES: tuple[str, ...] = ("rows_repeated", "rows_dropped", "spikes_replaced", "x_mm_derived")
+CHANGE_NOTES: tuple[str, ...] = ("units_row", "rows_repeated", "rows_dropped", "spikes_replaced", "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -121,6 +123,12 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
     def row(i: int) -> int:
         return int(file_rows[i]) if file_rows is not None else i + 1
 
+    units = df.attrs.get("units_row")
+    if units and ("units_row", None) not in done:
+        given = ", ".join(f"{c} [{u}]" for c, u in units["units"].items())
+        notes.append({"what": "units_row", "channel": None, "line": int(units["line"]), "units": dict(units["units"]),
+                      "why": f"line {units['line']} is a units row ({given}), the format's own units: read as a second "
+                             "header line (row 1 is the line after it)"})
     repeated = df.attrs.get("rows_repeated", [])
     if repeated and ("rows_repeated", None) not in done:
         notes.append({"what": "rows_repeated", "channel": None, "rows": list(repeated),
@@ -202,6 +210,8 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
         elif what == "spikes_replaced":
             lines.append(f"{nt['channel']}: {len(nt['rows'])} isolated spike(s) replaced by the mean of their "
                          f"neighbours ({_row_list(nt['rows'])})")
+        elif what == "units_row":
+            lines.append(f"line {nt['line']}: a units row, the format's units; read as a second header line")
         elif what == "rows_repeated":
             lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
         elif what == "rows_dropped":
