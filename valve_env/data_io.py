@@ -92,8 +92,9 @@ UNITS: dict[str, tuple[str, frozenset[str]]] = {
 
 
 def unit_key(cell: str) -> str:
-    """A unit as :data:`UNITS` lists it: ``[°C]``, ``(deg C)`` and ``ºC`` all become ``degc``/``c``."""
-    u = cell.strip().strip("[]()").strip().lower().replace(" ", "").replace("\u00b7", "")
+    """A unit as :data:`UNITS` lists it: ``[°C]``, ``(deg C)`` and ``ºC`` all become ``degc``/``c``, ``bar(g)``
+    ``barg``."""
+    u = "".join(ch for ch in cell.lower() if ch not in "[]() \t\u00b7")
     return u.replace("\u00b0", "deg").replace("\u00ba", "deg").replace("\u02da", "deg").replace("\u2103", "degc")
 
 

@@ -139,7 +139,7 @@ def test_a_units_row_under_the_header_is_read_as_a_second_header_line(tmp_path: 
 
     plain = load_run(_write(run_df, tmp_path / "plain.csv"))
     units = {"time_s": "s", "T_tank_C": "[°C]", "T_med_C": "deg C", "q_kgh": "kg/h", "dp_mbar": "mbar",
-             "ps_bar": "bar", "x_mm": "(mm)"}
+             "ps_bar": "bar(g)", "x_mm": "(mm)"}
     decimal = "," if sep == ";" else "."
     lines = run_df.to_csv(index=False, sep=sep, decimal=decimal).splitlines()
     row = sep.join(units.get(c, "") for c in run_df.columns)
