@@ -106,6 +106,18 @@ class DataError(ValueError):
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+([eE][+-]?\d+)?$")
 #: a number written with a decimal point
 _DECIMAL_POINT = re.compile(r"^[+-]?\d*\.\d+([eE][+-]?\d+)?$")
+#: a number with its thousands grouped by points, as a spreadsheet in a decimal-comma locale writes a formatted
+#: cell (``1.234,5``, ``12.500``)
+_GROUPED = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+(,\d+)?$")
+
+
+def decimal_comma(cell: str) -> str:
+    """A number written in a decimal-comma locale (``52,61``, ``1.234,5``) as Python reads it (``52.61``, ``1234.5``):
+    the points that group thousands dropped, the decimal comma made a point. Other text is returned as it is, with
+    any comma made a point."""
+    if _GROUPED.match(cell.strip()):
+        cell = cell.replace(".", "")
+    return cell.replace(",", ".")
 
 
 @dataclass(frozen=True)
@@ -126,7 +138,8 @@ def csv_dialect(lines: list[str]) -> CsvDialect:
     """The dialect of a CSV text from its first lines: comment (``#``) and empty lines before the header are skipped;
     the separator is a comma where the header has one, else a semicolon or a tab where it has one of those; with a
     semicolon or tab separator the decimal mark is a comma where the data lines write numbers with a comma and none
-    with a point. A text that fits none of these is read as commas (its columns then go missing, one line)."""
+    with a decimal point (points that group thousands, ``1.234,5``, are read as such: :func:`decimal_comma`). A text
+    that fits none of these is read as commas (its columns then go missing, one line)."""
     skip = 0
     while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith("#")):
         skip += 1
@@ -135,7 +148,9 @@ def csv_dialect(lines: list[str]) -> CsvDialect:
     decimal = "."
     if sep != ",":
         fields = [f.strip().strip('"') for line in lines[skip + 1:skip + 51] for f in line.split(sep)]
-        if any(_DECIMAL_COMMA.match(f) for f in fields) and not any(_DECIMAL_POINT.match(f) for f in fields):
+        # a point in a number grouped by thousands (1.234,5 and 12.500) is not a decimal point
+        comma = any(_DECIMAL_COMMA.match(f) or (_GROUPED.match(f) and "," in f) for f in fields)
+        if comma and not any(_DECIMAL_POINT.match(f) and not _GROUPED.match(f) for f in fields):
             decimal = ","
     return CsvDialect(skip=skip, sep=sep, decimal=decimal)
 
@@ -166,7 +181,7 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         raise DataError(f"{p}: not a readable CSV file ({first})") from exc
     _check_header(p, dialect, head)
     if dialect.decimal != ".":
-        raw = raw.apply(lambda col: col.str.replace(dialect.decimal, ".", regex=False))
+        raw = raw.apply(lambda col: col.map(decimal_comma))
     raw.attrs["header_line"] = dialect.header_line
     return validate_run(raw, source=str(p), valve=valve)
 
@@ -391,4 +406,5 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
-           "MISSING_MARKERS", "HISTORIAN_STATES", "UNITS", "clock_time_hint", "unit_key", "is_number"]
+           "MISSING_MARKERS", "HISTORIAN_STATES", "UNITS", "clock_time_hint", "unit_key", "is_number",
+           "decimal_comma"]

@@ -107,6 +107,31 @@ def test_missing_and_empty_files(tmp_path: Path) -> None:
         load_run(tmp_path / "empty.csv")
 
 
+def test_a_decimal_comma_locales_thousands_points_are_read(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A spreadsheet in a decimal-comma locale writes a formatted cell with points between the thousands (1.234,5 and
+    12.500): the same run as the plain file."""
+    from valve_env.data_io import decimal_comma
+
+    assert [decimal_comma(c) for c in ("52,61", "1.234,5", "-12.500", "1.2345", "abc")] == \
+        ["52.61", "1234.5", "-12500", "1.2345", "abc"]
+    df = run_df.copy()
+    df["q_kgh"] = np.round(df["q_kgh"] * 10.0, 2)  # above 1000 kg/h
+    df.loc[4, "q_kgh"] = 1500.0  # a whole number: 1.500
+    plain = load_run(_write(df, tmp_path / "plain.csv"))
+    text = df.to_csv(index=False, sep=";", decimal=",")
+    lines = text.splitlines()
+    col = list(df.columns).index("q_kgh")
+    for i in range(1, len(lines)):
+        cells = lines[i].split(";")
+        whole, _, frac = cells[col].partition(",")
+        cells[col] = f"{int(whole):,}".replace(",", ".") + (f",{frac}" if frac.strip("0") else "")
+        lines[i] = ";".join(cells)
+    assert lines[5].split(";")[col] == "1.500" and any("." in ln.split(";")[col] for ln in lines[1:])
+    path = tmp_path / "grouped.csv"
+    path.write_text("\n".join(lines) + "\n")
+    pd.testing.assert_frame_equal(load_run(path), plain)
+
+
 @pytest.mark.parametrize(("sep", "decimal", "comments"), [
     (";", ",", ""), ("\t", ".", ""), (",", ".", "# rig 2, valve 7\n\n# logged every 10 s\n"), (";", ".", "# export\n"),
 ])

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
-from valve_env.data_io import UNITS, clock_time_hint, csv_dialect, is_number, unit_key
+from valve_env.data_io import UNITS, clock_time_hint, csv_dialect, decimal_comma, is_number, unit_key
 
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
@@ -144,7 +144,7 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[st
             raise LoopDataError(f"{p} line {lineno}: {len(row)} fields, the header has {len(header)}")
         for c in wanted:
             cell = row[idx[c]].strip()
-            cols[c].append(_float(cell.replace(",", ".") if dialect.decimal == "," else cell,
+            cols[c].append(_float(decimal_comma(cell) if dialect.decimal == "," else cell,
                                   f"{p} line {lineno}, column {c}"))
     return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, p.stem, notes
 
