@@ -75,8 +75,12 @@ HISTORIAN_STATES: frozenset[str] = frozenset({
     "bad", "bad input", "bad data", "i/o timeout", "no data", "pt created", "shutdown", "intf shut", "arc off-line",
     "calc failed", "comm fail", "scan off", "scan timeout", "over range", "under range", "invalid data", "configure",
 })
-#: Cells read as empty (case-insensitive, after stripping): blanks, NaN markers and the historian states.
-MISSING_MARKERS: frozenset[str] = frozenset({"", "nan", "na", "null", "none"}) | HISTORIAN_STATES
+#: A spreadsheet's error values, which an export writes where a formula had no value (Excel's and LibreOffice's).
+SPREADSHEET_ERRORS: frozenset[str] = frozenset({"#n/a", "n/a", "#value!", "#div/0!", "#ref!", "#num!", "#name?",
+                                                "#null!", "err:502", "err:504"})
+#: Cells read as empty (case-insensitive, after stripping): blanks, NaN markers, the historian states and a
+#: spreadsheet's error values.
+MISSING_MARKERS: frozenset[str] = frozenset({"", "nan", "na", "null", "none"}) | HISTORIAN_STATES | SPREADSHEET_ERRORS
 #: The format's unit of each column (docs/reference.md, section 2) and the ways a logger writes it, lower case with
 #: spaces, brackets and the degree sign's variants removed (:func:`unit_key`). A units row under the header (a
 #: logger's or a spreadsheet's second header line) is read where it names these; any other unit is refused.
@@ -406,5 +410,5 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
-           "MISSING_MARKERS", "HISTORIAN_STATES", "UNITS", "clock_time_hint", "unit_key", "is_number",
-           "decimal_comma"]
+           "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "unit_key",
+           "is_number", "decimal_comma"]

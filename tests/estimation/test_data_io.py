@@ -67,6 +67,10 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
     export.loc[17, "dp_mbar"] = " bad input "
     out = load_run(_write(export, tmp_path / "pi.csv"))
     assert len(out) == len(run_df) - 2 and out.attrs["rows_dropped_empty"] == [6, 18]
+    export.loc[40, "T_med_C"] = "#N/A"  # and a spreadsheet's error value
+    export.loc[41, "dp_mbar"] = "#DIV/0!"
+    out = load_run(_write(export, tmp_path / "pi1.csv"))
+    assert out.attrs["rows_dropped_empty"] == [6, 18, 41, 42]
     export.loc[30, "dp_mbar"] = "Tuesday"
     with pytest.raises(DataError, match=r"non-numeric value 'Tuesday' in column 'dp_mbar' at row 31"):
         load_run(_write(export, tmp_path / "pi2.csv"))

@@ -202,3 +202,26 @@ def test_a_units_row_under_the_header_is_read_and_noted(tmp_path: Path) -> None:
     p.write_text("\n".join([lines[0], "0,m3/h,oops,%", *lines[1:]]) + "\n")  # a number in it: a bad data line
     with pytest.raises(LoopDataError, match=r"line 2, column sp: 'm3/h' is not a number"):
         read_loop(p)
+
+
+def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path) -> None:
+    """A historian exports the controller's mode as a state's name (AUTO, CAS, MAN): automatic and cascade are 1,
+    manual 0. A spreadsheet's error value (#N/A, #DIV/0!) is a missing sample; other text in mode is refused."""
+    mode = np.ones(400)
+    mode[:60] = 0.0
+    numeric = read_loop(_write_csv(tmp_path / "m.csv", n=400, mode=mode))
+    lines = (tmp_path / "m.csv").read_text().splitlines()
+    names = ["MAN" if k < 30 else "Manual" if k < 60 else "AUTO" if k < 200 else "cas" for k in range(400)]
+    p = tmp_path / "named.csv"
+    rows = [ln.rsplit(",", 1)[0] + "," + m for ln, m in zip(lines[1:], names, strict=True)]
+    p.write_text("\n".join([lines[0], *rows]) + "\n")
+    named = read_loop(p)
+    assert named.n == numeric.n == 340 and np.array_equal(named.op, numeric.op)
+    errs = [ln.split(",") for ln in (tmp_path / "m.csv").read_text().splitlines()]
+    errs[100][2], errs[250][3] = "#N/A", "#DIV/0!"  # pv, op
+    p.write_text("\n".join(",".join(r) for r in errs) + "\n")
+    assert any("missing value" in note for note in read_loop(p).notes)
+    bad = [*lines[:5], lines[5].rsplit(",", 1)[0] + ",Tracking", *lines[6:]]
+    p.write_text("\n".join(bad) + "\n")
+    with pytest.raises(LoopDataError, match=r"line 6, column mode: 'Tracking' is not a number"):
+        read_loop(p)

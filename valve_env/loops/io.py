@@ -52,8 +52,12 @@ OP_RANGE_PCT = (-10.0, 110.0)
 #: the share of samples that may miss a value (an empty cell or a NaN marker: a sample the historian did not
 #: store) before the record is refused; such samples are dropped and the record resampled over them
 MAX_MISSING_FRACTION = 0.10
-#: cells read as a missing value (case-insensitive): the valve runs' reader's, and a spreadsheet's N/A
-MISSING_MARKERS = RUN_MISSING_MARKERS | {"n/a", "#n/a"}
+#: cells read as a missing value (case-insensitive): the valve runs' reader's (a spreadsheet's #N/A included)
+MISSING_MARKERS = RUN_MISSING_MARKERS
+#: a mode column written as the controller's mode by name, as a historian exports a digital state: automatic and
+#: cascade (the loop closed, its set point from another loop) are 1, manual 0
+MODE_NAMES: dict[str, float] = {"auto": 1.0, "aut": 1.0, "automatic": 1.0, "cas": 1.0, "casc": 1.0, "cascade": 1.0,
+                                "man": 0.0, "manual": 0.0, "hand": 0.0}
 
 
 class LoopDataError(ValueError):
@@ -144,6 +148,9 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[st
             raise LoopDataError(f"{p} line {lineno}: {len(row)} fields, the header has {len(header)}")
         for c in wanted:
             cell = row[idx[c]].strip()
+            if c == "mode" and cell.lower() in MODE_NAMES:
+                cols[c].append(MODE_NAMES[cell.lower()])
+                continue
             cols[c].append(_float(decimal_comma(cell) if dialect.decimal == "," else cell,
                                   f"{p} line {lineno}, column {c}"))
     return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, p.stem, notes
@@ -347,6 +354,6 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
                     notes=notes, op_scaled_from=scaled)
 
 
-__all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "MAX_MISSING_FRACTION", "MISSING_MARKERS", "read_loop",
-           "read_loop_csv", "read_historian",
+__all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "MAX_MISSING_FRACTION", "MISSING_MARKERS", "MODE_NAMES",
+           "read_loop", "read_loop_csv", "read_historian",
            "check_loop", "merge_repeated_timestamps"]
