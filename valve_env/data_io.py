@@ -30,6 +30,7 @@ problem raises :class:`DataError` with one line that names it. The file is only 
 
 from __future__ import annotations
 
+import difflib
 import os
 import re
 from dataclasses import dataclass
@@ -218,6 +219,25 @@ def clock_time_hint(columns: dict[str, list[str]]) -> str:
     return ""
 
 
+def near_name_hint(missing: str, columns: list[str], taken: tuple[str, ...] = ()) -> str:
+    """Where a required column is missing and the header has a name close to it (another case, spacing or
+    spelling: ``T_Tank_C``, ``t tank c``, ``T_tank``), the refusal's hint naming that column; names are exact (SPEC
+    sections 2 and 10). ``taken``: the format's names, which are not offered."""
+    def key(name: str) -> str:
+        return "".join(ch for ch in name.lower() if ch.isalnum())
+
+    free = [c for c in columns if c not in taken]
+    same = [c for c in free if key(c) == key(missing)]
+    close = same or difflib.get_close_matches(missing.lower(), [c.lower() for c in free], n=1, cutoff=0.75)
+    if not close:
+        return ""
+    if same:  # the same letters: another case or spacing
+        return f"; the header has {same[0]!r}: rename it {missing} (names are exact)"
+    name = next(c for c in free if c.lower() == close[0])
+    unit = f" in {UNITS[missing][0]}" if missing in UNITS else ""
+    return f"; the header has {name!r}: if that is {missing}{unit}, rename it (names are exact)"
+
+
 def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | None = None) -> pd.DataFrame:
     """Validate a run given as a DataFrame (strings or numbers); returns a validated copy."""
     raw = data.copy()
@@ -229,7 +249,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     missing = [c for c in REQUIRED if c not in raw.columns]
     if missing:
         heads = {str(c): raw[c].dropna().astype(str).head(5).tolist() for c in raw.columns}
-        hint = clock_time_hint(heads) if missing[0] == "time_s" else ""
+        hint = near_name_hint(missing[0], list(raw.columns), (*REQUIRED, *OPTIONAL))
+        if not hint and missing[0] == "time_s":
+            hint = clock_time_hint(heads)
         raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)}){hint}")
     units = _units_row(raw, source, first)
     if units:  # a second header line: the data begin a line later, and the rows are counted from there
@@ -410,5 +432,6 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
-           "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "unit_key",
+           "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
+           "unit_key",
            "is_number", "decimal_comma"]

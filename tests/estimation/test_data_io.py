@@ -85,6 +85,11 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
     (lambda d: d.assign(stamp="01.03.2026 " + (d.time_s // 3600 + 10).astype(int).astype(str) + ":00")
      .drop(columns=["time_s"]), r"column 'stamp' holds date-times"),
     (lambda d: d.drop(columns=["time_s"]), r"missing column 'time_s' \(required: [a-zA-Z_, ]+\)$"),
+    # a name in another case or spelling: the refusal names the header's column
+    (lambda d: d.rename(columns={"T_tank_C": "T_Tank_C"}),
+     r"missing column 'T_tank_C' .*; the header has 'T_Tank_C': rename it T_tank_C \(names are exact\)$"),
+    (lambda d: d.assign(time_h=d.time_s / 3600.0).drop(columns=["time_s"]),
+     r"; the header has 'time_h': if that is time_s in s, rename it \(names are exact\)$"),
     (lambda d: d.astype({"q_kgh": object}).assign(q_kgh=lambda x: x.q_kgh.where(x.index != 7, "abc")),
      r"non-numeric value 'abc' in column 'q_kgh' at row 8"),
     (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where((x.index < 4) | (x.index % 5 != 0), np.nan)),

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
-from valve_env.data_io import UNITS, clock_time_hint, csv_dialect, decimal_comma, is_number, unit_key
+from valve_env.data_io import UNITS, clock_time_hint, csv_dialect, decimal_comma, is_number, near_name_hint, unit_key
 
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
@@ -128,8 +128,9 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[st
         raise LoopDataError(f"{p}: the header names column(s) {', '.join(twice)} more than once")
     missing = [c for c in ("time_s", "sp", "pv", "op") if c not in header]
     if missing:
-        hint = clock_time_hint({h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)}) \
-            if "time_s" in missing else ""
+        hint = near_name_hint(missing[0], header, ("time_s", "sp", "pv", "op", "mv", "mode"))
+        if not hint and "time_s" in missing:
+            hint = clock_time_hint({h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)})
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
     wanted = [c for c in ("time_s", "sp", "pv", "op", "mv", "mode") if c in header]
     idx: dict[str, int] = {c: header.index(c) for c in wanted}
