@@ -169,6 +169,35 @@ def historian_export(df: pd.DataFrame, rng: np.random.Generator, repeated: float
     return out.iloc[order].reset_index(drop=True)
 
 
+#: the units a spreadsheet export writes on the line under the header (:func:`spreadsheet_export`)
+_SHEET_UNITS: dict[str, str] = {"time_s": "s", "T_tank_C": "°C", "T_med_C": "°C", "q_kgh": "kg/h", "dp_mbar": "mbar",
+                                "ps_bar": "bar", "x_mm": "mm"}
+
+
+def _sheet_number(v: float, digits: int) -> str:
+    """A number as a spreadsheet in a decimal-comma locale writes a formatted cell: points between the thousands,
+    a decimal comma, at most ``digits`` decimals (``12.340``, ``52,6137``)."""
+    text = f"{v:,.{digits}f}".rstrip("0").rstrip(".") if digits else f"{v:,.0f}"
+    return text.replace(",", "_").replace(".", ",").replace("_", ".")
+
+
+def spreadsheet_export(df: pd.DataFrame, rng: np.random.Generator, errors: float = 0.003) -> pd.DataFrame:
+    """A run saved from a spreadsheet in a decimal-comma locale: fields separated by semicolons (``attrs["csv_sep"]``
+    for the writer), numbers with a decimal comma and points between the thousands (the time, 21.600 s), a units row
+    under the header, and in each measured column ``errors`` of the cells an error value (``#N/A``, ``#DIV/0!``) at
+    random rows away from the ends. The values keep 6 decimals, as a cell formatted so would."""
+    n = len(df)
+    out = pd.DataFrame({c: [_sheet_number(float(v), 6) for v in df[c].to_numpy(dtype=float)]
+                        if pd.api.types.is_numeric_dtype(df[c]) else df[c].astype(str) for c in df.columns})
+    for col in MEASURED:
+        rows = rng.choice(np.arange(1, n - 1), size=max(1, int(round(errors * n))), replace=False)
+        out.loc[rows, col] = rng.choice(["#N/A", "#DIV/0!"], size=rows.size)
+    units = pd.DataFrame([{c: _SHEET_UNITS.get(c, "") for c in out.columns}])
+    out = pd.concat([units, out], ignore_index=True)
+    out.attrs["csv_sep"] = ";"
+    return out
+
+
 def _on_opening(apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
                 ) -> Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]:
     """A convention of the measured opening: a run without x_mm (its opening derived from the flow) has none to
@@ -229,6 +258,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: extra_columns(df, rng)),
     Convention("historian_export", "1 % of the rows written twice, 0.4 % of each measured channel's cells a PI "
                "state (I/O Timeout, Bad Input, No Data) instead of a value", historian_export),
+    Convention("spreadsheet_export", "saved from a spreadsheet in a decimal-comma locale: semicolons, 52,61 and "
+               "21.600, a units row, 0.3 % of each measured channel's cells #N/A or #DIV/0!", spreadsheet_export),
 )}
 
 
@@ -247,4 +278,5 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
 
 
 __all__ = ["CONVENTIONS", "Convention", "apply_convention", "drop_rows", "extra_columns", "gap", "held_constant",
-           "historian_export", "noiseless", "quantise", "resample", "spikes", "stepped", "store_on_change", "truncate"]
+           "historian_export", "noiseless", "quantise", "resample", "spikes", "spreadsheet_export", "stepped",
+           "store_on_change", "truncate"]
