@@ -197,6 +197,9 @@ def main(argv: list[str] | None = None) -> int:
 
     if a.convention and a.convention not in (*CONVENTIONS, "irregular"):
         ap.error(f"unknown convention {a.convention!r} (choose from irregular, {', '.join(CONVENTIONS)})")
+    if a.convention in CONVENTIONS and CONVENTIONS[a.convention].file_only:
+        ap.error(f"{a.convention} is a convention of the file: the foreign-data corpus runs it "
+                 "(studies/foreign_data.py)")
     classes = tuple(c for c in a.classes.split(",") if c) or CLASSES
     unknown = [c for c in classes if c not in CLASSES]
     if unknown:

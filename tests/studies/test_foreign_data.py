@@ -253,7 +253,8 @@ STACK_EFFECTS: tuple[dict[str, dict[str, float]], ...] = (
 @pytest.mark.slow
 @settings(max_examples=8, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-@given(names=st.lists(st.sampled_from(sorted(CONVENTIONS)), min_size=3, max_size=4, unique=True),
+@given(names=st.lists(st.sampled_from(sorted(n for n, c in CONVENTIONS.items() if not c.file_only)), min_size=3,
+                      max_size=4, unique=True),
        effect=st.sampled_from(range(len(STACK_EFFECTS))), dt=st.sampled_from([1.0, 5.0, 10.0, 30.0]),
        hours=st.sampled_from([3.0, 8.0, 24.0]), seed=st.integers(0, 10_000))
 def test_stacked_conventions_give_finite_results_or_refuse_in_one_line(tmp_path_factory, capsys, names, effect, dt,

@@ -214,12 +214,17 @@ class Convention:
     whole effect and leaves the smoothed temperature 4-7 times further from the truth than 0.01 K
     noise does, or an opening stored on change, whose dead band hides a stick band up to about twice
     its size), so a cause named on the original may fall back to ``none`` on it; never to another
-    effect."""
+    effect.
+
+    ``file_only``: a convention of the file (its separator, decimal mark, a units row), whose result holds text
+    that only the file reader (:func:`valve_env.data_io.load_run`) reads: it is applied where the run is written to
+    a file and read back (:mod:`valve_env.studies.foreign`), not where a DataFrame goes to the diagnosis."""
 
     name: str
     description: str
     apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
     loses_information: bool = False
+    file_only: bool = False
 
 
 CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
@@ -259,16 +264,21 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
     Convention("historian_export", "1 % of the rows written twice, 0.4 % of each measured channel's cells a PI "
                "state (I/O Timeout, Bad Input, No Data) instead of a value", historian_export),
     Convention("spreadsheet_export", "saved from a spreadsheet in a decimal-comma locale: semicolons, 52,61 and "
-               "21.600, a units row, 0.3 % of each measured channel's cells #N/A or #DIV/0!", spreadsheet_export),
+               "21.600, a units row, 0.3 % of each measured channel's cells #N/A or #DIV/0!", spreadsheet_export,
+               file_only=True),
 )}
 
 
 def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | None = None,
-                     keep_truth: bool = False) -> pd.DataFrame:
+                     keep_truth: bool = False, to_file: bool = False) -> pd.DataFrame:
     """The run ``df`` recorded under convention ``name`` (:data:`CONVENTIONS`), truth columns dropped
-    unless ``keep_truth``."""
+    unless ``keep_truth``. A convention of the file (``file_only``) needs ``to_file``: its result is to be written
+    (with ``attrs["csv_sep"]``) and read back by the file reader."""
     if name not in CONVENTIONS:
         raise ValueError(f"unknown convention {name!r}; known: {sorted(CONVENTIONS)}")
+    if CONVENTIONS[name].file_only and not to_file:
+        raise ValueError(f"{name} is a convention of the file (its separator, decimal mark and units row): it runs "
+                         "where a run is written and read back, in the foreign-data corpus (studies/foreign_data.py)")
     out = CONVENTIONS[name].apply(df, rng if rng is not None else np.random.default_rng(0))
     if not keep_truth:
         attrs = dict(out.attrs)

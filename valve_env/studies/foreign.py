@@ -122,7 +122,7 @@ def simulate(case: dict[str, Any]) -> pd.DataFrame:
         df["T_med_C"] = np.round(df["T_med_C"].to_numpy() / 0.01) * 0.01
     rng = np.random.default_rng(int(case["seed"]) + 7)
     if conv in CONVENTIONS:
-        return apply_convention(df, conv, rng)
+        return apply_convention(df, conv, rng, to_file=True)
     if conv not in ("", *GENERATIONS):
         raise ValueError(f"unknown convention {conv!r}")
     return df[[c for c in df.columns if not str(c).startswith("true_")]]

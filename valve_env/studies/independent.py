@@ -130,6 +130,10 @@ class IndependentRun:
         unknown = [c for c in self.conventions if c not in CONVENTIONS]
         if unknown:
             raise ConfigError(f"unknown convention {unknown[0]!r}; known: {sorted(CONVENTIONS)}")
+        files = [c for c in self.conventions if CONVENTIONS[c].file_only]
+        if files:
+            raise ConfigError(f"{files[0]} is a convention of the file: the foreign-data corpus runs it "
+                              "(studies/foreign_data.py)")
         if not 0.0 <= self.force_ratio < 1.0:
             raise ConfigError(f"force_ratio must be in [0, 1), got {self.force_ratio!r}")
         for name, pars in self.effects.items():
