@@ -39,7 +39,7 @@ class RunData:
     """A measured run prepared for the output-error likelihood: raw channels and latent (smoothed)
     temperatures with their rates and noise sd. Frozen: a changed run is a new one
     (``dataclasses.replace``), so that the likelihood may keep a run's valve paths by its identity
-    (:meth:`valve_env.valveid.fitting.Model._valve_path`); its arrays are not to be written in place."""
+    (:meth:`valve_env.valveid.fitting.Model._valve_path`); its arrays are read-only views."""
 
     t: np.ndarray
     T_raw: np.ndarray
