@@ -463,3 +463,23 @@ def test_a_smooth_effects_size_is_its_demands_not_the_friction_memorys() -> None
     # the demand of a real medium weight (0.03, the smallest the studies draw) is far above the noise
     assert effect_size(m, train, {**fit, "beta": 0.03}, "medium_temperature") > 10 * fit["s_w"]
 
+
+
+def test_a_valve_parameter_without_a_finite_sd_is_noted() -> None:
+    """The notes name the valve parameters the record does not identify: in the diagnosed model first (no valve file
+    then), else in the base model alone; nothing where every sd is finite."""
+    from valve_env.valveid.diagnose import identification_notes, unidentified
+    from valve_env.valveid.fitting import FitResult
+
+    def fit(**std: float) -> FitResult:
+        sd = {"sigma": 0.1, "F_hmax": 0.01, "p_bset": 1e-4, **std}
+        return FitResult((), {"sigma": 6.4, "F_hmax": 1.3, "p_bset": 0.0776}, sd, 0.0, 100, 3, 0.002, True)
+
+    assert unidentified(fit()) == [] and identification_notes(fit(), fit()) == []
+    assert unidentified(fit(sigma=math.nan, p_bset=math.inf)) == ["sigma", "p_bset"]
+    final = identification_notes(fit(), fit(sigma=math.nan))
+    assert len(final) == 1 and final[0].startswith("the record does not identify sigma (")
+    assert "no valve file is written" in final[0]
+    base = identification_notes(fit(F_hmax=math.nan), fit())
+    assert base == ["the base model alone does not identify F_hmax on this record (sd null in 'base'); the diagnosed "
+                    "model does"]

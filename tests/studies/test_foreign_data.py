@@ -233,9 +233,14 @@ def _finite_or_one_line_refusal(tmp, df: pd.DataFrame, capsys) -> None:  # type:
         err = capsys.readouterr().err
         if code == 0:
             j = json.loads((tmp / ("f.json" if cmd[0] == "fit" else "d.json")).read_text())
-            block = j if cmd[0] == "fit" else j["base"]
-            assert all(math.isfinite(v) for v in block["params"].values())
-            assert all(v is not None and math.isfinite(v) for v in block["std"].values()), block["std"]
+            blocks = [j] if cmd[0] == "fit" else [j["base"], j["final"]]
+            for block in blocks:
+                assert all(math.isfinite(v) for v in block["params"].values())
+                # a diagnosis may report a valve parameter that the record does not identify: its sd is null,
+                # and a note names it (the named effects keep finite sds; `--valve-out` is refused)
+                flat = [k for k, v in block["std"].items() if v is None or not math.isfinite(v)]
+                named = " ".join(n for n in j.get("notes", []) if "does not identify" in n)
+                assert cmd[0] == "diagnose" and all(k in named for k in flat) if flat else True, block["std"]
         else:
             # one error line (the progress lines of a refusal after the fit come before it), no traceback
             lines = [ln for ln in err.strip().splitlines() if not re.match(r"^\w+: \d+/\d+ ", ln)]
@@ -257,12 +262,16 @@ STACK_EFFECTS: tuple[dict[str, dict[str, float]], ...] = (
                       max_size=4, unique=True),
        effect=st.sampled_from(range(len(STACK_EFFECTS))), dt=st.sampled_from([1.0, 5.0, 10.0, 30.0]),
        hours=st.sampled_from([3.0, 8.0, 24.0]), seed=st.integers(0, 10_000))
+# 3 h at 1 s with dp held: the diagnosis names the 60 s lag right, but the record does not identify sigma (a note
+# says so, its sd is null; found by this test's draws on 2026-11-30)
+@example(names=["dp_constant", "dropped_10", "dropped_5"], effect=2, dt=1.0, hours=3.0, seed=1689)
 def test_stacked_conventions_give_finite_results_or_refuse_in_one_line(tmp_path_factory, capsys, names, effect, dt,
                                                                         hours, seed) -> None:
     """Three or four conventions at once on one run (a quantised, jittered logger whose rig holds dp, with extra
     columns, ...), any effect: ``fit`` and ``diagnose`` as above. The corpus applies them one at a time."""
     df = simulate_experiment(seed=seed, duration_h=3.0 if dt < 5 else hours, dt_s=dt, effects=STACK_EFFECTS[effect])
-    for name in names:
+    # a historian's export writes text (its states) into the cells: the other conventions' arithmetic comes first
+    for name in sorted(names, key=lambda n: n == "historian_export"):
         df = apply_convention(df, name, np.random.default_rng(seed), keep_truth=True)
     _finite_or_one_line_refusal(tmp_path_factory.mktemp("stack"),
                                 df[[c for c in df.columns if not c.startswith("true_")]], capsys)
@@ -279,3 +288,27 @@ def test_a_temperature_rounded_to_a_tenth_of_a_kelvin_is_noted() -> None:
     coarse = rounding_notes(prepare(check_run(quantise(df, 0.1))))
     assert len(coarse) == 2 and coarse[0].startswith("T_tank_C is rounded to 0.1 K")
     assert rounding_notes(prepare(check_run(quantise(df, 0.01)))) == []
+
+
+@pytest.mark.slow
+def test_a_valve_the_record_does_not_identify_is_noted_and_not_written(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """3 h at 1 s with dp held and 15 % of the rows missing, a 60 s bulb lag: the diagnosis names the lag with its
+    sd, notes that the record does not identify sigma, and refuses ``--valve-out`` in one line (no file written)."""
+    df = simulate_experiment(seed=1689, duration_h=3.0, dt_s=1.0, effects={"sensor_lag": {"tau_s": 60.0}})
+    for name in ("dp_constant", "dropped_10", "dropped_5"):
+        df = apply_convention(df, name, np.random.default_rng(1689), keep_truth=True)
+    path = tmp_path / "run.csv"
+    df[[c for c in df.columns if not c.startswith("true_")]].to_csv(path, index=False)
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(path), "--json", str(out), "--bootstrap", "0", "--no-report"]) == 0
+    j = json.loads(out.read_text())
+    assert j["cause"] == "sensor_lag" and abs(j["findings"][0]["params"]["tau_s"] - 60.0) < 1.0
+    assert math.isfinite(j["findings"][0]["std"]["tau_s"]) and j["final"]["std"]["sigma"] is None
+    assert any(n.startswith("the record does not identify sigma") for n in j["notes"])
+    assert "warning: the record does not identify sigma" in capsys.readouterr().out
+    valve = tmp_path / "valve.yaml"
+    code = main(["diagnose", str(path), "--json", str(tmp_path / "d2.json"), "--bootstrap", "0", "--no-report",
+                 "--valve-out", str(valve)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and not valve.exists() and not (tmp_path / "d2.json").exists()
+    assert err[-1].endswith("no valve file can be written from it; run without --valve-out for the diagnosis")

@@ -147,6 +147,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                           effects=cands, bootstrap_B=args.bootstrap, progress=tick)
     finally:
         bar.close()
+    if valve_out is not None:
+        from valve_env.valveid.diagnose import unidentified
+
+        flat = unidentified(result.final)
+        if flat:
+            raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} (no finite standard error): "
+                             "no valve file can be written from it; run without --valve-out for the diagnosis")
     with outs:
         outs.write_text(out, json_text(result.to_json()))
         if report is not None:
@@ -160,6 +167,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                         {e: {k: result.final.params[k] for k in EFFECTS[e].param_names} for e in result.selected},
                         source=f"diagnosed by thermovalve diagnose {args.run}: cause {result.cause}")
     print(result.summary())
+    for note in result.notes:
+        if "does not identify" in note:
+            print(f"warning: {note}")
     for f in result.findings:  # a named effect whose residuals say its model does not fit
         mis = (f.robust or {}).get("misspecification") or {}
         if mis.get("misspecified"):

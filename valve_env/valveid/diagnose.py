@@ -318,6 +318,32 @@ class Diagnosis:
 ROUNDING_NOTE_STEP_C = 0.05
 
 
+#: the valve's own parameters, which a valve file needs
+VALVE_PARAMS: tuple[str, ...] = ("sigma", "F_hmax", "p_bset")
+
+
+def unidentified(fit: FitResult) -> list[str]:
+    """The valve's parameters without a finite standard error in ``fit``: the record does not identify them (the
+    likelihood is flat along them; :func:`valve_env.ident.uncertainty.identified_inverse`)."""
+    return [k for k in VALVE_PARAMS if not math.isfinite(float(fit.std.get(k, math.nan)))]
+
+
+def identification_notes(base: FitResult, final: FitResult) -> list[str]:
+    """A note where the record does not identify a valve parameter: in the diagnosed model (whose sd is then null in
+    the JSON; the cause rests on the effects' own parameters, which carry their sds, and no valve file is written),
+    or in the base model alone (a named effect's misfit can flatten it, as a sensor lag does sigma)."""
+    flat = unidentified(final)
+    if flat:
+        return [f"the record does not identify {', '.join(flat)} (no finite standard error in the diagnosed model: "
+                "its likelihood is flat there); the named effects carry their own sds, and no valve file is written "
+                "from this record (a longer record with wider temperature swings is needed)"]
+    flat = unidentified(base)
+    if flat:
+        return [f"the base model alone does not identify {', '.join(flat)} on this record (sd null in 'base'); the "
+                "diagnosed model does"]
+    return []
+
+
 def rounding_notes(data: RunData) -> list[str]:
     """A note for each temperature channel rounded to a step of at least :data:`ROUNDING_NOTE_STEP_C` with its
     noise below the step: its rounding error is an error of the model's input that the likelihood does not hold
@@ -924,6 +950,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "bootstrap_replicates": bootstrap_B,
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
+    notes += identification_notes(base, final)
     pre = {"run": list(run.attrs.get("preprocessing", []))}
     if validate is not None:
         pre["validation run"] = list(vdf.attrs.get("preprocessing", []))
