@@ -193,13 +193,12 @@ def main(argv: list[str] | None = None) -> int:
                     "e.g. quantised_0.1, stepped_medium, dt_60; or 'irregular': jitter 0.2 and 5 %% of the rows "
                     "dropped)")
     a = ap.parse_args(argv)
-    from valve_env.studies.conventions import CONVENTIONS
+    from valve_env.studies.conventions import CONVENTIONS, frame_problem
 
     if a.convention and a.convention not in (*CONVENTIONS, "irregular"):
         ap.error(f"unknown convention {a.convention!r} (choose from irregular, {', '.join(CONVENTIONS)})")
-    if a.convention in CONVENTIONS and CONVENTIONS[a.convention].file_only:
-        ap.error(f"{a.convention} is a convention of the file: the foreign-data corpus runs it "
-                 "(studies/foreign_data.py)")
+    if frame_problem([a.convention]):
+        ap.error(frame_problem([a.convention]))
     classes = tuple(c for c in a.classes.split(",") if c) or CLASSES
     unknown = [c for c in classes if c not in CLASSES]
     if unknown:

@@ -324,9 +324,8 @@ def _units_row(raw: pd.DataFrame, source: str, first: int) -> dict[str, str]:
     :class:`DataError` naming the first column whose unit is not the format's (:data:`UNITS`), with what to do."""
     if len(raw) < 2:
         return {}
-    cells = {c: str(raw[c].iloc[0]).strip() for c in (*REQUIRED, *OPTIONAL) if c in raw.columns}
-    filled = {c: v for c, v in cells.items() if v.lower() not in MISSING_MARKERS}
-    if len(filled) < 2 or any(is_number(v) for v in filled.values()):
+    filled = text_cells({c: str(raw[c].iloc[0]) for c in (*REQUIRED, *OPTIONAL) if c in raw.columns})
+    if not filled:
         return {}
     if not any(unit_key(v) in ways for v in filled.values() for _, ways in UNITS.values()):
         return {}  # text that names no unit at all: left for the numeric check to refuse as it is
@@ -336,6 +335,13 @@ def _units_row(raw: pd.DataFrame, source: str, first: int) -> dict[str, str]:
             raise DataError(f"{source}: line {first} is a units row, and column {c} is given in {v!r}: the format's "
                             f"unit is {want} (docs/reference.md, section 2); convert the column to {want}")
     return filled
+
+
+def text_cells(cells: dict[str, str]) -> dict[str, str]:
+    """A row's cells by column, stripped, where the row may be a units row: text, not numbers, in at least two of
+    its columns (cells empty or a missing marker's word left out); else {}. Both readers' units rows start here."""
+    filled = {c: v.strip() for c, v in cells.items() if v.strip().lower() not in MISSING_MARKERS}
+    return filled if len(filled) >= 2 and not any(is_number(v) for v in filled.values()) else {}
 
 
 def is_number(cell: str) -> bool:
@@ -433,5 +439,4 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
-           "unit_key",
-           "is_number", "decimal_comma"]
+           "unit_key", "text_cells", "is_number", "decimal_comma"]

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
-from valve_env.data_io import UNITS, clock_time_hint, csv_dialect, decimal_comma, is_number, near_name_hint, unit_key
+from valve_env.data_io import UNITS, clock_time_hint, csv_dialect, decimal_comma, near_name_hint, text_cells, unit_key
 
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
@@ -162,10 +162,7 @@ def _units_row(row: list[str], idx: Mapping[str, int], p: Path, lineno: int) -> 
     in at least two of the columns read, none a missing marker's word only. sp, pv, op and mv may be in any unit (a
     plant's engineering units; OP's scale is read off its range, :func:`check_loop`); time_s must be seconds, else
     one line says so."""
-    cells = {c: row[j].strip() for c, j in idx.items() if j < len(row)}
-    filled = {c: v for c, v in cells.items() if v and v.lower() not in MISSING_MARKERS}
-    if len(filled) < 2 or any(is_number(v) for v in filled.values()):
-        return {}
+    filled = text_cells({c: row[j] for c, j in idx.items() if j < len(row)})
     t = filled.get("time_s")
     if t is not None and unit_key(t) not in UNITS["time_s"][1]:
         raise LoopDataError(f"{p} line {lineno} is a units row, and time_s is given in {t!r}: give it in seconds")

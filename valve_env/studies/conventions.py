@@ -269,6 +269,14 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
 )}
 
 
+def frame_problem(names: tuple[str, ...] | list[str]) -> str:
+    """Why conventions ``names`` cannot be applied to a run that goes to the diagnosis as a DataFrame: the first one
+    that is a convention of the file (``file_only``), in one line; "" where none is."""
+    name = next((n for n in names if n in CONVENTIONS and CONVENTIONS[n].file_only), None)
+    return "" if name is None else (f"{name} is a convention of the file (its separator, decimal mark and units "
+                                    "row): the foreign-data corpus runs it (studies/foreign_data.py)")
+
+
 def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | None = None,
                      keep_truth: bool = False, to_file: bool = False) -> pd.DataFrame:
     """The run ``df`` recorded under convention ``name`` (:data:`CONVENTIONS`), truth columns dropped
@@ -276,9 +284,8 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
     (with ``attrs["csv_sep"]``) and read back by the file reader."""
     if name not in CONVENTIONS:
         raise ValueError(f"unknown convention {name!r}; known: {sorted(CONVENTIONS)}")
-    if CONVENTIONS[name].file_only and not to_file:
-        raise ValueError(f"{name} is a convention of the file (its separator, decimal mark and units row): it runs "
-                         "where a run is written and read back, in the foreign-data corpus (studies/foreign_data.py)")
+    if not to_file and frame_problem([name]):
+        raise ValueError(frame_problem([name]))
     out = CONVENTIONS[name].apply(df, rng if rng is not None else np.random.default_rng(0))
     if not keep_truth:
         attrs = dict(out.attrs)
@@ -287,6 +294,6 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
     return out
 
 
-__all__ = ["CONVENTIONS", "Convention", "apply_convention", "drop_rows", "extra_columns", "gap", "held_constant",
-           "historian_export", "noiseless", "quantise", "resample", "spikes", "spreadsheet_export", "stepped",
-           "store_on_change", "truncate"]
+__all__ = ["CONVENTIONS", "Convention", "apply_convention", "frame_problem", "drop_rows", "extra_columns", "gap",
+           "held_constant", "historian_export", "noiseless", "quantise", "resample", "spikes", "spreadsheet_export",
+           "stepped", "store_on_change", "truncate"]

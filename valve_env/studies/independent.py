@@ -125,15 +125,13 @@ class IndependentRun:
             raise ConfigError(f"sj_jump must be in [0, 1], got {self.sj_jump!r}")
         if self.medium not in MEDIUM_PROGRAMMES:
             raise ConfigError(f"medium must be one of {MEDIUM_PROGRAMMES}, got {self.medium!r}")
-        from valve_env.studies.conventions import CONVENTIONS
+        from valve_env.studies.conventions import CONVENTIONS, frame_problem
 
         unknown = [c for c in self.conventions if c not in CONVENTIONS]
         if unknown:
             raise ConfigError(f"unknown convention {unknown[0]!r}; known: {sorted(CONVENTIONS)}")
-        files = [c for c in self.conventions if CONVENTIONS[c].file_only]
-        if files:
-            raise ConfigError(f"{files[0]} is a convention of the file: the foreign-data corpus runs it "
-                              "(studies/foreign_data.py)")
+        if frame_problem(self.conventions):
+            raise ConfigError(frame_problem(self.conventions))
         if not 0.0 <= self.force_ratio < 1.0:
             raise ConfigError(f"force_ratio must be in [0, 1), got {self.force_ratio!r}")
         for name, pars in self.effects.items():

@@ -13,7 +13,7 @@ the raw channels with the smoothed temperatures (:func:`~valve_env.valveid.tempe
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import pandas as pd
@@ -69,10 +69,10 @@ class RunData:
     def __post_init__(self) -> None:
         # the arrays as read-only views (:func:`~valve_env.valveid.temperature.read_only`): the run is not to be
         # written in place, and its kernels then compile once
-        for f in ("t", "T_raw", "M_raw", "x", "dp", "ps", "T", "vT", "M", "vM", "x_scale"):
-            a = getattr(self, f)
-            if a is not None:
-                object.__setattr__(self, f, read_only(a))
+        for f in fields(self):
+            a = getattr(self, f.name)
+            if isinstance(a, np.ndarray):
+                object.__setattr__(self, f.name, read_only(a))
 
     def noise_scale_at(self, x: np.ndarray) -> float | np.ndarray:
         """The opening's white-noise sd at the openings ``x`` (a simulated path) relative to the record's, as
