@@ -116,6 +116,17 @@ _DECIMAL_POINT = re.compile(r"^[+-]?\d*\.\d+([eE][+-]?\d+)?$")
 _GROUPED = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+(,\d+)?$")
 
 
+def decimal_mark_hint(cell: str) -> str:
+    """What a refusal of ``cell`` as not a number adds where the cell is a number written with a decimal comma
+    (``0,0033``, ``1.234,5``) in a file whose other numbers have a decimal point (a spreadsheet that exported some
+    columns as text): which mark is meant is not known, so the file is not read. Else ''."""
+    c = cell.strip()
+    if _DECIMAL_COMMA.match(c) or (_GROUPED.match(c) and "," in c):
+        return "; it has a decimal comma where the file's other numbers have a decimal point: write every number " \
+               "with one decimal mark"
+    return ""
+
+
 def decimal_comma(cell: str) -> str:
     """A number written in a decimal-comma locale (``52,61``, ``1.234,5``) as Python reads it (``52.61``, ``1234.5``):
     the points that group thousands dropped, the decimal comma made a point. Other text is returned as it is, with
@@ -420,7 +431,7 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
         if nonnum.any():
             i = int(np.flatnonzero(nonnum.to_numpy())[0])
             raise DataError(f"{source}: non-numeric value {col.iloc[i]!r} in column {name!r} "
-                            f"at row {i + 1} (line {i + first})")
+                            f"at row {i + 1} (line {i + first}){decimal_mark_hint(str(col.iloc[i]))}")
         bad = empty.to_numpy()
     else:
         num = pd.to_numeric(col, errors="coerce")
@@ -439,4 +450,4 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
-           "unit_key", "text_cells", "is_number", "decimal_comma"]
+           "unit_key", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

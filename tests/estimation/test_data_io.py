@@ -141,6 +141,24 @@ def test_a_decimal_comma_locales_thousands_points_are_read(tmp_path: Path, run_d
     pd.testing.assert_frame_equal(load_run(path), plain)
 
 
+def test_a_file_with_both_decimal_marks_is_refused_saying_so(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A spreadsheet that kept some columns as text writes them with a decimal point and its own numbers with a
+    comma: which mark a cell means is not known, so the file is refused in one line that says so."""
+    text = run_df.to_csv(index=False, sep=";")
+    lines = text.splitlines()
+    col = list(run_df.columns).index("x_mm")
+    for i in range(1, len(lines)):
+        cells = lines[i].split(";")
+        cells[col] = cells[col].replace(".", ",")
+        lines[i] = ";".join(cells)
+    path = tmp_path / "mixed.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=r"in column 'x_mm' at row 1 \(line 2\); it has a decimal comma where the "
+                                        r"file's other numbers have a decimal point") as info:
+        load_run(path)
+    assert "\n" not in str(info.value)
+
+
 @pytest.mark.parametrize(("sep", "decimal", "comments"), [
     (";", ",", ""), ("\t", ".", ""), (",", ".", "# rig 2, valve 7\n\n# logged every 10 s\n"), (";", ".", "# export\n"),
 ])

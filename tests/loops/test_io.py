@@ -229,3 +229,8 @@ def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path)
     p.write_text("\n".join(bad) + "\n")
     with pytest.raises(LoopDataError, match=r"line 6, column mode: 'Tracking' is not a number"):
         read_loop(p)
+    semi = [ln.replace(",", ";") for ln in lines]  # a decimal point in every cell, and one with a comma
+    semi[7] = ";".join([*semi[7].split(";")[:3], semi[7].split(";")[3].replace(".", ","), *semi[7].split(";")[4:]])
+    p.write_text("\n".join(semi) + "\n")
+    with pytest.raises(LoopDataError, match=r"line 8, column op: '[\d,]+' is not a number; it has a decimal comma"):
+        read_loop(p)

@@ -146,6 +146,25 @@ def test_fit_reports_one_fit_in_the_json_and_the_report(tmp_path) -> None:
     assert "T_tank_C: noise sd 0.0289 degC from its quantisation step 0.1 K" in md
 
 
+def test_a_historians_export_saved_by_a_spreadsheet_is_read(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A historian's export (states in cells, rows written twice) opened and saved by a spreadsheet in a
+    decimal-comma locale: every number is written with the comma, the states as text, and the file reads back as the
+    run at the samples with a value."""
+    from valve_env.data_io import load_run
+
+    df = simulate_experiment(seed=5, duration_h=2.0, dt_s=10.0)
+    rng = np.random.default_rng(5)
+    sheet = apply_convention(apply_convention(df, "historian_export", rng), "spreadsheet_export", rng, to_file=True)
+    path = tmp_path / "sheet.csv"
+    sheet.to_csv(path, index=False, sep=sheet.attrs["csv_sep"])
+    assert not any(re.fullmatch(r"-?\d+\.\d+", c) for c in sheet.iloc[1:, 1:].to_numpy().ravel())
+    run = load_run(path)
+    assert run.attrs["rows_repeated"] and 0.9 * len(df) < len(run) < len(df)
+    at = df.set_index("time_s").loc[run["time_s"]]
+    for c in ("T_tank_C", "T_med_C", "q_kgh", "x_mm"):
+        np.testing.assert_allclose(run[c].to_numpy(), at[c].to_numpy(), rtol=0, atol=1e-6)
+
+
 # --------------------------------------------------------------------------- the corpus
 @pytest.mark.parametrize("cls", CLASSES)
 def test_the_foreign_data_corpus(cls) -> None:

@@ -38,7 +38,16 @@ from pathlib import Path
 import numpy as np
 
 from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
-from valve_env.data_io import UNITS, clock_time_hint, csv_dialect, decimal_comma, near_name_hint, text_cells, unit_key
+from valve_env.data_io import (
+    UNITS,
+    clock_time_hint,
+    csv_dialect,
+    decimal_comma,
+    decimal_mark_hint,
+    near_name_hint,
+    text_cells,
+    unit_key,
+)
 
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
@@ -106,7 +115,7 @@ def _float(text: str, where: str) -> float:
     try:
         return float(text)
     except ValueError:
-        raise LoopDataError(f"{where}: {text!r} is not a number") from None
+        raise LoopDataError(f"{where}: {text!r} is not a number{decimal_mark_hint(text)}") from None
 
 
 def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[str]]:

@@ -181,14 +181,23 @@ def _sheet_number(v: float, digits: int) -> str:
     return text.replace(",", "_").replace(".", ",").replace("_", ".")
 
 
+def _sheet_cell(v: object) -> str:
+    """A cell as the spreadsheet writes it: a number formatted (:func:`_sheet_number`, 6 decimals), text (a
+    historian's state in a column it wrote) as it is."""
+    try:
+        return _sheet_number(float(v), 6)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return str(v)
+
+
 def spreadsheet_export(df: pd.DataFrame, rng: np.random.Generator, errors: float = 0.003) -> pd.DataFrame:
     """A run saved from a spreadsheet in a decimal-comma locale: fields separated by semicolons (``attrs["csv_sep"]``
     for the writer), numbers with a decimal comma and points between the thousands (the time, 21.600 s), a units row
     under the header, and in each measured column ``errors`` of the cells an error value (``#N/A``, ``#DIV/0!``) at
-    random rows away from the ends. The values keep 6 decimals, as a cell formatted so would."""
+    random rows away from the ends. The values keep 6 decimals, as a cell formatted so would; text cells (a
+    historian's states) are written as they are."""
     n = len(df)
-    out = pd.DataFrame({c: [_sheet_number(float(v), 6) for v in df[c].to_numpy(dtype=float)]
-                        if pd.api.types.is_numeric_dtype(df[c]) else df[c].astype(str) for c in df.columns})
+    out = pd.DataFrame({c: [_sheet_cell(v) for v in df[c]] for c in df.columns})
     for col in MEASURED:
         rows = rng.choice(np.arange(1, n - 1), size=max(1, int(round(errors * n))), replace=False)
         out.loc[rows, col] = rng.choice(["#N/A", "#DIV/0!"], size=rows.size)

@@ -167,9 +167,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                         {e: {k: result.final.params[k] for k in EFFECTS[e].param_names} for e in result.selected},
                         source=f"diagnosed by thermovalve diagnose {args.run}: cause {result.cause}")
     print(result.summary())
-    for note in result.notes:
-        if "does not identify" in note:
-            print(f"warning: {note}")
+    for note in result.warnings:
+        print(f"warning: {note}")
     for f in result.findings:  # a named effect whose residuals say its model does not fit
         mis = (f.robust or {}).get("misspecification") or {}
         if mis.get("misspecified"):

@@ -241,6 +241,12 @@ class Diagnosis:
     #: what the pre-processing found and did, per run (:func:`valve_env.valveid.preprocess.preprocess_run`)
     preprocessing: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
 
+    @property
+    def warnings(self) -> list[str]:
+        """The notes a user must not miss (the console shows them as warnings): a valve parameter the record does
+        not identify (:func:`identification_notes`)."""
+        return identification_notes(self.base, self.final)
+
     def to_json(self) -> dict[str, Any]:
         b = self.base
         base_names = ("sigma", "F_hmax", "p_bset")
