@@ -418,8 +418,10 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
     if bad.size:
         i = int(bad[0])
         bound = f"{'>' if lo_open else '>='} {lo:g} and <= {hi:g}"
+        rows = ", ".join(str(int(j) + 1) for j in bad[1:6]) + (", ..." if bad.size > 6 else "")
+        more = f"; {bad.size - 1} more row(s): {rows}" if bad.size > 1 else ""
         raise DataError(f"{source}: column {col}, row {i + 1} (line {i + first}): {v[i]:.6g} is out of range "
-                        f"(must be {bound}: {what})")
+                        f"(must be {bound}: {what}){more}")
 
 
 def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: int = 2) -> pd.Series:

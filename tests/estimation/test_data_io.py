@@ -90,6 +90,10 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
      r"missing column 'T_tank_C' .*; the header has 'T_Tank_C': rename it T_tank_C \(names are exact\)$"),
     (lambda d: d.assign(time_h=d.time_s / 3600.0).drop(columns=["time_s"]),
      r"; the header has 'time_h': if that is time_s in s, rename it \(names are exact\)$"),
+    # a logger's spikes out of the physical range: every row is named
+    (lambda d: d.assign(x_mm=lambda x: x.x_mm.where(~x.index.isin([3, 9, 20]), -1.004)),
+     r"column x_mm, row 4 \(line 5\): -1.004 is out of range \(must be >= -1 and <= 50: [^)]*\); "
+     r"2 more row\(s\): 10, 21$"),
     (lambda d: d.astype({"q_kgh": object}).assign(q_kgh=lambda x: x.q_kgh.where(x.index != 7, "abc")),
      r"non-numeric value 'abc' in column 'q_kgh' at row 8"),
     (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where((x.index < 4) | (x.index % 5 != 0), np.nan)),
