@@ -17,10 +17,13 @@ them); an empty time_s is refused. A row that repeats the row before it in every
 row under the header (``s, degC, degC, kg/h, mbar, bar, mm``, as loggers write one) is read as a second header line
 where its units are the format's (:data:`UNITS`), and refused in one line naming the column where one is not.
 
-The file's dialect is read off its header (:func:`csv_dialect`): fields separated by commas, or by semicolons or
-tabs where the header has no comma (a spreadsheet's export in a locale that writes a decimal comma uses ``;``, and
-then the decimal comma is read too), and comment lines starting with ``#`` before the header skipped; line numbers
-in the messages are the file's own.
+The file is UTF-8, or UTF-16 with its byte-order mark (a spreadsheet's "Unicode text"): :func:`read_text`. Its
+dialect is read off its header (:func:`csv_dialect`): fields separated by commas, or by semicolons or tabs where
+the header has no comma (a spreadsheet's export in a locale that writes a decimal comma uses ``;``, and then the
+decimal comma is read too), or by runs of spaces where it has none of these (a fixed-width or space-separated
+export); comment lines starting with ``#`` before the header are skipped, and so are the lines after the data that
+hold none (:func:`footer_lines`: a logger's closing comment, a spreadsheet's empty formatted rows). Line numbers in
+the messages are the file's own.
 
 Required columns: time_s, T_tank_C, T_med_C, q_kgh, dp_mbar, ps_bar; optional x_mm
 (where absent, or where a cell is empty, it is derived from q_kgh and dp_mbar with
@@ -31,6 +34,7 @@ problem raises :class:`DataError` with one line that names it. The file is only 
 from __future__ import annotations
 
 import difflib
+import io
 import os
 import re
 from dataclasses import dataclass
@@ -139,7 +143,8 @@ def decimal_comma(cell: str) -> str:
 @dataclass(frozen=True)
 class CsvDialect:
     """How a measured CSV text is written: ``skip`` comment lines (``#``) or empty lines before the header, the
-    field ``sep`` and the ``decimal`` mark. ``header_line`` is the header's line number in the file (1-based)."""
+    field ``sep`` (``" "``: runs of white space) and the ``decimal`` mark. ``header_line`` is the header's line
+    number in the file (1-based)."""
 
     skip: int = 0
     sep: str = ","
@@ -149,32 +154,56 @@ class CsvDialect:
     def header_line(self) -> int:
         return self.skip + 1
 
+    def split(self, line: str) -> list[str]:
+        """A line's fields, stripped (no quoting: for the header and the dialect's checks)."""
+        return [f.strip().strip('"') for f in (line.split() if self.sep == " " else line.split(self.sep))]
+
+    @property
+    def pandas_sep(self) -> str:
+        return r"\s+" if self.sep == " " else self.sep
+
+
+def read_text(p: Path) -> str:
+    """A text file's content: UTF-16 where it starts with UTF-16's byte-order mark (a spreadsheet's "Unicode text"
+    save), else UTF-8 (a byte-order mark dropped). Raises UnicodeDecodeError for a file that is neither."""
+    raw = p.read_bytes()
+    return raw.decode("utf-16") if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else raw.decode("utf-8-sig")
+
+
+def footer_lines(lines: list[str], dialect: CsvDialect) -> int:
+    """How many lines at the end of a text hold no data: empty, only separators (a spreadsheet's empty formatted
+    rows) or a comment (a first field starting with ``#`` that is not a spreadsheet's error value, ``#N/A``)."""
+    k = 0
+    for line in reversed(lines[dialect.skip + 1:]):
+        cells = dialect.split(line)
+        if all(not c for c in cells) or (cells[0].startswith("#") and cells[0].lower() not in MISSING_MARKERS):
+            k += 1
+        else:
+            break
+    return k
+
 
 def csv_dialect(lines: list[str]) -> CsvDialect:
     """The dialect of a CSV text from its first lines: comment (``#``) and empty lines before the header are skipped;
-    the separator is a comma where the header has one, else a semicolon or a tab where it has one of those; with a
-    semicolon or tab separator the decimal mark is a comma where the data lines write numbers with a comma and none
-    with a decimal point (points that group thousands, ``1.234,5``, are read as such: :func:`decimal_comma`). A text
-    that fits none of these is read as commas (its columns then go missing, one line)."""
+    the separator is a comma where the header has one, else a semicolon or a tab where it has one of those, else runs
+    of spaces where it has any; with another separator than a comma the decimal mark is a comma where the data lines
+    write numbers with a comma and none with a decimal point (points that group thousands, ``1.234,5``, are read as
+    such: :func:`decimal_comma`). A text that fits none of these is read as commas (its columns then go missing, one
+    line)."""
     skip = 0
     while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith("#")):
         skip += 1
     header = lines[skip] if skip < len(lines) else ""
-    sep = "," if "," in header else ";" if ";" in header else "\t" if "\t" in header else ","
+    sep = "," if "," in header else ";" if ";" in header else "\t" if "\t" in header else \
+        " " if len(header.split()) > 1 else ","
     decimal = "."
     if sep != ",":
-        fields = [f.strip().strip('"') for line in lines[skip + 1:skip + 51] for f in line.split(sep)]
+        fields = [f for line in lines[skip + 1:skip + 51] for f in CsvDialect(skip, sep).split(line)]
         # a point in a number grouped by thousands (1.234,5 and 12.500) is not a decimal point
         comma = any(_DECIMAL_COMMA.match(f) or (_GROUPED.match(f) and "," in f) for f in fields)
         if comma and not any(_DECIMAL_POINT.match(f) and not _GROUPED.match(f) for f in fields):
             decimal = ","
     return CsvDialect(skip=skip, sep=sep, decimal=decimal)
-
-
-def _head_lines(p: Path, n: int = 64) -> list[str]:
-    """The first ``n`` lines of a text file (a byte-order mark dropped)."""
-    with open(p, encoding="utf-8-sig", errors="replace", newline="") as fh:
-        return [line.rstrip("\r\n") for _, line in zip(range(n), fh, strict=False)]
 
 
 def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> pd.DataFrame:
@@ -185,30 +214,35 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         raise DataError(f"{p}: no such file")
     if p.is_dir():
         raise DataError(f"{p}: is a directory, not a CSV file")
-    head = _head_lines(p)
-    dialect = csv_dialect(head)
     try:
-        raw = pd.read_csv(p, dtype=str, keep_default_na=False, skipinitialspace=True, sep=dialect.sep,
-                          skiprows=dialect.skip, encoding="utf-8-sig")
+        lines = read_text(p).splitlines()
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{p}: not a readable CSV file (neither UTF-8 nor UTF-16 with a byte-order mark: {exc})") \
+            from exc
+    dialect = csv_dialect(lines[:64])
+    body = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
+    try:
+        raw = pd.read_csv(io.StringIO("\n".join(body)), dtype=str, keep_default_na=False, skipinitialspace=True,
+                          sep=dialect.pandas_sep)
     except pd.errors.EmptyDataError as exc:
         raise DataError(f"{p}: the file is empty") from exc
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+    except pd.errors.ParserError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise DataError(f"{p}: not a readable CSV file ({first})") from exc
-    _check_header(p, dialect, head)
+    _check_header(p, dialect, body[0] if body else "")
     if dialect.decimal != ".":
         raw = raw.apply(lambda col: col.map(decimal_comma))
     raw.attrs["header_line"] = dialect.header_line
     return validate_run(raw, source=str(p), valve=valve)
 
 
-def _check_header(p: Path, dialect: CsvDialect, head: list[str]) -> None:
+def _check_header(p: Path, dialect: CsvDialect, line: str) -> None:
     """Refuse a header that names a column twice: pandas renames the second copy (``T_tank_C.1``), so
-    :func:`validate_run` would silently take the first. ``head``: the file's first lines, as read for its dialect."""
+    :func:`validate_run` would silently take the first. ``line``: the header's line."""
     import csv
 
-    lines = head if dialect.skip < len(head) else _head_lines(p, dialect.skip + 1)
-    header = [c.strip() for c in next(csv.reader(lines[dialect.skip:], delimiter=dialect.sep), [])]
+    header = [c.strip() for c in (line.split() if dialect.sep == " " else
+                                  next(csv.reader([line], delimiter=dialect.sep), []))]
     dup = sorted({c for c in header if header.count(c) > 1})
     if dup:
         raise DataError(f"{p}: duplicate column(s) {dup} in the header")
@@ -295,8 +329,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     dt = np.diff(t)
     med = float(np.median(dt))
     if not DT_RANGE_S[0] <= med <= DT_RANGE_S[1]:
+        ms = "; if time_s is in milliseconds, divide it by 1000" if med > DT_RANGE_S[1] >= med / 1000.0 else ""
         raise DataError(f"{source}: column time_s: median sampling interval {med:.3g} s is implausible "
-                        f"(expected {DT_RANGE_S[0]:g} to {DT_RANGE_S[1]:g} s)")
+                        f"(expected {DT_RANGE_S[0]:g} to {DT_RANGE_S[1]:g} s){ms}")
     gap = np.flatnonzero(dt > MAX_GAP_S)
     if gap.size:
         i = int(gap[0]) + 1
@@ -449,7 +484,8 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
     return pd.Series(vals, index=col.index, name=name)
 
 
-__all__ = ["DataError", "CsvDialect", "csv_dialect", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
+__all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "load_run", "validate_run",
+           "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
            "unit_key", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

@@ -90,6 +90,9 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
      r"missing column 'T_tank_C' .*; the header has 'T_Tank_C': rename it T_tank_C \(names are exact\)$"),
     (lambda d: d.assign(time_h=d.time_s / 3600.0).drop(columns=["time_s"]),
      r"; the header has 'time_h': if that is time_s in s, rename it \(names are exact\)$"),
+    (lambda d: d.assign(time_s=d.time_s * 1000.0),
+     r"median sampling interval 1e\+04 s is implausible \(expected 0.001 to 3600 s\); if time_s is in milliseconds, "
+     r"divide it by 1000$"),
     # a logger's spikes out of the physical range: every row is named
     (lambda d: d.assign(x_mm=lambda x: x.x_mm.where(~x.index.isin([3, 9, 20]), -1.004)),
      r"column x_mm, row 4 \(line 5\): -1.004 is out of range \(must be >= -1 and <= 50: [^)]*\); "
@@ -183,6 +186,40 @@ def test_a_run_of_another_locale_is_read_as_written(tmp_path: Path, run_df: pd.D
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(DataError, match=rf"'abc' in column 'q_kgh' at row 8 \(line {line}\)"):
         load_run(path)
+
+
+@pytest.mark.parametrize("kind", ["utf16_tabs", "spaces", "fixed_width", "footer", "empty_sheet_rows"])
+def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_df: pd.DataFrame, kind: str) -> None:
+    """A spreadsheet's "Unicode text" save (UTF-16 with its byte-order mark, tabs), a space-separated or fixed-width
+    export, a logger's closing comment and a spreadsheet's empty formatted rows after the data: the same run as the
+    comma file; a bad cell in a space-separated file is named by its line."""
+    plain = load_run(_write(run_df, tmp_path / "plain.csv"))
+    path = tmp_path / "other.txt"
+    if kind == "utf16_tabs":
+        path.write_text(run_df.to_csv(index=False, sep="\t"), encoding="utf-16")
+        assert path.read_bytes()[:2] in (b"\xff\xfe", b"\xfe\xff")
+    elif kind == "spaces":
+        path.write_text(run_df.to_csv(index=False, sep=" "))
+    elif kind == "fixed_width":  # right-aligned columns, every number in full
+        path.write_text(run_df.to_string(index=False, float_format=lambda v: f"{v:.17g}") + "\n")
+    elif kind == "footer":
+        path.write_text(run_df.to_csv(index=False) + "# end of export, 361 rows\n\n#\n")
+    else:
+        path.write_text(run_df.to_csv(index=False, sep=";", decimal=",") + ";;;;;;\n" * 3)
+    pd.testing.assert_frame_equal(load_run(path), plain)
+    if kind == "spaces":
+        lines = path.read_text().splitlines()
+        cells = lines[8].split(" ")
+        cells[list(run_df.columns).index("q_kgh")] = "abc"
+        lines[8] = " ".join(cells)
+        path.write_text("\n".join(lines) + "\n")
+        with pytest.raises(DataError, match=r"'abc' in column 'q_kgh' at row 8 \(line 9\)"):
+            load_run(path)
+    if kind == "footer":  # a comment line inside the data is not a footer: refused, naming it
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join([*lines[:100], "# logger restarted", *lines[100:]]) + "\n")
+        with pytest.raises(DataError, match=r"'# logger restarted' in column 'time_s' at row 100 \(line 101\)"):
+            load_run(path)
 
 
 @pytest.mark.parametrize("sep", [",", ";"])

@@ -234,3 +234,23 @@ def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path)
     p.write_text("\n".join(semi) + "\n")
     with pytest.raises(LoopDataError, match=r"line 8, column op: '[\d,]+' is not a number; it has a decimal comma"):
         read_loop(p)
+
+
+@pytest.mark.parametrize("kind", ["utf16_tabs", "spaces", "footer", "empty_sheet_rows"])
+def test_a_loop_as_other_programs_save_it_is_read_as_written(tmp_path: Path, kind: str) -> None:
+    """A spreadsheet's "Unicode text" save (UTF-16, tabs), a space-separated export, a closing comment and a
+    spreadsheet's empty formatted rows after the data: the same record as the comma file."""
+    plain = read_loop(_write_csv(tmp_path / "plain.csv", n=120))
+    text = (tmp_path / "plain.csv").read_text()
+    p = tmp_path / "other.txt"
+    if kind == "utf16_tabs":
+        p.write_text(text.replace(",", "\t"), encoding="utf-16")
+    elif kind == "spaces":
+        p.write_text(text.replace(",", "   "))
+    elif kind == "footer":
+        p.write_text(text + "# end of export\n")
+    else:
+        p.write_text(text.replace(",", ";") + ";;;\n;;;\n")
+    loop = read_loop(p)
+    assert loop.n == plain.n and all(np.array_equal(getattr(loop, c), getattr(plain, c))
+                                     for c in ("time_s", "sp", "pv", "op"))

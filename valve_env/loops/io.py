@@ -44,7 +44,9 @@ from valve_env.data_io import (
     csv_dialect,
     decimal_comma,
     decimal_mark_hint,
+    footer_lines,
     near_name_hint,
+    read_text,
     text_cells,
     unit_key,
 )
@@ -123,12 +125,14 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[st
     of what was read as other than data (a units row under the header: :func:`_units_row`)."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8-sig")
+        lines = read_text(p).splitlines()  # UTF-8, or UTF-16 with its byte-order mark
     except UnicodeDecodeError:
         raise LoopDataError(f"{p}: not a text file") from None
-    lines = text.splitlines()
-    dialect = csv_dialect(lines[:64])  # commas, or semicolons or tabs (with a decimal comma), after '#' comments
-    rows = list(csv.reader(io.StringIO("\n".join(lines[dialect.skip:])), delimiter=dialect.sep))
+    # commas, or semicolons, tabs (with a decimal comma) or spaces, after '#' comments; a footer left out
+    dialect = csv_dialect(lines[:64])
+    text = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
+    rows = [ln.split() for ln in text] if dialect.sep == " " else \
+        list(csv.reader(io.StringIO("\n".join(text)), delimiter=dialect.sep))
     if not rows:
         raise LoopDataError(f"{p}: empty file")
     header = [h.strip() for h in rows[0]]
