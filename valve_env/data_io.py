@@ -163,10 +163,28 @@ class CsvDialect:
         return r"\s+" if self.sep == " " else self.sep
 
 
+#: the first bytes of files that are not text, and what to do (:func:`read_text`)
+NOT_TEXT: dict[bytes, str] = {
+    b"PK\x03\x04": "a zip archive (a spreadsheet's workbook, .xlsx or .ods?): save the sheet as CSV",
+    b"\xd0\xcf\x11\xe0": "an Office binary file (an .xls workbook?): save the sheet as CSV",
+}
+
+
 def read_text(p: Path) -> str:
-    """A text file's content: UTF-16 where it starts with UTF-16's byte-order mark (a spreadsheet's "Unicode text"
-    save), else UTF-8 (a byte-order mark dropped). Raises UnicodeDecodeError for a file that is neither."""
+    """A text file's content: gzip-compressed or not (an archived logger file, ``run.csv.gz``), UTF-16 where it
+    starts with UTF-16's byte-order mark (a spreadsheet's "Unicode text" save), else UTF-8 (a byte-order mark dropped).
+    Raises UnicodeDecodeError for a file that is none of these, and ValueError naming a workbook (:data:`NOT_TEXT`)."""
+    import gzip
+
     raw = p.read_bytes()
+    if raw[:2] == b"\x1f\x8b":
+        try:
+            raw = gzip.decompress(raw)
+        except (OSError, EOFError) as exc:
+            raise ValueError(f"a gzip file that does not decompress ({exc})") from None
+    what = next((w for magic, w in NOT_TEXT.items() if raw.startswith(magic)), None)
+    if what:
+        raise ValueError(f"not a text file but {what}")
     return raw.decode("utf-16") if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else raw.decode("utf-8-sig")
 
 
@@ -219,6 +237,8 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
     except UnicodeDecodeError as exc:
         raise DataError(f"{p}: not a readable CSV file (neither UTF-8 nor UTF-16 with a byte-order mark: {exc})") \
             from exc
+    except ValueError as exc:  # a workbook, or a broken gzip file
+        raise DataError(f"{p}: {exc}") from exc
     dialect = csv_dialect(lines[:64])
     body = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
     try:
@@ -484,8 +504,8 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
     return pd.Series(vals, index=col.index, name=name)
 
 
-__all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "load_run", "validate_run",
-           "REQUIRED", "OPTIONAL", "MIN_ROWS",
+__all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",
+           "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
            "unit_key", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

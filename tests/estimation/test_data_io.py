@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import gzip
 import hashlib
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -188,7 +190,7 @@ def test_a_run_of_another_locale_is_read_as_written(tmp_path: Path, run_df: pd.D
         load_run(path)
 
 
-@pytest.mark.parametrize("kind", ["utf16_tabs", "spaces", "fixed_width", "footer", "empty_sheet_rows"])
+@pytest.mark.parametrize("kind", ["utf16_tabs", "spaces", "fixed_width", "footer", "empty_sheet_rows", "gzip"])
 def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_df: pd.DataFrame, kind: str) -> None:
     """A spreadsheet's "Unicode text" save (UTF-16 with its byte-order mark, tabs), a space-separated or fixed-width
     export, a logger's closing comment and a spreadsheet's empty formatted rows after the data: the same run as the
@@ -204,6 +206,9 @@ def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_
         path.write_text(run_df.to_string(index=False, float_format=lambda v: f"{v:.17g}") + "\n")
     elif kind == "footer":
         path.write_text(run_df.to_csv(index=False) + "# end of export, 361 rows\n\n#\n")
+    elif kind == "gzip":  # an archived logger file
+        path = tmp_path / "run.csv.gz"
+        path.write_bytes(gzip.compress(run_df.to_csv(index=False).encode()))
     else:
         path.write_text(run_df.to_csv(index=False, sep=";", decimal=",") + ";;;;;;\n" * 3)
     pd.testing.assert_frame_equal(load_run(path), plain)
@@ -220,6 +225,24 @@ def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_
         path.write_text("\n".join([*lines[:100], "# logger restarted", *lines[100:]]) + "\n")
         with pytest.raises(DataError, match=r"'# logger restarted' in column 'time_s' at row 100 \(line 101\)"):
             load_run(path)
+
+
+def test_a_workbook_is_refused_saying_to_save_it_as_csv(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A spreadsheet's workbook given where a CSV file is wanted (an .xlsx is a zip archive, an .xls an Office binary
+    file): one line saying what it is and to save the sheet as CSV; a broken gzip file, one line."""
+    path = tmp_path / "run.xlsx"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("xl/worksheets/sheet1.xml", "<worksheet/>")
+    with pytest.raises(DataError, match=r"run.xlsx: not a text file but a zip archive \(a spreadsheet's workbook, "
+                                        r"\.xlsx or \.ods\?\): save the sheet as CSV$"):
+        load_run(path)
+    (tmp_path / "run.xls").write_bytes(b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1" + bytes(504))
+    with pytest.raises(DataError, match=r"an Office binary file \(an \.xls workbook\?\): save the sheet as CSV$"):
+        load_run(tmp_path / "run.xls")
+    (tmp_path / "cut.csv.gz").write_bytes(gzip.compress(run_df.to_csv(index=False).encode())[:200])
+    with pytest.raises(DataError, match=r"cut.csv.gz: a gzip file that does not decompress \(") as info:
+        load_run(tmp_path / "cut.csv.gz")
+    assert "\n" not in str(info.value)
 
 
 @pytest.mark.parametrize("sep", [",", ";"])

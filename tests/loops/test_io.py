@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gzip
 from pathlib import Path
 
 import numpy as np
@@ -236,7 +237,7 @@ def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path)
         read_loop(p)
 
 
-@pytest.mark.parametrize("kind", ["utf16_tabs", "spaces", "footer", "empty_sheet_rows"])
+@pytest.mark.parametrize("kind", ["utf16_tabs", "spaces", "footer", "empty_sheet_rows", "gzip"])
 def test_a_loop_as_other_programs_save_it_is_read_as_written(tmp_path: Path, kind: str) -> None:
     """A spreadsheet's "Unicode text" save (UTF-16, tabs), a space-separated export, a closing comment and a
     spreadsheet's empty formatted rows after the data: the same record as the comma file."""
@@ -249,8 +250,12 @@ def test_a_loop_as_other_programs_save_it_is_read_as_written(tmp_path: Path, kin
         p.write_text(text.replace(",", "   "))
     elif kind == "footer":
         p.write_text(text + "# end of export\n")
+    elif kind == "gzip":
+        p = tmp_path / "plain.csv.gz"
+        p.write_bytes(gzip.compress(text.encode()))
     else:
         p.write_text(text.replace(",", ";") + ";;;\n;;;\n")
     loop = read_loop(p)
+    assert loop.tag == ("plain" if kind == "gzip" else "other")
     assert loop.n == plain.n and all(np.array_equal(getattr(loop, c), getattr(plain, c))
                                      for c in ("time_s", "sp", "pv", "op"))

@@ -125,9 +125,11 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[st
     of what was read as other than data (a units row under the header: :func:`_units_row`)."""
     p = Path(path)
     try:
-        lines = read_text(p).splitlines()  # UTF-8, or UTF-16 with its byte-order mark
+        lines = read_text(p).splitlines()  # UTF-8, or UTF-16 with its byte-order mark, gzip-compressed or not
     except UnicodeDecodeError:
         raise LoopDataError(f"{p}: not a text file") from None
+    except ValueError as exc:  # a workbook, or a broken gzip file
+        raise LoopDataError(f"{p}: {exc}") from None
     # commas, or semicolons, tabs (with a decimal comma) or spaces, after '#' comments; a footer left out
     dialect = csv_dialect(lines[:64])
     text = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
@@ -167,7 +169,7 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[st
                 continue
             cols[c].append(_float(decimal_comma(cell) if dialect.decimal == "," else cell,
                                   f"{p} line {lineno}, column {c}"))
-    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, p.stem, notes
+    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, Path(p.name.removesuffix(".gz")).stem, notes
 
 
 def _units_row(row: list[str], idx: Mapping[str, int], p: Path, lineno: int) -> dict[str, str]:
