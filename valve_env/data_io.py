@@ -107,6 +107,23 @@ def unit_key(cell: str) -> str:
     return u.replace("\u00b0", "deg").replace("\u00ba", "deg").replace("\u02da", "deg").replace("\u2103", "degc")
 
 
+#: a column's name with its unit after it, in brackets or after a slash (``T_tank_C [°C]``, ``q_kgh (kg/h)``,
+#: ``time_s / s``)
+_NAME_UNIT = re.compile(r"^(?P<name>[^\s\[\](/]+)\s*(?:\[(?P<a>[^\]]*)\]|\((?P<b>[^)]*)\)|/\s*(?P<c>.+))$")
+
+
+def header_units(header: list[str], names: tuple[str, ...]) -> dict[str, tuple[str, str]]:
+    """The header's columns written as one of the format's ``names`` with a unit after it, as loggers label a column
+    (``T_tank_C [°C]``): {the column as written: (the name, the unit)}. Both readers check the unit and read the
+    name."""
+    out = {}
+    for col in header:
+        m = _NAME_UNIT.match(str(col).strip())
+        if m and m["name"] in names:
+            out[str(col)] = (m["name"], (m["a"] or m["b"] or m["c"] or "").strip())
+    return out
+
+
 class DataError(ValueError):
     """A measured run that cannot be used; the message is one line naming the problem."""
 
@@ -308,6 +325,15 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     raw = data.copy()
     raw.columns = [str(c).strip() for c in raw.columns]
     first = int(data.attrs.get("header_line", 1)) + 1  # the file's line of the first data row
+    named = header_units(list(raw.columns), (*REQUIRED, *OPTIONAL))
+    for col, (name, unit) in named.items():
+        want, ways = UNITS[name]
+        if unit_key(unit) not in ways:
+            raise DataError(f"{source}: column {col!r} gives {name} in {unit!r}: the format's unit is {want} "
+                            f"(docs/reference.md, section 2); convert the column to {want}")
+    if named:
+        raw = raw.rename(columns={c: n for c, (n, _) in named.items()})
+        raw.attrs["units_in_header"] = dict(named.values())
     dup = sorted({c for c in raw.columns if list(raw.columns).count(c) > 1})
     if dup:
         raise DataError(f"{source}: duplicate column(s) {dup}")
@@ -508,4 +534,4 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
            "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
-           "unit_key", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]
+           "unit_key", "header_units", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

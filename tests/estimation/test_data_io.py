@@ -245,6 +245,27 @@ def test_a_workbook_is_refused_saying_to_save_it_as_csv(tmp_path: Path, run_df: 
     assert "\n" not in str(info.value)
 
 
+def test_units_after_the_names_in_the_header_are_read(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A logger's header that gives each column's unit after its name (``T_tank_C [°C]``, ``q_kgh (kg/h)``,
+    ``time_s / s``): the same run, with a note; a name with another unit is refused in one line naming the unit to
+    convert to."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    plain = load_run(_write(run_df, tmp_path / "plain.csv"))
+    units = {"time_s": "/ s", "T_tank_C": "[°C]", "T_med_C": "(degC)", "q_kgh": "[kg/h]", "dp_mbar": "(mbar)",
+             "ps_bar": "[bar]", "x_mm": "[mm]"}
+    named = run_df.rename(columns={c: f"{c} {u}" for c, u in units.items()})
+    out = load_run(_write(named, tmp_path / "named.csv"))
+    pd.testing.assert_frame_equal(out, plain, check_like=True)
+    assert out.attrs["units_in_header"]["T_med_C"] == "degC"
+    notes = preprocess_run(out)[1]
+    assert [nt["what"] for nt in notes][:1] == ["units_in_header"]
+    assert "the header: the format's units after the names; read as the names" in describe(notes)
+    with pytest.raises(DataError, match=r"column 'dp_mbar \[Pa\]' gives dp_mbar in 'Pa': the format's unit is mbar "
+                                        r"\(docs/reference.md, section 2\); convert the column to mbar$"):
+        load_run(_write(run_df.rename(columns={"dp_mbar": "dp_mbar [Pa]"}), tmp_path / "pa.csv"))
+
+
 @pytest.mark.parametrize("sep", [",", ";"])
 def test_a_units_row_under_the_header_is_read_as_a_second_header_line(tmp_path: Path, run_df: pd.DataFrame,
                                                                       sep: str) -> None:

@@ -259,3 +259,18 @@ def test_a_loop_as_other_programs_save_it_is_read_as_written(tmp_path: Path, kin
     assert loop.tag == ("plain" if kind == "gzip" else "other")
     assert loop.n == plain.n and all(np.array_equal(getattr(loop, c), getattr(plain, c))
                                      for c in ("time_s", "sp", "pv", "op"))
+
+
+def test_units_after_the_names_in_a_loop_header_are_read(tmp_path: Path) -> None:
+    """``time_s [s], sp [m3/h], pv [m3/h], op [%]``: the same record, with a note; a time in another unit is refused."""
+    plain = read_loop(_write_csv(tmp_path / "plain.csv", n=120))
+    lines = (tmp_path / "plain.csv").read_text().splitlines()
+    p = tmp_path / "named.csv"
+    p.write_text("\n".join(["time_s [s],sp (m3/h),pv / m3/h,op [%]", *lines[1:]]) + "\n")
+    loop = read_loop(p)
+    assert np.array_equal(loop.pv, plain.pv) and np.array_equal(loop.op, plain.op)
+    assert loop.notes == ["the header gives units after the names (time_s [s], sp [m3/h], pv [m3/h], op [%]): read "
+                          "as the names"]
+    p.write_text("\n".join(["time_s [min],sp,pv,op", *lines[1:]]) + "\n")
+    with pytest.raises(LoopDataError, match=r"the header gives time_s in 'min': give it in seconds$"):
+        read_loop(p)

@@ -45,6 +45,7 @@ from valve_env.data_io import (
     decimal_comma,
     decimal_mark_hint,
     footer_lines,
+    header_units,
     near_name_hint,
     read_text,
     text_cells,
@@ -138,6 +139,11 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[st
     if not rows:
         raise LoopDataError(f"{p}: empty file")
     header = [h.strip() for h in rows[0]]
+    named = header_units(header, ("time_s", "sp", "pv", "op", "mv", "mode"))
+    t = next((u for n, u in named.values() if n == "time_s"), None)
+    if t is not None and unit_key(t) not in UNITS["time_s"][1]:
+        raise LoopDataError(f"{p}: the header gives time_s in {t!r}: give it in seconds")
+    header = [named[h][0] if h in named else h for h in header]
     twice = sorted({h for h in header if h and header.count(h) > 1})
     if twice:  # which copy is the signal? (csv would silently take the first)
         raise LoopDataError(f"{p}: the header names column(s) {', '.join(twice)} more than once")
@@ -153,6 +159,9 @@ def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[st
     body = rows[1:]
     units = _units_row(body[0], idx, p, dialect.header_line + 1) if body else {}
     notes: list[str] = []
+    if named:
+        notes.append(f"the header gives units after the names ({', '.join(f'{n} [{u}]' for n, u in named.values())}): "
+                     "read as the names")
     if units:  # a second header line: sp and pv in the plant's units (the band is in % of OP either way)
         body = body[1:]
         notes.append(f"line {dialect.header_line + 1} is a units row "

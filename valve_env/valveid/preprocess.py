@@ -30,9 +30,9 @@ each convention is handled once, here, and reported:
   data are not changed; the note gives the interval's spread, the rows missing against the median
   interval and the longest gap (nothing is filled in).
 
-Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``rows_repeated``, ``rows_dropped``,
-``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``), the ``channel`` where it applies, and
-``why``. The ``fit`` and
+Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
+``rows_repeated``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``), the
+``channel`` where it applies, and ``why``. The ``fit`` and
 ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
 through here twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
 """
@@ -64,7 +64,8 @@ SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
 #: (often to full scale) does not
 X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
-CHANGE_NOTES: tuple[str, ...] = ("units_row", "rows_repeated", "rows_dropped", "spikes_replaced", "x_mm_derived")
+CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "rows_repeated", "rows_dropped", "spikes_replaced",
+                                 "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -129,6 +130,11 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         notes.append({"what": "units_row", "channel": None, "line": int(units["line"]), "units": dict(units["units"]),
                       "why": f"line {units['line']} is a units row ({given}), the format's own units: read as a second "
                              "header line (row 1 is the line after it)"})
+    named = df.attrs.get("units_in_header")
+    if named and ("units_in_header", None) not in done:
+        given = ", ".join(f"{c} [{u}]" for c, u in named.items())
+        notes.append({"what": "units_in_header", "channel": None, "units": dict(named),
+                      "why": f"the header gives the format's own units after the names ({given}): read as the names"})
     repeated = df.attrs.get("rows_repeated", [])
     if repeated and ("rows_repeated", None) not in done:
         notes.append({"what": "rows_repeated", "channel": None, "rows": list(repeated),
@@ -212,6 +218,8 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
                          f"neighbours ({_row_list(nt['rows'])})")
         elif what == "units_row":
             lines.append(f"line {nt['line']}: a units row, the format's units; read as a second header line")
+        elif what == "units_in_header":
+            lines.append("the header: the format's units after the names; read as the names")
         elif what == "rows_repeated":
             lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
         elif what == "rows_dropped":
