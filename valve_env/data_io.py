@@ -63,6 +63,14 @@ RANGES: dict[str, tuple[float, float, bool, str]] = {
     "ps_bar": (0.0, 100.0, True, "a static pressure, bar"),
     "x_mm": (-1.0, 50.0, False, "a valve opening, mm"),
 }
+#: Units a column may arrive in instead of the format's, as a refusal of its range names them: (the unit, what to do,
+#: scale, offset), the value in the format's unit being scale * value + offset.
+OTHER_UNITS: dict[str, tuple[tuple[str, str, float, float], ...]] = {
+    "T_tank_C": (("kelvin", "subtract 273.15", 1.0, -273.15),),
+    "T_med_C": (("kelvin", "subtract 273.15", 1.0, -273.15),),
+    "dp_mbar": (("Pa", "divide by 100", 0.01, 0.0),),
+    "ps_bar": (("kPa", "divide by 100", 0.01, 0.0), ("Pa", "divide by 100000", 1e-5, 0.0)),
+}
 #: The median sampling interval must lie in this range (s).
 DT_RANGE_S: tuple[float, float] = (1.0e-3, 3600.0)
 #: No single interval between samples may be longer than this (s): one day.
@@ -501,8 +509,11 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
         bound = f"{'>' if lo_open else '>='} {lo:g} and <= {hi:g}"
         rows = ", ".join(str(int(j) + 1) for j in bad[1:6]) + (", ..." if bad.size > 6 else "")
         more = f"; {bad.size - 1} more row(s): {rows}" if bad.size > 1 else ""
+        x = v[known]
+        unit = next((f"; every value reads as {u}: {do}" for u, do, a, b in OTHER_UNITS.get(col, ())
+                     if bad.size > 0.5 * x.size and np.all((a * x + b > lo) & (a * x + b <= hi))), "")
         raise DataError(f"{source}: column {col}, row {i + 1} (line {i + first}): {v[i]:.6g} is out of range "
-                        f"(must be {bound}: {what}){more}")
+                        f"(must be {bound}: {what}){more}{unit}")
 
 
 def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: int = 2) -> pd.Series:
@@ -531,7 +542,7 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",
-           "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
-           "MIN_T_RANGE_K", "RANGES", "DT_RANGE_S", "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
+           "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DT_RANGE_S",
+           "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
            "unit_key", "header_units", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

@@ -95,6 +95,11 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
     (lambda d: d.assign(time_s=d.time_s * 1000.0),
      r"median sampling interval 1e\+04 s is implausible \(expected 0.001 to 3600 s\); if time_s is in milliseconds, "
      r"divide it by 1000$"),
+    # a column in another unit: the refusal says which and what to do
+    (lambda d: d.assign(T_med_C=d.T_med_C + 273.15), r"column T_med_C, row 1 \(line 2\): .* out of range .*; every "
+                                                     r"value reads as kelvin: subtract 273.15$"),
+    (lambda d: d.assign(ps_bar=d.ps_bar * 100.0), r"every value reads as kPa: divide by 100$"),
+    (lambda d: d.assign(ps_bar=d.ps_bar * 1e5), r"every value reads as Pa: divide by 100000$"),
     # a logger's spikes out of the physical range: every row is named
     (lambda d: d.assign(x_mm=lambda x: x.x_mm.where(~x.index.isin([3, 9, 20]), -1.004)),
      r"column x_mm, row 4 \(line 5\): -1.004 is out of range \(must be >= -1 and <= 50: [^)]*\); "
