@@ -53,7 +53,7 @@ from typing import Any
 import pandas as pd
 
 from agents.cem import RANK_SEED
-from valve_env.cli import int_list
+from valve_env.cliutil import int_list
 
 
 @dataclass(frozen=True)

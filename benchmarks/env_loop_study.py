@@ -16,7 +16,7 @@ import sys
 import time
 from collections import Counter
 
-from valve_env.cli import int_list
+from valve_env.cliutil import int_list
 from valve_env.loops.detect import DEFAULT_RULE, RULES
 from valve_env.loops.diagnose import diagnose_loop
 from valve_env.loops.envloop import ENV_ID, RECORD_H, WARMUP_H, record_env_loop

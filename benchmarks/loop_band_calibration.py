@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 
-from valve_env.cli import int_list
+from valve_env.cliutil import int_list
 from valve_env.loops.diagnose import BAND_REL_SD, SAMPLING_SD_SHARE, diagnose_loop
 from valve_env.loops.sim import random_case, simulate_case
 

@@ -27,7 +27,7 @@ import numpy as np
 from loop_train_detector import fit_logistic, prob
 from scipy.stats import mannwhitneyu
 
-from valve_env.cli import int_list
+from valve_env.cliutil import int_list
 from valve_env.loops.detect import features
 from valve_env.loops.io import LoopData, LoopDataError, read_loop
 from valve_env.loops.sim import random_case, simulate_case

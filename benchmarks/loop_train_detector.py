@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import minimize
 
-from valve_env.cli import int_list
+from valve_env.cliutil import int_list
 from valve_env.loops.detect import SHAPE_FEATURES, design_row, features, terms
 from valve_env.loops.sim import random_case, simulate_case, stiction_visibility
 from valve_env.outputs import atomic_write_text

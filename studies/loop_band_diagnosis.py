@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from valve_env.cli import int_list
+from valve_env.cliutil import int_list
 from valve_env.loops.detectors import oscillation
 from valve_env.loops.diagnose import diagnose_loop
 from valve_env.loops.model import BAND_J_FRACTIONS, fit_process, op_jitter, valve_path

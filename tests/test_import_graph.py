@@ -221,3 +221,14 @@ def test_the_identification_core_knows_no_valve(
     assert len(core) >= 6, sorted(core)
     bad = {m: t for m, t in core.items() if t}
     assert not bad, f"the identification core imports the valve or the loops: {bad}"
+
+
+def test_the_commands_import_their_helpers_not_the_dispatcher(
+        graph: tuple[dict[str, set[str]], dict[str, set[str]]]) -> None:
+    """No module of valve_env imports the dispatcher valve_env.cli (it runs the command modules, which take their
+    helpers from valve_env.cliutil), and cliutil imports nothing of valve_env: the commands import down."""
+    edges, _ = graph
+    assert {m for m, targets in edges.items() if "valve_env.cli" in targets} == set()
+    assert {m for m, targets in edges.items() if "valve_env.cliutil" in targets} >= {
+        "valve_env.cli", "valve_env.valveid.cli", "valve_env.loops.cli", "valve_env.evaluation.cli"}
+    assert edges["valve_env.cliutil"] == set()

@@ -1,6 +1,7 @@
 """The ``thermovalve`` command: one style for every sub-command.
 
-Each sub-command lives beside the code it runs. A module in SUBCOMMAND_MODULES exposes
+Each sub-command lives beside the code it runs and takes its helpers from :mod:`valve_env.cliutil` (which
+imports none of them). A module in SUBCOMMAND_MODULES exposes
 ``register(subparsers)``, which adds its sub-parser(s) with ``set_defaults(func=...)``;
 ``func(args)`` returns the exit code (or None for 0).
 
@@ -10,7 +11,7 @@ Adding a sub-command (``loop-diagnose``, ``tasks``, ``benchmark``, ...):
    to SUBCOMMAND_MODULES, or, outside the core, to the ``thermovalve.cli`` entry points of its
    distribution (:mod:`valve_env.plugins`; import the heavy parts inside ``func``, not at module
    level: ``thermovalve --help`` imports every module listed here);
-2. in ``func``, **raise** on bad input instead of printing: :class:`UsageError` (or
+2. in ``func``, **raise** on bad input instead of printing: :class:`~valve_env.cliutil.UsageError` (or
    :class:`~valve_env.params.ConfigError`, :class:`~valve_env.data_io.DataError`,
    :class:`~valve_env.outputs.OutputError`, any ``ValueError``) becomes one line
    ``thermovalve: error: <message>`` on stderr and exit status 2; any other exception
@@ -19,9 +20,9 @@ Adding a sub-command (``loop-diagnose``, ``tasks``, ``benchmark``, ...):
    the extra to install; a reader of stdout that leaves (``| head``) ends the command quietly
    with status 141, an interrupt with 130;
 3. write every file through one :class:`~valve_env.outputs.OutputSet`: add ``--force``
-   with :func:`add_force`, ``add()`` every output before the long work, stage, commit
+   with :func:`~valve_env.cliutil.add_force`, ``add()`` every output before the long work, stage, commit
    (or ``with OutputSet(...) as outs:``), then ``print(outs.summary())``;
-4. long steps show a progress bar: :func:`progress_bar` (tqdm on stderr; off when
+4. long steps show a progress bar: :func:`~valve_env.cliutil.progress_bar` (tqdm on stderr; off when
    ``THERMOVALVE_NO_PROGRESS`` is set or stderr is not a terminal).
 
 Argument-parsing errors take the same one-line form and exit status 2. Help shows each
@@ -41,6 +42,7 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
+from valve_env.cliutil import EXIT_BAD_INPUT, EXIT_ERROR, PREFIX, UsageError, error_message, fail, one_line
 from valve_env.plugins import CLI_GROUP, missing_extra, plugins
 
 SUBCOMMAND_MODULES: tuple[str, ...] = (
@@ -52,37 +54,6 @@ SUBCOMMAND_MODULES: tuple[str, ...] = (
 )
 """The core's sub-command modules; plug-ins add theirs through the ``thermovalve.cli`` entry points
 (:mod:`valve_env.plugins`: the RL add-on's ``agents.cli``)."""
-
-EXIT_OK = 0
-EXIT_ERROR = 1
-EXIT_BAD_INPUT = 2
-PREFIX = "thermovalve: error: "
-
-
-
-class UsageError(ValueError):
-    """Bad input found by a command's own argument checks: one line, exit status 2."""
-
-
-def one_line(text: object) -> str:
-    """``text`` on one line (whitespace runs collapsed)."""
-    return " ".join(str(text).split())
-
-
-def error_message(exc: BaseException) -> str:
-    """The one-line message of ``exc`` (its type's name when it has none)."""
-    msg = one_line(exc)
-    if isinstance(exc, KeyError) and exc.args:
-        msg = one_line(exc.args[0])
-    if isinstance(exc, OSError) and exc.strerror:
-        msg = f"{exc.filename + ': ' if exc.filename else ''}{exc.strerror}"
-    return msg or type(exc).__name__
-
-
-def fail(msg: object, code: int = EXIT_BAD_INPUT) -> int:
-    """Print ``thermovalve: error: <msg>`` (one line) on stderr; returns ``code``."""
-    print(PREFIX + one_line(msg), file=sys.stderr, flush=True)
-    return code
 
 
 def _bad_input_types() -> tuple[type[BaseException], ...]:
@@ -143,82 +114,6 @@ def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse
             traceback.print_exc()
         return fail(f"{type(exc).__name__}: {error_message(exc)} (THERMOVALVE_DEBUG=1 shows the traceback)",
                     EXIT_ERROR)
-
-
-# --------------------------------------------------------------------------- argument checks
-def check_range(name: str, value: float, lo: float | None = None, hi: float | None = None,
-                lo_open: bool = False, hi_open: bool = False) -> float:
-    """Raise :class:`UsageError` naming ``name`` unless ``value`` is finite and within the bounds."""
-    import math
-
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise UsageError(f"{name} must be a finite number, got {value!r}")
-    if lo is not None and (value <= lo if lo_open else value < lo):
-        raise UsageError(f"{name} must be {'>' if lo_open else '>='} {lo:g}, got {value:g}")
-    if hi is not None and (value >= hi if hi_open else value > hi):
-        raise UsageError(f"{name} must be {'<' if hi_open else '<='} {hi:g}, got {value:g}")
-    return value
-
-
-def int_list(text: str) -> list[int]:
-    """Integers from a comma list with ranges, ``"0-4,10,12-13"`` -> [0, 1, 2, 3, 4, 10, 12, 13] (seeds on
-    the command line); a malformed part raises ValueError."""
-    out: list[int] = []
-    for part in text.split(","):
-        try:
-            if "-" in part.strip()[1:]:
-                a, b = part.split("-", 1)
-                lo, hi = int(a), int(b)
-                if hi < lo:
-                    raise ValueError
-                out += list(range(lo, hi + 1))
-            elif part.strip():
-                out.append(int(part))
-        except ValueError:
-            raise UsageError(f"bad integer list {text!r}: {part.strip()!r} is not an integer or a range a-b with "
-                             "a <= b (e.g. 0-4,10)") from None
-    return out
-
-
-def add_force(p: argparse.ArgumentParser) -> None:
-    """The ``--force`` option every writing command has."""
-    p.add_argument("--force", action="store_true", help="replace existing output files (never an input)")
-
-
-class _StageLines:
-    """Progress where stderr is not a terminal (a log, a pipe, CI): one line per finished stage,
-    ``diagnose: 3/12 sensor_lag (14 s)``, so a long command is never silent."""
-
-    def __init__(self, total: int, desc: str) -> None:
-        import time
-
-        self.total, self.desc, self.n, self.post, self.t0 = total, desc, 0, "", time.perf_counter()
-
-    def set_postfix_str(self, s: str) -> None:
-        self.post = s
-
-    def update(self, n: int = 1) -> None:
-        import time
-
-        self.n += n
-        what = f" {self.post}" if self.post else ""
-        print(f"{self.desc}: {self.n}/{self.total}{what} ({time.perf_counter() - self.t0:.0f} s)", file=sys.stderr,
-              flush=True)
-
-    def close(self) -> None:
-        pass
-
-
-def progress_bar(total: int, desc: str = "", unit: str = "it") -> Any:
-    """Progress on stderr (``.update(n)``, ``.set_postfix_str(s)``, ``.close()``): a tqdm bar on a
-    terminal, one line per finished stage otherwise; off when THERMOVALVE_NO_PROGRESS is set."""
-    from tqdm.auto import tqdm
-
-    if os.environ.get("THERMOVALVE_NO_PROGRESS"):
-        return tqdm(total=total, disable=True)
-    if not sys.stderr.isatty():
-        return _StageLines(total, desc)
-    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False)
 
 
 # --------------------------------------------------------------------------- parser

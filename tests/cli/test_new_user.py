@@ -88,7 +88,7 @@ def test_an_output_directory_left_with_empty_subdirectories_is_reusable(tmp_path
 
 def test_a_bad_seed_list_names_the_list() -> None:
     """``thermovalve sweep --seeds a-b`` said "invalid literal for int() with base 10: 'a'"; ``5-3`` gave no seeds."""
-    from valve_env.cli import UsageError, int_list
+    from valve_env.cliutil import UsageError, int_list
 
     assert int_list("0-2,10") == [0, 1, 2, 10]
     for bad in ("a-b", "5-3", "1,x"):

@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from valve_env.cli import UsageError, add_force
+from valve_env.cliutil import UsageError, add_force
 from valve_env.outputs import json_text
 
 #: gym.make keywords that the command sets itself
@@ -77,7 +77,7 @@ def _run_evaluation(
     out_dir: Path | None,
 ) -> tuple[dict[str, Any], dict[str, Path]]:
     """Evaluate; with ``out_dir`` (a staging directory) also write the tables and figures there."""
-    from valve_env.cli import progress_bar
+    from valve_env.cliutil import progress_bar
     from valve_env.evaluation.evaluator import (
         check_env_id,
         env_config,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from valve_env.cli import add_force
+from valve_env.cliutil import add_force
 from valve_env.loops.detect import DEFAULT_RULE, RULES
 
 

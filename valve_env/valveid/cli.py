@@ -26,7 +26,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from valve_env.cli import UsageError, add_force, check_range
+from valve_env.cliutil import UsageError, add_force, check_range
 
 
 def register(subparsers: Any) -> None:
@@ -111,7 +111,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from valve_env.cli import progress_bar
+    from valve_env.cliutil import progress_bar
     from valve_env.effects import REGISTRY as EFFECTS
     from valve_env.effects import check_effects
     from valve_env.outputs import OutputSet, json_text
@@ -209,7 +209,7 @@ def _register_fit(subparsers: Any) -> None:
 
 
 def run_fit(args: argparse.Namespace) -> int:
-    from valve_env.cli import progress_bar
+    from valve_env.cliutil import progress_bar
     from valve_env.data_io import load_run
     from valve_env.outputs import OutputSet, json_text
 
