@@ -17,7 +17,8 @@ them); an empty time_s is refused. A row that repeats the row before it in every
 row under the header (``s, degC, degC, kg/h, mbar, bar, mm``, as loggers write one) is read as a second header line
 where its units are the format's (:data:`UNITS`), and refused in one line naming the column where one is not.
 
-The file is UTF-8, or UTF-16 with its byte-order mark (a spreadsheet's "Unicode text"): :func:`read_text`. Its
+The file is UTF-8, UTF-16 with its byte-order mark (a spreadsheet's "Unicode text") or Windows-1252 (a spreadsheet's
+plain "CSV" save on Windows), gzip-compressed or not: :func:`read_text`. Its
 dialect is read off its header (:func:`csv_dialect`): fields separated by commas, or by semicolons or tabs where
 the header has no comma (a spreadsheet's export in a locale that writes a decimal comma uses ``;``, and then the
 decimal comma is read too), or by runs of spaces where it has none of these (a fixed-width or space-separated
@@ -197,8 +198,10 @@ NOT_TEXT: dict[bytes, str] = {
 
 def read_text(p: Path) -> str:
     """A text file's content: gzip-compressed or not (an archived logger file, ``run.csv.gz``), UTF-16 where it
-    starts with UTF-16's byte-order mark (a spreadsheet's "Unicode text" save), else UTF-8 (a byte-order mark dropped).
-    Raises UnicodeDecodeError for a file that is none of these, and ValueError naming a workbook (:data:`NOT_TEXT`)."""
+    starts with UTF-16's byte-order mark (a spreadsheet's "Unicode text" save), else UTF-8 (a byte-order mark
+    dropped), else Windows-1252 (a spreadsheet's plain "CSV" save on Windows writes ``°C`` so). Raises
+    UnicodeDecodeError for a file that is none of these or holds a NUL byte, and ValueError naming a workbook
+    (:data:`NOT_TEXT`)."""
     import gzip
 
     raw = p.read_bytes()
@@ -210,7 +213,14 @@ def read_text(p: Path) -> str:
     what = next((w for magic, w in NOT_TEXT.items() if raw.startswith(magic)), None)
     if what:
         raise ValueError(f"not a text file but {what}")
-    return raw.decode("utf-16") if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else raw.decode("utf-8-sig")
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        return raw.decode("utf-16")
+    if b"\x00" in raw:
+        raise UnicodeDecodeError("utf-8", raw, raw.index(b"\x00"), raw.index(b"\x00") + 1, "a NUL byte: not text")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return raw.decode("cp1252")
 
 
 def footer_lines(lines: list[str], dialect: CsvDialect) -> int:
@@ -260,8 +270,8 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
     try:
         lines = read_text(p).splitlines()
     except UnicodeDecodeError as exc:
-        raise DataError(f"{p}: not a readable CSV file (neither UTF-8 nor UTF-16 with a byte-order mark: {exc})") \
-            from exc
+        raise DataError(f"{p}: not a text file (neither UTF-8, UTF-16 with a byte-order mark nor Windows-1252: "
+                        f"{exc.reason} at byte {exc.start})") from exc
     except ValueError as exc:  # a workbook, or a broken gzip file
         raise DataError(f"{p}: {exc}") from exc
     dialect = csv_dialect(lines[:64])

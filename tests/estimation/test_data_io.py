@@ -195,7 +195,8 @@ def test_a_run_of_another_locale_is_read_as_written(tmp_path: Path, run_df: pd.D
         load_run(path)
 
 
-@pytest.mark.parametrize("kind", ["utf16_tabs", "spaces", "fixed_width", "footer", "empty_sheet_rows", "gzip"])
+@pytest.mark.parametrize("kind", ["utf16_tabs", "windows_1252", "spaces", "fixed_width", "footer", "empty_sheet_rows",
+                                  "gzip"])
 def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_df: pd.DataFrame, kind: str) -> None:
     """A spreadsheet's "Unicode text" save (UTF-16 with its byte-order mark, tabs), a space-separated or fixed-width
     export, a logger's closing comment and a spreadsheet's empty formatted rows after the data: the same run as the
@@ -205,6 +206,11 @@ def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_
     if kind == "utf16_tabs":
         path.write_text(run_df.to_csv(index=False, sep="\t"), encoding="utf-16")
         assert path.read_bytes()[:2] in (b"\xff\xfe", b"\xfe\xff")
+    elif kind == "windows_1252":  # a spreadsheet's plain "CSV" save on Windows: its units row's degree sign
+        lines = run_df.to_csv(index=False, sep=";", decimal=",").splitlines()
+        units = ";".join({"time_s": "s", "T_tank_C": "°C", "T_med_C": "°C"}.get(c, "") for c in run_df.columns)
+        path.write_bytes("\r\n".join([lines[0], units, *lines[1:]]).encode("cp1252"))
+        assert b"\xb0C" in path.read_bytes()
     elif kind == "spaces":
         path.write_text(run_df.to_csv(index=False, sep=" "))
     elif kind == "fixed_width":  # right-aligned columns, every number in full
@@ -216,7 +222,9 @@ def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_
         path.write_bytes(gzip.compress(run_df.to_csv(index=False).encode()))
     else:
         path.write_text(run_df.to_csv(index=False, sep=";", decimal=",") + ";;;;;;\n" * 3)
-    pd.testing.assert_frame_equal(load_run(path), plain)
+    out = load_run(path)
+    pd.testing.assert_frame_equal(out if kind != "windows_1252" else out.reset_index(drop=True), plain,
+                                  check_like=True)
     if kind == "spaces":
         lines = path.read_text().splitlines()
         cells = lines[8].split(" ")
@@ -244,6 +252,10 @@ def test_a_workbook_is_refused_saying_to_save_it_as_csv(tmp_path: Path, run_df: 
     (tmp_path / "run.xls").write_bytes(b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1" + bytes(504))
     with pytest.raises(DataError, match=r"an Office binary file \(an \.xls workbook\?\): save the sheet as CSV$"):
         load_run(tmp_path / "run.xls")
+    (tmp_path / "run.png").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(32))
+    with pytest.raises(DataError, match=r"run.png: not a text file \(neither UTF-8, UTF-16 with a byte-order mark nor "
+                                        r"Windows-1252: a NUL byte: not text at byte 8\)$"):
+        load_run(tmp_path / "run.png")
     (tmp_path / "cut.csv.gz").write_bytes(gzip.compress(run_df.to_csv(index=False).encode())[:200])
     with pytest.raises(DataError, match=r"cut.csv.gz: a gzip file that does not decompress \(") as info:
         load_run(tmp_path / "cut.csv.gz")
