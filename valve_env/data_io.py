@@ -368,6 +368,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raw.attrs["units_row"] = {"line": first, "units": units}
         first += 1
     out = raw.copy()
+    if clock_time_hint({"time_s": raw["time_s"].astype(str).head(5).tolist()}):  # a logger's clock in time_s
+        raise DataError(f"{source}: column 'time_s' holds date-times ({str(raw['time_s'].iloc[0]).strip()!r}): give "
+                        "the time as seconds from any origin, e.g. (t - t[0]).total_seconds()")
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
         out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", first=first)
     for col, (lo, hi, lo_open, what) in RANGES.items():

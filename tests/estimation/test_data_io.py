@@ -87,6 +87,8 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
     (lambda d: d.assign(stamp="01.03.2026 " + (d.time_s // 3600 + 10).astype(int).astype(str) + ":00")
      .drop(columns=["time_s"]), r"column 'stamp' holds date-times"),
     (lambda d: d.drop(columns=["time_s"]), r"missing column 'time_s' \(required: [a-zA-Z_, ]+\)$"),
+    (lambda d: d.assign(time_s=(pd.Timestamp("2026-03-01 06:00") + pd.to_timedelta(d.time_s, unit="s")).astype(str)),
+     r"column 'time_s' holds date-times \('2026-03-01 06:00:00'\): give the time as seconds from any origin"),
     # a name in another case or spelling: the refusal names the header's column
     (lambda d: d.rename(columns={"T_tank_C": "T_Tank_C"}),
      r"missing column 'T_tank_C' .*; the header has 'T_Tank_C': rename it T_tank_C \(names are exact\)$"),

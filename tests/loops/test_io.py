@@ -271,6 +271,12 @@ def test_units_after_the_names_in_a_loop_header_are_read(tmp_path: Path) -> None
     assert np.array_equal(loop.pv, plain.pv) and np.array_equal(loop.op, plain.op)
     assert loop.notes == ["the header gives units after the names (time_s [s], sp [m3/h], pv [m3/h], op [%]): read "
                           "as the names"]
+    stamped = [ln.split(",", 1) for ln in lines[1:]]
+    p.write_text("\n".join(["time_s,sp,pv,op", *(f"2026-03-01 06:{int(float(t)) // 60:02d}:{int(float(t)) % 60:02d},"
+                                                   f"{rest}" for t, rest in stamped)]) + "\n")
+    with pytest.raises(LoopDataError, match=r"column time_s holds date-times \('2026-03-01 06:00:00'\): give the "
+                                            r"time as seconds"):
+        read_loop(p)
     p.write_text("\n".join(["time_s [min],sp,pv,op", *lines[1:]]) + "\n")
     with pytest.raises(LoopDataError, match=r"the header gives time_s in 'min': give it in seconds$"):
         read_loop(p)
