@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -50,6 +51,30 @@ def test_quantify_gives_one_story(tmp_path: Path, capsys: pytest.CaptureFixture[
     halves = res["stiction"]["halves_band_pct"]
     assert f"| band read on the record's first and second half, % | {halves[0]:.3g}, {halves[1]:.3g} |" in text
     assert "controller's output jitter within a sample driving the valve" in text
+
+
+def test_a_long_record_is_fitted_on_its_last_part_with_a_note(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """A record longer than the fits read (:data:`valve_env.loops.diagnose.MAX_FIT_SAMPLES`, here cut to 500 samples):
+    the detection reads the whole record, the band and the linear model its last part, and a note says so; the
+    command reports its steps on stderr as it goes (a long record is not silent)."""
+    import valve_env.loops.diagnose as dg
+    from valve_env.loops.io import read_loop
+
+    monkeypatch.setattr(dg, "MAX_FIT_SAMPLES", 500)
+    out, rep = tmp_path / "out.json", tmp_path / "rep"
+    assert main(["loop-diagnose", str(STICKY), "--json", str(out), "--report", str(rep), "--quantify"]) == 0
+    res = json.loads(out.read_text())
+    n = read_loop(STICKY).n
+    assert res["loop"]["n_samples"] == n > 500
+    assert res["notes"][-1].startswith(f"the grey-box fits (the band, the linear model) read the record's last 500 "
+                                       f"samples ({500 * 10 / 3600:.3g} of {n * 10 / 3600:.3g} h)")
+    assert math.isfinite(res["stiction"]["band_pct"]) and res["stiction"]["std_pct"] > 0
+    part = dg.diagnose_loop(read_loop(STICKY), quantify=True)
+    assert part.loop.n == 500 and part.loop.time_s[0] == 0.0
+    assert part.result["detection"] == res["detection"]  # the whole record's
+    assert [ln.split(" (")[0] for ln in capsys.readouterr().err.splitlines()] == [
+        "loop: 1/4 detection", "loop: 2/4 linear model", "loop: 3/4 band", "loop: 4/4 band on the halves"]
 
 
 def test_short_record_is_insufficient_data(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

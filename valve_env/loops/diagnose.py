@@ -23,6 +23,7 @@ model (docs/loops.md).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -56,6 +57,9 @@ BAND_REL_SD = 0.10
 SAMPLING_SD_SHARE = 1.0
 #: the model whose fit gives the band: the two-parameter stick-slip valve (J profiled; J = 0 is a deadband)
 MODEL = "stiction"
+#: the most samples the grey-box fits read (a day at 10 s): a longer record's fits read its last this many samples,
+#: with a note, and its detection the whole record (the fits' time grows with the samples: 54 s of CPU for 10,800)
+MAX_FIT_SAMPLES = 8640
 #: the linear loop's simulation from OP must explain more than this share of the PV's variance for an oscillation to
 #: count as the loop's own (docs/loops.md, "Oscillation causes")
 LINEAR_R2_MIN = 0.5
@@ -63,6 +67,9 @@ LINEAR_R2_MIN = 0.5
 
 @dataclass
 class LoopDiagnosis:
+    """A loop's diagnosis: the JSON ``result``, the ``fits`` behind it, their ``settings`` and the ``loop`` they
+    read (the record, or its part the fits read: :func:`fitted_part`)."""
+
     result: dict[str, Any]
     fits: dict[str, ValveFit]
     settings: Settings
@@ -240,11 +247,28 @@ def still_channel(loop: LoopData) -> str | None:
     return None
 
 
+def fitted_part(loop: LoopData, most: int | None = None) -> tuple[LoopData, str | None]:
+    """The part of ``loop`` the grey-box fits read: the whole record, or its last ``most`` (default
+    :data:`MAX_FIT_SAMPLES`) samples, with the note that says so."""
+    most = MAX_FIT_SAMPLES if most is None else most
+    if loop.n <= most:
+        return loop, None
+    k = loop.n - most
+    part = replace(loop, time_s=loop.time_s[k:] - loop.time_s[k], sp=loop.sp[k:], pv=loop.pv[k:], op=loop.op[k:],
+                   mv=None if loop.mv is None else loop.mv[k:], notes=[])
+    return part, (f"the grey-box fits (the band, the linear model) read the record's last {most} samples "
+                  f"({most * loop.dt / 3600.0:.3g} of {loop.n * loop.dt / 3600.0:.3g} h), the detection the whole "
+                  "record: the fits' time grows with the samples")
+
+
 def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settings | None = None,
-             rule: str = DEFAULT_RULE) -> LoopDiagnosis:
+                  rule: str = DEFAULT_RULE, progress: Callable[[str], None] | None = None) -> LoopDiagnosis:
     """Diagnose one loop record (module doc); returns the docs/reference.md section 10 result and the fits behind it.
     ``quantify`` True fits the band whatever the detection says; None (the default) fits it when stiction is
-    detected; False never. ``rule``: the detection's decision rule (:data:`valve_env.loops.detect.RULES`)."""
+    detected; False never. ``rule``: the detection's decision rule (:data:`valve_env.loops.detect.RULES`).
+    ``progress``: called with the name of each finished step (the detection, the linear model, the band, the band
+    on the record's halves), e.g. to advance a progress bar. The fits read :func:`fitted_part` of the record."""
+    tick = progress if progress is not None else (lambda _msg: None)
     if loop.n < MIN_SAMPLES:
         return _insufficient(loop, f"too short a record ({loop.n} samples; at least {MIN_SAMPLES} needed)")
     still = still_channel(loop)
@@ -255,23 +279,28 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
         return _insufficient(loop, f"the record ({loop.n * loop.dt:g} s) holds fewer than {MIN_PERIODS:g} periods of "
                                    f"its oscillation (period {osc['period_s']:.0f} s)")
     det = detect(loop, rule)
+    tick("detection")
     stiction = det["stiction"]
     need_fit = stiction if quantify is None else quantify
     fits: dict[str, ValveFit] = {}
     s = settings or Settings(dt=loop.dt)
+    q, window = fitted_part(loop)
     if need_fit or osc["oscillating"]:
-        s = settings or select_noise_order(loop)
-        s = replace(s, dt=loop.dt)
-        fits["linear"] = fit_valve(loop.op, loop.pv, "linear", s)
+        s = settings or select_noise_order(q)
+        s = replace(s, dt=q.dt)
+        fits["linear"] = fit_valve(q.op, q.pv, "linear", s)
+        tick("linear model")
     result: dict[str, Any] = {"cause": "stiction" if stiction else "none"}
     if need_fit:
-        valves = fit_bands(loop, s)
+        valves = fit_bands(q, s)
         fit = fits[MODEL] = likeliest(valves)
-        offset = sampling_offset(loop.op)
-        halves = band_halves(loop, s, jittered=fit.jitter > 0.0)
+        tick("band")
+        offset = sampling_offset(q.op)
+        halves = band_halves(q, s, jittered=fit.jitter > 0.0)
+        tick("band on the halves")
         band, sd, lo, hi = band_uncertainty(fit, offset, halves, tuple(v.S for v in valves))
         st = {"band_pct": band, "std_pct": sd, "ci95_pct": [lo, hi], "jump_pct": fit.J, "band_fitted_pct": fit.S,
-              "sampling_offset_pct": offset, "band_resolved": band_resolved(fit, loop.op),
+              "sampling_offset_pct": offset, "band_resolved": band_resolved(fit, q.op),
               "kind": "deadband (J = 0)" if fit.J <= 0.0 else "stick-slip", "model": MODEL,
               "initial_direction": "up" if fit.direction > 0 else "down", "valve_substeps": fit.substeps,
               "op_jitter_pct": fit.jitter, "halves_band_pct": list(halves),
@@ -282,9 +311,9 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
     linear_r2 = None
     if osc["oscillating"] and not stiction:
         lin = fits["linear"]
-        sim = simulate(lin.path(loop.op), lin.process)
+        sim = simulate(lin.path(q.op), lin.process)
         k0 = s.k0
-        linear_r2 = 1.0 - float(np.var(loop.pv[k0:] - sim[k0:]) / max(float(np.var(loop.pv[k0:])), 1e-300))
+        linear_r2 = 1.0 - float(np.var(q.pv[k0:] - sim[k0:]) / max(float(np.var(q.pv[k0:])), 1e-300))
         if linear_r2 <= LINEAR_R2_MIN:
             result["cause"] = "external_oscillation"
         else:
@@ -298,10 +327,10 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
                       "op_scaled_from": list(loop.op_scaled_from) if loop.op_scaled_from else None}
     if "linear" in fits:
         result["loop"]["process"] = fits["linear"].process.describe(s.dt)
-    result["notes"] = list(loop.notes)
-    return LoopDiagnosis(result, fits, s, loop)
+    result["notes"] = list(loop.notes) + ([window] if window and fits else [])
+    return LoopDiagnosis(result, fits, s, q)
 
 
 __all__ = ["CAUSES", "LoopDiagnosis", "diagnose_loop", "band_uncertainty", "sampling_offset", "band_resolved",
            "crosses_back", "band_halves", "MODEL", "MIN_PERIODS", "fit_band", "fit_bands", "likeliest", "finding",
-           "model_label", "sd_text", "select_noise_order", "still_channel"]
+           "model_label", "sd_text", "select_noise_order", "still_channel", "fitted_part", "MAX_FIT_SAMPLES"]
