@@ -280,3 +280,17 @@ def test_units_after_the_names_in_a_loop_header_are_read(tmp_path: Path) -> None
     p.write_text("\n".join(["time_s [min],sp,pv,op", *lines[1:]]) + "\n")
     with pytest.raises(LoopDataError, match=r"the header gives time_s in 'min': give it in seconds$"):
         read_loop(p)
+
+
+@pytest.mark.parametrize("kind", ["gzip", "utf16", "bom"])
+def test_a_historian_export_saved_otherwise_is_read(tmp_path: Path, kind: str) -> None:
+    """The historian's export compressed, saved as UTF-16 or with a UTF-8 byte-order mark: the same record."""
+    plain = read_loop(STICKY)
+    text = STICKY.read_text()
+    p = tmp_path / "export.txt"
+    if kind == "gzip":
+        p.write_bytes(gzip.compress(STICKY.read_bytes()))
+    else:
+        p.write_text(text, encoding="utf-16" if kind == "utf16" else "utf-8-sig")
+    loop = read_loop(p)
+    assert loop.tag == plain.tag and np.array_equal(loop.op, plain.op) and np.array_equal(loop.pv, plain.pv)

@@ -121,16 +121,25 @@ def _float(text: str, where: str) -> float:
         raise LoopDataError(f"{where}: {text!r} is not a number{decimal_mark_hint(text)}") from None
 
 
-def read_loop_csv(path: str | Path) -> tuple[dict[str, np.ndarray], str, list[str]]:
-    """Columns of a loop CSV (docs/reference.md, section 10) as float arrays, the tag (the file stem) and the notes
-    of what was read as other than data (a units row under the header: :func:`_units_row`)."""
-    p = Path(path)
+def _text_lines(p: Path) -> list[str]:
+    """The lines of a loop record's file (:func:`valve_env.data_io.read_text`: UTF-8, UTF-16 or Windows-1252,
+    gzip-compressed or not); a file that is not text is refused in one line."""
     try:
-        lines = read_text(p).splitlines()  # UTF-8, or UTF-16 with its byte-order mark, gzip-compressed or not
+        return read_text(p).splitlines()
     except UnicodeDecodeError:
         raise LoopDataError(f"{p}: not a text file") from None
     except ValueError as exc:  # a workbook, or a broken gzip file
         raise LoopDataError(f"{p}: {exc}") from None
+    except OSError as exc:
+        raise LoopDataError(f"{p}: cannot read ({exc.strerror or exc})") from None
+
+
+def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dict[str, np.ndarray], str, list[str]]:
+    """Columns of a loop CSV (docs/reference.md, section 10) as float arrays, the tag (the file stem) and the notes
+    of what was read as other than data (a units row under the header: :func:`_units_row`). ``lines``: the file's,
+    where they have been read."""
+    p = Path(path)
+    lines = _text_lines(p) if lines is None else lines
     # commas, or semicolons, tabs (with a decimal comma) or spaces, after '#' comments; a footer left out
     dialect = csv_dialect(lines[:64])
     text = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
@@ -196,13 +205,11 @@ def _units_row(row: list[str], idx: Mapping[str, int], p: Path, lineno: int) -> 
     return filled
 
 
-def read_historian(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
-    """Columns of a plant-historian export (the format of the real loops; see the module doc)."""
+def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[dict[str, np.ndarray], str]:
+    """Columns of a plant-historian export (the format of the real loops; see the module doc). ``lines``: the
+    file's, where they have been read."""
     p = Path(path)
-    try:
-        lines = p.read_text(encoding="utf-8", errors="replace").splitlines()
-    except OSError as exc:
-        raise LoopDataError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    lines = _text_lines(p) if lines is None else lines
     if len(lines) < 6 or not lines[0].startswith("PROCESSDATA"):
         raise LoopDataError(f"{p}: not a historian export (first line should start with PROCESSDATA)")
     names = lines[2].split("\t")
@@ -236,14 +243,6 @@ def read_historian(path: str | Path) -> tuple[dict[str, np.ndarray], str]:
     return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, tag
 
 
-def _is_historian(path: Path) -> bool:
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(11) == b"PROCESSDATA"
-    except OSError:
-        return False
-
-
 def read_loop(path: str | Path) -> LoopData:
     """Read either format (detected from the first line), check it, drop manual-mode samples and
     return a :class:`LoopData` on a uniform grid."""
@@ -253,10 +252,11 @@ def read_loop(path: str | Path) -> LoopData:
     if p.is_dir():
         raise LoopDataError(f"{p}: is a directory")
     notes: list[str] = []
-    if _is_historian(p):
-        cols, tag = read_historian(p)
+    lines = _text_lines(p)
+    if lines and lines[0].startswith("PROCESSDATA"):
+        cols, tag = read_historian(p, lines)
     else:
-        cols, tag, notes = read_loop_csv(p)
+        cols, tag, notes = read_loop_csv(p, lines)
     data = check_loop(cols, tag=tag, source=str(p))
     data.notes[:0] = notes
     return data
