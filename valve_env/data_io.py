@@ -121,6 +121,20 @@ def unit_key(cell: str) -> str:
 _NAME_UNIT = re.compile(r"^(?P<name>[^\s\[\](/]+)\s*(?:\[(?P<a>[^\]]*)\]|\((?P<b>[^)]*)\)|/\s*(?P<c>.+))$")
 
 
+#: a record shorter than this (s) is no valve test (its runs last hours): its time may be in minutes or hours
+SHORT_SPAN_S = 600.0
+
+
+def time_unit_hint(t: np.ndarray) -> str:
+    """Where the times ``t`` (s) span less than :data:`SHORT_SPAN_S`, what a message adds: the span, and to give
+    time_s in seconds if it is in minutes or hours (read so, a valve's record of hours spans seconds). Else ''."""
+    span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    if span >= SHORT_SPAN_S:
+        return ""
+    return (f"; the record spans {span:.3g} s over {len(t)} samples: if time_s is in minutes or hours, give it in "
+            "seconds")
+
+
 def header_units(header: list[str], names: tuple[str, ...]) -> dict[str, tuple[str, str]]:
     """The header's columns written as one of the format's ``names`` with a unit after it, as loggers label a column
     (``T_tank_C [°C]``): {the column as written: (the name, the unit)}. Both readers check the unit and read the
@@ -558,4 +572,5 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
-           "unit_key", "header_units", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]
+           "unit_key", "header_units", "time_unit_hint", "SHORT_SPAN_S", "text_cells", "is_number", "decimal_comma",
+           "decimal_mark_hint"]

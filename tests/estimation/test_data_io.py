@@ -322,3 +322,21 @@ def test_a_units_row_under_the_header_is_read_as_a_second_header_line(tmp_path: 
         with pytest.raises(DataError, match=rf"line 2 is a units row, and column {col} is given in '{unit}': the "
                                             rf"format's unit is {want} .*convert the column to {want}$"):
             load_run(path)
+
+
+def test_a_record_of_minutes_or_hours_read_as_seconds_is_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A time column in hours read as seconds makes an hour's run span a second: the pre-processing notes it (`fit`
+    warns on the console) and `diagnose`'s refusal says what to give; a record of an hour gets no such note."""
+    from valve_env.valveid.diagnose import DiagnosisError, check_run
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    hours = run_df.assign(time_s=run_df.time_s / 3600.0)
+    notes = preprocess_run(load_run(_write(hours, tmp_path / "h.csv")))[1]
+    short = [nt for nt in notes if nt["what"] == "short_span"]
+    assert len(short) == 1 and short[0]["why"].endswith("if time_s is in minutes or hours, give it in seconds")
+    assert any(line.startswith("time: the record spans 1 s") for line in describe(notes))
+    assert not [nt for nt in preprocess_run(load_run(_write(run_df, tmp_path / "s.csv")))[1]
+                if nt["what"] == "short_span"]
+    with pytest.raises(DiagnosisError, match=r"needs at least 1.9 h\); the record spans 1 s over \d+ samples: if "
+                                             r"time_s is in minutes or hours, give it in seconds$"):
+        check_run(hours, "h.csv")

@@ -302,6 +302,9 @@ def run_fit(args: argparse.Namespace) -> int:
           f"rms {summary['rms_mm']:.3g} mm, n {summary['n']}")
     for m in summary["identifiability"]:
         print(f"warning: {m}")
+    for nt in summary["preprocessing"]:
+        if nt["what"] == "short_span":
+            print(f"warning: {nt['why']}")
     qnote = quantisation_note(summary)
     if qnote:
         print(f"note: {qnote}")

@@ -59,7 +59,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from valve_env.data_io import REQUIRED, DataError, load_run, validate_run
+from valve_env.data_io import REQUIRED, DataError, load_run, time_unit_hint, validate_run
 from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.effects import check_effects
 from valve_env.ident.bootstrap import NORMAL_P, replicates
@@ -114,7 +114,7 @@ def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
                              f"{MIN_SAMPLES})")
     if t[-1] - t[0] < MIN_DURATION_S:
         raise DiagnosisError(f"{name}: too short a record: {(t[-1] - t[0]) / 3600:.2g} h (the diagnosis needs at "
-                             f"least {MIN_DURATION_S / 3600:g} h)")
+                             f"least {MIN_DURATION_S / 3600:g} h){time_unit_hint(t)}")
     T = out["T_tank_C"].to_numpy()
     if np.ptp(T) < MIN_T_RANGE_K:
         raise DiagnosisError(f"{name}: T_tank_C is constant (range {np.ptp(T):.3g} K < {MIN_T_RANGE_K:g} K): "

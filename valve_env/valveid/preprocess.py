@@ -31,7 +31,8 @@ each convention is handled once, here, and reported:
   interval and the longest gap (nothing is filled in).
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
-``rows_repeated``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``), the
+``rows_repeated``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``,
+``short_span``), the
 ``channel`` where it applies, and ``why``. The ``fit`` and
 ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
 through here twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
@@ -45,7 +46,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from valve_env.data_io import DataError
+from valve_env.data_io import DataError, time_unit_hint
 from valve_env.valveid.stiction import opening_noise
 from valve_env.valveid.temperature import channel_noise, noise_sd
 
@@ -177,6 +178,10 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         if xn.method != "mad" or xn.level_sd is not None:  # a noisy opening's one sd is the fit's own s_w
             notes.append({"what": "noise_level", **xn.describe()})
     t = out["time_s"].to_numpy(dtype=float)
+    short = time_unit_hint(t)
+    if short:
+        notes.append({"what": "short_span", "channel": None, "seconds": float(t[-1] - t[0]),
+                      "why": f"a valve's test runs for hours{short}"})
     if n > 2:
         dt = np.diff(t)
         med = float(np.median(dt))
@@ -229,6 +234,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
         elif what == "irregular_sampling":
             lines.append(f"sampling: median interval {nt['median_interval_s']:.3g} s, spread {nt['interval_cv']:.1%}, "
                          f"{nt['rows_missing']} row(s) missing against it; nothing interpolated")
+        elif what == "short_span":
+            lines.append(f"time: the record spans {nt['seconds']:.3g} s; if time_s is in minutes or hours, give it in "
+                         "seconds")
         elif what == "gap":
             lines.append(f"gap: {nt['seconds']:.0f} s after row {nt['after_row']} ({nt['count']} gap(s) in all); "
                          "nothing filled in")
