@@ -410,7 +410,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     dt = np.diff(t)
     med = float(np.median(dt))
     if not DT_RANGE_S[0] <= med <= DT_RANGE_S[1]:
-        ms = "; if time_s is in milliseconds, divide it by 1000" if med > DT_RANGE_S[1] >= med / 1000.0 else ""
+        ms = "; if time_s is in milliseconds, divide it by 1000" if med > DT_RANGE_S[1] >= med / 1000.0 else \
+            "; if time_s is in days (a spreadsheet's date number), multiply it by 86400" \
+            if med < DT_RANGE_S[0] <= med * 86400.0 else ""
         raise DataError(f"{source}: column time_s: median sampling interval {med:.3g} s is implausible "
                         f"(expected {DT_RANGE_S[0]:g} to {DT_RANGE_S[1]:g} s){ms}")
     gap = np.flatnonzero(dt > MAX_GAP_S)

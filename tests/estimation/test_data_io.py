@@ -102,6 +102,9 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
                                                      r"value reads as kelvin: subtract 273.15$"),
     (lambda d: d.assign(ps_bar=d.ps_bar * 100.0), r"every value reads as kPa: divide by 100$"),
     (lambda d: d.assign(ps_bar=d.ps_bar * 1e5), r"every value reads as Pa: divide by 100000$"),
+    (lambda d: d.assign(time_s=46082.25 + d.time_s / 86400.0),
+     r"median sampling interval 0.000116 s is implausible .*; if time_s is in days \(a spreadsheet's date number\), "
+     r"multiply it by 86400$"),
     # a logger's spikes out of the physical range: every row is named
     (lambda d: d.assign(x_mm=lambda x: x.x_mm.where(~x.index.isin([3, 9, 20]), -1.004)),
      r"column x_mm, row 4 \(line 5\): -1.004 is out of range \(must be >= -1 and <= 50: [^)]*\); "
