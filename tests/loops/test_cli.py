@@ -59,7 +59,9 @@ def test_a_long_record_is_fitted_on_its_last_part_with_a_note(tmp_path: Path, mo
     the detection reads the whole record, the band and the linear model its last part, and a note says so; the
     command reports its steps on stderr as it goes (a long record is not silent)."""
     import valve_env.loops.diagnose as dg
+    from valve_env.loops.detect import DEFAULT_RULE, detect
     from valve_env.loops.io import read_loop
+    from valve_env.outputs import json_text
 
     monkeypatch.setattr(dg, "MAX_FIT_SAMPLES", 500)
     out, rep = tmp_path / "out.json", tmp_path / "rep"
@@ -70,9 +72,13 @@ def test_a_long_record_is_fitted_on_its_last_part_with_a_note(tmp_path: Path, mo
     assert res["notes"][-1].startswith(f"the grey-box fits (the band, the linear model) read the record's last 500 "
                                        f"samples ({500 * 10 / 3600:.3g} of {n * 10 / 3600:.3g} h)")
     assert math.isfinite(res["stiction"]["band_pct"]) and res["stiction"]["std_pct"] > 0
-    part = dg.diagnose_loop(read_loop(STICKY), quantify=True)
-    assert part.loop.n == 500 and part.loop.time_s[0] == 0.0
-    assert part.result["detection"] == res["detection"]  # the whole record's
+    loop = read_loop(STICKY)
+    part, note = dg.fitted_part(loop)
+    assert part.n == 500 and part.time_s[0] == 0.0 and np.array_equal(part.op, loop.op[-500:]) and note
+    whole, none = dg.fitted_part(loop, loop.n)
+    assert whole is loop and none is None
+    # the detection is the whole record's
+    assert json.loads(json_text(detect(loop, DEFAULT_RULE))) == res["detection"]
     assert [ln.split(" (")[0] for ln in capsys.readouterr().err.splitlines()] == [
         "loop: 1/4 detection", "loop: 2/4 linear model", "loop: 3/4 band", "loop: 4/4 band on the halves"]
 
