@@ -45,7 +45,13 @@ def test_committed_with_inline_figures_on_the_public_api(path: Path) -> None:
     assert _images(nb) >= 1
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+#: the tutorials whose execution is in the slow suite (about 25 s each; their quoted numbers are checked in the default
+#: one by tests/docs/test_tutorial_numbers.py, and the committed outputs by the test above)
+SLOW_TO_RUN = ("03_benchmark_your_controller.ipynb", "05_loop_diagnosis.ipynb")
+
+
+@pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow) if p.name in SLOW_TO_RUN else p
+                                  for p in NOTEBOOKS], ids=lambda p: p.name)
 def test_executes_with_figures(path: Path) -> None:
     res = NotebookRun(path, default_timeout=300).execute()
     assert res.error is None, res.error and res.error.summary
