@@ -333,6 +333,15 @@ def clock_time_hint(columns: dict[str, list[str]]) -> str:
     return ""
 
 
+def clock_in_time_s(cells: list[str], column: str = "time_s") -> str:
+    """Where the first ``cells`` of time_s are date-times (a logger's clock written into it), the refusal's text,
+    naming the ``column`` as the reader writes it; else ''. Both readers refuse with it."""
+    if not cells or not clock_time_hint({"time_s": cells}):
+        return ""
+    return (f"column {column} holds date-times ({str(cells[0]).strip()!r}): give the time as seconds from any origin, "
+            "e.g. (t - t[0]).total_seconds()")
+
+
 def near_name_hint(missing: str, columns: list[str], taken: tuple[str, ...] = ()) -> str:
     """Where a required column is missing and the header has a name close to it (another case, spacing or
     spelling: ``T_Tank_C``, ``t tank c``, ``T_tank``), the refusal's hint naming that column; names are exact (SPEC
@@ -382,9 +391,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raw.attrs["units_row"] = {"line": first, "units": units}
         first += 1
     out = raw.copy()
-    if clock_time_hint({"time_s": raw["time_s"].astype(str).head(5).tolist()}):  # a logger's clock in time_s
-        raise DataError(f"{source}: column 'time_s' holds date-times ({str(raw['time_s'].iloc[0]).strip()!r}): give "
-                        "the time as seconds from any origin, e.g. (t - t[0]).total_seconds()")
+    clock = clock_in_time_s(raw["time_s"].head(5).astype(str).tolist(), "'time_s'")
+    if clock:
+        raise DataError(f"{source}: {clock}")
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
         out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", first=first)
     for col, (lo, hi, lo_open, what) in RANGES.items():
@@ -573,6 +582,7 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",
            "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
-           "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint", "near_name_hint",
+           "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
+           "clock_in_time_s", "near_name_hint",
            "unit_key", "header_units", "time_unit_hint", "SHORT_SPAN_S", "text_cells", "is_number", "decimal_comma",
            "decimal_mark_hint"]

@@ -40,6 +40,7 @@ import numpy as np
 from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
 from valve_env.data_io import (
     UNITS,
+    clock_in_time_s,
     clock_time_hint,
     csv_dialect,
     decimal_comma,
@@ -175,9 +176,9 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
         body = body[1:]
         notes.append(f"line {dialect.header_line + 1} is a units row "
                      f"({', '.join(f'{c} [{u}]' for c, u in units.items())}): read as a second header line")
-    if clock_time_hint({"time_s": [r[idx["time_s"]] for r in body[:5] if len(r) > idx["time_s"]]}):
-        raise LoopDataError(f"{p}: column time_s holds date-times ({body[0][idx['time_s']].strip()!r}): give the time "
-                            "as seconds from any origin, e.g. (t - t[0]).total_seconds()")
+    clock = clock_in_time_s([r[idx["time_s"]] for r in body[:5] if len(r) > idx["time_s"]])
+    if clock:
+        raise LoopDataError(f"{p}: {clock}")
     for lineno, row in enumerate(body, start=dialect.header_line + 1 + bool(units)):
         if not row or all(not x.strip() for x in row):
             continue
