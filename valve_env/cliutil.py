@@ -7,8 +7,10 @@ stderr (:func:`progress_bar`). It imports nothing of the commands: they import i
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
+from collections.abc import Callable, Iterator
 from typing import Any
 
 EXIT_OK = 0
@@ -119,5 +121,22 @@ def progress_bar(total: int, desc: str = "", unit: str = "it") -> Any:
     return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False)
 
 
+@contextlib.contextmanager
+def stage_progress(total: int, desc: str, unit: str = "step") -> Iterator[Callable[[str], None]]:
+    """A :func:`progress_bar` of ``total`` stages as the ``progress`` callback a long computation takes:
+    ``tick(msg)`` names the stage just finished and counts it; the bar closes on leaving the block."""
+    bar = progress_bar(total, desc=desc, unit=unit)
+
+    def tick(msg: str) -> None:
+        bar.set_postfix_str(msg)
+        bar.update(1)
+
+    try:
+        yield tick
+    finally:
+        bar.close()
+
+
 __all__ = ["EXIT_OK", "EXIT_ERROR", "EXIT_BAD_INPUT", "PREFIX", "UsageError", "one_line", "error_message", "fail",
-           "check_range", "int_list", "add_force", "progress_bar"]
+           "check_range", "int_list", "add_force", "progress_bar",
+           "stage_progress"]

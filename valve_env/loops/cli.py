@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from valve_env.cliutil import add_force, progress_bar
+from valve_env.cliutil import add_force, stage_progress
 from valve_env.loops.detect import DEFAULT_RULE, RULES
 
 
@@ -48,15 +48,8 @@ def _cmd(args: argparse.Namespace) -> int:
         for name in (*FIGURES, "report.md"):
             outs.add(report_dir / name, "report file")
     loop = read_loop(args.loop)
-    bar = progress_bar(4, desc="loop", unit="step")
-    try:
-        def tick(msg: str) -> None:
-            bar.set_postfix_str(msg)
-            bar.update(1)
-
+    with stage_progress(4, "loop") as tick:
         diag = diagnose_loop(loop, quantify=True if args.quantify else None, rule=args.rule, progress=tick)
-    finally:
-        bar.close()
     with outs:
         outs.write_text(json_path, json_text(diag.result))
         if report_dir is not None:

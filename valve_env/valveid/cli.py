@@ -111,7 +111,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from valve_env.cliutil import progress_bar
+    from valve_env.cliutil import stage_progress
     from valve_env.effects import REGISTRY as EFFECTS
     from valve_env.effects import check_effects
     from valve_env.outputs import OutputSet, json_text
@@ -137,16 +137,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     run = read_run(args.run)
     vdf = read_run(args.validate) if args.validate is not None else None
     total = 1 + len(cands) * 2 + 1 + (2 if args.bootstrap else 0)
-    bar = progress_bar(total, desc="diagnose", unit="step")
-    try:
-        def tick(msg: str) -> None:
-            bar.set_postfix_str(msg)
-            bar.update(1)
-
+    with stage_progress(total, "diagnose") as tick:
         result = diagnose(run, validate=vdf, name=str(args.run), holdout=args.holdout, alpha=args.alpha,
                           effects=cands, bootstrap_B=args.bootstrap, progress=tick)
-    finally:
-        bar.close()
     if valve_out is not None:
         from valve_env.valveid.diagnose import unidentified
 
