@@ -38,6 +38,7 @@ import difflib
 import io
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -237,13 +238,19 @@ def read_text(p: Path) -> str:
         return raw.decode("cp1252")
 
 
+def is_comment(cells: list[str]) -> bool:
+    """Whether a line's fields are a comment: a first field starting with ``#`` that is not a spreadsheet's error
+    value (``#N/A``: :data:`MISSING_MARKERS`)."""
+    return bool(cells) and cells[0].startswith("#") and cells[0].lower() not in MISSING_MARKERS
+
+
 def footer_lines(lines: list[str], dialect: CsvDialect) -> int:
     """How many lines at the end of a text hold no data: empty, only separators (a spreadsheet's empty formatted
-    rows) or a comment (a first field starting with ``#`` that is not a spreadsheet's error value, ``#N/A``)."""
+    rows) or a comment (:func:`is_comment`)."""
     k = 0
     for line in reversed(lines[dialect.skip + 1:]):
         cells = dialect.split(line)
-        if all(not c for c in cells) or (cells[0].startswith("#") and cells[0].lower() not in MISSING_MARKERS):
+        if all(not c for c in cells) or is_comment(cells):
             k += 1
         else:
             break
@@ -290,9 +297,20 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         raise DataError(f"{p}: {exc}") from exc
     dialect = csv_dialect(lines[:64])
     body = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
+    # the data lines as the file numbers them (1-based): an empty line or a comment among the data (a logger's
+    # "# restarted") is left out, so every message names the file's own line
+    row_lines, comments, data = [], [], body[:1]
+    for j, line in enumerate(body[1:], start=dialect.header_line + 1):
+        if not line.strip():
+            continue
+        if is_comment(dialect.split(line)):
+            comments.append(j)
+            continue
+        row_lines.append(j)
+        data.append(line)
     try:
-        raw = pd.read_csv(io.StringIO("\n".join(body)), dtype=str, keep_default_na=False, skipinitialspace=True,
-                          sep=dialect.pandas_sep)
+        raw = pd.read_csv(io.StringIO("\n".join(data)), dtype=str, keep_default_na=False, skipinitialspace=True,
+                          sep=dialect.pandas_sep, skip_blank_lines=False)
     except pd.errors.EmptyDataError as exc:
         raise DataError(f"{p}: the file is empty") from exc
     except pd.errors.ParserError as exc:
@@ -302,6 +320,9 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
     if dialect.decimal != ".":
         raw = raw.apply(lambda col: col.map(decimal_comma))
     raw.attrs["header_line"] = dialect.header_line
+    raw.attrs["row_lines"] = row_lines
+    if comments:
+        raw.attrs["comment_lines"] = comments
     return validate_run(raw, source=str(p), valve=valve)
 
 
@@ -366,6 +387,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     raw = data.copy()
     raw.columns = [str(c).strip() for c in raw.columns]
     first = int(data.attrs.get("header_line", 1)) + 1  # the file's line of the first data row
+    at = data.attrs.get("row_lines")
+    row_lines: list[int] = list(at) if at is not None and len(at) == len(raw) else list(range(first, first + len(raw)))
     named = header_units(list(raw.columns), (*REQUIRED, *OPTIONAL))
     for col, (name, unit) in named.items():
         want, ways = UNITS[name]
@@ -385,20 +408,25 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         if not hint and missing[0] == "time_s":
             hint = clock_time_hint(heads)
         raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)}){hint}")
-    units = _units_row(raw, source, first)
+    units = _units_row(raw, source, row_lines[0] if row_lines else first)
     if units:  # a second header line: the data begin a line later, and the rows are counted from there
         raw = raw.iloc[1:].reset_index(drop=True)
-        raw.attrs["units_row"] = {"line": first, "units": units}
-        first += 1
+        raw.attrs["units_row"] = {"line": row_lines[0], "units": units}
+        row_lines = row_lines[1:]
+
+    def first_line(i: int) -> int:
+        """The file's line of row ``i + 1`` (``i`` from 0)."""
+        return row_lines[i] if 0 <= i < len(row_lines) else i + (row_lines[0] if row_lines else first)
+
     out = raw.copy()
     clock = clock_in_time_s(raw["time_s"].head(5).astype(str).tolist(), "'time_s'")
     if clock:
         raise DataError(f"{source}: {clock}")
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
-        out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", first=first)
+        out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", line=first_line)
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
-            _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source, first)
+            _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source, first_line)
     n = len(out)
     if n < MIN_ROWS:
         raise DataError(f"{source}: too short a record, {n} rows; at least {MIN_ROWS} are needed")
@@ -406,7 +434,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     far = np.flatnonzero(np.abs(t) > MAX_ABS_TIME_S)
     if far.size:
         i = int(far[0])
-        raise DataError(f"{source}: column time_s, row {i + 1} (line {i + first}): {t[i]:.6g} s is not a plausible "
+        raise DataError(f"{source}: column time_s, row {i + 1} (line {first_line(i)}): {t[i]:.6g} s is not a plausible "
                         f"time (|time_s| <= {MAX_ABS_TIME_S:g} s)")
     out = _drop_repeated_rows(out, [c for c in (*REQUIRED, *OPTIONAL) if c in out.columns])
     t = out["time_s"].to_numpy()
@@ -414,7 +442,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     if bad.size:
         i = int(bad[0]) + 1
         r = _file_row(out, i)
-        raise DataError(f"{source}: time_s is not increasing at row {r} (line {r + first - 1}) "
+        raise DataError(f"{source}: time_s is not increasing at row {r} (line {first_line(r - 1)}) "
                         f"({t[i - 1]:.6g} then {t[i]:.6g}); times must be strictly increasing")
     dt = np.diff(t)
     med = float(np.median(dt))
@@ -428,9 +456,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     if gap.size:
         i = int(gap[0]) + 1
         r = _file_row(out, i)
-        raise DataError(f"{source}: column time_s, row {r} (line {r + first - 1}): a gap of {dt[i - 1]:.3g} s after "
-                        f"the previous sample (at most {MAX_GAP_S:g} s)")
-    out = _drop_empty_rows(out, source, first)
+        raise DataError(f"{source}: column time_s, row {r} (line {first_line(r - 1)}): a gap of {dt[i - 1]:.3g} s "
+                        f"after the previous sample (at most {MAX_GAP_S:g} s)")
+    out = _drop_empty_rows(out, source, first_line)
     n = len(out)
     T = out["T_tank_C"].to_numpy()
     if float(np.max(T) - np.min(T)) < MIN_T_RANGE_K:
@@ -491,6 +519,11 @@ def is_number(cell: str) -> bool:
     return True
 
 
+def _default_line(i: int) -> int:
+    """The file's line of row ``i + 1`` (``i`` from 0) of a file with a one-line header and nothing else."""
+    return i + 2
+
+
 def _file_row(out: pd.DataFrame, i: int) -> int:
     """The file's row number (1 = the first data row) of the run's ``i``-th row, where rows were dropped."""
     rows = out.attrs.get("file_rows")
@@ -518,7 +551,7 @@ def _drop_repeated_rows(out: pd.DataFrame, columns: list[str]) -> pd.DataFrame:
     return _drop_rows(out, same, "rows_repeated") if same.any() else out
 
 
-def _drop_empty_rows(out: pd.DataFrame, source: str, first: int = 2) -> pd.DataFrame:
+def _drop_empty_rows(out: pd.DataFrame, source: str, line: Callable[[int], int] = _default_line) -> pd.DataFrame:
     """The run without its rows that hold an empty cell in a measured channel (at most
     :data:`MAX_EMPTY_FRACTION` of them, else one line naming the first), named in ``attrs["rows_dropped_empty"]``."""
     empty = np.zeros(len(out), dtype=bool)
@@ -532,12 +565,12 @@ def _drop_empty_rows(out: pd.DataFrame, source: str, first: int = 2) -> pd.DataF
     if k > MAX_EMPTY_FRACTION * n:
         r = _file_row(out, i)
         raise DataError(f"{source}: {k} of {n} rows ({k / n:.0%}) have an empty cell in a measured column (the first: "
-                        f"{col!r} at row {r}, line {r + first - 1}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
+                        f"{col!r} at row {r}, line {line(r - 1)}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
     return _drop_rows(out, empty, "rows_dropped_empty")
 
 
 def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str,
-                 first: int = 2) -> None:
+                 line: Callable[[int], int] = _default_line) -> None:
     known = np.isfinite(v)  # empty cells: an opening derived from the flow, a measured channel's row dropped
     with np.errstate(invalid="ignore"):
         below = v <= lo if lo_open else v < lo
@@ -550,11 +583,12 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
         x = v[known]
         unit = next((f"; every value reads as {u}: {do}" for u, do, a, b in OTHER_UNITS.get(col, ())
                      if bad.size > 0.5 * x.size and np.all((a * x + b > lo) & (a * x + b <= hi))), "")
-        raise DataError(f"{source}: column {col}, row {i + 1} (line {i + first}): {v[i]:.6g} is out of range "
+        raise DataError(f"{source}: column {col}, row {i + 1} (line {line(i)}): {v[i]:.6g} is out of range "
                         f"(must be {bound}: {what}){more}{unit}")
 
 
-def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: int = 2) -> pd.Series:
+def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Callable[[int], int] = _default_line
+             ) -> pd.Series:
     if not pd.api.types.is_numeric_dtype(col):
         s = col.astype(str).str.strip()
         empty = s.str.lower().isin(MISSING_MARKERS)
@@ -563,7 +597,7 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
         if nonnum.any():
             i = int(np.flatnonzero(nonnum.to_numpy())[0])
             raise DataError(f"{source}: non-numeric value {col.iloc[i]!r} in column {name!r} "
-                            f"at row {i + 1} (line {i + first}){decimal_mark_hint(str(col.iloc[i]))}")
+                            f"at row {i + 1} (line {line(i)}){decimal_mark_hint(str(col.iloc[i]))}")
         bad = empty.to_numpy()
     else:
         num = pd.to_numeric(col, errors="coerce")
@@ -572,10 +606,10 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, first: i
     inf = np.isinf(vals)
     if inf.any():
         i = int(np.flatnonzero(inf)[0])
-        raise DataError(f"{source}: infinite value in column {name!r} at row {i + 1} (line {i + first})")
+        raise DataError(f"{source}: infinite value in column {name!r} at row {i + 1} (line {line(i)})")
     if bad.any() and not allow_empty:
         i = int(np.flatnonzero(bad)[0])
-        raise DataError(f"{source}: NaN (empty or missing value) in column {name!r} at row {i + 1} (line {i + first})")
+        raise DataError(f"{source}: NaN (empty or missing value) in column {name!r} at row {i + 1} (line {line(i)})")
     return pd.Series(vals, index=col.index, name=name)
 
 

@@ -185,6 +185,20 @@ def test_a_loop_csv_of_another_locale_is_read_as_written(tmp_path: Path, sep: st
         read_loop(_write_text(tmp_path / "bad.csv", bad))
 
 
+def test_comment_and_empty_lines_among_a_loops_data_are_skipped_and_noted(tmp_path: Path) -> None:
+    """A logger's comment among the data (``# restarted``) and an empty line: the same loop, a note naming the
+    comment's line, and a bad cell after them named by the file's own line."""
+    plain = read_loop(_write_csv(tmp_path / "plain.csv"))
+    lines = (tmp_path / "plain.csv").read_text().splitlines()
+    edited = [*lines[:40], "", *lines[40:80], "# logger restarted, 10:12", *lines[80:]]
+    loop = read_loop(_write_text(tmp_path / "commented.csv", "\n".join(edited) + "\n"))
+    assert loop.n == plain.n and np.array_equal(loop.op, plain.op) and np.array_equal(loop.pv, plain.pv)
+    assert "1 comment line(s) among the data (lines 82): skipped" in loop.notes
+    edited[149] = ",".join([*edited[149].split(",")[:-1], "4O"])  # op on the file's line 150
+    with pytest.raises(LoopDataError, match=r"line 150, column op: '4O'"):
+        read_loop(_write_text(tmp_path / "bad.csv", "\n".join(edited) + "\n"))
+
+
 def _write_text(path: Path, text: str) -> Path:
     path.write_text(text)
     return path

@@ -298,8 +298,10 @@ def test_stacked_conventions_give_finite_results_or_refuse_in_one_line(tmp_path_
     at a time."""
     df = simulate_experiment(seed=seed, duration_h=3.0 if dt < 5 else hours, dt_s=dt, effects=STACK_EFFECTS[effect])
     # a historian's export writes text (its states) into the cells and a spreadsheet writes every cell as text: the
-    # other conventions' arithmetic comes first, the file's own conventions last
-    for name in sorted(names, key=lambda n: (CONVENTIONS[n].file_only, n == "historian_export")):
+    # other conventions' arithmetic comes first, the file's own conventions last, and a logger's comment lines (not
+    # samples) after all
+    for name in sorted(names, key=lambda n: (CONVENTIONS[n].file_only, n == "historian_export",
+                                             n == "logger_comments")):
         df = apply_convention(df, name, np.random.default_rng(seed), keep_truth=True, to_file=True)
     attrs = dict(df.attrs)
     df = df[[c for c in df.columns if not str(c).startswith("true_")]]

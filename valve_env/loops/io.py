@@ -47,6 +47,7 @@ from valve_env.data_io import (
     decimal_mark_hint,
     footer_lines,
     header_units,
+    is_comment,
     near_name_hint,
     read_text,
     text_cells,
@@ -179,8 +180,12 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     clock = clock_in_time_s([r[idx["time_s"]] for r in body[:5] if len(r) > idx["time_s"]])
     if clock:
         raise LoopDataError(f"{p}: {clock}")
+    comments: list[int] = []
     for lineno, row in enumerate(body, start=dialect.header_line + 1 + bool(units)):
         if not row or all(not x.strip() for x in row):
+            continue
+        if is_comment([x.strip() for x in row]):  # a logger's "# restarted" among the data
+            comments.append(lineno)
             continue
         if len(row) < len(header):
             raise LoopDataError(f"{p} line {lineno}: {len(row)} fields, the header has {len(header)}")
@@ -191,6 +196,9 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
                 continue
             cols[c].append(_float(decimal_comma(cell) if dialect.decimal == "," else cell,
                                   f"{p} line {lineno}, column {c}"))
+    if comments:
+        shown = ", ".join(map(str, comments[:10])) + (", ..." if len(comments) > 10 else "")
+        notes.append(f"{len(comments)} comment line(s) among the data (lines {shown}): skipped")
     return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, Path(p.name.removesuffix(".gz")).stem, notes
 
 

@@ -207,6 +207,23 @@ def spreadsheet_export(df: pd.DataFrame, rng: np.random.Generator, errors: float
     return out
 
 
+def logger_comments(df: pd.DataFrame, rng: np.random.Generator, k: int = 2) -> pd.DataFrame:
+    """A logger's comment lines among the data (``# logger restarted``): ``k`` rows at random places away from the
+    ends (and from a units row), each with the comment in the first column and the other cells empty. Applied last
+    of a run's conventions: its rows are not samples."""
+    n = len(df)
+    at = np.sort(rng.choice(np.arange(2, n - 1), size=k, replace=False))
+    first = df.columns[0]
+    comment = pd.DataFrame([{c: ("# logger restarted" if c == first else "") for c in df.columns}], dtype=object)
+    parts, start = [], 0
+    for j in at:
+        parts += [df.iloc[start:j].astype(object), comment]
+        start = int(j)
+    out = pd.concat([*parts, df.iloc[start:].astype(object)], ignore_index=True)
+    out.attrs = dict(df.attrs)
+    return out
+
+
 def _on_opening(apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
                 ) -> Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]:
     """A convention of the measured opening: a run without x_mm (its opening derived from the flow) has none to
@@ -225,7 +242,8 @@ class Convention:
     its size), so a cause named on the original may fall back to ``none`` on it; never to another
     effect.
 
-    ``file_only``: a convention of the file (its separator, decimal mark, a units row), whose result holds text
+    ``file_only``: a convention of the file (its separator, decimal mark, a units row, comment lines), whose result
+    holds text
     that only the file reader (:func:`valve_env.data_io.load_run`) reads: it is applied where the run is written to
     a file and read back (:mod:`valve_env.studies.foreign`), not where a DataFrame goes to the diagnosis."""
 
@@ -275,6 +293,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
     Convention("spreadsheet_export", "saved from a spreadsheet in a decimal-comma locale: semicolons, 52,61 and "
                "21.600, a units row, 0.3 % of each measured channel's cells #N/A or #DIV/0!", spreadsheet_export,
                file_only=True),
+    Convention("logger_comments", "two comment lines ('# logger restarted') among the data", logger_comments,
+               file_only=True),
 )}
 
 
@@ -282,8 +302,8 @@ def frame_problem(names: tuple[str, ...] | list[str]) -> str:
     """Why conventions ``names`` cannot be applied to a run that goes to the diagnosis as a DataFrame: the first one
     that is a convention of the file (``file_only``), in one line; "" where none is."""
     name = next((n for n in names if n in CONVENTIONS and CONVENTIONS[n].file_only), None)
-    return "" if name is None else (f"{name} is a convention of the file (its separator, decimal mark and units "
-                                    "row): the foreign-data corpus runs it (studies/foreign_data.py)")
+    return "" if name is None else (f"{name} is a convention of the file (its separator, decimal mark, units row "
+                                    "or comment lines): the foreign-data corpus runs it (studies/foreign_data.py)")
 
 
 def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | None = None,
@@ -304,5 +324,5 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
 
 
 __all__ = ["CONVENTIONS", "Convention", "apply_convention", "frame_problem", "drop_rows", "extra_columns", "gap",
-           "held_constant", "historian_export", "noiseless", "quantise", "resample", "spikes", "spreadsheet_export",
+           "held_constant", "historian_export", "logger_comments", "noiseless", "quantise", "resample", "spikes", "spreadsheet_export",
            "stepped", "store_on_change", "truncate"]

@@ -80,7 +80,7 @@ _DEFAULT_PLAN: dict[str, tuple[str, ...]] = {
                            "extra_columns"),
     "stiction": ("stepped_medium", "gap_1h", "dt_60", "jitter_20", "spikes_opening", "opening_quantised_0.01",
                  "opening_from_flow"),
-    "setpoint_drift": ("spreadsheet_export", "historian_export", "medium_thermostat", "dt_60_gen"),
+    "setpoint_drift": ("spreadsheet_export", "historian_export", "logger_comments", "dt_60_gen"),
 }
 #: the full corpus's cases whose outcome is wrong today (373 of 375 right): a 1 h gap makes a sensor lag read as a
 #: set-point drift; with the opening derived from the flow, a 0.06 mm band on a valve that moves within 0.6 mm and

@@ -19,6 +19,9 @@ each convention is handled once, here, and reported:
   line naming the first rows.
 * **a units row** under the header, which :func:`~valve_env.data_io.validate_run` reads as a second header line
   where its units are the format's: the note gives the line and the units.
+* **comment lines among the data** (a logger's ``# restarted``), which :func:`~valve_env.data_io.load_run` skips
+  as it skips empty lines: the note gives their lines (rows are counted without them; every message names the
+  file's own line).
 * **rows written twice** (every column the same as the row before, time included), which
   :func:`~valve_env.data_io.validate_run` drops: the note names them.
 * **rows with an empty cell** in a measured channel, which :func:`~valve_env.data_io.validate_run` drops as
@@ -31,8 +34,8 @@ each convention is handled once, here, and reported:
   interval and the longest gap (nothing is filled in).
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
-``rows_repeated``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``,
-``short_span``), the
+``comment_lines``, ``rows_repeated``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``,
+``irregular_sampling``, ``gap``, ``short_span``), the
 ``channel`` where it applies, and ``why``. The ``fit`` and
 ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
 through here twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
@@ -65,8 +68,8 @@ SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
 #: (often to full scale) does not
 X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
-CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "rows_repeated", "rows_dropped", "spikes_replaced",
-                                 "x_mm_derived")
+CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "comment_lines", "rows_repeated", "rows_dropped",
+                                 "spikes_replaced", "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -136,6 +139,11 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         given = ", ".join(f"{c} [{u}]" for c, u in named.items())
         notes.append({"what": "units_in_header", "channel": None, "units": dict(named),
                       "why": f"the header gives the format's own units after the names ({given}): read as the names"})
+    comments = df.attrs.get("comment_lines", [])
+    if comments and ("comment_lines", None) not in done:
+        notes.append({"what": "comment_lines", "channel": None, "lines": list(comments),
+                      "why": f"{len(comments)} comment line(s) (starting with '#') among the data (line numbers as in "
+                             "the file), skipped; rows are counted without them"})
     repeated = df.attrs.get("rows_repeated", [])
     if repeated and ("rows_repeated", None) not in done:
         notes.append({"what": "rows_repeated", "channel": None, "rows": list(repeated),
@@ -225,6 +233,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
             lines.append(f"line {nt['line']}: a units row, the format's units; read as a second header line")
         elif what == "units_in_header":
             lines.append("the header: the format's units after the names; read as the names")
+        elif what == "comment_lines":
+            shown = ", ".join(map(str, nt["lines"][:10])) + (", ..." if len(nt["lines"]) > 10 else "")
+            lines.append(f"{len(nt['lines'])} comment line(s) among the data skipped (lines {shown})")
         elif what == "rows_repeated":
             lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
         elif what == "rows_dropped":
