@@ -483,3 +483,35 @@ def test_a_valve_parameter_without_a_finite_sd_is_noted() -> None:
     base = identification_notes(fit(F_hmax=math.nan), fit())
     assert base == ["the base model alone does not identify F_hmax on this record (sd null in 'base'); the diagnosed "
                     "model does"]
+
+
+def test_a_rounded_sensed_temperature_is_told_apart_from_a_noisy_one() -> None:
+    """tank_rounded: T_tank_C rounded to 0.1 K with its noise below the step is the input error the held-out
+    likelihood alone may judge stiction on; the same run with its noise, or rounded to 0.01 K, is not."""
+    from valve_env.studies.conventions import apply_convention
+    from valve_env.valveid.data import RunData
+    from valve_env.valveid.diagnose import tank_rounded
+
+    df = simulate_experiment(seed=5, duration_h=2.0, dt_s=10.0, T_noise_C=0.003)
+    runs = {c: apply_convention(df, c) if c else df[[k for k in df.columns if not k.startswith("true_")]]
+            for c in ("", "quantised_0.1", "quantised_0.01", "quantised_tank_0.1")}
+    told = {c: tank_rounded(RunData.from_frame(r)) for c, r in runs.items()}
+    assert told == {"": False, "quantised_0.1": True, "quantised_0.01": False, "quantised_tank_0.1": True}
+
+
+@pytest.mark.slow
+def test_a_run_without_an_effect_rounded_to_a_tenth_of_a_kelvin_is_named_none() -> None:
+    """A run without an effect whose temperatures are rounded to 0.1 K (confusion study seed 20271230, run 30; 20 s,
+    18.6 h): the stick-slip fit took up the rounding's misfit (LR 68.5, band 0.028 mm, four training slips) and
+    was named on the held-out simulation error with 3.7 nats held out. With the sensed temperature rounded the held
+    out likelihood alone judges it (diagnose.ROUNDED_TANK_RULE): `none`."""
+    from valve_env.experiment import random_cases, simulate_case
+    from valve_env.studies.conventions import apply_convention
+
+    case = random_cases(31, 20271230)[30]
+    assert case["truth"] == "none"
+    df = apply_convention(simulate_case(case), "quantised_0.1", np.random.default_rng(case["seed"]))
+    d = diagnose(df, bootstrap_B=0)
+    st = next(f for f in d.findings if f.effect == "stiction")
+    assert d.cause == "none", d.summary()
+    assert st.significant and not st.validated and st.validation_loglik_gain < 5.0

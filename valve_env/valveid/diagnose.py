@@ -350,6 +350,13 @@ def identification_notes(base: FitResult, final: FitResult) -> list[str]:
     return []
 
 
+def tank_rounded(data: RunData) -> bool:
+    """Whether the sensed temperature (T_tank_C, which drives the valve) is rounded to a step of at least
+    :data:`ROUNDING_NOTE_STEP_C` with its noise below the step: an input error the likelihood does not hold."""
+    noise = data.T_noise
+    return noise is not None and noise.method == "quantisation" and (noise.quantum or 0.0) >= ROUNDING_NOTE_STEP_C
+
+
 def rounding_notes(data: RunData) -> list[str]:
     """A note for each temperature channel rounded to a step of at least :data:`ROUNDING_NOTE_STEP_C` with its
     noise below the step: its rounding error is an error of the model's input that the likelihood does not hold
@@ -548,10 +555,14 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
         # gains, the open-loop simulation error (where the dead zones show) falls, or the held-out
         # opening itself slips by the fitted band (slips_show_band: the events judged directly)
         assert f.training_slips is not None  # set above for every event effect
-        if f.training_slips.get("resolved") is False:
+        if f.training_slips.get("resolved") is False or (ROUNDED_TANK_RULE and tank_rounded(train)):
             # a record that cannot show the slips cannot judge them held out either: the held-out
             # log-likelihood must gain, and by "very strong" evidence (Kass and Raftery 1995: 2 ln B > 10),
-            # as nothing in the record's events corroborates it
+            # as nothing in the record's events corroborates it. Nor can a record whose sensed temperature is
+            # rounded (tank_rounded): its rounding error moves the demand by about a small band, so a
+            # stick-slip fit takes up that misfit, and the held-out opening's own motion and its simulation
+            # error say nothing of the stem; only the held-out likelihood judges it (docs/diagnosis.md,
+            # "Measured data of any convention")
             f.validated = f.validation_loglik_gain > max(min_gain, UNRESOLVED_MIN_GAIN)
         else:
             f.validated = (f.validation_loglik_gain > min_gain or v_sim < ref_val[2]
@@ -701,8 +712,10 @@ def record_shows_band(parts: tuple[np.ndarray, ...], stroke: float, band: float,
 
 #: docs/diagnosis.md, "Method": the slips' check applies where the fitted model's opening would show slips
 SLIPS_RESOLVED_CHECK = True
-#: the held-out log-likelihood gain (nats) stiction needs where the record cannot show slips
+#: the held-out log-likelihood gain (nats) stiction needs where the record cannot show slips, or where its sensed
+#: temperature is rounded (ROUNDED_TANK_RULE)
 UNRESOLVED_MIN_GAIN = 5.0
+ROUNDED_TANK_RULE = True
 
 
 def _noisy_copy(data: RunData, x: np.ndarray, values: dict[str, float], seed: int
