@@ -13,7 +13,7 @@ cause, or the truth where the original missed it; or ``none`` where the conventi
 (:attr:`Convention.loses_information`);
 or a one-line refusal where refusal is the right answer (:data:`MAY_REFUSE`). Anything else raised
 is a failure. The default test suite runs :func:`corpus_cases` ``("default")`` (30 transformed
-runs), the slow suite ``("full")`` (375); ``studies/foreign_data.py`` prints the table.
+runs), the slow suite ``("full")`` (390); ``studies/foreign_data.py`` prints the table.
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ _DEFAULT_PLAN: dict[str, tuple[str, ...]] = {
                  "opening_from_flow"),
     "setpoint_drift": ("spreadsheet_export", "historian_export", "logger_comments", "dt_60_gen"),
 }
-#: the full corpus's cases whose outcome is wrong today (373 of 375 right): a 1 h gap makes a sensor lag read as a
+#: the full corpus's cases whose outcome is wrong today (388 of 390 right): a 1 h gap makes a sensor lag read as a
 #: set-point drift; with the opening derived from the flow, a 0.06 mm band on a valve that moves within 0.6 mm and
 #: rests on its seat for a third of the record is named `none` (the opening's noise, 0.5 um, lies below its motion's
 #: own second differences at 20 s, and the slips found are 2 um)
