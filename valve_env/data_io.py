@@ -297,13 +297,15 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         raise DataError(f"{p}: {exc}") from exc
     dialect = csv_dialect(lines[:64])
     body = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
-    # the data lines as the file numbers them (1-based): an empty line or a comment among the data (a logger's
-    # "# restarted") is left out, so every message names the file's own line
+    # the data lines as the file numbers them (1-based): an empty line (or one of separators only, a spreadsheet's
+    # emptied row) or a comment among the data (a logger's "# restarted") is left out, so every message names the
+    # file's own line
     row_lines, comments, data = [], [], body[:1]
     for j, line in enumerate(body[1:], start=dialect.header_line + 1):
-        if not line.strip():
+        cells = dialect.split(line)
+        if all(not c for c in cells):
             continue
-        if is_comment(dialect.split(line)):
+        if is_comment(cells):
             comments.append(j)
             continue
         row_lines.append(j)

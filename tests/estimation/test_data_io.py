@@ -242,15 +242,15 @@ def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_
 
 def test_comment_and_empty_lines_among_the_data_are_skipped_and_lines_named_as_in_the_file(
         tmp_path: Path, run_df: pd.DataFrame) -> None:
-    """A logger's comment among the data (``# logger restarted``) and empty lines are skipped: the same run, a
-    ``comment_lines`` note naming the comment's line, and a bad cell after them named by the file's own line (rows
-    are counted without them)."""
+    """A logger's comment among the data (``# logger restarted``), an empty line and a spreadsheet's emptied row
+    (separators only) are skipped: the same run, a ``comment_lines`` note naming the comment's line, and a bad cell
+    after them named by the file's own line (rows are counted without them)."""
     from valve_env.valveid.preprocess import describe, preprocess_run
 
     plain = load_run(_write(run_df, tmp_path / "plain.csv"))
     lines = (tmp_path / "plain.csv").read_text().splitlines()
-    # line 1 the header; an empty and a blank line before data row 50, the comment before data row 100
-    edited = [*lines[:50], "", "   ", *lines[50:99], "# logger restarted, 10:12", *lines[99:]]
+    # line 1 the header; an empty line and an emptied row before data row 50, the comment before data row 100
+    edited = [*lines[:50], "", "," * (len(run_df.columns) - 1), *lines[50:99], "# logger restarted, 10:12", *lines[99:]]
     path = tmp_path / "commented.csv"
     path.write_text("\n".join(edited) + "\n")
     out = load_run(path)

@@ -291,6 +291,10 @@ STACK_EFFECTS: tuple[dict[str, dict[str, float]], ...] = (
 # decimal commas (refused as a non-number; found by a hunt of stacked conventions on 2026-11-30)
 @example(names=["historian_export", "quantised_tank_0.1", "spreadsheet_export"], effect=1, dt=5.0, hours=3.0,
          seed=92724)
+# a logger's comment lines in a spreadsheet's save of a run with its columns shuffled (the comment stands in the
+# first column, whichever it is)
+@example(names=["extra_columns", "logger_comments", "quantised_0.1", "spreadsheet_export"], effect=0, dt=10.0,
+         hours=8.0, seed=4242)
 def test_stacked_conventions_give_finite_results_or_refuse_in_one_line(tmp_path_factory, capsys, names, effect, dt,
                                                                         hours, seed) -> None:
     """Three or four conventions at once on one run (a quantised, jittered logger whose rig holds dp, with extra

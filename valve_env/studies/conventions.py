@@ -209,11 +209,12 @@ def spreadsheet_export(df: pd.DataFrame, rng: np.random.Generator, errors: float
 
 def logger_comments(df: pd.DataFrame, rng: np.random.Generator, k: int = 2) -> pd.DataFrame:
     """A logger's comment lines among the data (``# logger restarted``): ``k`` rows at random places away from the
-    ends (and from a units row), each with the comment in the first column and the other cells empty. Applied last
-    of a run's conventions: its rows are not samples."""
+    ends (and from a units row), each with the comment in the first column the file will hold (the first but the
+    truth's ``true_*`` columns, which are dropped before a run is written) and the other cells empty. Applied last of
+    a run's conventions: its rows are not samples."""
     n = len(df)
     at = np.sort(rng.choice(np.arange(2, n - 1), size=k, replace=False))
-    first = df.columns[0]
+    first = next(c for c in df.columns if not str(c).startswith("true_"))
     comment = pd.DataFrame([{c: ("# logger restarted" if c == first else "") for c in df.columns}], dtype=object)
     parts, start = [], 0
     for j in at:
@@ -324,5 +325,5 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
 
 
 __all__ = ["CONVENTIONS", "Convention", "apply_convention", "frame_problem", "drop_rows", "extra_columns", "gap",
-           "held_constant", "historian_export", "logger_comments", "noiseless", "quantise", "resample", "spikes", "spreadsheet_export",
-           "stepped", "store_on_change", "truncate"]
+           "held_constant", "historian_export", "logger_comments", "noiseless", "quantise", "resample", "spikes",
+           "spreadsheet_export", "stepped", "store_on_change", "truncate"]
