@@ -521,6 +521,11 @@ def is_number(cell: str) -> bool:
     return True
 
 
+def short_list(numbers: list[int], most: int = 10) -> str:
+    """``3, 9, 12, ...``: the first ``most`` row or line numbers of a note, an ellipsis where there are more."""
+    return ", ".join(map(str, numbers[:most])) + (", ..." if len(numbers) > most else "")
+
+
 def _default_line(i: int) -> int:
     """The file's line of row ``i + 1`` (``i`` from 0) of a file with a one-line header and nothing else."""
     return i + 2
@@ -619,6 +624,6 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
-           "clock_in_time_s", "near_name_hint",
+           "clock_in_time_s", "near_name_hint", "short_list",
            "unit_key", "header_units", "time_unit_hint", "SHORT_SPAN_S", "text_cells", "is_number", "decimal_comma",
            "decimal_mark_hint"]

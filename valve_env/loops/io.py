@@ -50,6 +50,7 @@ from valve_env.data_io import (
     is_comment,
     near_name_hint,
     read_text,
+    short_list,
     text_cells,
     unit_key,
 )
@@ -197,8 +198,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
             cols[c].append(_float(decimal_comma(cell) if dialect.decimal == "," else cell,
                                   f"{p} line {lineno}, column {c}"))
     if comments:
-        shown = ", ".join(map(str, comments[:10])) + (", ..." if len(comments) > 10 else "")
-        notes.append(f"{len(comments)} comment line(s) among the data (lines {shown}): skipped")
+        notes.append(f"{len(comments)} comment line(s) among the data (lines {short_list(comments)}): skipped")
     return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, Path(p.name.removesuffix(".gz")).stem, notes
 
 

@@ -54,7 +54,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 import pandas as pd
@@ -71,7 +71,7 @@ from valve_env.valveid.fitting import FitResult, Model, RunData
 from valve_env.valveid.preprocess import preprocess_run
 from valve_env.valveid.robust import robust_finding
 from valve_env.valveid.stiction import MIN_JUMPS, RESOLUTION_BAND_FACTOR, opening_noise, slips
-from valve_env.valveid.temperature import noise_sd, smooth_temperature
+from valve_env.valveid.temperature import ChannelNoise, noise_sd, smooth_temperature
 
 MIN_SAMPLES = 200
 MIN_DURATION_S = 1.9 * 3600.0  # a 2 h record, less a few samples lost at its ends
@@ -350,11 +350,16 @@ def identification_notes(base: FitResult, final: FitResult) -> list[str]:
     return []
 
 
-def tank_rounded(data: RunData) -> bool:
-    """Whether the sensed temperature (T_tank_C, which drives the valve) is rounded to a step of at least
-    :data:`ROUNDING_NOTE_STEP_C` with its noise below the step: an input error the likelihood does not hold."""
-    noise = data.T_noise
+def coarsely_rounded(noise: ChannelNoise | None) -> TypeGuard[ChannelNoise]:
+    """Whether a temperature channel is rounded to a step of at least :data:`ROUNDING_NOTE_STEP_C` with its noise
+    below the step: an input error the likelihood does not hold."""
     return noise is not None and noise.method == "quantisation" and (noise.quantum or 0.0) >= ROUNDING_NOTE_STEP_C
+
+
+def tank_rounded(data: RunData) -> bool:
+    """Whether the sensed temperature (T_tank_C, which drives the valve) is coarsely rounded
+    (:func:`coarsely_rounded`)."""
+    return coarsely_rounded(data.T_noise)
 
 
 def rounding_notes(data: RunData) -> list[str]:
@@ -363,7 +368,7 @@ def rounding_notes(data: RunData) -> list[str]:
     (docs/diagnosis.md, "Known limits")."""
     out = []
     for ch, noise in (("T_tank_C", data.T_noise), ("T_med_C", data.M_noise)):
-        if noise is not None and noise.method == "quantisation" and (noise.quantum or 0.0) >= ROUNDING_NOTE_STEP_C:
+        if coarsely_rounded(noise):
             out.append(f"{ch} is rounded to {noise.quantum:g} K with its noise below the step: the rounding is an "
                        "error of the input that the likelihood does not hold, so a small stiction band or a slow "
                        "set-point drift is less certain than on a noisy channel (docs/diagnosis.md, \"Known limits\")")

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from valve_env.data_io import DataError, time_unit_hint
+from valve_env.data_io import DataError, short_list, time_unit_hint
 from valve_env.valveid.stiction import opening_noise
 from valve_env.valveid.temperature import channel_noise, noise_sd
 
@@ -212,7 +212,7 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
 
 def _row_list(rows: list[int]) -> str:
     """``rows 3, 9, ...``: the first ten row numbers of a note."""
-    return f"rows {', '.join(map(str, rows[:10]))}{', ...' if len(rows) > 10 else ''}"
+    return f"rows {short_list(rows)}"
 
 
 def describe(notes: list[dict[str, Any]]) -> list[str]:
@@ -234,8 +234,7 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
         elif what == "units_in_header":
             lines.append("the header: the format's units after the names; read as the names")
         elif what == "comment_lines":
-            shown = ", ".join(map(str, nt["lines"][:10])) + (", ..." if len(nt["lines"]) > 10 else "")
-            lines.append(f"{len(nt['lines'])} comment line(s) among the data skipped (lines {shown})")
+            lines.append(f"{len(nt['lines'])} comment line(s) among the data skipped (lines {short_list(nt['lines'])})")
         elif what == "rows_repeated":
             lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
         elif what == "rows_dropped":
