@@ -10,6 +10,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 SCRIPT = r"""
 import json, math
 from valve_env.valveid.sde_effects import effect_model
@@ -23,6 +25,9 @@ print(json.dumps({"states": m.states, "params": m.param_names, "good": good, "ba
 """
 
 
+# 24 s, most of it compiling the four-effect filter in a fresh interpreter; the default suite keeps the hooks'
+# and parameters' check (tests/test_effects.py) and the extension example's fit (test_valve_model.py)
+@pytest.mark.slow
 def test_effect_models_extend_the_base_model() -> None:
     r = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]

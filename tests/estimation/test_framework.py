@@ -8,6 +8,7 @@ their one owner and define no second copy."""
 from __future__ import annotations
 
 import ast
+import functools
 import math
 from importlib import import_module
 from pathlib import Path
@@ -49,6 +50,7 @@ OWNERS: dict[str, tuple[str, ...]] = {
 WRAPPERS = {"to_work", "from_work", "work_bounds", "noise_sd", "bootstrap"}
 
 
+@functools.cache  # parsed once: the checks walk every module once per owner (read only)
 def _tree(rel: str) -> ast.Module:
     return ast.parse((PKG / rel).read_text(encoding="utf-8"))
 
@@ -57,6 +59,7 @@ def _modules() -> list[str]:
     return sorted(str(p.relative_to(PKG)) for p in PKG.rglob("*.py"))
 
 
+@functools.cache  # per parsed module (the trees are cached)
 def _definitions(tree: ast.Module) -> list[ast.FunctionDef | ast.ClassDef | ast.AsyncFunctionDef]:
     return [n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))]
 

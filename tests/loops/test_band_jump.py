@@ -31,6 +31,9 @@ def small_jump() -> tuple[LoopData, diag.LoopDiagnosis]:
     return loop, diag.diagnose_loop(loop, quantify=True)
 
 
+# 23 s (the band's fine J / S grid on a whole loop); the default suite keeps the grid's check above and
+# the band of a sticky simulated loop (test_model.py)
+@pytest.mark.slow
 def test_small_jump_band_within_20_percent(small_jump: tuple[LoopData, diag.LoopDiagnosis]) -> None:
     S = SMALL_JUMP["S"]
     st = small_jump[1].result["stiction"]

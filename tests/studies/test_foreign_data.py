@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from valve_env.cli import main
 from valve_env.experiment import simulate_experiment
 from valve_env.studies.conventions import CONVENTIONS, apply_convention, drop_rows, quantise, stepped
-from valve_env.studies.foreign import CLASSES, acceptable, corpus_cases, run_case
+from valve_env.studies.foreign import CLASSES, DEFAULT_SEEDS, acceptable, corpus_cases, run_case
 from valve_env.valveid.temperature import RESOLUTION_FLOOR_C, channel_noise, quantum, smooth_temperature
 
 
@@ -169,17 +169,16 @@ def test_a_historians_export_saved_by_a_spreadsheet_is_read(tmp_path) -> None:  
 # --------------------------------------------------------------------------- the corpus
 @pytest.mark.parametrize("cls", CLASSES)
 def test_the_foreign_data_corpus(cls) -> None:
-    """Each class's run as generated and under four to seven conventions (30 transformed runs in all, every
-    convention on one to three classes): no traceback, the right outcome on each, and a spike's replacement
-    reported in the diagnosis's notes (the run is read and checked, then diagnosed: two passes)."""
+    """Each class's run under four to seven conventions (30 transformed runs in all, every convention on one to
+    three classes): no traceback, the right outcome on each, and a spike's replacement reported in the
+    diagnosis's notes (the run is read and checked, then diagnosed: two passes). The cause is checked against the
+    class, which the run as generated is named (asserted for this seed in the slow suite's full corpus)."""
     cases = [c for c in corpus_cases("default") if c["class"] == cls]
     assert len(cases) >= 4
-    original = run_case({"class": cls, "seed": cases[0]["seed"], "convention": ""})
-    assert original["outcome"] == "cause" and original["cause"] == cls
     wrong = []
     for case in cases:
         r = run_case(case)
-        ok, why = acceptable(r, original["cause"])
+        ok, why = acceptable(r, cls)
         if r["outcome"] == "cause":
             assert r["finite"], f"{case}: non-finite estimates"
             if case["convention"].startswith("spikes"):
@@ -212,6 +211,8 @@ def test_the_full_foreign_data_corpus(cls, seed) -> None:
     cases = [c for c in corpus_cases("full") if c["class"] == cls and c["seed"] == seed]
     original = run_case({"class": cls, "seed": seed, "convention": ""})
     assert original["outcome"] == "cause"
+    if seed in DEFAULT_SEEDS:  # the default suite's corpus checks its cases against the class
+        assert original["cause"] == cls
     wrong = set()
     for case in cases:
         ok, why = acceptable(run_case(case), original["cause"])
