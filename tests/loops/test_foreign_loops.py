@@ -26,7 +26,7 @@ from valve_env.loops.sim import random_case, simulate_case
 
 #: the conventions of a loop record's file (:func:`loop_file`)
 LOOP_CONVENTIONS = ("quantised", "stored_on_change", "dropped_10", "jitter_20", "op_fraction", "op_eng", "sheet",
-                    "mode_names", "extra_columns", "historian", "every_other", "first_40_min")
+                    "mode_names", "extra_columns", "historian", "every_other", "first_40_min", "logger_comments")
 
 
 def _store_on_change(y: np.ndarray, deadband: float) -> np.ndarray:
@@ -93,6 +93,11 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
         units = {"time_s": "s", "sp": "m3/h", "pv": "m3/h", "op": "%"}
         lines.append(sep.join(units.get(str(c), "") for c in df.columns))
     lines += [sep.join(cell(v) for v in row) for row in df.itertuples(index=False)]
+    if "logger_comments" in names:  # a logger's restarts among the data, one with an empty line after it
+        n = len(lines)
+        lines.insert(2 * n // 3, "")
+        lines.insert(2 * n // 3, "# logger restarted")
+        lines.insert(n // 3, "# logger restarted")
     return "\n".join(lines) + "\n"
 
 
@@ -139,7 +144,7 @@ def test_the_loop_file_conventions_are_read(tmp_path: Path) -> None:
     df = pd.DataFrame({"time_s": loop.time_s, "sp": loop.sp, "pv": loop.pv, "op": loop.op})
     noted = {"dropped_10": "resampled", "jitter_20": "resampled", "op_eng": "engineering units",
              "op_fraction": "within 0 to 1", "sheet": "units row", "mode_names": "manual mode",
-             "historian": "missing value"}
+             "historian": "missing value", "logger_comments": "comment line(s) among the data"}
     for name in LOOP_CONVENTIONS:
         p = tmp_path / f"{name}.csv"
         p.write_text(loop_file(df, [name], np.random.default_rng(11)))
