@@ -4,7 +4,8 @@ calls it: a result with finite numbers (the cause one of the format's), or a ref
 The reader's tests (tests/loops/test_io.py) take each convention alone; here they are stacked on simulated loops of
 wide variety (:func:`valve_env.loops.sim.random_case`): a historian's states and repeated rows, a spreadsheet's
 semicolons, decimal commas, units row and error values, a mode by name, rounding, storage on change, jitter, dropped
-samples, OP as a fraction or in engineering units, extra columns in any order, another interval and a short record.
+samples, OP as a fraction or in engineering units, extra columns in any order, another interval, a short record and
+a logger's comment lines among the data.
 """
 
 from __future__ import annotations
