@@ -242,34 +242,36 @@ def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_
 
 def test_comment_and_empty_lines_among_the_data_are_skipped_and_lines_named_as_in_the_file(
         tmp_path: Path, run_df: pd.DataFrame) -> None:
-    """A logger's comment among the data (``# logger restarted``), an empty line and a spreadsheet's emptied row
-    (separators only) are skipped: the same run, a ``comment_lines`` note naming the comment's line, and a bad cell
-    after them named by the file's own line (rows are counted without them)."""
+    """A logger's comment among the data (``# logger restarted``), an empty line, a line of spaces and a
+    spreadsheet's emptied row (separators only) are skipped: the same run, a ``comment_lines`` note naming the
+    comment's line, and a bad cell after them named by the file's own line (rows are counted without them)."""
     from valve_env.valveid.preprocess import describe, preprocess_run
 
     plain = load_run(_write(run_df, tmp_path / "plain.csv"))
     lines = (tmp_path / "plain.csv").read_text().splitlines()
-    # line 1 the header; an empty line and an emptied row before data row 50, the comment before data row 100
-    edited = [*lines[:50], "", "," * (len(run_df.columns) - 1), *lines[50:99], "# logger restarted, 10:12", *lines[99:]]
+    # line 1 the header; an empty line, a line of spaces and an emptied row before data row 50, the comment before
+    # data row 100
+    edited = [*lines[:50], "", "   ", "," * (len(run_df.columns) - 1), *lines[50:99], "# logger restarted, 10:12",
+              *lines[99:]]
     path = tmp_path / "commented.csv"
     path.write_text("\n".join(edited) + "\n")
     out = load_run(path)
     pd.testing.assert_frame_equal(out, plain, check_like=True)
-    assert out.attrs["comment_lines"] == [102]
+    assert out.attrs["comment_lines"] == [103]
     notes = preprocess_run(out)[1]
-    assert [n["lines"] for n in notes if n["what"] == "comment_lines"] == [[102]]
-    assert "1 comment line(s) among the data skipped (lines 102)" in describe(notes)
+    assert [n["lines"] for n in notes if n["what"] == "comment_lines"] == [[103]]
+    assert "1 comment line(s) among the data skipped (lines 103)" in describe(notes)
     assert not any(n["what"] == "comment_lines" for n in preprocess_run(plain)[1])
-    cells = edited[199].split(",")  # data row 196: the file's line 200
+    cells = edited[200].split(",")  # data row 196: the file's line 201
     cells[list(run_df.columns).index("T_tank_C")] = "999"
-    edited[199] = ",".join(cells)
+    edited[200] = ",".join(cells)
     path.write_text("\n".join(edited) + "\n")
-    with pytest.raises(DataError, match=r"column T_tank_C, row 196 \(line 200\): 999 is out of range"):
+    with pytest.raises(DataError, match=r"column T_tank_C, row 196 \(line 201\): 999 is out of range"):
         load_run(path)
     cells[list(run_df.columns).index("T_tank_C")] = "abc"
-    edited[199] = ",".join(cells)
+    edited[200] = ",".join(cells)
     path.write_text("\n".join(edited) + "\n")
-    with pytest.raises(DataError, match=r"'abc' in column 'T_tank_C' at row 196 \(line 200\)"):
+    with pytest.raises(DataError, match=r"'abc' in column 'T_tank_C' at row 196 \(line 201\)"):
         load_run(path)
 
 
