@@ -46,7 +46,7 @@ def test_committed_with_inline_figures_on_the_public_api(path: Path) -> None:
 
 
 #: the tutorials whose execution is in the slow suite (15-35 s each; their quoted numbers are checked in the default
-#: one by tests/docs/test_tutorial_numbers.py, and the committed outputs by the test above); the first tutorial's runs
+#: one by tests/docs/test_tutorial_numbers.py, and the committed outputs by the test above); the first tutorial runs
 #: in the default suite, so that nbmake's path is tried there too
 SLOW_TO_RUN = ("02_pi_on_a_sticky_valve.ipynb", "03_benchmark_your_controller.ipynb", "04_identify_your_valve.ipynb",
                "05_loop_diagnosis.ipynb")
