@@ -59,6 +59,8 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     d = diagnose(df, bootstrap_B=int(case.get("bootstrap_B", 16)))
     out = dict(case)
     out.update({"cause": d.cause, "selected": d.selected, "seconds": time.perf_counter() - t0, "n": len(df)})
+    # the smallest stick band the record's slips would show (docs/diagnosis.md, "What a `none` cannot see")
+    out["stiction_band_shown_mm"] = d.sensitivity.get("stiction_band_mm")
     if d.cause != "none":
         f = d.findings[0]
         out["estimate"] = {k: float(v) for k, v in f.fit.effect_params.items()}
@@ -91,6 +93,18 @@ def run_study(cases: list[dict[str, Any]], workers: int = 1, progress: bool = Tr
     return run_cases(run_case, cases, workers, show if progress else None)
 
 
+#: the stiction runs' classes by their band b against the smallest band s the record's slips would show
+BAND_CLASSES = ("b < s", "s <= b < 1.25 s", "b >= 1.25 s", "s none")
+
+
+def band_class(band: float, shown: float | None) -> str:
+    """The class of :data:`BAND_CLASSES` of a stiction run with true ``band`` and shown band ``shown`` (None: the
+    record's slips would show no band up to 0.1 mm)."""
+    if shown is None:
+        return "s none"
+    return "b < s" if band < shown else ("s <= b < 1.25 s" if band < 1.25 * shown else "b >= 1.25 s")
+
+
 def confusion(results: list[dict[str, Any]]) -> dict[str, Any]:
     labels = list(CLASSES)
     for r in results:
@@ -119,6 +133,14 @@ def confusion(results: list[dict[str, Any]]) -> dict[str, Any]:
                     z.append((v - true) / s)
                     pe["z"].append((v - true) / s)
     z_abs = np.abs(np.array(z)) if z else np.zeros(0)
+    # stiction runs by their band against the smallest band the record's slips would show
+    # (docs/diagnosis.md, "What a `none` cannot see")
+    seen: dict[str, list[int]] = {k: [0, 0] for k in BAND_CLASSES}
+    for r in results:
+        if r["truth"] == "stiction" and "stiction_band_shown_mm" in r:
+            k = band_class(r["effects"]["stiction"]["band_mm"], r["stiction_band_shown_mm"])
+            seen[k][0] += r["cause"] == "stiction"
+            seen[k][1] += 1
     extra = sum(1 for r in results if len(r["selected"]) > (0 if r["truth"] == "none" else 1))
     return {
         "labels": labels, "matrix": mat, "n": n, "correct": correct,
@@ -134,6 +156,7 @@ def confusion(results: list[dict[str, Any]]) -> dict[str, Any]:
                            "within_3sd": float(np.mean(np.abs(v["z"]) <= 3)) if v["z"] else float("nan"),
                            "median_rel_error": float(np.median(v["rel"])), "max_rel_error": float(np.max(v["rel"]))}
                        for e, v in per_effect.items()},
+        "stiction_by_band_shown": {k: {"named": v[0], "n": v[1]} for k, v in seen.items()},
         "seconds_median": float(np.median([r["seconds"] for r in results])) if results else float("nan"),
         "seconds_max": float(np.max([r["seconds"] for r in results])) if results else float("nan"),
     }
@@ -159,6 +182,8 @@ def markdown(c: dict[str, Any], cmd: str, results: list[dict[str, Any]]) -> str:
               f"{e}: {v['within_3sd']:.0%} within 3 sd (of {v['n_with_sd']} with an sd), relative error median "
               f"{v['median_rel_error']:.1%}, max {v['max_rel_error']:.1%} (of {v['n']})"
               for e, v in c["per_effect"].items()),
+          "- stiction named, by the true band b against the smallest band s the record's slips would show: "
+          + "; ".join(f"{k}: {v['named']}/{v['n']}" for k, v in c["stiction_by_band_shown"].items() if v["n"]),
           f"- diagnosis time per run: median {c['seconds_median']:.1f} s, max {c['seconds_max']:.1f} s "
           f"(two runs at a time on the 2-core machine)", "",
           "Randomisation: " + "; ".join(f"{k} {v[0]} {v[1:]}" for k, v in RANGES.items()) + ".", "",

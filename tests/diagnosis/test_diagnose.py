@@ -443,6 +443,41 @@ def test_the_slips_check_knows_when_a_record_cannot_show_slips() -> None:
     assert slips_below_noise(m, d, {**start, "band_mm": 2.4e-3}, ValveParams().stroke)
 
 
+def test_the_smallest_band_a_record_shows_grows_with_its_noise_and_its_interval() -> None:
+    """diagnose.smallest_shown_band (docs/diagnosis.md, "What a `none` cannot see"): a noisier opening, or the same
+    record kept one row a minute, hides more of the small bands; bands of a few noise sd stay hidden at any noise."""
+    from valve_env.params import ValveParams
+    from valve_env.valveid.diagnose import check_run, prepare, smallest_shown_band
+    from valve_env.valveid.fitting import Model
+
+    stroke = ValveParams().stroke
+    df = simulate_experiment(seed=3, duration_h=8.0, dt_s=10.0)
+    m = Model(("stiction",))
+    d = prepare(check_run(df))
+    start = m.default_start(d)
+    shown = {s_w: smallest_shown_band(m, d, {**start, "s_w": s_w}, stroke) for s_w in (1e-3, 2.5e-3, 6e-3)}
+    assert shown[1e-3] < shown[2.5e-3] < shown[6e-3]
+    for s_w, band in shown.items():
+        assert band > 4.0 * s_w  # a slip must step 4 noise sd of a difference to be seen
+    minute = prepare(check_run(df.iloc[::6].reset_index(drop=True)))
+    assert smallest_shown_band(m, minute, {**start, "s_w": 2.5e-3}, stroke) > shown[2.5e-3]
+
+
+def test_a_none_says_which_bands_the_record_could_not_show(results, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """The diagnosis of a run without an effect gives the smallest stick band its slips would show, in the JSON, the
+    summary and the report; the stiction run's true band lies above its own."""
+    from valve_env.valveid.report import write_report
+
+    df, d = results["none"]
+    band = d.to_json()["sensitivity"]["stiction_band_mm"]
+    assert 0.004 <= band < 0.04
+    assert f"{band:.3g} mm or more" in d.summary()
+    md = write_report(d, tmp_path / "report.md", data=df)
+    assert f"{band * 1e3:.1f} um or more" in md.read_text()
+    _, sticky = results["stiction"]
+    assert sticky.sensitivity["stiction_band_mm"] < CASES["stiction"]["stiction"]["band_mm"]
+
+
 def test_a_smooth_effects_size_is_its_demands_not_the_friction_memorys() -> None:
     """diagnose.effect_size (docs/diagnosis.md, "Measured data of any convention"): a medium weight of
     1.5e-4, fitted to a run without any effect whose medium temperature is noiseless and stored on change,

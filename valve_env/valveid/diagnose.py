@@ -240,6 +240,9 @@ class Diagnosis:
     valve: ValveParams = field(default_factory=ValveParams)
     #: what the pre-processing found and did, per run (:func:`valve_env.valveid.preprocess.preprocess_run`)
     preprocessing: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
+    #: what the record could show: ``stiction_band_mm``, the smallest stick band whose slips it would show
+    #: (:func:`smallest_shown_band`; None: none up to 0.1 mm), where stiction was a candidate
+    sensitivity: dict[str, float | None] = field(default_factory=dict)
 
     @property
     def warnings(self) -> list[str]:
@@ -292,7 +295,17 @@ class Diagnosis:
             "seconds": self.seconds,
             "notes": self.notes,
             "preprocessing": self.preprocessing,
+            "sensitivity": self.sensitivity,
         }
+
+    def _unseen(self) -> str:
+        """What a ``none`` leaves open: the stick bands too small for the record's slips to show."""
+        if "stiction_band_mm" not in self.sensitivity:
+            return ""
+        b = self.sensitivity["stiction_band_mm"]
+        if b is None:
+            return "; this record's slips would show no stick band up to 0.1 mm"
+        return f"; this record's slips would show a stick band of {b:.3g} mm or more, not a smaller one"
 
     def summary(self) -> str:
         if self.cause == "none":
@@ -302,7 +315,7 @@ class Diagnosis:
                 why = (f" (best candidate {best.effect}: p={best.p_value:.2g}, dBIC={best.delta_bic:.1f}, "
                        f"validation RMS {best.validation_rms_before_mm * 1e3:.2f} -> "
                        f"{best.validation_rms_after_mm * 1e3:.2f} um)")
-            return f"cause: none: no extension of the base model is justified{why}"
+            return f"cause: none: no extension of the base model is justified{why}{self._unseen()}"
         f = self.findings[0]
         def sd(k: str) -> str:
             v = f.fit.std.get(k, float("nan"))
@@ -761,6 +774,39 @@ def slips_below_noise(model: Model, data: RunData, values: dict[str, float], str
     return not band_shown(*slip_sizes(noisy, stroke, sd), float(values["band_mm"]))
 
 
+#: the stick bands (mm) on which a record's stiction sensitivity is found (:func:`smallest_shown_band`): 30 values
+#: 0.004-0.1 mm, 12 % apart, about the 0.01-0.1 mm of a 2 mm stroke (docs/reference.md, section 3)
+SHOWN_BANDS = np.geomspace(0.004, 0.1, 30)
+
+
+def smallest_shown_band(model: Model, data: RunData, values: dict[str, float], stroke: float,
+                        seeds: tuple[int, ...] = (0, 1, 2)) -> float:
+    """The smallest stick band (mm) whose slips the record would show: the smallest of :data:`SHOWN_BANDS` at which,
+    and at the two next larger, the stick-slip ``model`` with ``values`` (the reference fit's) and that band,
+    simulated at the record's samples with white noise of the fitted ``s_w`` (:func:`_noisy_copy`), shows the band
+    (:func:`band_shown`: two slips or more whose median lies within half a band of it) in most of the noise draws
+    ``seeds``; inf where no band up to 0.1 mm does. It depends on the record's noise, sampling, length and how
+    often its demand turns, not on whether the valve sticks.
+
+    Naming stiction needs the training opening to show its band this way (:func:`_finding`), so a smaller band is
+    named only where the record cannot show slips at all and the held-out likelihood decides alone
+    (docs/diagnosis.md, "What a `none` cannot see")."""
+    need = len(seeds) // 2 + 1
+    shown = []
+    for band in SHOWN_BANDS:
+        v = {**values, "band_mm": float(band)}
+        xs, _, _ = model.simulate(data, v)
+        hits = 0
+        for seed in seeds:
+            noisy, sd = _noisy_copy(data, xs, v, seed)
+            hits += band_shown(*slip_sizes(noisy, stroke, sd), float(band))
+        shown.append(hits >= need)
+    for j in range(len(SHOWN_BANDS) - 2):
+        if all(shown[j:j + 3]):
+            return float(SHOWN_BANDS[j])
+    return math.inf
+
+
 def band_shown(n_slips: int, median_mm: float | None, band: float, min_slips: int = 2, tol: float = 0.5) -> bool:
     """:func:`slips_show_band`'s rule on slips already counted (:func:`slip_sizes`)."""
     if not (math.isfinite(band) and band > 0) or median_mm is None:
@@ -966,6 +1012,11 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
     final_val = ref_val[0]
     diagnostics = residual_diagnostics(base_model, train, base)
     tick("diagnostics")
+    sensitivity: dict[str, float | None] = {}
+    stick = next((f for f in findings if f.effect == "stiction"), None)
+    if stick is not None:  # the smallest band the record's slips would show, from the base fit
+        smallest = smallest_shown_band(stick.estimator.backend_, train, base.params, float(valve.stroke))
+        sensitivity["stiction_band_mm"] = smallest if math.isfinite(smallest) else None
     for m in {id(m): m for m in [base_model, *(f.estimator.backend_ for st in steps for f in st)]}.values():
         m.forget_paths()  # the diagnosis keeps its models, not their valve paths
     settings = {"validation": mode, "alpha": alpha, "holdout": holdout if validate is None else None,
@@ -982,6 +1033,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         cause=selected[0] if selected else "none", selected=selected, base=base, findings=findings, steps=steps,
         final=final, diagnostics=diagnostics, settings=settings, train=train, valid=valid, valid_range=vr,
         base_valid_rms=base_val[0], final_valid_rms=final_val, seconds=time.perf_counter() - t0, valve=valve,
+        sensitivity=sensitivity,
     )
 
 

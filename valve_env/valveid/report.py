@@ -194,6 +194,13 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
     L += [f"*Gain:* validation one-step RMS {g['validation_rms_before_mm'] * 1e3:.2f} -> "
           f"{g['validation_rms_after_mm'] * 1e3:.2f} um ({g['validation_rms_reduction']:.0%} less); simulation RMS "
           f"on the fitting data {g['rms_before_mm'] * 1e3:.2f} -> {g['rms_after_mm'] * 1e3:.2f} um.", ""]
+    if "stiction_band_mm" in (d.sensitivity or {}):
+        b = d.sensitivity["stiction_band_mm"]
+        L += ["*What this record can see:* " + (
+            f"its slips would show a stick band of {b * 1e3:.1f} um or more; a smaller band goes unnamed"
+            if b is not None else "its slips would show no stick band up to 100 um")
+              + " (its noise, sampling and length decide this, not the valve; docs/diagnosis.md, "
+              "\"What a `none` cannot see\").", ""]
 
     pre = {k: v for k, v in (d.preprocessing or {}).items() if v}
     if pre:
