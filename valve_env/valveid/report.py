@@ -197,7 +197,7 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
     if "stiction_band_mm" in (d.sensitivity or {}):
         b = d.sensitivity["stiction_band_mm"]
         L += ["*What this record can see:* " + (
-            f"its slips would show a stick band of {b * 1e3:.1f} um or more; a smaller band goes unnamed"
+            f"its slips would show a stick band of {b * 1e3:.1f} um or more; a smaller band may go unnamed"
             if b is not None else "its slips would show no stick band up to 100 um")
               + " (its noise, sampling and length decide this, not the valve; docs/diagnosis.md, "
               "\"What a `none` cannot see\").", ""]
