@@ -786,13 +786,12 @@ def smallest_shown_band(model: Model, data: RunData, values: dict[str, float], s
     simulated at the record's samples with white noise of ``values["s_w"]`` (:func:`_noisy_copy`; :func:`diagnose`
     gives the opening channel's own noise where one sd holds over the record), shows the band
     (:func:`band_shown`: two slips or more whose median lies within half a band of it) in most of the noise draws
-    ``seeds``; inf where no band up to 0.1 mm does. It depends on the record's noise, sampling, length and how
-    often its demand turns, not on whether the valve sticks.
+    ``seeds``; inf where no band up to 0.1 mm does. It is the record's property (its noise, sampling, length and
+    how often its demand turns), found through the base fit, which on a sticky record absorbs part of the band.
 
     Naming stiction needs the training opening to show its band this way (:func:`_finding`), so a smaller band may go
-    unnamed; a guide, not a bound (it is found from the base fit, which on a sticky record absorbs part of the
-    band): on the confusion study's four fresh sets of 2026-11-30, 31 of 32 bands of 1.25 times it or more were named,
-    and 7 of 11 smaller ones (docs/diagnosis.md, "What a `none` cannot see")."""
+    unnamed. It is a guide, not a bound: on the confusion study's four fresh sets of 2026-11-30, 31 of 32 bands of
+    1.25 times it or more were named, and 7 of 11 smaller ones (docs/diagnosis.md, "What a `none` cannot see")."""
     need = len(seeds) // 2 + 1
     run = 0  # how many bands in a row, up to this one, show
     for j, band in enumerate(SHOWN_BANDS):
