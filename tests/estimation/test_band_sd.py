@@ -79,3 +79,16 @@ def test_band_spread_with_two_slips_is_not_zero() -> None:
     sd, parts, _ = band_spread(x, STROKE, 1e-3, 16, np.random.default_rng(1), S)
     assert parts["n_slips"] == 2 and parts["noise_sd_mm"] == 0.0
     assert parts["slips_sd_mm"] > 0.1 * S and sd == parts["slips_sd_mm"], parts
+
+
+def test_an_interval_stops_at_the_parameters_physical_range() -> None:
+    """``bootstrap.within_range``: a band's interval does not reach below 0 mm, a medium weight's not past 1, and
+    a drift's rate, signed, keeps both ends; a name that is not an effect parameter is left as it is."""
+    from valve_env.valveid.bootstrap import within_range
+    from valve_env.valveid.fitting import Model
+
+    m = Model(("stiction", "medium_temperature", "setpoint_drift"))
+    assert within_range(m, "band_mm", -0.004, 0.05) == (0.0, 0.05)
+    assert within_range(m, "beta", 0.9, 1.3) == (0.9, 1.0)
+    assert within_range(m, "rate_MPa_per_h", -2e-5, 3e-5) == (-2e-5, 3e-5)
+    assert within_range(m, "sigma", -1.0, 2.0) == (-1.0, 2.0)

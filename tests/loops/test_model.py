@@ -94,6 +94,19 @@ def test_the_band_sd_holds_half_the_two_valves_difference() -> None:
     assert lo <= band - 1.96 * sd2 + 1e-12 and hi >= band + 1.96 * sd2 - 1e-12
 
 
+def test_the_band_interval_stops_at_zero() -> None:
+    """``band_uncertainty``: where the band's sd is wide against the band (two valves far apart), band - 1.96 sd
+    lies below 0 and the interval stops at 0, as a band is not negative."""
+    from valve_env.loops.diagnose import band_uncertainty
+    from valve_env.loops.model import ValveFit
+
+    fit = ValveFit("stiction", S=0.5, J=0.5, process=None, n_params=4,  # type: ignore[arg-type]
+                   profile=[(0.4, -5.0), (0.5, 0.0), (0.6, -5.0)])
+    band, sd, lo, hi = band_uncertainty(fit, 0.0, None, (0.5, 2.5))
+    assert band - 1.96 * sd < 0.0
+    assert lo == 0.0 and hi == pytest.approx(band + 1.96 * sd)
+
+
 def test_the_band_label_keeps_two_significant_digits() -> None:
     """The sd in the band's one label reads 1.0, not 1, so it is not taken for a rounded integer."""
     from valve_env.loops.diagnose import model_label, sd_text

@@ -120,7 +120,7 @@ def band_halves(loop: LoopData, s: Settings, jittered: bool | None = None) -> tu
 
 def band_uncertainty(fit: ValveFit, offset: float = 0.0, halves: tuple[float, float] | None = None,
                      valves: tuple[float, ...] = ()) -> tuple[float, float, float, float]:
-    """The band, its sd and 95 % interval: the fitted band plus the sampling ``offset``; the sd combines the
+    """The band, its sd and 95 % interval (not below 0): the fitted band plus the sampling ``offset``; the sd combines the
     profile-likelihood interval (``{S: 2 (ll_max - ll(S)) <= 3.84}``, interpolated in log S, sd = width / 3.92), the
     model-error sd ``BAND_REL_SD * band``, the offset's own sd, for a valve driven by the controller's
     within-sample jitter (``fit.jitter``) that jitter's sd at each of the band's two ends, and, given the bands of the
@@ -152,7 +152,8 @@ def band_uncertainty(fit: ValveFit, offset: float = 0.0, halves: tuple[float, fl
     sd_valves = (max(valves) - min(valves)) / 2.0 if valves else 0.0
     sd = math.sqrt(sd_prof ** 2 + (BAND_REL_SD * band) ** 2 + (SAMPLING_SD_SHARE * offset) ** 2
                    + 2.0 * fit.jitter ** 2 + sd_halves ** 2 + sd_valves ** 2)
-    return band, sd, min(lo, band - 1.96 * sd), max(hi, band + 1.96 * sd)
+    # a band is not negative: the interval stops at 0 where band - 1.96 sd would pass it
+    return band, sd, max(min(lo, band - 1.96 * sd), 0.0), max(hi, band + 1.96 * sd)
 
 
 def select_noise_order(loop: LoopData, orders: tuple[int, ...] = (0, 1, 2)) -> Settings:

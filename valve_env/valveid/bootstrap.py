@@ -312,9 +312,22 @@ def bootstrap(model: Model, data: RunData, fit: FitResult, B: int = 16, seed: in
                                         fit.params["band_mm"], rng)
         if "band_mm" in names and BREAKAWAY:
             sj = breakaway_band(model, data, fit, sm)
+    for k in names:
+        sm.interval_95[k] = within_range(model, k, *sm.interval_95[k])
     return BootstrapResult(names, reps, est, sm.std, sm.bias, sm.interval_95, B, sm.corrected, sm.bias_corrected,
                            sm.spread, int(dropped.sum()), B + len(extra) if stuck else 0, split, sm.normality_p,
                            parts, sj, denoiser, refit)
+
+
+def within_range(model: Model, name: str, lo: float, hi: float) -> tuple[float, float]:
+    """The interval ``(lo, hi)`` of the effect parameter ``name`` intersected with its physical range
+    (:class:`valve_env.effects.EffectParameter`'s ``lower`` and ``upper``): the basic bootstrap's reflected interval and
+    the band's estimate +- 1.96 sd can reach past an edge (a band below 0 mm) where the estimate lies near it."""
+    for e in model.effects:
+        for p in EFFECTS[e].parameters:
+            if p.name == name:
+                return max(lo, p.lower), min(hi, p.upper)
+    return lo, hi
 
 
 def replicate_denoiser(model: Model, names: list[str]) -> str:
