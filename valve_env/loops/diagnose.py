@@ -120,8 +120,8 @@ def band_halves(loop: LoopData, s: Settings, jittered: bool | None = None) -> tu
 
 def band_uncertainty(fit: ValveFit, offset: float = 0.0, halves: tuple[float, float] | None = None,
                      valves: tuple[float, ...] = ()) -> tuple[float, float, float, float]:
-    """The band, its sd and 95 % interval (not below 0): the fitted band plus the sampling ``offset``; the sd combines the
-    profile-likelihood interval (``{S: 2 (ll_max - ll(S)) <= 3.84}``, interpolated in log S, sd = width / 3.92), the
+    """The band, its sd and 95 % interval (not below 0): the fitted band plus the sampling ``offset``; the sd combines
+    the profile-likelihood interval (``{S: 2 (ll_max - ll(S)) <= 3.84}``, interpolated in log S, sd = width / 3.92), the
     model-error sd ``BAND_REL_SD * band``, the offset's own sd, for a valve driven by the controller's
     within-sample jitter (``fit.jitter``) that jitter's sd at each of the band's two ends, and, given the bands of the
     record's two ``halves`` (:func:`band_halves`), the sd of the band that their difference implies for the whole
