@@ -46,6 +46,12 @@ def test_quantify_gives_one_story(tmp_path: Path, capsys: pytest.CaptureFixture[
     text = (rep / "report.md").read_text()
     headline = next(line for line in text.splitlines() if line.startswith("**Cause"))
     assert label in headline and f"| model | {label} |" in text
+    # the headline reads the detection as the rule that decided it (the default: Horch's phase), not the learned
+    # rule's probability beside it
+    phase = res["detection"]["detectors"]["horch"]["statistic"]
+    verdict = "stiction" if res["detection"]["stiction"] else "no stiction"
+    assert f"(detection by Horch's test: OP-PV phase {phase:.0f} deg: {verdict})" in headline
+    assert "probability" not in headline
     assert label in capsys.readouterr().out
     # the band's table names the valve's input and the halves' bands behind the sd (docs/loops.md, "Band uncertainty")
     halves = res["stiction"]["halves_band_pct"]
@@ -167,3 +173,16 @@ def test_bad_csv_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "column op has 1 NaN/infinite" in err[0]
     assert not out.exists()
+
+
+def test_the_headline_reads_the_rule_that_decided() -> None:
+    """``report.decision``: the learned rule's probability and threshold where it decided, Horch's phase where
+    Horch's test did."""
+    from valve_env.loops.report import decision
+
+    det = {"stiction": True, "probability": 0.81, "threshold": 0.68, "rule": {"name": "learned"},
+           "detectors": {"horch": {"statistic": 47.0}}}
+    assert decision(det) == "the learned rule: probability of stiction 0.81, threshold 0.68: stiction"
+    det["rule"] = {"name": "horch"}
+    det["stiction"] = False
+    assert decision(det) == "Horch's test: OP-PV phase 47 deg: no stiction"

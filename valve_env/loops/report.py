@@ -27,12 +27,21 @@ _DETECTORS = (("Horch (OP-PV cross-correlation phase, deg)", "horch"),
 def _headline(R: dict[str, Any]) -> str:
     if R["cause"] == "insufficient_data":
         return f"**Cause: insufficient_data** ({R['reason']})"
-    det = R["detection"]
-    line = f"**Cause: {R['cause']}** (detection: probability of stiction {det['probability']:.2f}"
-    line += f", threshold {det['threshold']:.2f})"
+    line = f"**Cause: {R['cause']}** (detection by {decision(R['detection'])})"
     if "stiction" in R:
         line += f"; {R['stiction']['label']}"
     return line
+
+
+def decision(det: dict[str, Any]) -> str:
+    """The detection as the rule that decided it reads: Horch's phase for the default rule, the probability and its
+    threshold for the learned one; then its verdict."""
+    verdict = "stiction" if det["stiction"] else "no stiction"
+    if det.get("rule", {}).get("name") == "learned":
+        return (f"the learned rule: probability of stiction {det['probability']:.2f}, threshold "
+                f"{det['threshold']:.2f}: {verdict}")
+    h = det["detectors"]["horch"]
+    return f"Horch's test: OP-PV phase {h['statistic']:.0f} deg: {verdict}"
 
 
 def _model_fit(diag: LoopDiagnosis) -> tuple[str, ValveFit]:
