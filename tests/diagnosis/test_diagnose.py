@@ -90,6 +90,29 @@ def test_base_parameters_near_the_paper_on_clean_data(results) -> None:  # type:
     assert abs(p["F_hmax"] - 1.31) < 0.067
 
 
+def test_a_stiction_fit_withholds_the_sd_it_cannot_give(results) -> None:  # type: ignore[no-untyped-def]
+    """A named stiction finding (docs/diagnosis.md, "Known limits"): the band keeps its bootstrap sd, the parameters
+    the bootstrap did not re-estimate have their sd withheld (null in the JSON; the conditional inverse-Hessian sd
+    kept apart and said so), and they still count as identified: a valve file is written."""
+    from valve_env.valveid.diagnose import unidentified
+
+    _, d = results["stiction"]
+    f = d.findings[0]
+    assert f.effect == "stiction" and math.isfinite(f.fit.std["band_mm"]) and f.fit.std["band_mm"] > 0
+    for k in ("sigma", "F_hmax", "p_bset", "s_w"):
+        assert math.isnan(f.fit.std[k]) and math.isnan(d.final.std[k])
+        assert f.uncertainty is not None and f.uncertainty["conditional_std"][k] > 0
+    assert "withheld" in f.std_method
+    from valve_env.outputs import json_text
+
+    j = json.loads(json_text(d.to_json()))["findings"][0]
+    assert j["all_std"]["F_hmax"] is None and j["uncertainty"]["conditional_std"]["F_hmax"] > 0
+    assert unidentified(d.final) == []
+    # a smooth effect's fit keeps every sd
+    _, lag = results["sensor_lag"]
+    assert all(math.isfinite(v) for v in lag.final.std.values())
+
+
 def test_two_effects_found_in_order() -> None:
     df = simulate_experiment(seed=131, duration_h=HOURS, effects={"sensor_lag": {"tau_s": 60.0},
                                                                     "setpoint_drift": {"rate_MPa_per_h": 8e-5}})

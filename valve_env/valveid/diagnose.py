@@ -343,8 +343,13 @@ VALVE_PARAMS: tuple[str, ...] = ("sigma", "F_hmax", "p_bset")
 
 def unidentified(fit: FitResult) -> list[str]:
     """The valve's parameters without a finite standard error in ``fit``: the record does not identify them (the
-    likelihood is flat along them; :func:`valve_env.ident.uncertainty.identified_inverse`)."""
-    return [k for k in VALVE_PARAMS if not math.isfinite(float(fit.std.get(k, math.nan)))]
+    likelihood is flat along them; :func:`valve_env.ident.uncertainty.identified_inverse`). A stiction fit's sd that
+    is withheld (:func:`valve_env.valveid.bootstrap.withhold_conditional_std`) counts by its conditional value."""
+    def sd(k: str) -> float:
+        v = float(fit.std.get(k, math.nan))
+        return v if math.isfinite(v) else float(fit.extra.get(f"conditional_std_{k}", math.nan))
+
+    return [k for k in VALVE_PARAMS if not math.isfinite(sd(k))]
 
 
 def identification_notes(base: FitResult, final: FitResult) -> list[str]:
@@ -851,10 +856,16 @@ def _bootstrap_finding(f: Finding, B: int) -> None:
     if "band_mm" in b.names:
         # the band's sd is the slips' (docs/diagnosis.md, "Parameter uncertainty: the coverage study")
         how += ("; band_mm: measured from the slips, sd the larger of the band's spread over added-noise copies of "
-                "the opening and the slips' own (bootstrap of the slip sizes' median, small-sample t factor)")
+                "the opening and the slips' own (bootstrap of the slip sizes' median, small-sample t factor); the "
+                "other parameters' sd withheld: conditional on the band and read off a likelihood with kinks "
+                "(uncertainty.conditional_std)")
     f.std_method = f"{METHOD} (B={B}{aside}; {how})"
     f.uncertainty = {**b.to_json(), "bootstrap_std": {k: float(v) for k, v in b.std.items()},
                      "hessian_std": {k: f.fit.extra[f"hessian_std_{k}"] for k in b.names}, "std_from": source}
+    withheld = {k[len("conditional_std_"):]: float(v) for k, v in f.fit.extra.items()
+                if k.startswith("conditional_std_")}
+    if withheld:
+        f.uncertainty["conditional_std"] = withheld
     if bracket:
         f.uncertainty["preprocessing"] = {"irw": {k: f.fit.extra[f"irw_{k}"] for k in bracket},
                                           "tv": {k: f.fit.extra[f"tv_{k}"] for k in bracket}}

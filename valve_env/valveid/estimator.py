@@ -33,7 +33,7 @@ from valve_env.data_io import load_run, validate_run
 from valve_env.effects import check_effects
 from valve_env.ident.mle import Estimator, MLEstimator
 from valve_env.params import ValveParams
-from valve_env.valveid.bootstrap import apply_bootstrap, bootstrap
+from valve_env.valveid.bootstrap import apply_bootstrap, bootstrap, withhold_conditional_std
 from valve_env.valveid.data import RunData
 from valve_env.valveid.fitting import Model
 from valve_env.valveid.sde_effects import effect_model
@@ -91,7 +91,8 @@ class ValveEstimator(Estimator):
         the bootstrap's sd, at least the inverse-Hessian/HAC sd, and ``params_`` bias-corrected where
         the bias is clear). ``params``: default the effects' parameters, or the base model's
         ``sigma``, ``F_hmax``, ``p_bset`` without effects. Returns ``self``; ``bootstrap_`` holds the
-        replicates and their summary, ``std_from_`` where each sd came from."""
+        replicates and their summary, ``std_from_`` where each sd came from. With stiction, the sd of the parameters
+        not bootstrapped is withheld (:func:`valve_env.valveid.bootstrap.withhold_conditional_std`)."""
 
         self._check()
         if self.likelihood != "output_error":
@@ -101,6 +102,8 @@ class ValveEstimator(Estimator):
             names = ["sigma", "F_hmax", "p_bset"]
         b = bootstrap(self.backend_, self.data_, self.result_, B=B, seed=seed, names=names)
         self.std_from_ = apply_bootstrap(self.backend_, self.data_, self.result_, b)
+        if "band_mm" in b.names:
+            withhold_conditional_std(self.result_, b.names)
         self.backend_.forget_paths()
         self.bootstrap_ = b
         self._estimates_from_result()
