@@ -47,7 +47,7 @@ test-slow: install
 
 # the tests execute the tutorials (tests/docs/test_notebooks.py, with nbmake); this saves them with their outputs
 tutorials: install
-	$(VENV)/bin/jupyter nbconvert --to notebook --execute --inplace docs/tutorials/*.ipynb
+	THERMOVALVE_NO_PROGRESS=1 $(VENV)/bin/jupyter nbconvert --to notebook --execute --inplace docs/tutorials/*.ipynb
 
 # the newest versions pyproject.toml allows (torch stays at the CPU build)
 test-latest: venv

@@ -112,12 +112,14 @@ class _StageLines:
 def progress_bar(total: int, desc: str = "", unit: str = "it") -> Any:
     """Progress on stderr (``.update(n)``, ``.set_postfix_str(s)``, ``.close()``): a tqdm bar on a
     terminal, one line per finished stage otherwise; off when THERMOVALVE_NO_PROGRESS is set."""
-    from tqdm.auto import tqdm
-
     if os.environ.get("THERMOVALVE_NO_PROGRESS"):
-        return tqdm(total=total, disable=True)
+        from tqdm import tqdm as plain  # not tqdm.auto: in a notebook without ipywidgets it warns on import
+
+        return plain(total=total, disable=True)
     if not sys.stderr.isatty():
         return _StageLines(total, desc)
+    from tqdm.auto import tqdm
+
     return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False)
 
 
