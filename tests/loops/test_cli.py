@@ -52,7 +52,12 @@ def test_quantify_gives_one_story(tmp_path: Path, capsys: pytest.CaptureFixture[
     verdict = "stiction" if res["detection"]["stiction"] else "no stiction"
     assert f"(detection by Horch's test: OP-PV phase {phase:.0f} deg: {verdict})" in headline
     assert "probability" not in headline
-    assert label in capsys.readouterr().out
+    # a band the detection did not ask for says so beside it, in the headline and on stdout
+    out = capsys.readouterr().out
+    assert label in out
+    on_request = "(fitted on request; stiction not detected)"
+    assert res["stiction"]["detected"] is False  # this record: Horch's test leaves it undetermined
+    assert f"{label} {on_request}" in headline and f"{label} {on_request}" in out
     # the band's table names the valve's input and the halves' bands behind the sd (docs/loops.md, "Band uncertainty")
     halves = res["stiction"]["halves_band_pct"]
     assert f"| band read on the record's first and second half, % | {halves[0]:.3g}, {halves[1]:.3g} |" in text

@@ -29,8 +29,12 @@ def _headline(R: dict[str, Any]) -> str:
         return f"**Cause: insufficient_data** ({R['reason']})"
     line = f"**Cause: {R['cause']}** (detection by {decision(R['detection'])})"
     if "stiction" in R:
-        line += f"; {R['stiction']['label']}"
+        line += f"; {R['stiction']['label']}" + ("" if R["stiction"]["detected"] else f" ({ON_REQUEST})")
     return line
+
+
+#: said beside a band the detection did not ask for (``--quantify``), wherever the band is given
+ON_REQUEST = "fitted on request; stiction not detected"
 
 
 def decision(det: dict[str, Any]) -> str:
