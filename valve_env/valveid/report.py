@@ -264,7 +264,7 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
     if d.final.effects and withheld:
         L += ["", f"n/a beside {', '.join(withheld)} in the {'+'.join(d.final.effects)} column: sd withheld. With the "
               "band held at the slips' median, their inverse-Hessian sd is conditional on it and read off a likelihood "
-              "with kinks (too small by an order of magnitude on generated sticky runs); the JSON keeps it as "
+              "with kinks (too small by one to two orders of magnitude on generated sticky runs); the JSON keeps it as "
               "`uncertainty.conditional_std` (docs/diagnosis.md, \"Known limits\")."]
     L += ["", f"Paper Table 4: sigma 6.41 ± 0.589 N/K, F_hmax 1.31 ± 0.067 N, p_bset 0.0776 ± 0.000892 MPa. "
           f"Fitted on {d.settings['n_train']} samples; validated on {d.settings['n_validation']} "
