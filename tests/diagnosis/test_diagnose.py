@@ -108,6 +108,8 @@ def test_a_stiction_fit_withholds_the_sd_it_cannot_give(results) -> None:  # typ
     j = json.loads(json_text(d.to_json()))["findings"][0]
     assert j["all_std"]["F_hmax"] is None and j["uncertainty"]["conditional_std"]["F_hmax"] > 0
     assert unidentified(d.final) == []
+    note = next(n for n in d.notes if "is withheld" in n)
+    assert all(k in note for k in ("sigma", "F_hmax", "p_bset"))
     # a smooth effect's fit keeps every sd
     _, lag = results["sensor_lag"]
     assert all(math.isfinite(v) for v in lag.final.std.values())

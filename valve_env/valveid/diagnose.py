@@ -1045,6 +1045,11 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
     notes += identification_notes(base, final)
+    withheld = [k[len("conditional_std_"):] for k in final.extra if k.startswith("conditional_std_")]
+    if withheld:
+        notes.append(f"the sd of {', '.join(withheld)} is withheld in the {'+'.join(final.effects)} model (null): with "
+                     "the band held at the slips' median it is conditional on it and read off a likelihood with kinks "
+                     "(uncertainty.conditional_std; docs/diagnosis.md, \"Known limits\")")
     pre = {"run": list(run.attrs.get("preprocessing", []))}
     if validate is not None:
         pre["validation run"] = list(vdf.attrs.get("preprocessing", []))
