@@ -36,7 +36,7 @@ def _cmd(args: argparse.Namespace) -> int:
     one line and exits 2; the outputs are declared up front and written together."""
     from valve_env.loops.diagnose import diagnose_loop
     from valve_env.loops.io import read_loop
-    from valve_env.loops.report import ON_REQUEST
+    from valve_env.loops.report import band_text
     from valve_env.outputs import OutputSet, json_text
 
     outs = OutputSet(inputs=[args.loop], force=args.force)
@@ -62,7 +62,7 @@ def _cmd(args: argparse.Namespace) -> int:
     if R["cause"] == "insufficient_data":
         what += f" ({R['reason']})"
     if "stiction" in R:
-        what += f"; {R['stiction']['label']}" + ("" if R["stiction"]["detected"] else f" ({ON_REQUEST})")
+        what += f"; {band_text(R['stiction'])}"
     print(f"{loop.tag}: {what}; {outs.summary()}")
     for note in R["notes"]:
         print(f"note: {note}")

@@ -29,12 +29,18 @@ def _headline(R: dict[str, Any]) -> str:
         return f"**Cause: insufficient_data** ({R['reason']})"
     line = f"**Cause: {R['cause']}** (detection by {decision(R['detection'])})"
     if "stiction" in R:
-        line += f"; {R['stiction']['label']}" + ("" if R["stiction"]["detected"] else f" ({ON_REQUEST})")
+        line += f"; {band_text(R['stiction'])}"
     return line
 
 
 #: said beside a band the detection did not ask for (``--quantify``), wherever the band is given
 ON_REQUEST = "fitted on request; stiction not detected"
+
+
+def band_text(st: dict[str, Any]) -> str:
+    """The band's one label (``st``: the result's ``stiction`` block), with :data:`ON_REQUEST` where the detection
+    did not ask for it: as the headline and ``loop-diagnose``'s line on stdout give it."""
+    return st["label"] + ("" if st["detected"] else f" ({ON_REQUEST})")
 
 
 def decision(det: dict[str, Any]) -> str:

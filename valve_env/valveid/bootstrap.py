@@ -323,11 +323,8 @@ def within_range(model: Model, name: str, lo: float, hi: float) -> tuple[float, 
     """The interval ``(lo, hi)`` of the effect parameter ``name`` intersected with its physical range
     (:class:`valve_env.effects.EffectParameter`'s ``lower`` and ``upper``): the basic bootstrap's reflected interval and
     the band's estimate +- 1.96 sd can reach past an edge (a band below 0 mm) where the estimate lies near it."""
-    for e in model.effects:
-        for p in EFFECTS[e].parameters:
-            if p.name == name:
-                return max(lo, p.lower), min(hi, p.upper)
-    return lo, hi
+    p = next((q for q in model.eff_params if q.name == name), None)
+    return (lo, hi) if p is None else (max(lo, p.lower), min(hi, p.upper))
 
 
 def replicate_denoiser(model: Model, names: list[str]) -> str:
@@ -417,15 +414,24 @@ def withhold_conditional_std(fit: FitResult, names: list[str]) -> dict[str, floa
     by a sample as a parameter crosses a value): on three generated 12 h sticky runs at 10 s it gave F_hmax an sd
     of 0.0006-0.0007 N where two estimates lay 0.022 N from the truth (38 and 33 sd), and refits with the band one
     sd either side moved them by under 0.001 N (docs/diagnosis.md, "Known limits"). Returns the withheld sds, which
-    ``fit`` keeps in ``extra["conditional_std_<name>"]``."""
+    ``fit`` keeps in ``extra`` (:func:`conditional_std` reads them)."""
     out: dict[str, float] = {}
     for k, v in list(fit.std.items()):
         if k in names or not math.isfinite(v):
             continue
         out[k] = float(v)
-        fit.extra[f"conditional_std_{k}"] = float(v)
+        fit.extra[CONDITIONAL + k] = float(v)
         fit.std[k] = float("nan")
     return out
+
+
+#: the prefix of a withheld sd's key in ``FitResult.extra`` (:func:`withhold_conditional_std`)
+CONDITIONAL = "conditional_std_"
+
+
+def conditional_std(fit: FitResult) -> dict[str, float]:
+    """The sds :func:`withhold_conditional_std` withheld from ``fit``, by parameter (empty where none was)."""
+    return {k[len(CONDITIONAL):]: float(v) for k, v in fit.extra.items() if k.startswith(CONDITIONAL)}
 
 
 def _band_spread_from_slips(sm: Summary, x: np.ndarray, s_x: float | np.ndarray, stroke: float, draws: int,

@@ -65,7 +65,7 @@ from valve_env.effects import check_effects
 from valve_env.ident.bootstrap import NORMAL_P, replicates
 from valve_env.ident.tests import delta_bic, ljung_box, lr_test
 from valve_env.params import ValveParams
-from valve_env.valveid.bootstrap import METHOD, denoised_run, world_opening
+from valve_env.valveid.bootstrap import METHOD, conditional_std, denoised_run, world_opening
 from valve_env.valveid.estimator import ValveEstimator
 from valve_env.valveid.fitting import FitResult, Model, RunData
 from valve_env.valveid.preprocess import preprocess_run
@@ -345,11 +345,8 @@ def unidentified(fit: FitResult) -> list[str]:
     """The valve's parameters without a finite standard error in ``fit``: the record does not identify them (the
     likelihood is flat along them; :func:`valve_env.ident.uncertainty.identified_inverse`). A stiction fit's sd that
     is withheld (:func:`valve_env.valveid.bootstrap.withhold_conditional_std`) counts by its conditional value."""
-    def sd(k: str) -> float:
-        v = float(fit.std.get(k, math.nan))
-        return v if math.isfinite(v) else float(fit.extra.get(f"conditional_std_{k}", math.nan))
-
-    return [k for k in VALVE_PARAMS if not math.isfinite(sd(k))]
+    sd = {**fit.std, **conditional_std(fit)}
+    return [k for k in VALVE_PARAMS if not math.isfinite(float(sd.get(k, math.nan)))]
 
 
 def identification_notes(base: FitResult, final: FitResult) -> list[str]:
@@ -862,8 +859,7 @@ def _bootstrap_finding(f: Finding, B: int) -> None:
     f.std_method = f"{METHOD} (B={B}{aside}; {how})"
     f.uncertainty = {**b.to_json(), "bootstrap_std": {k: float(v) for k, v in b.std.items()},
                      "hessian_std": {k: f.fit.extra[f"hessian_std_{k}"] for k in b.names}, "std_from": source}
-    withheld = {k[len("conditional_std_"):]: float(v) for k, v in f.fit.extra.items()
-                if k.startswith("conditional_std_")}
+    withheld = conditional_std(f.fit)
     if withheld:
         f.uncertainty["conditional_std"] = withheld
     if bracket:
@@ -1045,7 +1041,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
     notes += identification_notes(base, final)
-    withheld = [k[len("conditional_std_"):] for k in final.extra if k.startswith("conditional_std_")]
+    withheld = list(conditional_std(final))
     if withheld:
         notes.append(f"the sd of {', '.join(withheld)} is withheld in the {'+'.join(final.effects)} model (null): with "
                      "the band held at the slips' median it is conditional on it and read off a likelihood with kinks "

@@ -20,6 +20,7 @@ import pandas as pd
 from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.ident.mle import MLEstimator
 from valve_env.ident.tests import residual_report
+from valve_env.valveid.bootstrap import conditional_std
 from valve_env.valveid.diagnose import Diagnosis
 from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
 from valve_env.valveid.fit import PAPER_TABLE4, VALVE_FIELDS, fit_summary
@@ -260,7 +261,7 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
         if d.final.effects:
             row += f" {_fmt(d.final.params[k])} ± {_fmt(d.final.std.get(k, float('nan')))} |"
         L.append(row)
-    withheld = [k[len("conditional_std_"):] for k in d.final.extra if k.startswith("conditional_std_")]
+    withheld = list(conditional_std(d.final))
     if d.final.effects and withheld:
         L += ["", f"n/a beside {', '.join(withheld)} in the {'+'.join(d.final.effects)} column: sd withheld. With the "
               "band held at the slips' median, their inverse-Hessian sd is conditional on it and read off a likelihood "
