@@ -1,71 +1,16 @@
-"""Honest uncertainty of a named effect's parameters: a model-based bootstrap of the whole chain.
+"""Uncertainty of a named effect's parameters: a model-based bootstrap of the whole chain (Efron and Tibshirani
+1993, ch. 6; Ljung 1999, sec. 9.7).
 
-Why not the Hessian: the output-error likelihood of :mod:`valve_env.valveid.fitting`
-conditions on the *smoothed* temperatures as if they were exact. Their smoothing error is an
-error in the input (errors in variables) that moves the estimates coherently over the record;
-the likelihood cannot see it, and neither can a HAC sandwich of its scores. For stiction the
-likelihood is not even smooth in the band. The coverage study
-(``studies/diagnosis_coverage.py``) measured fewer than half of the estimates within one
-reported (Hessian/HAC) sd.
+The fitted valve is taken as the truth and simulated from the smoothed temperatures (:func:`world_opening`); each
+replicate gets temperature noise of the measured sd and, on the opening, the run's residuals in circular blocks
+(white resting noise with stiction, :func:`replicate_run`); it is smoothed and re-estimated as the run was
+(:func:`bootstrap`, driven by :func:`valve_env.ident.bootstrap.replicates`). Runaway refits are set aside, the
+bias is corrected only where clear and normal, a smooth effect is bracketed by a refit on TV-denoised temperatures
+(:func:`apply_bootstrap`), and stiction's band takes its spread from the measured slips
+(:func:`_band_spread_from_slips`). :meth:`valve_env.valveid.estimator.ValveEstimator.bootstrap` is the entry point.
 
-The bootstrap repeats what produced the estimate, in a world where the fitted model is the
-truth (Efron and Tibshirani 1993, ch. 6; for grey-box models e.g. Ljung 1999, sec. 9.7):
-
-1. the latent temperatures as smoothed from the run are the true temperatures; the valve is
-   simulated from them with the fitted parameters on a fine grid (``truth_step_s``, finer
-   than the estimator's sub-steps, so the estimator's discretisation counts too);
-2. a replicate run: white noise of the measured sd on both temperature channels; on the
-   opening, the run's own residuals about the bootstrap world's opening, resampled in circular
-   blocks (Politis and Romano 1992) of the length that Politis and White (2004) select for
-   them (``arch.bootstrap.optimal_block_length``). The residuals keep the memory of the real
-   model error: the fitted Ornstein-Uhlenbeck error model (``tau_e`` at most 900 s) forgets
-   it, and a drift of the set point, itself slow, was then re-estimated ten times too
-   precisely (setpoint_drift, one run 7.4 sd off on seed 505). With stiction the opening
-   gets white noise of the sd measured on the resting steps instead (see
-   :func:`replicate_run`): its band is measured from the jumps, which resampled residuals
-   would blur;
-3. the replicate is prepared exactly as a measured run (temperatures smoothed again) and the
-   model re-estimated the way the estimate was made: maximum likelihood from the estimate,
-   stiction's band from the jumps of the replicate's opening;
-4. the bias is the mean of the re-estimates minus the estimate. Where it is clear (more than
-   ``bias_z`` standard errors of that mean) the estimate is corrected by it (the bootstrap
-   bias correction) and the sd is the spread of the re-estimates plus the uncertainty of the
-   correction; otherwise the sd is their root-mean-square error about the estimate (spread
-   and bias together). The bias, the spread and a basic bootstrap 95 % interval are reported
-   beside it.
-
-A refit that runs away (to a bound, or along a direction the replicate cannot pin down) is a
-failure of that one replicate, not part of the spread: one such replicate among 16 made a sd
-twice the estimate (beta 0.126 +- 0.22 on seed 303). Replicates with a re-estimate more than
-``GROSS_Z`` robust sd (Rousseeuw and Croux's Qn, from statsmodels) from the median of the
-re-estimates are set aside before the summary, and their number is reported
-(``dropped_replicates``). Under normality a replicate is set aside with probability about 2e-9,
-so an honest spread is left as it is. If more than half of them are that far from the median,
-the re-estimates have split into groups with no majority: none is set aside, and none of the
-refitted parameters is bias-corrected (the mean of two groups lies between them; with a world
-that made half of the refits run away, the correction had moved one drift estimate 33-fold). The
-sd is then the root-mean-square error about the estimate, which shows the split, and
-``split_replicates`` says so. The screen catches runaways that gather (at a bound, at one far
-value); runaways that scatter widely inflate the robust sd itself and pass it. The bias
-correction therefore also asks the re-estimates to look normal (Shapiro-Wilk p >= ``NORMAL_P``,
-0.001): a heavy-tailed or split set is not bias-corrected (its mean is not a centre to trust), and
-its sd is the root-mean-square error about the estimate; ``normality_p`` reports the p-values.
-
-The bootstrap's world takes the smoothed temperatures as the truth, so it cannot see the bias the
-smoothing itself puts into an effect (the IRW-RTS smoother made sensor lags about 1 % short on the
-independent simulator, where the true temperatures gave them back). A named smooth effect therefore
-also gets the pre-processing bracket (:func:`apply_bootstrap`): it is refitted on TV-denoised
-temperatures, that refit is the estimate, and half the two pre-processings' difference is added to
-its sd (docs/uncertainty.md, "Errors in variables and robust uncertainty"). Its replicates are refitted the
-same way, on TV-denoised temperatures (:func:`replicate_denoiser`): the world's temperatures are smooth,
-where TV errs on the ramps, so the replicates' error about the world's truth carries TV's own
-errors-in-variables error, which a bootstrap of the IRW-RTS estimate never saw (medium_temperature on the
-project generator, seed 303: 4 / 7 of 10 runs within 1 / 2 sd before, 6 / 9 after). That error enters the
-sd (root-mean-square error); it is not corrected (``BRACKET_CORRECT``: the world is not the real one, and
-the correction lost coverage on the independent simulator). The bootstrap is the estimation's facility:
-:meth:`valve_env.valveid.estimator.ValveEstimator.bootstrap` runs it and :func:`apply_bootstrap`; the
-diagnosis reaches it through that method. The likelihood-based sds beside it (inverse Hessian, HAC
-sandwich) and the misspecification check are :mod:`valve_env.valveid.robust`'s.
+Why the Hessian is not enough, and each rule's evidence: docs/diagnosis.md, "Uncertainty of the named effects";
+docs/uncertainty.md, "Errors in variables and robust uncertainty".
 """
 
 from __future__ import annotations

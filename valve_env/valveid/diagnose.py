@@ -1,49 +1,13 @@
 """Diagnosis of a measured run: where the calibrated valve model fails, the named cause, the gain.
 
-The procedure (docs/reference.md, section 4), as an expert in grey-box modelling would do it
-(forward selection with likelihood-ratio tests, Bacher and Madsen 2011), but
-automatic:
-
-1. Read and check the run (docs/reference.md, section 2). Estimate the latent temperatures
-   (:mod:`valve_env.valveid.oe`).
-2. Split: fit on the first part of the run, hold out the rest for validation
-   (``holdout``), or fit on the whole run and validate on ``validate``.
-3. Fit the base model (docs/reference.md, section 1) by maximum likelihood and describe its
-   misfit: residual statistics, autocorrelation, where in time and where in the
-   phase diagram (opening against gas temperature, rising or falling) the
-   misfit lies, and how it correlates with the signatures of the effects.
-4. Fit every candidate effect (docs/reference.md, section 3) on top of the base model and
-   rank them: likelihood-ratio statistic with its p-value (chi-square with one
-   degree of freedom per added parameter; a 50:50 chi-square(0)/chi-square(1)
-   mixture where the null value is on the edge of the parameter space),
-   delta AIC and delta BIC, RMS before and after, and the same on the
-   validation data (one-step prediction RMS and log-likelihood).
-5. Name the best candidate only when its gain is significant (p < alpha and
-   delta BIC < 0), relevant (the effect moves the simulated opening by at least
-   ``min_effect_size`` times the noise sd, RMS) **and** real on the validation
-   data (the held-out log-likelihood rises by more than ``min_validation_gain``
-   and the held-out one-step RMS does not rise). Otherwise the cause is
-   ``none``. Stiction (``variance_gain``) acts in sparse events (a slip per
-   reversal of the demand): it is exempt from the RMS condition, it is validated
-   where the held-out log-likelihood gains more than ``min_validation_gain``, *or*
-   the held-out open-loop simulation error falls, *or* the held-out opening
-   itself slips by the fitted band (:func:`slips_show_band`), its relevance is measured
-   over the samples where it moves the opening
-   (:func:`effect_size`), and its significance also needs the events that stick-slip predicts in
-   the training opening: at least two slips whose median size is the fitted band within 50 %
-   (:func:`slips_show_band`). Where the slips do not show the likelihood's band, stiction is tested
-   again with the band held at the slips' median, and named with it only if that is significant and
-   the held-out opening's slips show that band too, or the whole record's
-   slips, at least four, do (:func:`record_shows_band`; they also stand in for the training part's two slips
-   where it holds one). A stiction finding
-   that would be named must also pass a simulated null (:func:`stiction_null`: the reference model's world
-   with the run's inputs, the temperatures' pre-processing error included; docs/diagnosis.md,
-   "Method"). Where
-   several candidates pass, the best is the one with the largest held-out
-   log-likelihood gain (:func:`rank_key`); the others are ranked by delta BIC.
-6. Forward selection: with the named effect in the model, try the remaining
-   effects the same way; repeat while one is accepted. ``selected`` lists the
-   effects in the order found; ``cause`` is the first.
+Forward selection with likelihood-ratio tests (Bacher and Madsen 2011), automatic (:func:`diagnose`): the run is
+read and checked (:func:`check_run`), split into a training part and a held-out part, the base model fitted, every
+candidate effect (docs/reference.md, section 3) fitted on top of it (:func:`_try`), and the best named only when it
+is significant (LR test with the boundary mixture, delta BIC < 0), relevant (:func:`effect_size`) and real held
+out (:func:`_finding`, ranked by :func:`rank_key`); the named effect joins the model and the rest are tried again.
+Stiction is also checked against the slips of the opening (:func:`slips_show_band`, :func:`record_shows_band`)
+and a simulated null (:func:`stiction_null`). The rules, their constants and their evidence: docs/diagnosis.md,
+"Method" and "Decision".
 """
 
 from __future__ import annotations
