@@ -10,7 +10,7 @@ Prints, in one run:
   the reader refuses, or that the diagnosis names ``insufficient_data``, counts as "not stiction" for every method;
 * on simulated loops of wide variety (``valve_env.loops.sim.random_case``, seeds ``--sim-seed`` ..
   ``+ --sim-n``; never the training seeds 0-1199 or the validation seeds 100000-100399 of
-  benchmarks/loop_train_detector.py): stiction named per kind of loop (sticky, smooth, deadband without stick,
+  studies/loop_train_detector.py): stiction named per kind of loop (sticky, smooth, deadband without stick,
   external oscillation, sticky under an external oscillation) and the false-alarm rate; the band (fitted on every
   sticky loop, ``quantify=True``): within 20 % of the truth and the 1-sd and 2-sd coverage, over all sticky loops and
   over those detected; CPU time per loop.
@@ -39,7 +39,7 @@ from valve_env.loops.diagnose import diagnose_loop
 from valve_env.loops.io import LoopDataError, read_loop
 from valve_env.loops.sim import random_case, simulate_case
 
-#: the seeds benchmarks/loop_train_detector.py fitted and chose the rule on (never evaluation seeds)
+#: the seeds studies/loop_train_detector.py fitted and chose the rule on (never evaluation seeds)
 TRAINING_SEEDS = range(0, 1200)
 VALIDATION_SEEDS = range(100000, 100400)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.diagnosis.studies import load_study
+from studies import env_loop_study
 from valve_env.loops.diagnose import LoopDiagnosis, diagnose_loop
 from valve_env.loops.envloop import record_env_loop
 from valve_env.loops.io import check_loop, read_loop
@@ -39,13 +39,12 @@ def test_env_loop_day_long_record() -> None:
 
 
 def test_env_loop_study_hours_reach_the_record(capsys: pytest.CaptureFixture[str]) -> None:
-    """``benchmarks/env_loop_study.py --hours/--warmup-h`` set the record's length (its summary line names them);
+    """``studies/env_loop_study.py --hours/--warmup-h`` set the record's length (its summary line names them);
     a record of no length is one argparse error."""
-    study = load_study("env_loop_study")
-    a, seeds = study.parse_env_args("t", ["--seeds", "3,4", "--hours", "24", "--warmup-h", "2"])
+    a, seeds = env_loop_study.parse_env_args("t", ["--seeds", "3,4", "--hours", "24", "--warmup-h", "2"])
     assert (a.hours, a.warmup_h, seeds) == (24.0, 2.0, [3, 4])
     with pytest.raises(SystemExit):
-        study.parse_env_args("t", ["--hours", "0"])
+        env_loop_study.parse_env_args("t", ["--hours", "0"])
     assert "--hours must be > 0" in capsys.readouterr().err
 
 
@@ -60,7 +59,7 @@ def test_env_loop_takes_the_valves_friction() -> None:
 
     with pytest.raises(ConfigError, match="valve.F_hmax must be in"):
         record_env_loop(0.0, seed=0, hours=0.5, warmup_h=0.5, F_hmax=-1.0)
-    a, _ = load_study("env_loop_study").parse_env_args("t", ["--f-hmax", "0.01"])
+    a, _ = env_loop_study.parse_env_args("t", ["--f-hmax", "0.01"])
     assert a.f_hmax == 0.01
 
 
@@ -83,7 +82,7 @@ def test_env_loop_smooth_is_not_stiction(tmp_path: Path) -> None:
 def test_env_acceptance_mid_stroke(tmp_path: Path) -> None:
     """The acceptance on the mid-stroke task (docs/loops.md, "Loops from the environment"): a PI (Kp 5, Ti 1500 s)
     on ThermoValveStickyCirculation-v0, seeds 700-711: the sticky stem named stiction on at least 11 of 12 records,
-    the smooth one on at most 1 (about 10 min; benchmarks/env_loop_study.py prints the same)."""
+    the smooth one on at most 1 (about 10 min; studies/env_loop_study.py prints the same)."""
     sticky = smooth = 0
     for seed in range(700, 712):
         for band in (STICKY_MM, 0.0):

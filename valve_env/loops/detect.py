@@ -8,7 +8,7 @@ ellipse's area; Thornhill et al.'s oscillation regularity) each give a scale-fre
 when its probability exceeds :data:`THRESHOLD`. Its coefficients (:mod:`valve_env.loops.detector_coefs`) were
 fitted on simulated loops of wide variety (:func:`valve_env.loops.sim.random_case`: self-regulating and
 integrating processes with dead time, several tunings, noise levels and record lengths, external oscillations,
-stick-slip valves with S != J, deadband valves without stick) by ``benchmarks/loop_train_detector.py``, which
+stick-slip valves with S != J, deadband valves without stick) by ``studies/loop_train_detector.py``, which
 writes that module; no real loop's outcome enters them.
 """
 

@@ -1,6 +1,6 @@
 """The stiction detector's combining rule (valve_env.loops.detect), fitted on simulated loops only by
 
-    python benchmarks/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --l2 10
+    python studies/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --l2 10
     --max-false-alarm 0.04 --clarity osc_acf_peak --min-visibility 0 --drop osc_band_share --write
 
 Generated: do not edit."""

@@ -1,8 +1,8 @@
 """Simulated loops against real ones, feature by feature (docs/loops.md, "Simulated loops"; docs/history/loops.md,
 2026-11-28 "The simulator against the plant").
 
-    python benchmarks/loop_sim_vs_real.py --data /work/shared/data/plant_loops --sim-seeds 0-299 [--plant]
-    python benchmarks/loop_sim_vs_real.py --data /work/shared/data/plant_loops --sim-seeds 100000-100399 --plant \
+    python studies/loop_sim_vs_real.py --data /work/shared/data/plant_loops --sim-seeds 0-299 [--plant]
+    python studies/loop_sim_vs_real.py --data /work/shared/data/plant_loops --sim-seeds 100000-100399 --plant \
         --labels
 
 Without ``--labels`` it reads the real records **without their labels** (every ``*.txt`` under ``--data``, pooled)
@@ -24,13 +24,17 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from loop_train_detector import fit_logistic, prob
 from scipy.stats import mannwhitneyu
 
 from valve_env.cliutil import int_list
 from valve_env.loops.detect import features
 from valve_env.loops.io import LoopData, LoopDataError, read_loop
 from valve_env.loops.sim import random_case, simulate_case
+
+try:
+    from studies.loop_train_detector import fit_logistic, prob
+except ModuleNotFoundError:  # run as ``python studies/loop_sim_vs_real.py``: its own folder is on the path
+    from loop_train_detector import fit_logistic, prob  # type: ignore[no-redef]
 
 
 def record_stats(loop: LoopData) -> dict[str, float]:

@@ -1,8 +1,8 @@
 """Env-loop records diagnosed, sticky against smooth (docs/loops.md, "Loops from the
 environment").
 
-    python benchmarks/env_loop_study.py --env-id ThermoValveStickyCirculation-v0 --seeds 100-111 --kp 5 --ti 1500
-    python benchmarks/env_loop_study.py --seeds 0-11 --hours 24
+    python studies/env_loop_study.py --env-id ThermoValveStickyCirculation-v0 --seeds 100-111 --kp 5 --ti 1500
+    python studies/env_loop_study.py --seeds 0-11 --hours 24
 
 For each seed: a record with a 0.1 mm stem band and one with a smooth stem (``record_env_loop``), each diagnosed
 (``valve_env.loops.diagnose``); prints one line per record (the cause, the band when named, the detection's

@@ -1,7 +1,7 @@
 """Calibrate the band's model-error sd (``valve_env.loops.diagnose.BAND_REL_SD``) on simulated sticky loops
 (docs/loops.md, "Band uncertainty").
 
-    python benchmarks/loop_band_calibration.py --seeds 0-299
+    python studies/loop_band_calibration.py --seeds 0-299
 
 For the sticky loops among ``valve_env.loops.sim.random_case``'s seeds (development seeds: the detector's training
 range, never the benchmark's evaluation seeds), fits the band (``diagnose_loop(..., quantify=True)``) and prints, for

@@ -2,14 +2,14 @@
 
 The frozen rule (valve_env/loops/detector_coefs.py; the command is also in its docstring):
 
-    python benchmarks/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --l2 10 \
+    python studies/loop_train_detector.py --train-seeds 0-1199 --val-seeds 100000-100399 --l2 10 \
         --clarity osc_acf_peak --drop osc_band_share --write
 
 The two rules trained on the loops with the plant's habits (docs/history/loops.md, 2026-11-28 "The simulator against
 the plant"; neither is frozen: they did no better on the real loops and worse on the environment's):
 
-    python benchmarks/loop_train_detector.py --plant --l2 100 --clarity osc_acf_peak
-    python benchmarks/loop_train_detector.py --plant --l2 10 --clarity osc_acf_peak --min-visibility 2
+    python studies/loop_train_detector.py --plant --l2 100 --clarity osc_acf_peak
+    python studies/loop_train_detector.py --plant --l2 10 --clarity osc_acf_peak --min-visibility 2
 
 Simulates the loops of ``valve_env.loops.sim.random_case`` for the training seeds, computes every detector's
 statistic (``valve_env.loops.detect.features``), fits an L2-penalised logistic regression (scipy) on the
@@ -164,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
 
         import textwrap
 
-        cmd = (f"python benchmarks/loop_train_detector.py --train-seeds {a.train_seeds} --val-seeds {a.val_seeds} "
+        cmd = (f"python studies/loop_train_detector.py --train-seeds {a.train_seeds} --val-seeds {a.val_seeds} "
                f"--l2 {a.l2:g} --max-false-alarm {a.max_false_alarm:g} --clarity {a.clarity} "
                f"--min-visibility {a.min_visibility:g}{' --plant' if a.plant else ''}"
                f"{' --drop ' + a.drop if a.drop else ''} --write")
