@@ -64,7 +64,7 @@ constraints:
 	  sed 's/^torch==2.13.0+cpu/torch==2.13.0/'; } > $(CONSTRAINTS).new && mv $(CONSTRAINTS).new $(CONSTRAINTS)
 
 lint: install
-	$(PY) -m ruff check valve_env agents tests benchmarks
+	$(PY) -m ruff check valve_env agents tests benchmarks studies
 	$(PY) -m mypy
 
 bench: install
