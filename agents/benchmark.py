@@ -73,6 +73,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import valve_env
     from agents.sweep import check_workers
+    from valve_env.evaluation.cli import check_episodes
     from valve_env.outputs import OutputError, OutputSet
     from valve_env.params import ConfigError
     from valve_env.tasks import benchmark as bm
@@ -82,10 +83,15 @@ def run(args: argparse.Namespace) -> int:
         for t in tasks:
             if t not in valve_env.ALL_ENV_IDS:
                 raise ValueError(f"unknown task {t!r}; known: {', '.join(valve_env.ALL_ENV_IDS)}")
-        if args.episodes < 1:
-            raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+        check_episodes(args.episodes)
+        if args.seed < 0:  # checked here, before the workers start: each would raise it in a traceback
+            raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
         check_workers(args.scheduler, args.workers)
         names = [c for c in args.controllers.split(",") if c] if args.controllers else None
+        for c in names or ():
+            if ":" in c and "/" not in c:  # name:key=value is evaluate's; the board scores each controller as tuned
+                raise ValueError(f"--controllers {c!r}: benchmark takes controllers without options (options as "
+                                 "name:key=value are for thermovalve evaluate)")
         cells = bm.make_cells(tasks, names, args.episodes, args.seed, smooth=not args.no_smooth)
         if args.horizon_h is not None:
             cells = [bm.Cell(c.task, c.controller, c.episodes, c.seed,

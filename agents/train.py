@@ -227,12 +227,7 @@ def train(
 ) -> Path:
     """Train one agent; returns its run directory. ``vec`` (native, dummy or
     subproc) overrides the config's ``vec_env``; the resolved config records it."""
-    import torch
-    from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-    from stable_baselines3.common.logger import configure
-    from stable_baselines3.common.utils import set_random_seed
-
-    from agents.wrappers import make_vec_env
+    from valve_env.outputs import atomic_dir
 
     algo = algo.lower()
     cfg = apply_overrides(load_algo_config(algo, env_id, config_dir), overrides)
@@ -254,8 +249,24 @@ def train(
     cfg["eval"] = ev
 
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    run_dir = Path(out) if out else DEFAULT_RUNS / env_id / f"{algo}_s{seed}_{stamp}"
-    run_dir.mkdir(parents=True, exist_ok=True)
+    target = Path(out) if out else DEFAULT_RUNS / env_id / f"{algo}_s{seed}_{stamp}"
+    # the run fills a hidden directory beside the target, which takes the target's place whole when it ends: a run
+    # that fails or is interrupted leaves an earlier run there as it was, and a finished one leaves none of its files
+    with atomic_dir(target) as run_dir:
+        _train_into(run_dir, algo, env_id, seed, cfg, n_timesteps, ev, progress_bar, n_threads, command, verbose)
+    return target
+
+
+def _train_into(run_dir: Path, algo: str, env_id: str, seed: int, cfg: dict[str, Any], n_timesteps: int,
+                ev: dict[str, Any], progress_bar: bool, n_threads: int, command: str | None, verbose: int) -> None:
+    """:func:`train`'s run, written into ``run_dir``."""
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.utils import set_random_seed
+
+    from agents.wrappers import make_vec_env
+
     resolved = {"algo": algo, "env_id": env_id, "seed": int(seed), **cfg}
     (run_dir / "config.yml").write_text(yaml.safe_dump(resolved, sort_keys=False))
     cmd = command if command is not None else " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv])
@@ -287,7 +298,7 @@ def train(
         meta["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
         (run_dir / "run.json").write_text(json.dumps(meta, indent=1))
         venv.close()
-        return run_dir
+        return
     elif cfg.get("optimizer", "sgd") != "sgd":
         raise ValueError(f"optimizer must be sgd (the algo's own updates) or cem, got {cfg.get('optimizer')!r}")
     (run_dir / "monitor").mkdir(exist_ok=True)
@@ -358,7 +369,6 @@ def train(
     venv.close()
     if eval_env is not None:
         eval_env.close()
-    return run_dir
 
 
 # --------------------------------------------------------------------------- shipping
@@ -486,13 +496,17 @@ def run(args: argparse.Namespace) -> int:
         vec=args.vec,
     )
     meta = json.loads((run_dir / "run.json").read_text())
-    print(f"run directory: {run_dir}")
-    print(f"trained {meta['num_timesteps']} steps in {meta['wall_time_s']} s ({meta['steps_per_s']} steps/s)")
+    asked = int(meta.get("n_timesteps", 0))
+    more = (f" (the {asked} asked for, rounded up to whole rollouts of n_envs x n_steps)"
+            if meta["num_timesteps"] > asked > 0 and meta.get("optimizer") != "cem" else "")
+    print(f"trained {meta['num_timesteps']} steps{more} in {meta['wall_time_s']} s ({meta['steps_per_s']} steps/s)")
     if "best_eval" in meta:
         print(f"best evaluation: return {meta['best_eval']['mean_return']:.2f} at {meta['best_eval']['timesteps']}")
     if ship_outs is not None:
         ship(run_dir, outs=ship_outs, name=name)
         print(f"shipped: {ship_outs.summary()}")
+    files = sorted(str(f.relative_to(run_dir)) for f in run_dir.iterdir())
+    print(f"wrote {run_dir}/ ({', '.join(files)})")
     return 0
 
 

@@ -82,12 +82,8 @@ def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse
                 return code
             finally:  # whatever a command staged and did not commit (an error, a signal) goes now
                 discard_uncommitted()
-    except KeyboardInterrupt:
-        print("thermovalve: interrupted; no output was replaced", file=sys.stderr)
-        return 130
-    except _Terminated:
-        print("thermovalve: terminated; no output was replaced", file=sys.stderr)
-        return 143
+    except (KeyboardInterrupt, _Terminated) as exc:
+        return _interrupted(exc)
     except BrokenPipeError:
         # the reader of stdout left (`thermovalve tasks | head`): stop quietly as Unix tools do, with the status
         # of a process ended by SIGPIPE, and keep the interpreter from reporting the flush at exit
@@ -110,6 +106,9 @@ def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse
     except PermissionError as exc:
         return fail(f"permission denied: {exc.filename or error_message(exc)}", EXIT_BAD_INPUT)
     except Exception as exc:  # noqa: BLE001 - never a bare traceback: one line, exit 1
+        signal_exc = _signal_behind(exc)
+        if signal_exc is not None:  # a signal's exception that compiled code wrapped (a SystemError)
+            return _interrupted(signal_exc)
         if os.environ.get("THERMOVALVE_DEBUG"):
             traceback.print_exc()
         return fail(f"{type(exc).__name__}: {error_message(exc)} (THERMOVALVE_DEBUG=1 shows the traceback)",
@@ -203,6 +202,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 class _Terminated(BaseException):
     """SIGTERM, raised in the main thread so staged outputs are discarded."""
+
+
+def _interrupted(exc: BaseException) -> int:
+    """The line and exit status of a run ended by Ctrl-C (130) or SIGTERM (143)."""
+    if isinstance(exc, KeyboardInterrupt):
+        print("thermovalve: interrupted; no output was replaced", file=sys.stderr)
+        return 130
+    print("thermovalve: terminated; no output was replaced", file=sys.stderr)
+    return 143
+
+
+def _signal_behind(exc: BaseException) -> BaseException | None:
+    """The Ctrl-C or SIGTERM exception in ``exc``'s chain of causes: a signal handled while a compiled kernel
+    returned comes back as ``SystemError: ... returned a result with an exception set``, the signal's exception its
+    cause."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, (KeyboardInterrupt, _Terminated)):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
 
 
 def _on_sigterm(signum: int, frame: object) -> None:

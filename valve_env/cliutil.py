@@ -126,7 +126,9 @@ def progress_bar(total: int, desc: str = "", unit: str = "it") -> Any:
 @contextlib.contextmanager
 def stage_progress(total: int, desc: str, unit: str = "step") -> Iterator[Callable[[str], None]]:
     """A :func:`progress_bar` of ``total`` stages as the ``progress`` callback a long computation takes:
-    ``tick(msg)`` names the stage just finished and counts it; the bar closes on leaving the block."""
+    ``tick(msg)`` names the stage just finished and counts it; the bar closes on leaving the block, full when the
+    block succeeds (``total`` counts the stages a run may need: a run that needs fewer, a diagnosis that names no
+    effect and so bootstraps none, ends there too)."""
     bar = progress_bar(total, desc=desc, unit=unit)
 
     def tick(msg: str) -> None:
@@ -135,6 +137,9 @@ def stage_progress(total: int, desc: str, unit: str = "step") -> Iterator[Callab
 
     try:
         yield tick
+        if bar.n < total:
+            bar.set_postfix_str("done")
+            bar.update(total - bar.n)
     finally:
         bar.close()
 

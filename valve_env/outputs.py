@@ -192,6 +192,36 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
         raise
 
 
+@contextlib.contextmanager
+def atomic_dir(path: PathLike) -> Iterator[Path]:
+    """Yield a new, empty temporary directory beside ``path`` to fill (``.NAME.*.tmp``); when the block succeeds it
+    takes ``path``'s place whole (a directory there before is moved aside in the same uninterruptible step and then
+    removed), and when it fails or is interrupted it is removed and ``path`` stays as it was. For a writer that
+    fills a directory as it goes, a training run (no check: a caller checks ``path`` first)."""
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    parent.mkdir(parents=True, exist_ok=True)
+    with _signals_held():
+        tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent))
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it 0700; a directory gets what mkdir would give it
+    aside: Path | None = None
+    try:
+        yield tmp
+        with _signals_held():
+            if p.exists() or p.is_symlink():
+                aside = Path(tempfile.mkdtemp(prefix=f".{p.name}.old.", suffix=".tmp", dir=parent))
+                os.replace(p, aside / p.name)
+            os.replace(tmp, p)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if aside is not None and (aside / p.name).exists() and not p.exists():
+            os.replace(aside / p.name, p)  # the swap failed half-way: the old directory back in its place
+        raise
+    finally:
+        if aside is not None:
+            shutil.rmtree(aside, ignore_errors=True)
+
+
 def _existing_ancestor(p: Path) -> Path:
     q = p.absolute()
     while not q.exists() and q != q.parent:
@@ -438,4 +468,5 @@ def discard_uncommitted() -> None:
 
 
 __all__ = ["OutputError", "OutputSet", "discard_uncommitted", "check_output", "check_output_dir", "atomic_path",
-           "atomic_write_text", "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text", "under_default_out"]
+           "atomic_dir", "atomic_write_text", "atomic_write_bytes", "DEFAULT_OUT_DIR", "json_safe", "json_text",
+           "under_default_out"]

@@ -51,6 +51,16 @@ def test_agent_commands_refuse_bad_input_up_front(tmp_path: Path, capsys: pytest
     # benchmark --workers 0: LocalCluster(n_workers=0) waited for ever
     assert main(["benchmark", "--workers", "0", "--out", str(tmp_path / "b")]) == 2
     assert "--workers must be >= 1" in capsys.readouterr().err
+    # a negative seed and too many episodes were raised by every worker, each with its traceback
+    for flag, value, says in (("--seed", "-1", "--seed must be a non-negative integer, got -1"),
+                              ("--episodes", "1001", "--episodes must be <= 1000, got 1001")):
+        assert main(["benchmark", "--tasks", "ThermoValveStickyValve-v0", flag, value,
+                     "--out", str(tmp_path / "b")]) == 2
+        err = capsys.readouterr().err
+        assert err.strip() == f"thermovalve: error: {says}" or err.strip().startswith(f"thermovalve: error: {says} ")
+    assert main(["benchmark", "--controllers", "pi:Kp=5", "--out", str(tmp_path / "b")]) == 2
+    assert "benchmark takes controllers without options" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists()
     # sweep: an unknown env id and a malformed --set failed inside every cell, after making the sweep directory
     sw = tmp_path / "sw"
     assert main(["sweep", "--env", "Nope-v0", "--out", str(sw)]) == 2

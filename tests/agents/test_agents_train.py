@@ -173,3 +173,27 @@ def test_off_policy_algos_train_briefly(algo: str, tmp_path: Path, short: dict) 
     obs, _ = gym.make("ThermoValve-v0").reset(seed=0)
     act, _ = ctrl.predict(obs)
     assert 40.0 <= float(act[0]) <= 80.0
+
+
+def test_a_failed_run_leaves_the_earlier_run_and_a_finished_one_replaces_it_whole(tmp_path: Path, short: dict) -> None:
+    """A run fills a hidden directory beside its --out and takes its place at the end (valve_env.outputs.atomic_dir).
+    A refused retrain with --force had rewritten config.yml, command.txt and run.json of the run it was to replace
+    before failing, leaving another env's config beside the old model; and a finished retrain left the earlier
+    run's other files behind."""
+    from agents.train import train
+
+    run = tmp_path / "run"
+    kw: dict = {"seed": 0, "timesteps": 256, "overrides": list(TINY_PPO), "env_kwargs": short,
+                "progress_bar": False, "eval_freq": 0}
+    assert train("ppo", "ThermoValve-v0", out=run, command="first", **kw) == run
+    (run / "stale.txt").write_text("from before")
+    before = {f.name: f.read_bytes() for f in run.iterdir() if f.is_file()}
+    with pytest.raises(AssertionError, match="n_steps"):  # SB3 refuses the model after the run has begun
+        train("ppo", "ThermoValve-v0", out=run, command="refused",
+              **{**kw, "overrides": [*TINY_PPO, "hyperparams.n_steps=0"]})
+    assert {f.name: f.read_bytes() for f in run.iterdir() if f.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no hidden directory left
+    train("ppo", "ThermoValve-v0", out=run, command="second", **kw)
+    assert not (run / "stale.txt").exists()
+    assert (run / "command.txt").read_text() == "second\n" and (run / "model.zip").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

@@ -266,3 +266,48 @@ def test_a_command_that_ends_early_leaves_no_staged_temporaries(tmp_path: Path) 
     assert [p for p in tmp_path.iterdir()] == []
     assert run_command(command, argparse.Namespace()) == 1
     assert alive and sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_signal_that_compiled_code_wrapped_still_ends_the_run_as_that_signal(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A signal handled while a compiled kernel returns comes back as ``SystemError: CPUDispatcher(...) returned a
+    result with an exception set``, the signal's exception its cause: a SIGTERM during ``diagnose`` printed that
+    SystemError and exited 1. It ends the run as the signal does (143, or 130 for Ctrl-C), in one line."""
+    from valve_env import cli
+
+    def wrapped(signal_exc: BaseException) -> int:
+        def func(args: object) -> int:
+            try:
+                raise signal_exc
+            except BaseException as exc:
+                raise SystemError("CPUDispatcher(<function k>) returned a result with an exception set") from exc
+        return cli.run_command(func, None)
+
+    assert wrapped(cli._Terminated()) == 143
+    assert capsys.readouterr().err.strip() == "thermovalve: terminated; no output was replaced"
+    assert wrapped(KeyboardInterrupt()) == 130
+    assert capsys.readouterr().err.strip() == "thermovalve: interrupted; no output was replaced"
+
+    def other(args: object) -> int:
+        raise SystemError("something else")
+
+    assert cli.run_command(other, None) == 1
+    assert "SystemError: something else" in capsys.readouterr().err
+
+
+def test_stage_progress_ends_full_when_the_run_needs_fewer_stages(capsys: pytest.CaptureFixture[str],
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A diagnosis counts the stages it may need (a bootstrap per named effect); one that needs fewer ended its
+    progress at 10/12. The last line now reads the whole count; a run that fails stops where it failed."""
+    from valve_env.cliutil import stage_progress
+
+    monkeypatch.delenv("THERMOVALVE_NO_PROGRESS", raising=False)
+    with stage_progress(5, "job") as tick:
+        tick("a")
+        tick("b")
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert [ln.split(" (")[0] for ln in lines] == ["job: 1/5 a", "job: 2/5 b", "job: 5/5 done"]
+    with pytest.raises(RuntimeError), stage_progress(5, "job") as tick:
+        tick("a")
+        raise RuntimeError("stops")
+    assert capsys.readouterr().err.strip().splitlines()[-1].startswith("job: 1/5 a")

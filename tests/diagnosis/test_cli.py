@@ -139,6 +139,13 @@ def test_bad_input_one_line_no_traceback(good: Path, tmp_path: Path, capsys: pyt
     assert code != 0 and "does not exist" in capsys.readouterr().err
     code = main(["diagnose", str(good), "--json", str(good)])
     assert code == 2 and "refusing to overwrite an input" in capsys.readouterr().err
+    # options that cannot hold together: one replicate has no spread (it wrote an sd of 0 and a point interval), and
+    # a report asked for and refused in one command (the report was silently not written)
+    for extra, says in ((["--bootstrap", "1"], "--bootstrap must be 0 or at least 2, got 1"),
+                        (["--no-report", "--report", str(tmp_path / "r.md")], "--no-report and --report exclude")):
+        assert main(["diagnose", str(good), "--json", str(tmp_path / "o.json"), *extra]) == 2
+        assert says in capsys.readouterr().err
+        assert not (tmp_path / "o.json").exists()
 
 
 def test_entry_point_bad_input_subprocess(tmp_path: Path) -> None:

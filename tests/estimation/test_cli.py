@@ -60,6 +60,18 @@ def test_fit_bad_input_exits_nonzero_with_one_line(tmp_path: Path, run_csv: Path
     assert not (tmp_path / "o.json").exists()
 
 
+def test_fit_refuses_a_bootstrap_for_the_plain_fit(tmp_path: Path, run_csv: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """``--bootstrap`` sizes the errors-in-variables fit's temperature bootstrap; with ``--ml`` it was silently
+    ignored. Refused in one line before any work, as is a bootstrap of one replicate."""
+    for extra, says in ((["--ml", "--bootstrap", "4"], "--bootstrap belongs to the errors-in-variables fit"),
+                        (["--bootstrap", "1"], "--bootstrap must be 0 or at least 2, got 1")):
+        assert main(["fit", str(run_csv), "--json", str(tmp_path / "o.json"), *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and says in err[0]
+    assert not (tmp_path / "o.json").exists()
+
+
 def test_fit_eiv_and_robust_fields(tmp_path: Path, run_csv: Path) -> None:
     """The default fit reports the errors-in-variables estimates and their sd (the one a
     study shows calibrated) with the sandwich, the inverse Hessian and the misspecification check

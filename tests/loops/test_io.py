@@ -308,3 +308,19 @@ def test_a_historian_export_saved_otherwise_is_read(tmp_path: Path, kind: str) -
         p.write_text(text, encoding="utf-16" if kind == "utf16" else "utf-8-sig")
     loop = read_loop(p)
     assert loop.tag == plain.tag and np.array_equal(loop.op, plain.op) and np.array_equal(loop.pv, plain.pv)
+
+
+def test_a_stray_quote_spoils_its_own_line_only(tmp_path: Path) -> None:
+    """A quote left open in one line of a long loop CSV is refused naming that line. Read as one CSV stream, the
+    quote ran over every later line into one field until Python's csv field limit (128 KB) failed without naming
+    the file or the line (exit status 1)."""
+    n = 4507  # about 150 KB: past the field limit from line 101 on
+    lines = ["time_s,sp,pv,op"] + [f"{10 * i},50,{50 + np.sin(i / 20):.4f},{40 + np.cos(i / 20):.4f}" for i in range(n)]
+    lines[100] = lines[100].replace(",50,", ',"50,', 1)
+    p = tmp_path / "quote.csv"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(LoopDataError, match=r"quote\.csv line 101: 2 fields, the header has 4"):
+        read_loop(p)
+    lines[100] = lines[100].replace('"', "")
+    p.write_text("\n".join(lines) + "\n")
+    assert read_loop(p).n == n

@@ -146,8 +146,10 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     # commas, or semicolons, tabs (with a decimal comma) or spaces, after '#' comments; a footer left out
     dialect = csv_dialect(lines[:64])
     text = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
+    # each line its own row: a loop CSV holds no field across lines, and a stray quote then spoils its own line
+    # (named below by its number) instead of running to the file's end
     rows = [ln.split() for ln in text] if dialect.sep == " " else \
-        list(csv.reader(io.StringIO("\n".join(text)), delimiter=dialect.sep))
+        [next(csv.reader([ln], delimiter=dialect.sep), []) for ln in text]
     if not rows:
         raise LoopDataError(f"{p}: empty file")
     header = [h.strip() for h in rows[0]]

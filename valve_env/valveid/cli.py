@@ -119,8 +119,10 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
     check_range("--holdout", args.holdout, 0.05, 0.5)
     check_range("--alpha", args.alpha, 0.0, 0.5, lo_open=True, hi_open=True)
-    if args.bootstrap < 0:
-        raise UsageError(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    if args.bootstrap < 0 or args.bootstrap == 1:  # one replicate has no spread: an sd of 0 and a point interval
+        raise UsageError(f"--bootstrap must be 0 or at least 2, got {args.bootstrap}")
+    if args.no_report and args.report:
+        raise UsageError("--no-report and --report exclude each other")
     effects = [s.strip() for s in args.effects.split(",") if s.strip()] if args.effects else None
     cands = check_effects(list(effects) if effects else list(EFFECTS))
     # every output checked before the long work: never an input, never replaced without --force
@@ -192,9 +194,9 @@ def _register_fit(subparsers: Any) -> None:
     p.add_argument("--ml", action="store_true",
                    help="the plain maximum-likelihood fit alone (faster): params the relaxed-denoiser ML estimates, "
                    "std the inverse Hessian, which is NOT calibrated under temperature noise (docs/uncertainty.md)")
-    p.add_argument("--bootstrap", type=int, default=8, metavar="B",
+    p.add_argument("--bootstrap", type=int, default=None, metavar="B",
                    help="temperature-bootstrap refits in the errors-in-variables sd (default 8, the studied setting; "
-                   "0: none, then the sd leaves out the temperature noise's white part)")
+                   "0: none, then the sd leaves out the temperature noise's white part; not with --ml)")
     p.add_argument("--n-starts", type=int, default=3, help="optimiser starts (>= 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the extra starts (>= 0)")
     add_force(p)
@@ -210,10 +212,16 @@ def run_fit(args: argparse.Namespace) -> int:
         raise UsageError(f"--n-starts must be at least 1, got {args.n_starts}")
     if args.seed < 0:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
-    if args.bootstrap < 0 or args.bootstrap == 1:
-        raise UsageError(f"--bootstrap must be 0 or at least 2, got {args.bootstrap}")
     if args.ml and args.eiv:
         raise UsageError("--ml and --eiv exclude each other (the errors-in-variables fit is the default)")
+    if args.ml and args.bootstrap is not None:
+        raise UsageError("--bootstrap belongs to the errors-in-variables fit; --ml fits without it")
+    if args.bootstrap is None:
+        from valve_env.valveid.eiv import EIV_BOOTSTRAP_B
+
+        args.bootstrap = EIV_BOOTSTRAP_B
+    if args.bootstrap < 0 or args.bootstrap == 1:
+        raise UsageError(f"--bootstrap must be 0 or at least 2, got {args.bootstrap}")
     # every output checked before the long work (never an input, never replaced without --force);
     # further outputs (e.g. a fitted valve file) join this set
     outs = OutputSet(inputs=[args.run, args.validate], force=args.force)

@@ -221,8 +221,12 @@ class EIVFit:
                           "denoisers, var = sandwich + bracket^2 / 12 (+ temperature bootstrap)"}
 
 
+#: the temperature-bootstrap refits of :func:`fit_eiv` by default (``thermovalve fit --bootstrap``): the studied setting
+EIV_BOOTSTRAP_B = 8
+
+
 def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: int = 0, model: str = "base",
-            B: int = 8, lags: int | None = None, fixed: dict[str, float] | None = None) -> EIVFit:
+            B: int = EIV_BOOTSTRAP_B, lags: int | None = None, fixed: dict[str, float] | None = None) -> EIVFit:
     """Errors-in-variables fit of the valve (docs/uncertainty.md, "Errors in variables").
 
     1. The model: ``"base"`` (default) the base valve model; ``"eiv"`` the temperature error inside
@@ -300,4 +304,4 @@ def fit_eiv(data: pd.DataFrame, *, valve: Any = None, n_starts: int = 3, seed: i
                   fit_time_s=time.perf_counter() - t0, bootstrap=boot, bias_correction=correction)
 
 
-__all__ = ["EIVResult", "temperature_bootstrap", "REPORTED", "EIVFit", "fit_eiv", "EIV_REPORTED"]
+__all__ = ["EIVResult", "temperature_bootstrap", "REPORTED", "EIVFit", "fit_eiv", "EIV_REPORTED", "EIV_BOOTSTRAP_B"]
