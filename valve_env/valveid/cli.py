@@ -214,7 +214,7 @@ def run_fit(args: argparse.Namespace) -> int:
         raise UsageError(f"--seed must be a non-negative integer, got {args.seed}")
     if args.ml and args.eiv:
         raise UsageError("--ml and --eiv exclude each other (the errors-in-variables fit is the default)")
-    if args.ml and args.bootstrap is not None:
+    if args.ml and args.bootstrap:  # --bootstrap 0 says what --ml does anyway
         raise UsageError("--bootstrap belongs to the errors-in-variables fit; --ml fits without it")
     if args.bootstrap is None:
         from valve_env.valveid.eiv import EIV_BOOTSTRAP_B
