@@ -29,6 +29,7 @@ import shlex
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 
@@ -98,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
                              {**c.env_kwargs, "horizon_h": float(args.horizon_h)}) for c in cells]
             valve_env.make_config(horizon_h=float(args.horizon_h))  # validates
         outs = OutputSet(force=args.force)
+        made = not Path(args.out).exists()
         out = outs.add_dir(args.out)
         paths = {name: outs.add(out / name) for name in
                  ("table.md", "results.json", "episodes.csv", "scores.png", "kpis.png")}
@@ -107,7 +109,12 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     print(f"[benchmark] {len(cells)} cells: {len(tasks)} tasks, seeds {args.seed}..{args.seed + args.episodes - 1}",
           file=sys.stderr)
-    records = run_cells(cells, args.scheduler, args.workers)
+    try:
+        records = run_cells(cells, args.scheduler, args.workers)
+    except BaseException:  # no cluster, a failed cell or an interrupt: leave no empty directory of ours behind
+        if made and not any(out.iterdir()):
+            out.rmdir()
+        raise
     table = bm.task_table(records)
     found = bm.findings(table)
     for task in tasks:  # the limit cycle of pi where the task's valve sticks (plausibility, docs/tasks.md)

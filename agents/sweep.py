@@ -346,6 +346,9 @@ def check_workers(scheduler: str | None, workers: int) -> None:
         raise ValueError(f"--workers must be >= 1, got {workers}")
 
 
+SCHEDULER_TIMEOUT_S = 10.0  # how long --scheduler's address may take to answer
+
+
 @contextmanager
 def dask_client(scheduler: str | None, workers: int) -> Iterator[Any]:
     """A Dask client on ``scheduler``, or on a LocalCluster of ``workers`` single-threaded processes, closed
@@ -355,7 +358,14 @@ def dask_client(scheduler: str | None, workers: int) -> Iterator[Any]:
     check_workers(scheduler, workers)
     cluster = None if scheduler else LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
                                                   dashboard_address=None)
-    client = Client(scheduler) if scheduler else Client(cluster)
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+        except OSError as exc:  # distributed's connection timeout is an OSError: a traceback and exit 1 before
+            raise ValueError(f"--scheduler {scheduler}: no Dask scheduler answered within "
+                             f"{SCHEDULER_TIMEOUT_S:g} s ({type(exc).__name__})") from None
+    else:
+        client = Client(cluster)
     try:
         yield client
     finally:

@@ -82,3 +82,19 @@ def test_agent_commands_refuse_bad_input_up_front(tmp_path: Path, capsys: pytest
     errors = [line for line in err.splitlines() if line.startswith("thermovalve: error:")]
     assert len(errors) == 1 and "--oracle-cache" in errors[0] and "garbage.csv" in errors[0]
     assert not (tmp_path / "tl").exists() or not any((tmp_path / "tl").rglob("*.md"))
+
+
+def test_a_scheduler_that_does_not_answer_is_refused_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """An address with no Dask scheduler behind it: distributed's OSError and exit 1 after 30 s before."""
+    import agents.sweep
+
+    monkeypatch.setattr(agents.sweep, "SCHEDULER_TIMEOUT_S", 1.0)
+    out = tmp_path / "b"
+    assert main(["benchmark", "--tasks", "ThermoValveStickyValve-v0", "--controllers", "pi", "--episodes", "1",
+                 "--scheduler", "tcp://127.0.0.1:9", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    assert err.splitlines()[-1].startswith(
+        "thermovalve: error: --scheduler tcp://127.0.0.1:9: no Dask scheduler answered within 1 s")
+    assert not out.exists()

@@ -142,7 +142,8 @@ def test_bad_input_one_line_no_traceback(good: Path, tmp_path: Path, capsys: pyt
     # options that cannot hold together: one replicate has no spread (it wrote an sd of 0 and a point interval), and
     # a report asked for and refused in one command (the report was silently not written)
     for extra, says in ((["--bootstrap", "1"], "--bootstrap must be 0 or at least 2, got 1"),
-                        (["--no-report", "--report", str(tmp_path / "r.md")], "--no-report and --report exclude")):
+                        (["--no-report", "--report", str(tmp_path / "r.md")], "--no-report and --report exclude"),
+                        (["--effects", " , "], "--effects names no effect")):  # it became every effect
         assert main(["diagnose", str(good), "--json", str(tmp_path / "o.json"), *extra]) == 2
         assert says in capsys.readouterr().err
         assert not (tmp_path / "o.json").exists()

@@ -123,8 +123,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         raise UsageError(f"--bootstrap must be 0 or at least 2, got {args.bootstrap}")
     if args.no_report and args.report:
         raise UsageError("--no-report and --report exclude each other")
-    effects = [s.strip() for s in args.effects.split(",") if s.strip()] if args.effects else None
-    cands = check_effects(list(effects) if effects else list(EFFECTS))
+    effects = None if args.effects is None else [s.strip() for s in args.effects.split(",") if s.strip()]
+    if effects == []:  # an empty list would silently become every effect
+        raise UsageError(f"--effects names no effect; give one or more of {', '.join(EFFECTS)}, "
+                         "or leave it out for all")
+    cands = check_effects(effects if effects is not None else list(EFFECTS))
     # every output checked before the long work: never an input, never replaced without --force
     outs = OutputSet(inputs=[args.run, args.validate], force=args.force)
     out = outs.add(args.json_out, "--json")
