@@ -510,8 +510,10 @@ def env_step(s, acc, out, obs, vp, pp, scen, k, a, bounds, mode, sd, work):
         work[q, 0] = s[q]
     for q in range(N_ACC):
         work[a0 + q, 0] = acc[q]
-    load_inputs(work, 0, ns, row, sd[SD_SET], sd[SD_DP])
-    plant_step(work, 0, 1, vp, pp)
+    # typed column indices, as the batched kernels pass them: constants would be compile-time literals and
+    # compile load_inputs and plant_step (the whole plant, ~14 s) a second time in a process that uses both
+    load_inputs(work, np.uint64(0), ns, row, sd[SD_SET], sd[SD_DP])
+    plant_step(work, np.int64(0), np.int64(1), vp, pp)
     for q in range(ns):
         s[q] = work[q, 0]
     for q in range(N_ACC):
