@@ -4,7 +4,7 @@ in reversals and travel, against the same loop on a valve without stiction.
     python studies/stiction_limit_cycle.py [--seeds 101,102,103] [--bands 0.02,0.04,0.1] [--json OUT.json]
 
 ThermoValve-v0 (the PI trims the valve's temperature setting; the project's tuned gains,
-configs/controllers.yaml), a day of the EU tapping cycle M, seeded; stiction's band 0.02, 0.04 and
+valve_env/data/controllers.yaml), a day of the EU tapping cycle M, seeded; stiction's band 0.02, 0.04 and
 0.1 mm = 1, 2 and 5 % of the 2 mm stroke, the range the control-valve literature reports for real
 valves (0.5-5 % of travel: Choudhury et al. 2005; Jelali & Huang 2010; docs/reference.md). The
 oscillation is measured over the day minus its first 2 h, on the signals freed of their 2-hour
