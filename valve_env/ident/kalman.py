@@ -321,6 +321,23 @@ def _update(x: np.ndarray, P: np.ndarray, yh: np.ndarray, H: np.ndarray, R: np.n
     return ld + 0.5 * quad + 0.5 * m * np.log(2.0 * np.pi)
 
 
+@nb.njit(cache=True)
+def _put_vec(dst: np.ndarray, k: int, src: np.ndarray) -> None:
+    """``dst[k] = src`` for a 1-d ``src``, element by element: a slice assignment compiles numba's shape-mismatch
+    message (string formatting, 4-6 s of compile per shape) into the kernel, and the EKF kernel, which is not cached,
+    compiles in every process."""
+    for i in range(src.shape[0]):
+        dst[k, i] = src[i]
+
+
+@nb.njit(cache=True)
+def _put_mat(dst: np.ndarray, k: int, src: np.ndarray) -> None:
+    """``dst[k] = src`` for a 2-d ``src``, element by element (:func:`_put_vec`)."""
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            dst[k, i, j] = src[i, j]
+
+
 @nb.njit  # not cached: dispatcher arguments break numba's cache reload (see valve_model)
 def _ekf_kernel(f, jf, g, h, jh, r, ctx, t, U, Y, pc, x0, P0, n_sub, foh, jac_each_stage, x_pred,  # noqa: ANN001
                 P_pred, x_filt, P_filt, y_pred, S_out, innov, Phi_out):
@@ -383,19 +400,19 @@ def _ekf_kernel(f, jf, g, h, jh, r, ctx, t, U, Y, pc, x0, P0, n_sub, foh, jac_ea
                     a = 0.5 * (P[i, jj] + P[jj, i])
                     P[i, jj] = a
                     P[jj, i] = a
-        x_pred[k] = x
-        P_pred[k] = P
-        Phi_out[k] = Phi
+        _put_vec(x_pred, k, x)
+        _put_mat(P_pred, k, P)
+        _put_mat(Phi_out, k, Phi)
         uk = U[k]
         yh = h(t[k], x, uk, pc, ctx)
         H = jh(t[k], x, uk, pc, ctx)
         R = r(t[k], x, uk, pc, ctx)
-        y_pred[k] = yh
+        _put_vec(y_pred, k, yh)
         nll += _update(x, P, yh, H, R, Y[k], S_out[k], innov[k])
         if not np.isfinite(nll):
             return np.inf
-        x_filt[k] = x
-        P_filt[k] = P
+        _put_vec(x_filt, k, x)
+        _put_mat(P_filt, k, P)
     return nll
 
 
