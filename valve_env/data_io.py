@@ -4,7 +4,8 @@
 
 The one validation path for a measured run: ``thermovalve fit``, ``thermovalve diagnose``
 and ``thermovalve experiment`` (its output is checked before it is written) all go through
-:func:`validate_run`. It checks, in order: the columns; every value numeric and finite or empty; the
+:func:`validate_run`. It checks, in order: the columns; every value numeric and finite or empty; where x_mm is
+measured, a dp_mbar in another unit that the flow through the valve characteristic shows (:func:`_check_dp_unit`); the
 physical ranges of :data:`RANGES` (dp_mbar > 0, flows >= 0, static pressure > 0 and
 plausible, temperatures within -30..150 degC); time strictly increasing with a plausible
 sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, times within
@@ -46,7 +47,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.params import ValveParams
-from valve_env.physics.valve import opening_from_flow
+from valve_env.physics.valve import flow_kgh, opening_from_flow
 
 REQUIRED: tuple[str, ...] = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar")
 OPTIONAL: tuple[str, ...] = ("x_mm",)
@@ -73,6 +74,16 @@ OTHER_UNITS: dict[str, tuple[tuple[str, str, float, float], ...]] = {
     "dp_mbar": (("Pa", "divide by 100", 0.01, 0.0),),
     "ps_bar": (("kPa", "divide by 100", 0.01, 0.0), ("Pa", "divide by 100000", 1e-5, 0.0)),
 }
+#: Units of dp_mbar that the flow can reveal where x_mm is measured (:func:`_check_dp_unit`): the name, what to do
+#: and the factor to mbar. An SI logger writes Pa; the flow at a given opening grows as sqrt(dp), so a dp in Pa makes
+#: the flow a tenth of what the valve characteristic gives.
+DP_UNITS: tuple[tuple[str, str, float], ...] = (("Pa", "divide by 100", 0.01), ("kPa", "multiply by 10", 10.0),
+                                               ("bar", "multiply by 1000", 1000.0))
+#: The flow-characteristic check's tolerances: the median ratio of q_kgh to the characteristic's flow is "off" beyond a
+#: factor FLOW_OFF, and a unit explains it where it brings the ratio within a factor FLOW_EXPLAINED of 1 and the median
+#: dp within a factor DP_PLAUSIBLE of the valve's calibration dp (dp_k_sp), where the file's own median lies outside it
+#: (a valve of another Kvs at its usual dp is not taken for a unit).
+FLOW_OFF, FLOW_EXPLAINED, DP_PLAUSIBLE = 2.0, 1.25, 5.0
 #: The median sampling interval must lie in this range (s).
 DT_RANGE_S: tuple[float, float] = (1.0e-3, 3600.0)
 #: No single interval between samples may be longer than this (s): one day.
@@ -426,6 +437,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raise DataError(f"{source}: {clock}")
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
         out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", line=first_line)
+    if "x_mm" in out.columns:  # before the ranges: a dp in Pa passes 10 bar on some rows only
+        _check_dp_unit(out, valve or ValveParams(), source)
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
             _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source, first_line)
@@ -484,6 +497,42 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         out.attrs["x_mm_derived_rows"] = n
     out.attrs["source"] = source
     return out.reset_index(drop=True)
+
+
+def _check_dp_unit(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
+    """Refuse a dp_mbar in another unit (:data:`DP_UNITS`) where the measured opening and flow show it.
+
+    With x_mm measured, q_kgh, x_mm and dp_mbar are redundant through the valve characteristic (docs/reference.md,
+    section 1: q = 31.62 Kv(x) sqrt(dp)). On the rows where the valve is open (x above a tenth of the stroke, q > 0),
+    the median of q / q(x, dp) is about 1 for the valve's own data. Where it is off by more than :data:`FLOW_OFF`
+    and a unit of :data:`DP_UNITS` brings both it and the median dp to plausible values (:data:`FLOW_EXPLAINED`,
+    :data:`DP_PLAUSIBLE`), the record is refused in one line naming the unit: a dp 100 times too large moves the
+    force balance's pressure terms, and the diagnosis would name an effect for it. Other mismatches pass: the
+    opening is measured, and the characteristic is used only where it is not."""
+    x = out["x_mm"].to_numpy(dtype=float)
+    q = out["q_kgh"].to_numpy(dtype=float)
+    dp = out["dp_mbar"].to_numpy(dtype=float)
+    with np.errstate(invalid="ignore"):
+        open_ = np.isfinite(x) & np.isfinite(q) & np.isfinite(dp) & (x > 0.1 * valve.stroke) & (q > 0) & (dp > 0)
+    if int(open_.sum()) < 20:
+        return
+    ratio = float(np.median(q[open_] / flow_kgh(x[open_], dp[open_], valve.to_array())))
+    if abs(np.log(ratio)) <= np.log(FLOW_OFF):
+        return
+    dp_cal = valve.dp_k_sp * 1.0e4  # MPa -> mbar
+    dp_med = float(np.median(dp[open_]))
+
+    def plausible(d: float) -> bool:
+        return abs(np.log(d / dp_cal)) <= np.log(DP_PLAUSIBLE)
+
+    if dp_cal <= 0 or plausible(dp_med):
+        return
+    for unit, do, a in DP_UNITS:
+        if abs(np.log(ratio / np.sqrt(a))) <= np.log(FLOW_EXPLAINED) and plausible(a * dp_med):
+            raise DataError(f"{source}: column dp_mbar reads as {unit}: the flow q_kgh is {ratio:.3g} times what x_mm "
+                            f"and dp_mbar give through the valve characteristic (median over {int(open_.sum())} rows "
+                            f"with the valve open), and the median dp {dp_med:.5g} would be {a * dp_med:.3g} mbar "
+                            f"against the valve's calibration {dp_cal:.4g} mbar; {do}")
 
 
 def _units_row(raw: pd.DataFrame, source: str, first: int) -> dict[str, str]:
@@ -621,7 +670,8 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Ca
 
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",
-           "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DT_RANGE_S",
+           "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DP_UNITS",
+           "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list",

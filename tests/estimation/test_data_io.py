@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tests.estimation.conftest import _small_run
 from valve_env.data_io import MIN_ROWS, DataError, load_run
 from valve_env.params import ValveParams
 from valve_env.physics.valve import opening_from_flow
@@ -373,3 +374,36 @@ def test_a_record_of_minutes_or_hours_read_as_seconds_is_named(tmp_path: Path, r
     with pytest.raises(DiagnosisError, match=r"needs at least 1.9 h\); the record spans 1 s over \d+ samples: if "
                                              r"time_s is in minutes or hours, give it in seconds$"):
         check_run(hours, "h.csv")
+
+
+@pytest.fixture(scope="module")
+def open_run() -> pd.DataFrame:
+    """A run whose valve opens (the first hour of :func:`run_df`'s is closed throughout)."""
+    return _small_run(seed=4, hours=4.0)
+
+
+@pytest.mark.parametrize(("mutate", "pattern"), [
+    # a dp in another unit, shown by the flow through the valve characteristic at the measured opening: a dp of 80 mbar
+    # in Pa stays within the range of a dp in mbar on every row
+    (lambda d: d.assign(dp_mbar=d.dp_mbar * 100.0),
+     r"column dp_mbar reads as Pa: the flow q_kgh is 0.1 times what x_mm and dp_mbar give .*; divide by 100$"),
+    (lambda d: d.assign(dp_mbar=d.dp_mbar * 80.0), r"reads as Pa: .* would be 80 mbar .*; divide by 100$"),
+    (lambda d: d.assign(dp_mbar=d.dp_mbar * 0.1), r"reads as kPa: the flow q_kgh is 3.16 times .*; multiply by 10$"),
+    (lambda d: d.assign(dp_mbar=d.dp_mbar * 0.001),
+     r"reads as bar: the flow q_kgh is 31.6 times .*; multiply by 1000$"),
+])
+def test_a_dp_in_another_unit_is_named_from_the_flow(tmp_path: Path, open_run: pd.DataFrame,
+                                                     mutate: Callable[[pd.DataFrame], pd.DataFrame],
+                                                     pattern: str) -> None:
+    with pytest.raises(DataError, match=pattern):
+        load_run(_write(mutate(open_run), tmp_path / "bad.csv"))
+
+
+def test_a_valve_of_another_size_at_its_usual_dp_is_not_taken_for_a_unit(tmp_path: Path, open_run: pd.DataFrame
+                                                                         ) -> None:
+    """A flow a tenth of the characteristic's at a plausible dp (a smaller valve than the calibrated one) loads; so does
+    a dp in Pa without a measured opening, where nothing shows the unit but the range."""
+    out = load_run(_write(open_run.assign(q_kgh=open_run.q_kgh * 0.1), tmp_path / "small_valve.csv"))
+    np.testing.assert_allclose(out["dp_mbar"], open_run["dp_mbar"])
+    low = open_run.assign(dp_mbar=open_run.dp_mbar * 80.0).drop(columns=["x_mm"])
+    assert load_run(_write(low, tmp_path / "no_x.csv"))["dp_mbar"].median() > 7000.0
