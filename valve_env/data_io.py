@@ -170,16 +170,21 @@ _DECIMAL_POINT = re.compile(r"^[+-]?\d*\.\d+([eE][+-]?\d+)?$")
 #: a number with its thousands grouped by points, as a spreadsheet in a decimal-comma locale writes a formatted
 #: cell (``1.234,5``, ``12.500``)
 _GROUPED = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+(,\d+)?$")
+#: a number whose thousands a comma groups, with a decimal point (``1,003.709``: a spreadsheet's "1000 separator")
+_COMMA_GROUPED = re.compile(r"^[+-]?\d{1,3}(,\d{3})+\.\d*$")
 
 
 def decimal_mark_hint(cell: str) -> str:
     """What a refusal of ``cell`` as not a number adds where the cell is a number written with a decimal comma
     (``0,0033``, ``1.234,5``) in a file whose other numbers have a decimal point (a spreadsheet that exported some
-    columns as text): which mark is meant is not known, so the file is not read. Else ''."""
+    columns as text): which mark is meant is not known, so the file is not read. Where a comma groups the thousands of
+    a number with a decimal point (``1,003.709``), it says so. Else ''."""
     c = cell.strip()
     if _DECIMAL_COMMA.match(c) or (_GROUPED.match(c) and "," in c):
         return "; it has a decimal comma where the file's other numbers have a decimal point: write every number " \
                "with one decimal mark"
+    if _COMMA_GROUPED.match(c):
+        return "; a comma groups its thousands (a spreadsheet's thousands separator): write numbers without it"
     return ""
 
 

@@ -179,6 +179,20 @@ def test_a_file_with_both_decimal_marks_is_refused_saying_so(tmp_path: Path, run
     assert "\n" not in str(info.value)
 
 
+def test_a_thousands_separator_is_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A spreadsheet's "1000 separator" (``1,234.5``, quoted in a comma-separated file) is refused in one line that
+    names it, at the first cell that has one."""
+    df = run_df.astype({"q_kgh": object})
+    df["q_kgh"] = [f"{v * 1e4:,.3f}" for v in run_df["q_kgh"]]  # scaled into the thousands: the refusal reads the text
+    first = next(i for i, v in enumerate(df["q_kgh"]) if "," in v)
+    path = tmp_path / "grouped.csv"
+    df.to_csv(path, index=False)
+    with pytest.raises(DataError, match=rf"in column 'q_kgh' at row {first + 1} \(line {first + 2}\); a comma groups "
+                                        r"its thousands \(a spreadsheet's thousands separator\): write numbers "
+                                        r"without it$"):
+        load_run(path)
+
+
 @pytest.mark.parametrize(("sep", "decimal", "comments"), [
     (";", ",", ""), ("\t", ".", ""), (",", ".", "# rig 2, valve 7\n\n# logged every 10 s\n"), (";", ".", "# export\n"),
 ])
