@@ -4,8 +4,8 @@ calls it: a result with finite numbers (the cause one of the format's), or a ref
 The reader's tests (tests/loops/test_io.py) take each convention alone; here they are stacked on simulated loops of
 wide variety (:func:`valve_env.loops.sim.random_case`): a historian's states and repeated rows, a spreadsheet's
 semicolons, decimal commas, units row and error values, a mode by name, rounding, storage on change, jitter, dropped
-samples, OP as a fraction or in engineering units, extra columns in any order, another interval, a short record and
-a logger's comment lines among the data.
+samples, OP as a fraction or in engineering units, extra columns in any order, another interval, a short record,
+a logger's comment lines among the data and a historian's -9999 sentinels.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ from valve_env.loops.sim import random_case, simulate_case
 
 #: the conventions of a loop record's file (:func:`loop_file`)
 LOOP_CONVENTIONS = ("quantised", "stored_on_change", "dropped_10", "jitter_20", "op_fraction", "op_eng", "sheet",
-                    "mode_names", "extra_columns", "historian", "every_other", "first_40_min", "logger_comments")
+                    "mode_names", "extra_columns", "historian", "every_other", "first_40_min", "logger_comments",
+                    "sentinels")
 
 
 def _store_on_change(y: np.ndarray, deadband: float) -> np.ndarray:
@@ -78,6 +79,10 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
             df.loc[rows, c] = rng.choice(["I/O Timeout", "Bad Input", "No Data"], size=rows.size)
         twice = rng.choice(np.arange(1, len(df) - 1), size=max(1, len(df) // 100), replace=False)
         df = df.iloc[np.sort(np.concatenate([np.arange(len(df)), twice]))].reset_index(drop=True)
+    if "sentinels" in names:  # a historian's -9999 where it had no value, on two isolated samples of PV and one of OP
+        for c, k in (("pv", 2), ("op", 1)):
+            rows = rng.choice(np.arange(5, len(df) - 5, 10), size=k, replace=False)
+            df.loc[rows, c] = -9999.0
     sep, comma = (";", True) if "sheet" in names else (",", False)
     if "sheet" in names:  # a spreadsheet's error values
         rows = rng.choice(np.arange(1, len(df) - 1), size=max(1, len(df) // 300), replace=False)
@@ -110,6 +115,7 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
 @example(names=["historian", "mode_names", "quantised", "sheet", "stored_on_change"], seed=13, plant=False,
          quantify=True)
 @example(names=["first_40_min", "jitter_20", "op_fraction"], seed=5, plant=True, quantify=False)
+@example(names=["sentinels", "op_eng", "dropped_10"], seed=7, plant=False, quantify=True)
 def test_stacked_loop_conventions_give_finite_results_or_refuse_in_one_line(
         tmp_path_factory: pytest.TempPathFactory, capsys: pytest.CaptureFixture[str], names: list[str], seed: int,
         plant: bool, quantify: bool) -> None:
@@ -145,7 +151,8 @@ def test_the_loop_file_conventions_are_read(tmp_path: Path) -> None:
     df = pd.DataFrame({"time_s": loop.time_s, "sp": loop.sp, "pv": loop.pv, "op": loop.op})
     noted = {"dropped_10": "resampled", "jitter_20": "resampled", "op_eng": "engineering units",
              "op_fraction": "within 0 to 1", "sheet": "units row", "mode_names": "manual mode",
-             "historian": "missing value", "logger_comments": "comment line(s) among the data"}
+             "historian": "missing value", "logger_comments": "comment line(s) among the data",
+             "sentinels": "far outside their column's record"}
     for name in LOOP_CONVENTIONS:
         p = tmp_path / f"{name}.csv"
         p.write_text(loop_file(df, [name], np.random.default_rng(11)))

@@ -85,6 +85,41 @@ def test_op_in_engineering_units_is_scaled_by_its_range(tmp_path: Path) -> None:
     assert any("if the export gives OP as a fraction" in n for n in frac.notes)
 
 
+def test_a_historians_sentinels_and_gross_spikes_are_read_as_missing(tmp_path: Path) -> None:
+    """-9999 where the historian had no value, and a spike of ten times the PV, in short isolated runs: read as
+    missing, with a note naming the samples, and the record resampled over them. Left in, one -9999 in the OP made
+    the OP's observed range its scale (every band in % of a 10,000-unit range)."""
+    n = 300
+    pv = 50.0 + np.sin(np.arange(n) * 10.0 / 300.0)
+    op = 40.0 + 5.0 * np.cos(np.arange(n) * 10.0 / 300.0)
+    bad_pv = np.where(np.isin(np.arange(n), [40, 41]), -9999.0, np.where(np.arange(n) == 150, 10.0 * pv, pv))
+    bad_op = np.where(np.arange(n) == 0, -9999.0, op)  # the first sample too
+    loop = read_loop(_write_csv(tmp_path / "sentinel.csv", pv=bad_pv, op=bad_op))
+    clean = read_loop(_write_csv(tmp_path / "clean.csv", pv=pv, op=op))
+    assert loop.op_scaled_from is None
+    assert loop.notes[0].startswith("read 4 value(s) far outside their column's record as missing")
+    assert "pv at sample(s) 41, 42, 151 (-9999 first)" in loop.notes[0] and "op at sample(s) 1 (-9999" in loop.notes[0]
+    assert loop.pv.min() > 48.9 and loop.pv.max() < 51.1 and loop.op.min() > 34.9
+    np.testing.assert_allclose(loop.pv[60:140], clean.pv[61:141], atol=1e-4)  # the grid starts at the second sample
+    assert clean.notes == []
+
+
+@pytest.mark.parametrize("kind", ["kick", "frequent", "long"])
+def test_what_may_be_the_plants_own_is_kept(tmp_path: Path, kind: str) -> None:
+    """A controller's kick at a set-point step rises and decays through its neighbours; excursions on more than 1 % of
+    the samples, or longer than three samples, may be the plant's: each is kept as recorded."""
+    n = 300
+    op = 40.0 + 0.5 * np.cos(np.arange(n) * 10.0 / 300.0)
+    if kind == "kick":
+        op[150:157] += np.array([6.0, 14.0, 11.0, 7.0, 4.0, 2.0, 1.0])
+    elif kind == "frequent":
+        op[np.arange(10, n, 25)] = 90.0  # 12 of 300 samples: 4 %
+    else:
+        op[100:104] = 90.0
+    loop = read_loop(_write_csv(tmp_path / f"{kind}.csv", op=op))
+    assert loop.notes == [] and loop.op.max() == pytest.approx(op.max(), rel=1e-5)
+
+
 def test_short_record_is_read_and_missing_column_refused(tmp_path: Path) -> None:
     """A well-formed short record is read (the diagnosis names it insufficient_data); a malformed file is refused."""
     assert read_loop(_write_csv(tmp_path / "short.csv", n=50)).n == 50

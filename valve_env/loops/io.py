@@ -13,7 +13,9 @@ are merged with a note: exact duplicates dropped, differing rows averaged
 (:func:`merge_repeated_timestamps`); time that goes backwards stays an error.
 
 Samples that miss a value (an empty cell or a NaN marker, :data:`MISSING_MARKERS`) are dropped with a note, up to
-:data:`MAX_MISSING_FRACTION` of them, and the record is resampled over them.
+:data:`MAX_MISSING_FRACTION` of them, and the record is resampled over them. A value far outside its column's record
+(a historian's sentinel such as -9999, or a gross spike), in short isolated runs, is read as missing, with a note
+naming the samples (:func:`gross_outliers`).
 
 Every problem with a record raises :class:`LoopDataError` whose message is one line naming the
 problem (too many missing values, an infinite one, non-increasing time, a missing column, ...). A well-formed
@@ -73,6 +75,16 @@ MISSING_MARKERS = RUN_MISSING_MARKERS
 #: cascade (the loop closed, its set point from another loop) are 1, manual 0
 MODE_NAMES: dict[str, float] = {"auto": 1.0, "aut": 1.0, "automatic": 1.0, "cas": 1.0, "casc": 1.0, "cascade": 1.0,
                                 "man": 0.0, "manual": 0.0, "hand": 0.0}
+
+
+#: a sample lies far outside its column's own record (:func:`gross_outliers`) where it is this many times the width of
+#: the column's central 90 % (its 5 and 95 percentiles) beyond that range: a historian's sentinel (-9999, 99999)
+#: or a gross spike, which no loop's motion makes
+GROSS_RANGES = 3.0
+#: such samples are treated as missing only in runs of at most this many consecutive samples ...
+GROSS_MAX_RUN = 3
+#: ... and only up to this share of the samples; a longer or more frequent excursion is left as recorded
+GROSS_MAX_FRACTION = 0.01
 
 
 class LoopDataError(ValueError):
@@ -308,6 +320,35 @@ def merge_repeated_timestamps(cols: dict[str, np.ndarray]) -> tuple[dict[str, np
     return out, note
 
 
+def gross_outliers(v: np.ndarray) -> np.ndarray:
+    """The samples of a column that lie far outside its record and come back at once.
+
+    Far: beyond the column's central 90 % (its 5 and 95 percentiles, width w: robust to the sentinels themselves) by
+    more than :data:`GROSS_RANGES` w. At once: in runs of at most :data:`GROSS_MAX_RUN` samples whose neighbours on
+    both sides lie within w of that range. At most :data:`GROSS_MAX_FRACTION` of the samples in all, else none:
+    excursions that frequent may be the plant's. A historian writes a sentinel (-9999) where it has no value, and a
+    transmitter's fault gives an isolated spike; either, left in, moves the correlations and the fit (one -9999 in an
+    OP read as % made the OP's observed range its scale). A controller's kick at a set-point step also leaves the
+    range for a few samples, but it rises and decays through its neighbours, which lie outside the range too, and it
+    is kept. Missing values (NaN) are not counted. Returns a boolean mask."""
+    ok = np.isfinite(v)
+    flags = np.zeros(v.size, dtype=bool)
+    if ok.sum() < 10:
+        return flags
+    lo, hi = (float(q) for q in np.percentile(v[ok], [5.0, 95.0]))
+    w = hi - lo
+    with np.errstate(invalid="ignore"):
+        far = ok & ((v < lo - GROSS_RANGES * w) | (v > hi + GROSS_RANGES * w))
+        near = ok & (v >= lo - w) & (v <= hi + w)
+    edges = np.diff(np.r_[0, far.astype(np.int8), 0])
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        if b - a <= GROSS_MAX_RUN and (a == 0 or near[a - 1]) and (b == v.size or near[b]):
+            flags[a:b] = True
+    if flags.sum() > GROSS_MAX_FRACTION * ok.sum():
+        flags[:] = False
+    return flags
+
+
 def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> LoopData:
     """Validate raw columns (``time_s, sp, pv, op`` and optional ``mv, mode``); see the module doc."""
     where = source or "loop"
@@ -322,6 +363,18 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
             if bad.size:
                 raise LoopDataError(f"{where}: column {c} has {bad.size} NaN/infinite value(s), first at "
                                     f"sample {bad[0] + 1}")
+    gross = {c: gross_outliers(cols[c]) for c in ("sp", "pv", "op", "mv") if c in cols}
+    if any(g.any() for g in gross.values()):
+        said = []
+        for c, g in gross.items():
+            if g.any():
+                idx = np.flatnonzero(g)
+                said.append(f"{c} at sample(s) {short_list([int(i) + 1 for i in idx])} ({cols[c][idx[0]]:.6g} "
+                            f"first)")
+                cols = {**cols, c: np.where(g, np.nan, cols[c])}
+        notes.append(f"read {sum(int(g.sum()) for g in gross.values())} value(s) far outside their column's record as "
+                     f"missing (a historian's sentinel or a gross spike: beyond the central 90 % by "
+                     f"{GROSS_RANGES:g} times its width): {'; '.join(said)}")
     missing = np.zeros(n, dtype=bool)
     for c in ("sp", "pv", "op", "mv", "mode"):
         if c in cols:
@@ -392,4 +445,5 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
 
 __all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "MAX_MISSING_FRACTION", "MISSING_MARKERS", "MODE_NAMES",
            "read_loop", "read_loop_csv", "read_historian",
-           "check_loop", "merge_repeated_timestamps"]
+           "check_loop", "merge_repeated_timestamps", "gross_outliers", "GROSS_RANGES", "GROSS_MAX_RUN",
+           "GROSS_MAX_FRACTION"]
