@@ -157,3 +157,25 @@ def test_entry_point_bad_input_subprocess(tmp_path: Path) -> None:
     assert r.returncode == 2
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert "missing column" in r.stderr
+
+
+def test_a_valve_parameter_on_its_fit_bound_is_said_and_writes_no_valve(tmp_path: Path,
+                                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """A flow in g/s read as kg/h, with no x_mm column: the derived opening is 3.6 times too small, and the fit leaves
+    F_hmax on its bound (20 N), a number of the search range, not of the valve. The diagnosis says so, with the flow's
+    units as a likely cause, and `--valve-out` writes no valve file from it (before, it wrote F_hmax = 20 N)."""
+    df = simulate_experiment(seed=20271254, duration_h=3.0, dt_s=20.0)
+    df = df[[c for c in df.columns if not c.startswith("true_")]].drop(columns=["x_mm"])
+    run = tmp_path / "grams.csv"
+    df.assign(q_kgh=df.q_kgh / 3.6).to_csv(run, index=False)
+    out, valve = tmp_path / "d.json", tmp_path / "valve.yaml"
+    args = ["diagnose", str(run), "--json", str(out), "--no-report", "--bootstrap", "0"]
+    code = main([*args, "--valve-out", str(valve)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and not out.exists() and not valve.exists()
+    assert err[-1].startswith(f"thermovalve: error: {run}: the diagnosed model leaves F_hmax on its fit bound")
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    note = next(n for n in json.loads(out.read_text())["notes"] if "fit bound" in n)
+    assert note.startswith("the diagnosed model leaves F_hmax on its fit bound (20 N)")
+    assert "derived from q_kgh and dp_mbar" in note and f"warning: {note}" in printed

@@ -31,7 +31,7 @@ from valve_env.ident.tests import delta_bic, ljung_box, lr_test
 from valve_env.params import ValveParams
 from valve_env.valveid.bootstrap import METHOD, conditional_std, denoised_run, world_opening
 from valve_env.valveid.estimator import ValveEstimator
-from valve_env.valveid.fitting import FitResult, Model, RunData
+from valve_env.valveid.fitting import BASE_PARAMS, FitResult, Model, RunData
 from valve_env.valveid.preprocess import preprocess_run
 from valve_env.valveid.robust import robust_finding
 from valve_env.valveid.stiction import MIN_JUMPS, RESOLUTION_BAND_FACTOR, opening_noise, slips
@@ -211,8 +211,13 @@ class Diagnosis:
     @property
     def warnings(self) -> list[str]:
         """The notes a user must not miss (the console shows them as warnings): a valve parameter the record does
-        not identify (:func:`identification_notes`)."""
-        return identification_notes(self.base, self.final)
+        not identify, or that ends on its fit bound (:func:`identification_notes`)."""
+        return identification_notes(self.base, self.final, self.x_derived)
+
+    @property
+    def x_derived(self) -> bool:
+        """Whether the run's opening was derived from its flow (no x_mm column, or empty cells of it)."""
+        return any(n.get("what") == "x_mm_derived" for n in self.preprocessing.get("run", []))
 
     def to_json(self) -> dict[str, Any]:
         b = self.base
@@ -313,10 +318,37 @@ def unidentified(fit: FitResult) -> list[str]:
     return [k for k in VALVE_PARAMS if not math.isfinite(float(sd.get(k, math.nan)))]
 
 
-def identification_notes(base: FitResult, final: FitResult) -> list[str]:
+def on_bound(fit: FitResult) -> list[str]:
+    """The valve's parameters that end on a bound of their fit range (:data:`~valve_env.valveid.fitting.BASE_PARAMS`,
+    within 0.1 %) in ``fit``: a value beyond the range would fit better, so the record does not determine them there,
+    and their inverse-Hessian sd, read off the curvature at the bound, means nothing."""
+    out = []
+    for q in BASE_PARAMS:
+        v = float(fit.params[q.name])
+        if any(b is not None and b > 0 and v > 0 and abs(math.log(v / b)) < 1e-3 for b in (q.lower, q.upper)):
+            out.append(q.name)
+    return out
+
+
+def _bounds_text(fit: FitResult, names: list[str]) -> str:
+    units = {q.name: q.unit for q in BASE_PARAMS}
+    return ", ".join(f"{k} on its fit bound ({fit.params[k]:.4g} {units[k]})" for k in names)
+
+
+def identification_notes(base: FitResult, final: FitResult, x_derived: bool = False) -> list[str]:
     """A note where the record does not identify a valve parameter: in the diagnosed model (whose sd is then null in
     the JSON; the cause rests on the effects' own parameters, which carry their sds, and no valve file is written),
-    or in the base model alone (a named effect's misfit can flatten it, as a sensor lag does sigma)."""
+    or in the base model alone (a named effect's misfit can flatten it, as a sensor lag does sigma). Likewise where a
+    valve parameter ends on its fit bound (:func:`on_bound`); ``x_derived``: the opening was derived from the flow
+    (no x_mm column), whose units then set its scale."""
+    bound = on_bound(final)
+    if bound:
+        why = (" The opening is derived from q_kgh and dp_mbar (no x_mm column): a flow in l/min or g/s, or a dp in "
+               "Pa, rescales it and gives such a fit." if x_derived else "")
+        return [f"the diagnosed model leaves {_bounds_text(final, bound)}: a value outside the valve's range would fit "
+                "better, so the record does not determine it, its sd means nothing, and no valve file is written "
+                "from this record; an effect the model lacks, or a channel in another unit, is the likely cause."
+                + why]
     flat = unidentified(final)
     if flat:
         return [f"the record does not identify {', '.join(flat)} (no finite standard error in the diagnosed model: "
@@ -326,6 +358,10 @@ def identification_notes(base: FitResult, final: FitResult) -> list[str]:
     if flat:
         return [f"the base model alone does not identify {', '.join(flat)} on this record (sd null in 'base'); the "
                 "diagnosed model does"]
+    bound = on_bound(base)
+    if bound:
+        return [f"the base model alone leaves {_bounds_text(base, bound)} on this record (its sd in 'base' means "
+                "nothing); the diagnosed model does not"]
     return []
 
 
@@ -1004,7 +1040,8 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "bootstrap_replicates": bootstrap_B,
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
-    notes += identification_notes(base, final)
+    notes += identification_notes(base, final, any(n.get("what") == "x_mm_derived"
+                                                   for n in run.attrs.get("preprocessing", [])))
     withheld = list(conditional_std(final))
     if withheld:
         notes.append(f"the sd of {', '.join(withheld)} is withheld in the {'+'.join(final.effects)} model (null): with "
