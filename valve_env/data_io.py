@@ -147,6 +147,28 @@ def time_unit_hint(t: np.ndarray) -> str:
             "seconds")
 
 
+#: Flow units a logger writes where q_kgh is asked for, and their factor to kg/h (water): what
+#: :func:`flow_unit_hint` tries where the opening derived from the flow cannot be right.
+FLOW_UNITS: tuple[tuple[str, float], ...] = (("l/min", 60.0), ("m^3/h", 1000.0), ("kg/s", 3600.0))
+
+
+def flow_unit_hint(q_kgh: np.ndarray, dp_mbar: np.ndarray, valve: ValveParams | None = None) -> str:
+    """What a refusal of a run whose opening is derived from the flow (no x_mm column) adds where the derived opening
+    hardly moves or cannot be fitted: the flow units of :data:`FLOW_UNITS` under which the derived opening would span
+    at least a tenth of the stroke with at most a fifth of the rows at the stroke's end. Else ''."""
+    v = valve or ValveParams()
+    vp = v.to_array()
+    fits = []
+    for unit, a in FLOW_UNITS:
+        x = opening_from_flow(a * np.asarray(q_kgh, dtype=float), np.asarray(dp_mbar, dtype=float), vp)
+        if np.ptp(x) >= 0.1 * v.stroke and np.mean(x >= 0.999 * v.stroke) <= 0.2:
+            fits.append(f"{unit} (multiply by {a:g}: the opening would span {np.ptp(x):.2g} mm of the {v.stroke:g} mm "
+                        "stroke)")
+    if not fits:
+        return ""
+    return "; the opening is derived from q_kgh and dp_mbar (no x_mm column): if q_kgh is in " + " or ".join(fits)
+
+
 def header_units(header: list[str], names: tuple[str, ...]) -> dict[str, tuple[str, str]]:
     """The header's columns written as one of the format's ``names`` with a unit after it, as loggers label a column
     (``T_tank_C [°C]``): {the column as written: (the name, the unit)}. Both readers check the unit and read the
@@ -680,5 +702,5 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list",
-           "unit_key", "header_units", "time_unit_hint", "SHORT_SPAN_S", "text_cells", "is_number", "decimal_comma",
-           "decimal_mark_hint"]
+           "unit_key", "header_units", "time_unit_hint", "flow_unit_hint", "FLOW_UNITS", "SHORT_SPAN_S", "text_cells",
+           "is_number", "decimal_comma", "decimal_mark_hint"]

@@ -110,6 +110,9 @@ def _bad_files(tmp: Path, good: Path) -> dict[str, tuple[Path, str]]:
     d = df.copy()
     d["T_tank_C"] = 55.0
     put("constant", d, "constant")
+    # a flow in l/min without x_mm: the derived opening hardly moves, and l/min is named
+    d = df.drop(columns=[c for c in df.columns if c == "x_mm" or c.startswith("true_")])
+    put("flow_in_l_per_min", d.assign(q_kgh=d.q_kgh / 60.0), "if q_kgh is in l/min (multiply by 60: the opening would")
     p = tmp / "empty.csv"
     p.write_text("")
     cases["empty"] = (p, "empty")

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 
 from tests.estimation.conftest import _small_run
-from valve_env.data_io import MIN_ROWS, DataError, load_run
+from valve_env.data_io import MIN_ROWS, DataError, flow_unit_hint, load_run
 from valve_env.params import ValveParams
 from valve_env.physics.valve import opening_from_flow
 
@@ -421,3 +421,14 @@ def test_a_valve_of_another_size_at_its_usual_dp_is_not_taken_for_a_unit(tmp_pat
     np.testing.assert_allclose(out["dp_mbar"], open_run["dp_mbar"])
     low = open_run.assign(dp_mbar=open_run.dp_mbar * 80.0).drop(columns=["x_mm"])
     assert load_run(_write(low, tmp_path / "no_x.csv"))["dp_mbar"].median() > 7000.0
+
+
+def test_a_flow_unit_is_named_where_it_would_make_the_derived_opening_move(open_run: pd.DataFrame) -> None:
+    """Without x_mm, a flow in l/min, m^3/h or kg/s derives an opening that hardly moves; the hint names the units
+    under which it would span at least a tenth of the stroke, and nothing for a flow in kg/h."""
+    q, dp = open_run["q_kgh"].to_numpy(), open_run["dp_mbar"].to_numpy()
+    assert flow_unit_hint(q, dp) == ""
+    assert "if q_kgh is in l/min (multiply by 60: the opening would span" in flow_unit_hint(q / 60.0, dp)
+    assert " or " not in flow_unit_hint(q / 60.0, dp)
+    assert "m^3/h (multiply by 1000" in flow_unit_hint(q / 1000.0, dp)
+    assert "kg/s (multiply by 3600" in flow_unit_hint(q / 3600.0, dp)

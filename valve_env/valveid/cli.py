@@ -294,10 +294,14 @@ def run_fit(args: argparse.Namespace) -> int:
             # lag), not a record too short to fit the model; the named effects are diagnose's
             p_lb = min(e["ljung_box_p"] for e in mis["outputs"].values())
             at = f"parameter {bound[0]!r} is at a bound ({est.params_[bound[0]]:.6g})"
+            from valve_env.data_io import flow_unit_hint
+
+            derived = int(data.attrs.get("x_mm_derived_rows", 0)) == len(data)
+            hint = flow_unit_hint(data["q_kgh"].to_numpy(), data["dp_mbar"].to_numpy()) if derived else ""
             raise UsageError(f"{args.run}: the paper's model does not explain this record ({at}, "
                              f"and the one-step residuals are not white, Ljung-Box p = {p_lb:.2g}): "
                              f"an effect the model lacks, or too little excitation; `thermovalve diagnose "
-                             f"{args.run}` tries the named effects")
+                             f"{args.run}` tries the named effects{hint}")
         raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} ({why}); "
                          "a longer record with wider temperature swings is needed")
     with outs:

@@ -23,7 +23,7 @@ from typing import Any, TypeGuard
 import numpy as np
 import pandas as pd
 
-from valve_env.data_io import REQUIRED, DataError, load_run, time_unit_hint, validate_run
+from valve_env.data_io import REQUIRED, DataError, flow_unit_hint, load_run, time_unit_hint, validate_run
 from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.effects import check_effects
 from valve_env.ident.bootstrap import NORMAL_P, replicates
@@ -84,8 +84,10 @@ def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
         raise DiagnosisError(f"{name}: T_tank_C is constant (range {np.ptp(T):.3g} K < {MIN_T_RANGE_K:g} K): "
                              "a constant temperature identifies nothing")
     if np.ptp(out["x_mm"].to_numpy()) < MIN_X_RANGE_MM:
+        derived = int(checked.attrs.get("x_mm_derived_rows", 0)) == len(checked)
+        hint = flow_unit_hint(out["q_kgh"].to_numpy(), out["dp_mbar"].to_numpy()) if derived else ""
         raise DiagnosisError(f"{name}: the valve opening hardly moves (range {np.ptp(out['x_mm']):.3g} mm): "
-                             "nothing to identify")
+                             f"nothing to identify{hint}")
     out = out.reset_index(drop=True)
     out.attrs["preprocessing"] = notes
     return out
