@@ -5,10 +5,10 @@
 The one validation path for a measured run: ``thermovalve fit``, ``thermovalve diagnose``
 and ``thermovalve experiment`` (its output is checked before it is written) all go through
 :func:`validate_run`. It checks, in order: the columns; every value numeric and finite or empty; where x_mm is
-measured, a dp_mbar in another unit that the flow through the valve characteristic shows (:func:`_check_dp_unit`); the
-physical ranges of :data:`RANGES` (dp_mbar > 0, flows >= 0, static pressure > 0 and
-plausible, temperatures within -30..150 degC); time strictly increasing with a plausible
-sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, times within
+measured, an opening beyond the valve's stroke (:func:`_check_stroke`) and a dp_mbar in another unit that the flow
+through the valve characteristic shows (:func:`_check_dp_unit`); the physical ranges of :data:`RANGES` (dp_mbar > 0,
+flows >= 0, static pressure > 0 and plausible, temperatures within -30..150 degC); time strictly increasing with a
+plausible sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, times within
 :data:`MAX_ABS_TIME_S`); the record length; a temperature that moves; an opening that can be
 known (a flow that is zero everywhere with no x_mm column is rejected). Each failure is one
 line naming the column and the row (row 1 is the first data row; the line is the file's own). An empty cell in
@@ -84,6 +84,9 @@ DP_UNITS: tuple[tuple[str, str, float], ...] = (("Pa", "divide by 100", 0.01), (
 #: dp within a factor DP_PLAUSIBLE of the valve's calibration dp (dp_k_sp), where the file's own median lies outside it
 #: (a valve of another Kvs at its usual dp is not taken for a unit).
 FLOW_OFF, FLOW_EXPLAINED, DP_PLAUSIBLE = 2.0, 1.25, 5.0
+#: How far beyond the valve's stroke the opening's record may reach (its 99th percentile; :func:`_check_stroke`): a
+#: transducer's noise and overtravel stay well within it.
+STROKE_MARGIN = 1.25
 #: The median sampling interval must lie in this range (s).
 DT_RANGE_S: tuple[float, float] = (1.0e-3, 3600.0)
 #: No single interval between samples may be longer than this (s): one day.
@@ -464,7 +467,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raise DataError(f"{source}: {clock}")
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
         out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", line=first_line)
-    if "x_mm" in out.columns:  # before the ranges: a dp in Pa passes 10 bar on some rows only
+    if "x_mm" in out.columns:  # before the ranges: an opening in % or a dp in Pa passes them on some rows only
+        _check_stroke(out, valve or ValveParams(), source)
         _check_dp_unit(out, valve or ValveParams(), source)
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
@@ -524,6 +528,26 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         out.attrs["x_mm_derived_rows"] = n
     out.attrs["source"] = source
     return out.reset_index(drop=True)
+
+
+def _check_stroke(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
+    """Refuse an opening that reaches beyond the valve's stroke (its 99th percentile above :data:`STROKE_MARGIN`
+    strokes), naming the unit that would bring it within the stroke where one does: a position transmitter's % of the
+    stroke, or um. The range check (:data:`RANGES`, up to 50 mm) holds for any valve; this one for the valve being
+    identified, whose force balance holds only between seat and stop."""
+    x = out["x_mm"].to_numpy(dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size < 20:
+        return
+    top = float(np.percentile(x, 99.0))
+    reach = STROKE_MARGIN * valve.stroke
+    if top <= reach:
+        return
+    hint = next((f"; if x_mm is in {unit}, multiply by {a:g}" for unit, a in
+                 (("% of the stroke", valve.stroke / 100.0), ("um", 1e-3)) if 0.1 * valve.stroke <= a * top <= reach),
+                "")
+    raise DataError(f"{source}: column x_mm reaches {top:.4g} mm (its 99th percentile), beyond the valve's "
+                    f"{valve.stroke:g} mm stroke (the calibrated valve, docs/reference.md, section 1){hint}")
 
 
 def _check_dp_unit(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
@@ -698,7 +722,7 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Ca
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",
            "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DP_UNITS",
-           "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "DT_RANGE_S",
+           "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "STROKE_MARGIN", "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list",

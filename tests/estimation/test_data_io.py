@@ -405,8 +405,15 @@ def open_run() -> pd.DataFrame:
     (lambda d: d.assign(dp_mbar=d.dp_mbar * 0.1), r"reads as kPa: the flow q_kgh is 3.16 times .*; multiply by 10$"),
     (lambda d: d.assign(dp_mbar=d.dp_mbar * 0.001),
      r"reads as bar: the flow q_kgh is 31.6 times .*; multiply by 1000$"),
+    # an opening beyond the valve's 2 mm stroke: a position transmitter's % of the stroke (within the 50 mm range where
+    # the valve opens to less than half its stroke), or um
+    (lambda d: d.assign(x_mm=d.x_mm * 50.0 * 0.5),
+     r"column x_mm reaches .* mm \(its 99th percentile\), beyond the valve's 2 mm stroke .*; if x_mm is in % of the "
+     r"stroke, multiply by 0.02$"),
+    (lambda d: d.assign(x_mm=d.x_mm * 1000.0),
+     r"beyond the valve's 2 mm stroke .*; if x_mm is in um, multiply by 0.001$"),
 ])
-def test_a_dp_in_another_unit_is_named_from_the_flow(tmp_path: Path, open_run: pd.DataFrame,
+def test_an_opening_or_dp_in_another_unit_is_named(tmp_path: Path, open_run: pd.DataFrame,
                                                      mutate: Callable[[pd.DataFrame], pd.DataFrame],
                                                      pattern: str) -> None:
     with pytest.raises(DataError, match=pattern):
