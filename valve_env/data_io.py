@@ -5,7 +5,8 @@
 The one validation path for a measured run: ``thermovalve fit``, ``thermovalve diagnose``
 and ``thermovalve experiment`` (its output is checked before it is written) all go through
 :func:`validate_run`. It checks, in order: the columns; every value numeric and finite or empty; where x_mm is
-measured, an opening beyond the valve's stroke (:func:`_check_stroke`) and a dp_mbar in another unit that the flow
+measured, an opening beyond the valve's stroke (:func:`_check_stroke`) or falling as the flow rises
+(:func:`_check_opening_sign`) and a dp_mbar in another unit that the flow
 through the valve characteristic shows (:func:`_check_dp_unit`); the physical ranges of :data:`RANGES` (dp_mbar > 0,
 flows >= 0, static pressure > 0 and plausible, temperatures within -30..150 degC); time strictly increasing with a
 plausible sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, times within
@@ -84,6 +85,10 @@ DP_UNITS: tuple[tuple[str, str, float], ...] = (("Pa", "divide by 100", 0.01), (
 #: dp within a factor DP_PLAUSIBLE of the valve's calibration dp (dp_k_sp), where the file's own median lies outside it
 #: (a valve of another Kvs at its usual dp is not taken for a unit).
 FLOW_OFF, FLOW_EXPLAINED, DP_PLAUSIBLE = 2.0, 1.25, 5.0
+#: The rank correlation between the opening and the flow's Kv (q / sqrt(dp)) below which the opening falls as the flow
+#: rises (:func:`_check_opening_sign`): a valve passes more water the wider it opens, so measured openings correlate
+#: near +1 with it, and a record whose opening hardly moves near 0.
+OPENING_SIGN_CORR = -0.5
 #: How far beyond the valve's stroke the opening's record may reach (its 99th percentile; :func:`_check_stroke`): a
 #: transducer's noise and overtravel stay well within it.
 STROKE_MARGIN = 1.25
@@ -469,6 +474,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", line=first_line)
     if "x_mm" in out.columns:  # before the ranges: an opening in % or a dp in Pa passes them on some rows only
         _check_stroke(out, valve or ValveParams(), source)
+        _check_opening_sign(out, valve or ValveParams(), source)
         _check_dp_unit(out, valve or ValveParams(), source)
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
@@ -548,6 +554,25 @@ def _check_stroke(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
                 "")
     raise DataError(f"{source}: column x_mm reaches {top:.4g} mm (its 99th percentile), beyond the valve's "
                     f"{valve.stroke:g} mm stroke (the calibrated valve, docs/reference.md, section 1){hint}")
+
+
+def _check_opening_sign(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
+    """Refuse an opening that falls as the flow rises: the rank correlation of x_mm with the flow's Kv, q / sqrt(dp)
+    (docs/reference.md, section 1), below :data:`OPENING_SIGN_CORR` on the rows with a flow. A position transmitter
+    mounted the other way, or a closing travel logged as the opening, gives it; the force balance would read every
+    move backwards."""
+    x = out["x_mm"].to_numpy(dtype=float)
+    q = out["q_kgh"].to_numpy(dtype=float)
+    dp = out["dp_mbar"].to_numpy(dtype=float)
+    with np.errstate(invalid="ignore"):
+        rows = np.isfinite(x) & np.isfinite(q) & np.isfinite(dp) & (q > 0) & (dp > 0)
+    if int(rows.sum()) < 20:
+        return
+    rho = pd.Series(x[rows]).corr(pd.Series(q[rows] / np.sqrt(dp[rows])), method="spearman")
+    if np.isfinite(rho) and rho < OPENING_SIGN_CORR:
+        raise DataError(f"{source}: column x_mm falls as the flow rises (rank correlation {rho:.2f} between x_mm and "
+                        f"q_kgh / sqrt(dp_mbar) over {int(rows.sum())} rows): if x_mm is the closing travel, give the "
+                        f"opening ({valve.stroke:g} mm - x_mm)")
 
 
 def _check_dp_unit(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
@@ -722,7 +747,8 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Ca
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",
            "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DP_UNITS",
-           "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "STROKE_MARGIN", "DT_RANGE_S",
+           "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "STROKE_MARGIN", "OPENING_SIGN_CORR",
+           "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list",
