@@ -575,6 +575,22 @@ def _check_opening_sign(out: pd.DataFrame, valve: ValveParams, source: str) -> N
                         f"opening ({valve.stroke:g} mm - x_mm)")
 
 
+def flow_ratio(run: pd.DataFrame, valve: ValveParams | None = None) -> tuple[float, int, float]:
+    """The median of q_kgh / q(x_mm, dp_mbar), the flow through the valve characteristic (docs/reference.md, section 1),
+    over the rows where the valve is open (x_mm above a tenth of the stroke, q > 0, dp > 0): about 1 for the valve's own
+    record. Returns (ratio, rows, median dp over them); (nan, 0, nan) without such rows."""
+    v = valve or ValveParams()
+    x = run["x_mm"].to_numpy(dtype=float)
+    q = run["q_kgh"].to_numpy(dtype=float)
+    dp = run["dp_mbar"].to_numpy(dtype=float)
+    with np.errstate(invalid="ignore"):
+        rows = np.isfinite(x) & np.isfinite(q) & np.isfinite(dp) & (x > 0.1 * v.stroke) & (q > 0) & (dp > 0)
+    n = int(rows.sum())
+    if n == 0:
+        return float("nan"), 0, float("nan")
+    return float(np.median(q[rows] / flow_kgh(x[rows], dp[rows], v.to_array()))), n, float(np.median(dp[rows]))
+
+
 def _check_dp_unit(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
     """Refuse a dp_mbar in another unit (:data:`DP_UNITS`) where the measured opening and flow show it.
 
@@ -585,18 +601,10 @@ def _check_dp_unit(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
     :data:`DP_PLAUSIBLE`), the record is refused in one line naming the unit: a dp 100 times too large moves the
     force balance's pressure terms, and the diagnosis would name an effect for it. Other mismatches pass: the
     opening is measured, and the characteristic is used only where it is not."""
-    x = out["x_mm"].to_numpy(dtype=float)
-    q = out["q_kgh"].to_numpy(dtype=float)
-    dp = out["dp_mbar"].to_numpy(dtype=float)
-    with np.errstate(invalid="ignore"):
-        open_ = np.isfinite(x) & np.isfinite(q) & np.isfinite(dp) & (x > 0.1 * valve.stroke) & (q > 0) & (dp > 0)
-    if int(open_.sum()) < 20:
-        return
-    ratio = float(np.median(q[open_] / flow_kgh(x[open_], dp[open_], valve.to_array())))
-    if abs(np.log(ratio)) <= np.log(FLOW_OFF):
+    ratio, n, dp_med = flow_ratio(out, valve)
+    if n < 20 or abs(np.log(ratio)) <= np.log(FLOW_OFF):
         return
     dp_cal = valve.dp_k_sp * 1.0e4  # MPa -> mbar
-    dp_med = float(np.median(dp[open_]))
 
     def plausible(d: float) -> bool:
         return abs(np.log(d / dp_cal)) <= np.log(DP_PLAUSIBLE)
@@ -606,7 +614,7 @@ def _check_dp_unit(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
     for unit, do, a in DP_UNITS:
         if abs(np.log(ratio / np.sqrt(a))) <= np.log(FLOW_EXPLAINED) and plausible(a * dp_med):
             raise DataError(f"{source}: column dp_mbar reads as {unit}: the flow q_kgh is {ratio:.3g} times what x_mm "
-                            f"and dp_mbar give through the valve characteristic (median over {int(open_.sum())} rows "
+                            f"and dp_mbar give through the valve characteristic (median over {n} rows "
                             f"with the valve open), and the median dp {dp_med:.5g} would be {a * dp_med:.3g} mbar "
                             f"against the valve's calibration {dp_cal:.4g} mbar; {do}")
 
@@ -752,5 +760,5 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list",
-           "unit_key", "header_units", "time_unit_hint", "flow_unit_hint", "FLOW_UNITS", "SHORT_SPAN_S", "text_cells",
-           "is_number", "decimal_comma", "decimal_mark_hint"]
+           "unit_key", "header_units", "time_unit_hint", "flow_unit_hint", "FLOW_UNITS", "flow_ratio", "SHORT_SPAN_S",
+           "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

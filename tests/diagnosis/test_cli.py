@@ -182,3 +182,15 @@ def test_a_valve_parameter_on_its_fit_bound_is_said_and_writes_no_valve(tmp_path
     note = next(n for n in json.loads(out.read_text())["notes"] if "fit bound" in n)
     assert note.startswith("the diagnosed model leaves F_hmax on its fit bound (20 N)")
     assert "derived from q_kgh and dp_mbar" in note and f"warning: {note}" in printed
+
+
+def test_the_bound_note_says_how_far_the_flow_lies_from_the_characteristic() -> None:
+    """With x_mm measured, the note on a fit bound gives the flow's ratio to the valve characteristic's at the
+    opening: 2 for an opening logged as a fraction of the 2 mm stroke; nothing for the valve's own record."""
+    from valve_env.valveid.diagnose import unit_clue
+
+    df = simulate_experiment(seed=20271254, duration_h=6.0, dt_s=20.0)
+    assert unit_clue(df) == ""
+    clue = unit_clue(df.assign(x_mm=df.x_mm / 2.0))
+    assert clue.startswith(" The flow q_kgh is 2 times what x_mm and dp_mbar give through the valve characteristic")
+    assert clue.endswith("an x_mm in another unit, or a valve of another Kvs.")

@@ -23,7 +23,15 @@ from typing import Any, TypeGuard
 import numpy as np
 import pandas as pd
 
-from valve_env.data_io import REQUIRED, DataError, flow_unit_hint, load_run, time_unit_hint, validate_run
+from valve_env.data_io import (
+    REQUIRED,
+    DataError,
+    flow_ratio,
+    flow_unit_hint,
+    load_run,
+    time_unit_hint,
+    validate_run,
+)
 from valve_env.effects import REGISTRY as EFFECTS
 from valve_env.effects import check_effects
 from valve_env.ident.bootstrap import NORMAL_P, replicates
@@ -209,17 +217,14 @@ class Diagnosis:
     #: what the record could show: ``stiction_band_mm``, the smallest stick band whose slips it would show
     #: (:func:`smallest_shown_band`; None: none up to 0.1 mm), where stiction was a candidate
     sensitivity: dict[str, float | None] = field(default_factory=dict)
+    #: what the record says of its channels' units where the diagnosed model ends on a bound (:func:`unit_clue`)
+    unit_clue: str = ""
 
     @property
     def warnings(self) -> list[str]:
         """The notes a user must not miss (the console shows them as warnings): a valve parameter the record does
         not identify, or that ends on its fit bound (:func:`identification_notes`)."""
-        return identification_notes(self.base, self.final, self.x_derived)
-
-    @property
-    def x_derived(self) -> bool:
-        """Whether the run's opening was derived from its flow (no x_mm column, or empty cells of it)."""
-        return any(n.get("what") == "x_mm_derived" for n in self.preprocessing.get("run", []))
+        return identification_notes(self.base, self.final, self.unit_clue)
 
     def to_json(self) -> dict[str, Any]:
         b = self.base
@@ -337,20 +342,33 @@ def _bounds_text(fit: FitResult, names: list[str]) -> str:
     return ", ".join(f"{k} on its fit bound ({fit.params[k]:.4g} {units[k]})" for k in names)
 
 
-def identification_notes(base: FitResult, final: FitResult, x_derived: bool = False) -> list[str]:
+def unit_clue(run: pd.DataFrame, valve: ValveParams | None = None) -> str:
+    """What the record says of its channels' units where a fit ends on a bound (:func:`identification_notes`): with the
+    opening derived from the flow, that the flow's and dp's units set its scale; with the opening measured, how far
+    the flow lies from the valve characteristic's at it (:func:`valve_env.data_io.flow_ratio`) where that is beyond
+    1.5x. Else ''."""
+    if any(n.get("what") == "x_mm_derived" for n in run.attrs.get("preprocessing", [])):
+        return (" The opening is derived from q_kgh and dp_mbar (no x_mm column): a flow in l/min or g/s, or a dp in "
+                "Pa, rescales it and gives such a fit.")
+    ratio, n, _ = flow_ratio(run, valve)
+    if n >= 20 and abs(math.log(ratio)) > math.log(1.5):
+        return (f" The flow q_kgh is {ratio:.3g} times what x_mm and dp_mbar give through the valve characteristic "
+                f"(median over {n} rows with the valve open): an x_mm in another unit, or a valve of another Kvs.")
+    return ""
+
+
+def identification_notes(base: FitResult, final: FitResult, clue: str = "") -> list[str]:
     """A note where the record does not identify a valve parameter: in the diagnosed model (whose sd is then null in
     the JSON; the cause rests on the effects' own parameters, which carry their sds, and no valve file is written),
     or in the base model alone (a named effect's misfit can flatten it, as a sensor lag does sigma). Likewise where a
-    valve parameter ends on its fit bound (:func:`on_bound`); ``x_derived``: the opening was derived from the flow
-    (no x_mm column), whose units then set its scale."""
+    valve parameter ends on its fit bound (:func:`on_bound`); ``clue``: what the record says of its units there
+    (:func:`unit_clue`)."""
     bound = on_bound(final)
     if bound:
-        why = (" The opening is derived from q_kgh and dp_mbar (no x_mm column): a flow in l/min or g/s, or a dp in "
-               "Pa, rescales it and gives such a fit." if x_derived else "")
         return [f"the diagnosed model leaves {_bounds_text(final, bound)}: a value outside the valve's range would fit "
                 "better, so the record does not determine it, its sd means nothing, and no valve file is written "
                 "from this record; an effect the model lacks, or a channel in another unit, is the likely cause."
-                + why]
+                + clue]
     flat = unidentified(final)
     if flat:
         return [f"the record does not identify {', '.join(flat)} (no finite standard error in the diagnosed model: "
@@ -1042,8 +1060,8 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "bootstrap_replicates": bootstrap_B,
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
-    notes += identification_notes(base, final, any(n.get("what") == "x_mm_derived"
-                                                   for n in run.attrs.get("preprocessing", [])))
+    clue = unit_clue(run, valve) if on_bound(final) else ""
+    notes += identification_notes(base, final, clue)
     withheld = list(conditional_std(final))
     if withheld:
         notes.append(f"the sd of {', '.join(withheld)} is withheld in the {'+'.join(final.effects)} model (null): with "
@@ -1056,7 +1074,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         cause=selected[0] if selected else "none", selected=selected, base=base, findings=findings, steps=steps,
         final=final, diagnostics=diagnostics, settings=settings, train=train, valid=valid, valid_range=vr,
         base_valid_rms=base_val[0], final_valid_rms=final_val, seconds=time.perf_counter() - t0, valve=valve,
-        sensitivity=sensitivity,
+        sensitivity=sensitivity, unit_clue=clue,
     )
 
 
