@@ -194,3 +194,19 @@ def test_the_bound_note_says_how_far_the_flow_lies_from_the_characteristic() -> 
     clue = unit_clue(df.assign(x_mm=df.x_mm / 2.0))
     assert clue.startswith(" The flow q_kgh is 2 times what x_mm and dp_mbar give through the valve characteristic")
     assert clue.endswith("an x_mm in another unit, or a valve of another Kvs.")
+
+
+def test_swapped_temperature_columns_are_suspected(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """T_tank_C and T_med_C swapped in the file: the bulb then follows the column named T_med_C, the diagnosis names
+    a medium weight near 1, and a warning says the columns may be swapped (a medium heats a bulb by a few hundredths
+    to a quarter)."""
+    df = simulate_experiment(seed=20271257, duration_h=6.0, dt_s=20.0)
+    run = tmp_path / "swapped.csv"
+    df.rename(columns={"T_tank_C": "T_med_C", "T_med_C": "T_tank_C"}).to_csv(run, index=False)
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(run), "--json", str(out), "--no-report", "--bootstrap", "0"]) == 0
+    printed = capsys.readouterr().out
+    j = json.loads(out.read_text())
+    assert j["cause"] == "medium_temperature" and j["final"]["params"]["beta"] > 0.5
+    note = next(n for n in j["notes"] if n.startswith("the medium weight is "))
+    assert "if the two columns are swapped in the file, swap them back" in note and f"warning: {note}" in printed

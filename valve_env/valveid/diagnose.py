@@ -223,8 +223,9 @@ class Diagnosis:
     @property
     def warnings(self) -> list[str]:
         """The notes a user must not miss (the console shows them as warnings): a valve parameter the record does
-        not identify, or that ends on its fit bound (:func:`identification_notes`)."""
-        return identification_notes(self.base, self.final, self.unit_clue)
+        not identify, or that ends on its fit bound (:func:`identification_notes`), and a medium weight that suggests
+        swapped temperature columns (:func:`swap_notes`)."""
+        return identification_notes(self.base, self.final, self.unit_clue) + swap_notes(self.final)
 
     def to_json(self) -> dict[str, Any]:
         b = self.base
@@ -355,6 +356,21 @@ def unit_clue(run: pd.DataFrame, valve: ValveParams | None = None) -> str:
         return (f" The flow q_kgh is {ratio:.3g} times what x_mm and dp_mbar give through the valve characteristic "
                 f"(median over {n} rows with the valve open): an x_mm in another unit, or a valve of another Kvs.")
     return ""
+
+
+#: the medium weight above which the sensed temperature follows T_med_C more than T_tank_C (:func:`swap_notes`)
+SWAP_BETA = 0.5
+
+
+def swap_notes(final: FitResult) -> list[str]:
+    """A note where the diagnosed model's medium weight exceeds :data:`SWAP_BETA`: the bulb then senses the medium
+    more than the tank it sits in, which two temperature columns swapped in the file give (beta near 1); a medium's
+    heating of the bulb weighs a few hundredths to a quarter (docs/diagnosis.md)."""
+    beta = final.params.get("beta") if "medium_temperature" in final.effects else None
+    if beta is None or not beta > SWAP_BETA:
+        return []
+    return [f"the medium weight is {beta:.3g}: the sensed temperature follows T_med_C more than T_tank_C; if the two "
+            "columns are swapped in the file, swap them back and diagnose again"]
 
 
 def identification_notes(base: FitResult, final: FitResult, clue: str = "") -> list[str]:
@@ -1061,7 +1077,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
     clue = unit_clue(run, valve) if on_bound(final) else ""
-    notes += identification_notes(base, final, clue)
+    notes += identification_notes(base, final, clue) + swap_notes(final)
     withheld = list(conditional_std(final))
     if withheld:
         notes.append(f"the sd of {', '.join(withheld)} is withheld in the {'+'.join(final.effects)} model (null): with "
