@@ -160,6 +160,12 @@ def time_unit_hint(t: np.ndarray) -> str:
 FLOW_UNITS: tuple[tuple[str, float], ...] = (("l/min", 60.0), ("m^3/h", 1000.0), ("kg/s", 3600.0))
 
 
+def opening_derived(run: pd.DataFrame) -> bool:
+    """Whether a validated run's whole opening was derived from its flow (:func:`validate_run`: no x_mm column, so
+    ``x_mm_derived_rows`` counts every row); a few empty cells of a measured x_mm do not make it so."""
+    return int(run.attrs.get("x_mm_derived_rows", 0)) == len(run)
+
+
 def flow_unit_hint(q_kgh: np.ndarray, dp_mbar: np.ndarray, valve: ValveParams | None = None) -> str:
     """What a refusal of a run whose opening is derived from the flow (no x_mm column) adds where the derived opening
     hardly moves or cannot be fitted: the flow units of :data:`FLOW_UNITS` under which the derived opening would span
@@ -760,5 +766,5 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list",
-           "unit_key", "header_units", "time_unit_hint", "flow_unit_hint", "FLOW_UNITS", "flow_ratio", "SHORT_SPAN_S",
-           "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]
+           "unit_key", "header_units", "time_unit_hint", "flow_unit_hint", "FLOW_UNITS", "flow_ratio",
+           "opening_derived", "SHORT_SPAN_S", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

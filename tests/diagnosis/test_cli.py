@@ -194,6 +194,13 @@ def test_the_bound_note_says_how_far_the_flow_lies_from_the_characteristic() -> 
     clue = unit_clue(df.assign(x_mm=df.x_mm / 2.0))
     assert clue.startswith(" The flow q_kgh is 2 times what x_mm and dp_mbar give through the valve characteristic")
     assert clue.endswith("an x_mm in another unit, or a valve of another Kvs.")
+    # a measured x_mm with a few empty cells (derived there from the flow) is still a measured opening
+    from valve_env.valveid.diagnose import check_run
+
+    gappy = df.assign(x_mm=df.x_mm / 2.0)
+    gappy.loc[5:10, "x_mm"] = np.nan
+    assert unit_clue(check_run(gappy)).startswith(" The flow q_kgh is 2 times")
+    assert unit_clue(check_run(df.drop(columns=["x_mm"]))).startswith(" The opening is derived from q_kgh and dp_mbar")
 
 
 def test_swapped_temperature_columns_are_suspected(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -294,10 +294,9 @@ def run_fit(args: argparse.Namespace) -> int:
             # lag), not a record too short to fit the model; the named effects are diagnose's
             p_lb = min(e["ljung_box_p"] for e in mis["outputs"].values())
             at = f"parameter {bound[0]!r} is at a bound ({est.params_[bound[0]]:.6g})"
-            from valve_env.data_io import flow_unit_hint
+            from valve_env.data_io import flow_unit_hint, opening_derived
 
-            derived = int(data.attrs.get("x_mm_derived_rows", 0)) == len(data)
-            hint = flow_unit_hint(data["q_kgh"].to_numpy(), data["dp_mbar"].to_numpy()) if derived else ""
+            hint = flow_unit_hint(data["q_kgh"].to_numpy(), data["dp_mbar"].to_numpy()) if opening_derived(data) else ""
             raise UsageError(f"{args.run}: the paper's model does not explain this record ({at}, "
                              f"and the one-step residuals are not white, Ljung-Box p = {p_lb:.2g}): "
                              f"an effect the model lacks, or too little excitation; `thermovalve diagnose "

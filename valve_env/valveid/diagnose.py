@@ -29,6 +29,7 @@ from valve_env.data_io import (
     flow_ratio,
     flow_unit_hint,
     load_run,
+    opening_derived,
     time_unit_hint,
     validate_run,
 )
@@ -92,8 +93,7 @@ def check_run(df: pd.DataFrame, name: str = "run") -> pd.DataFrame:
         raise DiagnosisError(f"{name}: T_tank_C is constant (range {np.ptp(T):.3g} K < {MIN_T_RANGE_K:g} K): "
                              "a constant temperature identifies nothing")
     if np.ptp(out["x_mm"].to_numpy()) < MIN_X_RANGE_MM:
-        derived = int(checked.attrs.get("x_mm_derived_rows", 0)) == len(checked)
-        hint = flow_unit_hint(out["q_kgh"].to_numpy(), out["dp_mbar"].to_numpy()) if derived else ""
+        hint = flow_unit_hint(out["q_kgh"].to_numpy(), out["dp_mbar"].to_numpy()) if opening_derived(checked) else ""
         raise DiagnosisError(f"{name}: the valve opening hardly moves (range {np.ptp(out['x_mm']):.3g} mm): "
                              f"nothing to identify{hint}")
     out = out.reset_index(drop=True)
@@ -348,7 +348,7 @@ def unit_clue(run: pd.DataFrame, valve: ValveParams | None = None) -> str:
     opening derived from the flow, that the flow's and dp's units set its scale; with the opening measured, how far
     the flow lies from the valve characteristic's at it (:func:`valve_env.data_io.flow_ratio`) where that is beyond
     1.5x. Else ''."""
-    if any(n.get("what") == "x_mm_derived" for n in run.attrs.get("preprocessing", [])):
+    if opening_derived(run):
         return (" The opening is derived from q_kgh and dp_mbar (no x_mm column): a flow in l/min or g/s, or a dp in "
                 "Pa, rescales it and gives such a fit.")
     ratio, n, _ = flow_ratio(run, valve)
