@@ -438,6 +438,7 @@ def near_name_hint(missing: str, columns: list[str], taken: tuple[str, ...] = ()
 
 def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | None = None) -> pd.DataFrame:
     """Validate a run given as a DataFrame (strings or numbers); returns a validated copy."""
+    valve = valve or ValveParams()
     raw = data.copy()
     raw.columns = [str(c).strip() for c in raw.columns]
     first = int(data.attrs.get("header_line", 1)) + 1  # the file's line of the first data row
@@ -479,9 +480,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
         out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", line=first_line)
     if "x_mm" in out.columns:  # before the ranges: an opening in % or a dp in Pa passes them on some rows only
-        _check_stroke(out, valve or ValveParams(), source)
-        _check_opening_sign(out, valve or ValveParams(), source)
-        _check_dp_unit(out, valve or ValveParams(), source)
+        _check_stroke(out, valve, source)
+        _check_opening_sign(out, valve, source)
+        _check_dp_unit(out, valve, source)
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
             _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source, first_line)
@@ -526,7 +527,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     if "x_mm" not in out.columns and not np.any(q > 0):
         raise DataError(f"{source}: column q_kgh is 0 in every row and there is no x_mm column: "
                         "the valve opening cannot be derived")
-    vp = (valve or ValveParams()).to_array()
+    vp = valve.to_array()
     derived = opening_from_flow(out["q_kgh"].to_numpy(), out["dp_mbar"].to_numpy(), vp)
     if "x_mm" in out.columns:
         x = out["x_mm"].to_numpy(dtype=float)
