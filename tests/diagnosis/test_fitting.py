@@ -119,8 +119,38 @@ def test_a_changed_run_is_a_new_run_and_simulate_hands_out_copies() -> None:
     assert m.loglik(warmer, vals) == _fresh_loglik(warmer, (), vals) != ll
     x, _, _ = m.simulate(d, vals)
     x[:] = -1.0
-    assert m.loglik(d, vals) == ll
+    assert m._filter(d, vals)[0] == ll  # the kept path, filtered anew (loglik would give its kept value)
     assert m.simulate(d, vals)[0][0] != -1.0
     import pickle
 
-    assert pickle.loads(pickle.dumps(m))._paths == {}  # a copied model starts without kept paths
+    copied = pickle.loads(pickle.dumps(m))
+    assert copied._paths == {} and copied._lls == {}  # a copied model starts without kept paths or values
+
+
+def test_a_kept_loglik_is_the_filters_value_for_exactly_its_inputs() -> None:
+    """Model.loglik keeps the values of its last LOGLIK_CACHE distinct inputs (docs/diagnosis.md, "Speed"): a repeated
+    point returns the filter's value without running it, and any input that changes the value (a parameter, the mask,
+    the slip, the filter's band spread) is another entry whose value is the filter's own."""
+    df = simulate_experiment(seed=5, duration_h=3.0, dt_s=10.0, effects={"stiction": {"band_mm": 0.02}})
+    d = prepare(check_run(df))
+    m = Model(("stiction",))
+    vals = {**m.default_start(d), "band_mm": 0.02}
+    m._lls.clear()
+    half = np.arange(len(d)) < len(d) // 2
+    cases = [({}, None, -1.0), ({"s_w": vals["s_w"] * 1.1}, None, -1.0), ({}, half, -1.0), ({}, ~half, -1.0),
+             ({}, None, 0.01)]
+    for s, mask, slip in cases:
+        assert m.loglik(d, {**vals, **s}, mask, slip) == m._filter(d, {**vals, **s}, mask, slip)[0]
+    assert len(m._lls) == len(cases)
+    calls = []
+    real = m._filter
+    m._filter = lambda *a: calls.append(a) or real(*a)  # type: ignore[method-assign]
+    for s, mask, slip in cases:  # kept: the filter does not run
+        assert m.loglik(d, {**vals, **s}, None if mask is None else mask.copy(), slip) == real(d, {**vals, **s},
+                                                                                              mask, slip)[0]
+    assert calls == []
+    m.band_spread *= 2.0
+    assert m.loglik(d, vals) == real(d, vals)[0] != m._lls[next(iter(m._lls))][1]
+    assert len(calls) == 1
+    m.forget_paths()
+    assert m._lls == {}

@@ -25,6 +25,7 @@ style front is ``ValveEstimator(effects, likelihood="output_error")``
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections import OrderedDict
 from collections.abc import Callable
@@ -117,6 +118,10 @@ PATH_CACHE = 8
 #: along it) that a :class:`Model` keeps: the valve parameters and the set point's drift leave a drive as it is, so
 #: the paths of their steps evaluate only :func:`~valve_env.valveid.oe.valve_pass` on it
 DRIVE_CACHE = 4
+#: the log-likelihoods (one float each) that a :class:`Model` keeps, by their exact inputs: a minimisation that starts
+#: where another ended, a profile or a Hessian re-evaluates points already evaluated (a quarter of the stick-slip
+#: filter's calls in a diagnosis), and the filter is deterministic, so a kept value is the value
+LOGLIK_CACHE = 4096
 
 
 def _kept(cache: OrderedDict[Any, tuple[RunData, Any]], key: Any, data: RunData, limit: int,
@@ -161,16 +166,18 @@ class Model:
             OrderedDict())
         self._drives: OrderedDict[tuple[int, bytes, float, float, float, bool], tuple[RunData, tuple[Any, ...]]] = (
             OrderedDict())
+        self._lls: OrderedDict[tuple[Any, ...], tuple[RunData, float]] = OrderedDict()
 
     def forget_paths(self) -> None:
         """Drop the kept valve paths (:meth:`_valve_path`, about 0.5 MB each for 24 h at 10 s): a fitted model kept
         beside its result (an estimator's ``backend_``, a diagnosis's findings) need not hold them."""
         self._paths.clear()
         self._drives.clear()
+        self._lls.clear()
 
     def __getstate__(self) -> dict[str, object]:
         # the kept valve paths hold runs and their simulations: a copied or pickled model starts without them
-        return {**self.__dict__, "_paths": OrderedDict(), "_drives": OrderedDict()}
+        return {**self.__dict__, "_paths": OrderedDict(), "_drives": OrderedDict(), "_lls": OrderedDict()}
 
     # --- the work (optimiser) scale: the transforms of valve_env.ident.sde ----------
     def to_work(self, values: dict[str, float]) -> np.ndarray:
@@ -304,8 +311,14 @@ class Model:
     def loglik(self, data: RunData, values: dict[str, float], mask: np.ndarray | None = None,
                slip: float = -1.0) -> float:
         """Exact Gaussian log-likelihood of the measured opening (over the samples in ``mask``); with stiction
-        ``slip`` is the stick-slip filter's slip J (negative, the default: J = ``band_mm``)."""
-        return float(self._filter(data, values, mask, slip)[0])
+        ``slip`` is the stick-slip filter's slip J (negative, the default: J = ``band_mm``). The last
+        :data:`LOGLIK_CACHE` distinct inputs' values are kept."""
+        vp, e = self._vectors(values)
+        key = (id(data), vp.tobytes(), e.tobytes(), values["s_w"], values["s_e"], values["tau_e"],
+               None if mask is None else hashlib.blake2b(np.ascontiguousarray(mask).tobytes(), digest_size=16).digest(),
+               float(slip), self.band_spread, self.landing_sd, self.delta(data, values))
+        return float(_kept(self._lls, key, data, LOGLIK_CACHE,
+                           lambda: float(self._filter(data, values, mask, slip)[0])))
 
     def one_step(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One filter pass: the one-step prediction errors (mm), their variances and each sample's term of
