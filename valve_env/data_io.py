@@ -68,12 +68,20 @@ RANGES: dict[str, tuple[float, float, bool, str]] = {
     "x_mm": (-1.0, 50.0, False, "a valve opening, mm"),
 }
 #: Units a column may arrive in instead of the format's, as a refusal of its range names them: (the unit, what to do,
-#: scale, offset), the value in the format's unit being scale * value + offset.
-OTHER_UNITS: dict[str, tuple[tuple[str, str, float, float], ...]] = {
-    "T_tank_C": (("kelvin", "subtract 273.15", 1.0, -273.15),),
-    "T_med_C": (("kelvin", "subtract 273.15", 1.0, -273.15),),
-    "dp_mbar": (("Pa", "divide by 100", 0.01, 0.0),),
-    "ps_bar": (("kPa", "divide by 100", 0.01, 0.0), ("Pa", "divide by 100000", 1e-5, 0.0)),
+#: scale, offset, share), the value in the format's unit being scale * value + offset. The unit is named where every
+#: value converts into the range and more than ``share`` of the values lie outside it as they stand. A water
+#: temperature in degF lies above 150 only where it is hotter than 65.6 degC, so a medium's record in degF refuses on
+#: part of its rows (a quarter of a generated day's, medium 48-67 degC); a tenth of the rows keeps a few sentinels or
+#: spikes of a record in degC from reading as degF.
+OTHER_UNITS: dict[str, tuple[tuple[str, str, float, float, float], ...]] = {
+    "T_tank_C": (("kelvin", "subtract 273.15", 1.0, -273.15, 0.5),
+                 ("degF", "convert with (v - 32) * 5 / 9, and the other temperature column too", 5.0 / 9.0,
+                  -160.0 / 9.0, 0.1)),
+    "T_med_C": (("kelvin", "subtract 273.15", 1.0, -273.15, 0.5),
+                ("degF", "convert with (v - 32) * 5 / 9, and the other temperature column too", 5.0 / 9.0,
+                 -160.0 / 9.0, 0.1)),
+    "dp_mbar": (("Pa", "divide by 100", 0.01, 0.0, 0.5),),
+    "ps_bar": (("kPa", "divide by 100", 0.01, 0.0, 0.5), ("Pa", "divide by 100000", 1e-5, 0.0, 0.5)),
 }
 #: Units of dp_mbar that the flow can reveal where x_mm is measured (:func:`_check_dp_unit`): the name, what to do
 #: and the factor to mbar. An SI logger writes Pa; the flow at a given opening grows as sqrt(dp), so a dp in Pa makes
@@ -181,6 +189,24 @@ def flow_unit_hint(q_kgh: np.ndarray, dp_mbar: np.ndarray, valve: ValveParams | 
     if not fits:
         return ""
     return "; the opening is derived from q_kgh and dp_mbar (no x_mm column): if q_kgh is in " + " or ".join(fits)
+
+
+#: A tank's median temperature above this (degC) is hotter than a vented hot-water tank holds (water boils at
+#: 100 degC at 1 atm); :func:`temperature_unit_hint` then reads the temperatures as degF.
+TANK_HOT_C = 95.0
+
+
+def temperature_unit_hint(T_tank_C: np.ndarray) -> str:
+    """What a refusal or a fit-bound note adds where the tank's median temperature exceeds :data:`TANK_HOT_C` and reads
+    as a hot-water tank's in degF (20-90 degC converted): temperatures in degF within the range check's 150 pass it
+    (a tank at 52 degC is 126 degF) and leave the valve's set point unidentified. Else ''."""
+    med = float(np.nanmedian(np.asarray(T_tank_C, dtype=float)))
+    as_c = (med - 32.0) * 5.0 / 9.0
+    if not (med > TANK_HOT_C and 20.0 <= as_c <= 90.0):
+        return ""
+    return (f"; T_tank_C's median {med:.4g} lies above {TANK_HOT_C:g} degC, hotter than a vented hot-water tank holds: "
+            f"if the temperatures are in degF (the median would be {as_c:.3g} degC), convert both columns with "
+            "(v - 32) * 5 / 9")
 
 
 def header_units(header: list[str], names: tuple[str, ...]) -> dict[str, tuple[str, str]]:
@@ -728,8 +754,8 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
         rows = ", ".join(str(int(j) + 1) for j in bad[1:6]) + (", ..." if bad.size > 6 else "")
         more = f"; {bad.size - 1} more row(s): {rows}" if bad.size > 1 else ""
         x = v[known]
-        unit = next((f"; every value reads as {u}: {do}" for u, do, a, b in OTHER_UNITS.get(col, ())
-                     if bad.size > 0.5 * x.size and np.all((a * x + b > lo) & (a * x + b <= hi))), "")
+        unit = next((f"; every value reads as {u}: {do}" for u, do, a, b, share in OTHER_UNITS.get(col, ())
+                     if bad.size > share * x.size and np.all((a * x + b > lo) & (a * x + b <= hi))), "")
         raise DataError(f"{source}: column {col}, row {i + 1} (line {line(i)}): {v[i]:.6g} is out of range "
                         f"(must be {bound}: {what}){more}{unit}")
 
@@ -768,4 +794,5 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list",
            "unit_key", "header_units", "time_unit_hint", "flow_unit_hint", "FLOW_UNITS", "flow_ratio",
-           "opening_derived", "SHORT_SPAN_S", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]
+           "opening_derived", "SHORT_SPAN_S", "TANK_HOT_C",
+           "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

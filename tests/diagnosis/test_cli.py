@@ -217,3 +217,25 @@ def test_swapped_temperature_columns_are_suspected(tmp_path: Path, capsys: pytes
     assert j["cause"] == "medium_temperature" and j["final"]["params"]["beta"] > 0.5
     note = next(n for n in j["notes"] if n.startswith("the medium weight is "))
     assert "if the two columns are swapped in the file, swap them back" in note and f"warning: {note}" in printed
+
+
+def test_temperatures_in_degf_within_the_range_are_named_where_the_fit_fails(tmp_path: Path,
+                                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """Temperatures in degF that stay within the range check's 150 (a tank at 126-140 degF) leave the valve's set point
+    unidentified: fit's refusal, diagnose's note and its --valve-out refusal say that the tank's median reads as a
+    hot-water tank's in degF (before, they said only that a longer record with wider swings was needed)."""
+    df = simulate_experiment(seed=20271273, duration_h=4.0, dt_s=10.0)
+    df = df[[c for c in df.columns if not c.startswith("true_")]]
+    run = tmp_path / "degf.csv"
+    df.assign(T_tank_C=df.T_tank_C * 1.8 + 32.0, T_med_C=(df.T_med_C * 1.8 + 32.0 - 3.0).clip(upper=149.9)).to_csv(
+        run, index=False)
+    says = "if the temperatures are in degF (the median would be"
+    assert main(["fit", str(run), "--json", str(tmp_path / "f.json"), "--bootstrap", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"thermovalve: error: {run}: the record does not identify") and says in err[-1]
+    out = tmp_path / "d.json"
+    args = ["diagnose", str(run), "--json", str(out), "--no-report", "--bootstrap", "0"]
+    assert main([*args, "--valve-out", str(tmp_path / "v.yaml")]) == 2
+    assert says in capsys.readouterr().err
+    assert main(args) == 0
+    assert any(says in n for n in json.loads(out.read_text())["notes"])

@@ -446,3 +446,26 @@ def test_a_flow_unit_is_named_where_it_would_make_the_derived_opening_move(open_
     assert " or " not in flow_unit_hint(q / 60.0, dp)
     assert "m^3/h (multiply by 1000" in flow_unit_hint(q / 1000.0, dp)
     assert "kg/s (multiply by 3600" in flow_unit_hint(q / 3600.0, dp)
+
+
+def test_temperatures_in_degf_are_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A record in degF: a medium hotter than 65.6 degC lies above the range check's 150 on part of its rows, and the
+    refusal names degF where every value converts into the range and more than a tenth of them lie outside it. A record
+    in degC with a few spikes beyond 150 is refused by its rows without the unit. Within 150 (a tank at 126 degF), the
+    tank's median above 95 degC reads as degF (temperature_unit_hint), which fit's and diagnose's notes add."""
+    from valve_env.data_io import TANK_HOT_C, temperature_unit_hint
+
+    f = run_df.assign(T_tank_C=run_df.T_tank_C * 1.8 + 32.0,
+                      T_med_C=np.linspace(55.0, 75.0, len(run_df)) * 1.8 + 32.0)
+    assert 0.1 < np.mean(f.T_med_C > 150.0) < 0.5  # a quarter of the rows
+    with pytest.raises(DataError, match=r"column T_med_C, .* every value reads as degF: convert with \(v - 32\) \* 5 / "
+                                        r"9, and the other temperature column too$"):
+        load_run(_write(f, tmp_path / "f.csv"))
+    spiked = run_df.assign(T_med_C=run_df.T_med_C.where(~run_df.index.isin([3, 9, 20]), 160.0))
+    with pytest.raises(DataError, match=r"row 4 .* 2 more row\(s\): 10, 21$"):
+        load_run(_write(spiked, tmp_path / "spiked.csv"))
+    assert temperature_unit_hint(run_df.T_tank_C.to_numpy()) == ""
+    hint = temperature_unit_hint(np.full(50, 126.0))
+    assert hint.startswith(f"; T_tank_C's median 126 lies above {TANK_HOT_C:g} degC")
+    assert "the median would be 52.2 degC" in hint
+    assert temperature_unit_hint(np.full(50, 140.0)) != "" and temperature_unit_hint(np.full(50, 200.0)) == ""

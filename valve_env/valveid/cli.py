@@ -146,12 +146,14 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         result = diagnose(run, validate=vdf, name=str(args.run), holdout=args.holdout, alpha=args.alpha,
                           effects=cands, bootstrap_B=args.bootstrap, progress=tick)
     if valve_out is not None:
+        from valve_env.data_io import temperature_unit_hint
         from valve_env.valveid.diagnose import on_bound, unidentified
 
         flat = unidentified(result.final)
         if flat:
             raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} (no finite standard error): "
-                             "no valve file can be written from it; run without --valve-out for the diagnosis")
+                             "no valve file can be written from it; run without --valve-out for the diagnosis"
+                             f"{temperature_unit_hint(run['T_tank_C'].to_numpy())}")
         bound = on_bound(result.final)
         if bound:
             raise UsageError(f"{args.run}: the diagnosed model leaves {', '.join(bound)} on its fit bound (a value "
@@ -213,7 +215,7 @@ def _register_fit(subparsers: Any) -> None:
 
 def run_fit(args: argparse.Namespace) -> int:
     from valve_env.cliutil import progress_bar
-    from valve_env.data_io import load_run
+    from valve_env.data_io import load_run, temperature_unit_hint
     from valve_env.outputs import OutputSet, json_text
 
     if args.n_starts < 1:
@@ -297,12 +299,14 @@ def run_fit(args: argparse.Namespace) -> int:
             from valve_env.data_io import flow_unit_hint, opening_derived
 
             hint = flow_unit_hint(data["q_kgh"].to_numpy(), data["dp_mbar"].to_numpy()) if opening_derived(data) else ""
+            hint += temperature_unit_hint(data["T_tank_C"].to_numpy())
             raise UsageError(f"{args.run}: the paper's model does not explain this record ({at}, "
                              f"and the one-step residuals are not white, Ljung-Box p = {p_lb:.2g}): "
                              f"an effect the model lacks, or too little excitation; `thermovalve diagnose "
                              f"{args.run}` tries the named effects{hint}")
         raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} ({why}); "
-                         "a longer record with wider temperature swings is needed")
+                         "a longer record with wider temperature swings is needed"
+                         f"{temperature_unit_hint(data['T_tank_C'].to_numpy())}")
     with outs:
         outs.write_text(json_out, json_text(summary))
         if valve_out is not None:

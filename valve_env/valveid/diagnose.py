@@ -30,6 +30,7 @@ from valve_env.data_io import (
     flow_unit_hint,
     load_run,
     opening_derived,
+    temperature_unit_hint,
     time_unit_hint,
     validate_run,
 )
@@ -347,7 +348,11 @@ def unit_clue(run: pd.DataFrame, valve: ValveParams | None = None) -> str:
     """What the record says of its channels' units where a fit ends on a bound (:func:`identification_notes`): with the
     opening derived from the flow, that the flow's and dp's units set its scale; with the opening measured, how far
     the flow lies from the valve characteristic's at it (:func:`valve_env.data_io.flow_ratio`) where that is beyond
-    1.5x. Else ''."""
+    1.5x. Else ''. Either way, a tank's median above :data:`~valve_env.data_io.TANK_HOT_C` degC is named as degF where
+    that reads as a hot-water tank's (:func:`valve_env.data_io.temperature_unit_hint`)."""
+    hot = temperature_unit_hint(run["T_tank_C"].to_numpy())
+    if hot:
+        return " " + hot[2].upper() + hot[3:] + "."
     if opening_derived(run):
         return (" The opening is derived from q_kgh and dp_mbar (no x_mm column): a flow in l/min or g/s, or a dp in "
                 "Pa, rescales it and gives such a fit.")
@@ -389,7 +394,7 @@ def identification_notes(base: FitResult, final: FitResult, clue: str = "") -> l
     if flat:
         return [f"the record does not identify {', '.join(flat)} (no finite standard error in the diagnosed model: "
                 "its likelihood is flat there); the named effects carry their own sds, and no valve file is written "
-                "from this record (a longer record with wider temperature swings is needed)"]
+                "from this record (a longer record with wider temperature swings is needed)." + clue]
     flat = unidentified(base)
     if flat:
         return [f"the base model alone does not identify {', '.join(flat)} on this record (sd null in 'base'); the "
@@ -1076,7 +1081,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "bootstrap_replicates": bootstrap_B,
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
-    clue = unit_clue(run, valve) if on_bound(final) else ""
+    clue = unit_clue(run, valve) if on_bound(final) or unidentified(final) else ""
     notes += identification_notes(base, final, clue) + swap_notes(final)
     withheld = list(conditional_std(final))
     if withheld:
