@@ -153,6 +153,19 @@ _NAME_UNIT = re.compile(r"^(?P<name>[^\s\[\](/]+)\s*(?:\[(?P<a>[^\]]*)\]|\((?P<b
 SHORT_SPAN_S = 600.0
 
 
+def interval_problem(med: float) -> str:
+    """What a refusal says of a median sampling interval ``med`` (s) outside :data:`DT_RANGE_S`, with the time unit
+    that would bring it within (milliseconds, or a spreadsheet's days); '' within. The valve's and the loop's readers
+    share it."""
+    if DT_RANGE_S[0] <= med <= DT_RANGE_S[1]:
+        return ""
+    unit = "; if time_s is in milliseconds, divide it by 1000" if med > DT_RANGE_S[1] >= med / 1000.0 else \
+        "; if time_s is in days (a spreadsheet's date number), multiply it by 86400" \
+        if med < DT_RANGE_S[0] <= med * 86400.0 else ""
+    return (f"median sampling interval {med:.3g} s is implausible (expected {DT_RANGE_S[0]:g} to {DT_RANGE_S[1]:g} s)"
+            f"{unit}")
+
+
 def time_unit_hint(t: np.ndarray) -> str:
     """Where the times ``t`` (s) span less than :data:`SHORT_SPAN_S`, what a message adds: the span, and to give
     time_s in seconds if it is in minutes or hours (read so, a valve's record of hours spans seconds). Else ''."""
@@ -530,13 +543,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raise DataError(f"{source}: time_s is not increasing at row {r} (line {first_line(r - 1)}) "
                         f"({t[i - 1]:.6g} then {t[i]:.6g}); times must be strictly increasing")
     dt = np.diff(t)
-    med = float(np.median(dt))
-    if not DT_RANGE_S[0] <= med <= DT_RANGE_S[1]:
-        ms = "; if time_s is in milliseconds, divide it by 1000" if med > DT_RANGE_S[1] >= med / 1000.0 else \
-            "; if time_s is in days (a spreadsheet's date number), multiply it by 86400" \
-            if med < DT_RANGE_S[0] <= med * 86400.0 else ""
-        raise DataError(f"{source}: column time_s: median sampling interval {med:.3g} s is implausible "
-                        f"(expected {DT_RANGE_S[0]:g} to {DT_RANGE_S[1]:g} s){ms}")
+    bad_interval = interval_problem(float(np.median(dt)))
+    if bad_interval:
+        raise DataError(f"{source}: column time_s: {bad_interval}")
     gap = np.flatnonzero(dt > MAX_GAP_S)
     if gap.size:
         i = int(gap[0]) + 1
@@ -793,6 +802,7 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list",
-           "unit_key", "header_units", "time_unit_hint", "flow_unit_hint", "FLOW_UNITS", "flow_ratio",
+           "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
+           "flow_ratio",
            "opening_derived", "SHORT_SPAN_S", "TANK_HOT_C",
            "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]

@@ -48,6 +48,13 @@ def test_loop_csv_round_trip(tmp_path: Path) -> None:
      r"60 of 300 samples \(20%\) miss a value \(column pv first, at sample 3\); at most 10%"),
     ({"pv": np.where(np.arange(300) == 17, np.inf, 50.0)}, "column pv has 1 NaN/infinite"),
     ({"time_s": np.r_[np.arange(100) * 10.0, np.arange(200) * 10.0]}, "time is not strictly increasing at sample 101"),
+    # a time in milliseconds or in a spreadsheet's days: read as seconds, the loop's dynamics would be 1000 times off
+    # (a 10 s record in ms was named aggressive_tuning where the record in s is external_oscillation)
+    ({"time_s": np.arange(300) * 10000.0}, r"column time_s: median sampling interval 1e\+04 s is implausible "
+                                           r"\(expected 0.001 to 3600 s\); if time_s is in milliseconds, divide it by "
+                                           r"1000$"),
+    ({"time_s": np.arange(300) * 10.0 / 86400.0}, r"if time_s is in days \(a spreadsheet's date number\), "
+                                                 r"multiply it by 86400$"),
 ])
 def test_bad_records_name_the_problem(tmp_path: Path, override: dict, needle: str) -> None:
     p = _write_csv(tmp_path / "bad.csv", **override)

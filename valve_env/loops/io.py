@@ -49,6 +49,7 @@ from valve_env.data_io import (
     decimal_mark_hint,
     footer_lines,
     header_units,
+    interval_problem,
     is_comment,
     near_name_hint,
     read_text,
@@ -418,6 +419,9 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
     data = {c: cols[c][keep] for c in ("sp", "pv", "op", "mv") if c in cols}
     step = np.diff(t)
     h = float(np.median(step))
+    bad_interval = interval_problem(h)
+    if bad_interval:  # a time in milliseconds or in days: the loop's dynamics would be read a thousand times off
+        raise LoopDataError(f"{where}: column time_s: {bad_interval}")
     if np.max(np.abs(step - h)) > 0.01 * h:  # uneven sampling, or samples dropped above
         grid = np.arange(0.0, t[-1] + 0.5 * h, h)
         data = {c: np.interp(grid, t, v) for c, v in data.items()}
