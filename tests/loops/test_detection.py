@@ -123,3 +123,44 @@ def test_the_default_rule_is_horchs_test_and_the_learned_one_is_reported_beside_
             assert learned["stiction"] == d["learned_stiction"] == (d["probability"] > d["threshold"])
     with pytest.raises(ValueError, match="rule must be one of"):
         detect(loop, rule="vote")
+
+
+def _det(rule: str, horch_stiction: bool, phase: float, tau_r: float, tau_l: float, p: float) -> dict:
+    from valve_env.loops.detect import THRESHOLD
+
+    learned = p > THRESHOLD
+    return {"stiction": horch_stiction if rule == "horch" else learned, "rule": {"name": rule},
+            "probability": p, "threshold": THRESHOLD, "learned_stiction": learned,
+            "detectors": {"horch": {"statistic": phase, "tau_r": tau_r, "tau_l": tau_l, "stiction": horch_stiction}}}
+
+
+def test_detection_notes_say_why_horch_gave_no_verdict_and_where_the_rules_disagree() -> None:
+    """The notes beside the verdict: a cross-correlation half period under 5 samples (no resolved cycle) or a phase
+    between 60 and 120 deg says why Horch's test counted as no stiction, and the other rule's disagreeing verdict is
+    named with its statistic; where the rules agree on a resolved cycle nothing is said."""
+    from valve_env.loops.detect import THRESHOLD, detection_notes
+
+    assert detection_notes(_det("horch", True, 150.0, 1.0, 9.0, THRESHOLD + 0.1)) == []
+    assert detection_notes(_det("horch", False, 20.0, 5.0, 6.0, THRESHOLD - 0.1)) == []
+    fast = detection_notes(_det("horch", False, 128.0, 0.5, 3.0, THRESHOLD + 0.03))
+    assert fast[0].startswith("Horch's test gives no verdict: the OP-PV cross-correlation's half period is 3.5 samples")
+    assert fast[1].startswith("the other detection rule (--rule learned) says stiction (probability")
+    middle = detection_notes(_det("horch", False, 90.0, 3.0, 9.0, THRESHOLD - 0.2))
+    assert middle == ["Horch's test is undetermined: the OP-PV cross-correlation's phase 90 deg lies between 60 (even: "
+                      "no stiction) and 120 (odd: stiction); counted as no stiction"]
+    learned = detection_notes(_det("learned", True, 150.0, 1.0, 9.0, THRESHOLD - 0.3))
+    assert learned == ["the other detection rule (--rule horch) says stiction (phase 150 deg); the decision is the "
+                       "learned rule's (docs/loops.md, \"Which rule\")"]
+
+
+def test_a_sticky_flow_loop_faster_than_horch_resolves_says_so() -> None:
+    """A sticky flow loop whose limit cycle is a few samples long (S 3 %, J 2 %, 10 s sampling): Horch's test, the
+    default, resolves no cycle and the cause is not stiction; the notes say why, and that the learned rule names it."""
+    from valve_env.loops.diagnose import diagnose_loop
+    from valve_env.loops.sim import simulate_loop
+
+    loop, _ = simulate_loop("flow", S=3.0, J=2.0, seed=964311)
+    R = diagnose_loop(loop).result
+    assert R["cause"] != "stiction"
+    assert any(n.startswith("Horch's test gives no verdict") for n in R["notes"])
+    assert any(n.startswith("the other detection rule (--rule learned) says stiction") for n in R["notes"])

@@ -20,7 +20,17 @@ from typing import Any
 import numpy as np
 
 from valve_env.loops.detector_coefs import CLARITY, COEFS, FEATURES, MEANS, SCALES, THRESHOLD, TRAINING
-from valve_env.loops.detectors import bicoherence, ellipse_area, he_curve_fit, horch, kano, oscillation
+from valve_env.loops.detectors import (
+    HORCH_EVEN_DEG,
+    HORCH_MIN_HALF_PERIOD,
+    HORCH_ODD_DEG,
+    bicoherence,
+    ellipse_area,
+    he_curve_fit,
+    horch,
+    kano,
+    oscillation,
+)
 from valve_env.loops.io import LoopData
 
 
@@ -137,5 +147,31 @@ def detect(loop: LoopData, rule: str = DEFAULT_RULE) -> dict[str, Any]:
                           for k, d in det.items()}}
 
 
-__all__ = ["detect", "RULES", "DEFAULT_RULE", "features", "stiction_probability", "design_row", "terms", "FEATURES",
+def detection_notes(det: dict[str, Any]) -> list[str]:
+    """What a reader of :func:`detect`'s verdict needs beside it: why Horch's test gave no verdict where it gave none
+    (a cycle the sampling does not resolve, or a phase between its limits), and where the other rule disagrees with
+    the decision (the decision stands; docs/loops.md, "Which rule")."""
+    notes = []
+    h = det["detectors"]["horch"]
+    half = float(h["tau_r"]) + float(h["tau_l"])
+    if half < HORCH_MIN_HALF_PERIOD:
+        notes.append(f"Horch's test gives no verdict: the OP-PV cross-correlation's half period is {half:.3g} samples, "
+                     f"under the {HORCH_MIN_HALF_PERIOD:g} it needs to resolve a cycle (a cycle about as fast as the "
+                     "sampling, or none); counted as no stiction")
+    elif HORCH_EVEN_DEG <= h["statistic"] <= HORCH_ODD_DEG:
+        notes.append(f"Horch's test is undetermined: the OP-PV cross-correlation's phase {h['statistic']:.0f} deg lies "
+                     f"between {HORCH_EVEN_DEG:g} (even: no stiction) and {HORCH_ODD_DEG:g} (odd: stiction); counted "
+                     "as no stiction")
+    other = "learned" if det["rule"]["name"] == "horch" else "horch"
+    says = det["learned_stiction"] if other == "learned" else bool(h["stiction"])
+    if says != det["stiction"]:
+        why = (f"probability {det['probability']:.2f} against its threshold {det['threshold']:.2f}"
+               if other == "learned" else f"phase {h['statistic']:.0f} deg")
+        notes.append(f"the other detection rule (--rule {other}) says {'stiction' if says else 'no stiction'} ({why}); "
+                     f"the decision is the {det['rule']['name']} rule's (docs/loops.md, \"Which rule\")")
+    return notes
+
+
+__all__ = ["detect", "detection_notes",
+           "RULES", "DEFAULT_RULE", "features", "stiction_probability", "design_row", "terms", "FEATURES",
            "SHAPE_FEATURES", "THRESHOLD", "band_share"]

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from valve_env.ident.tests import delta_bic, lr_pvalue
-from valve_env.loops.detect import DEFAULT_RULE, detect
+from valve_env.loops.detect import DEFAULT_RULE, detect, detection_notes
 from valve_env.loops.detectors import oscillation
 from valve_env.loops.io import MIN_OP_RANGE_PCT, MIN_SAMPLES, LoopData
 from valve_env.loops.model import (
@@ -328,7 +328,7 @@ def diagnose_loop(loop: LoopData, quantify: bool | None = None, settings: Settin
                       "op_scaled_from": list(loop.op_scaled_from) if loop.op_scaled_from else None}
     if "linear" in fits:
         result["loop"]["process"] = fits["linear"].process.describe(s.dt)
-    result["notes"] = list(loop.notes) + ([window] if window and fits else [])
+    result["notes"] = list(loop.notes) + detection_notes(det) + ([window] if window and fits else [])
     return LoopDiagnosis(result, fits, s, q)
 
 
