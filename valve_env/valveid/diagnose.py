@@ -394,7 +394,8 @@ def identification_notes(base: FitResult, final: FitResult, clue: str = "") -> l
     if flat:
         return [f"the record does not identify {', '.join(flat)} (no finite standard error in the diagnosed model: "
                 "its likelihood is flat there); the named effects carry their own sds, and no valve file is written "
-                "from this record (a longer record with wider temperature swings is needed)." + clue]
+                "from this record (a longer record with wider temperature swings is needed)"
+                + ("." + clue if clue else "")]
     flat = unidentified(base)
     if flat:
         return [f"the base model alone does not identify {', '.join(flat)} on this record (sd null in 'base'); the "
