@@ -366,3 +366,20 @@ def test_a_stray_quote_spoils_its_own_line_only(tmp_path: Path) -> None:
     lines[100] = lines[100].replace('"', "")
     p.write_text("\n".join(lines) + "\n")
     assert read_loop(p).n == n
+
+
+def test_an_op_at_its_limit_on_many_samples_is_noted(tmp_path: Path) -> None:
+    """A controller that saturates (OP at 100 % or 0 %, or at the observed end of an OP in engineering units, on more
+    than 5 % of the samples) leaves the loop open there: a note says so. A sinusoidal OP passing its extremes is not
+    flagged."""
+    wave = 60.0 + 50.0 * np.cos(np.arange(300) / 30.0)
+    loop = read_loop(_write_csv(tmp_path / "sat.csv", op=np.minimum(wave, 100.0)))
+    share = np.mean(np.minimum(wave, 100.0) >= 99.95)
+    assert share > 0.05
+    assert any(n.startswith(f"OP sits at 100 % on {share:.0%} of the samples: the controller saturates") for n in
+               loop.notes)
+    eu = read_loop(_write_csv(tmp_path / "sat_eu.csv", op=1000.0 + 4.0 * np.maximum(wave, 30.0)))
+    assert eu.op_scaled_from is not None
+    assert any(n.startswith("OP sits at its observed minimum on") for n in eu.notes)
+    assert not any("saturates" in n for n in read_loop(_write_csv(tmp_path / "wave.csv", op=50.0 + 40.0 * np.cos(
+        np.arange(300) / 30.0))).notes)
