@@ -87,9 +87,9 @@ GROSS_MAX_RUN = 3
 #: ... and only up to this share of the samples; a longer or more frequent excursion is left as recorded
 GROSS_MAX_FRACTION = 0.01
 #: An OP within this (% of OP) of 0 or 100 % sits at its limit; a share of the samples above
-#: :data:`SATURATION_SHARE` there gets a note (a saturated controller's loop is open). No sample of the 46 shared
-#: loops, and none of 400 simulated ones (seeds 0-199, with and without the plant's habits), comes within it on more
-#: than 1 % of its samples.
+#: :data:`SATURATION_SHARE` there gets a note (a saturated controller's loop is open). Of the 46 shared loops none comes
+#: within it on more than 1 % of its samples, and of 400 simulated ones (seeds 0-199, with and without the plant's
+#: habits) none on more than 5 %.
 SATURATED_PCT = 0.05
 SATURATION_SHARE = 0.05
 
