@@ -8,7 +8,7 @@ import pytest
 from valve_env.experiment import simulate_experiment
 from valve_env.params import I_STROKE
 from valve_env.valveid.diagnose import check_run, prepare
-from valve_env.valveid.fitting import Model
+from valve_env.valveid.fitting import LOGLIK_RUNS, Model
 from valve_env.valveid.oe import stick_loglik, stick_simulate
 
 
@@ -128,9 +128,10 @@ def test_a_changed_run_is_a_new_run_and_simulate_hands_out_copies() -> None:
 
 
 def test_a_kept_loglik_is_the_filters_value_for_exactly_its_inputs() -> None:
-    """Model.loglik keeps the values of its last LOGLIK_CACHE distinct inputs (docs/diagnosis.md, "Speed"): a repeated
-    point returns the filter's value without running it, and any input that changes the value (a parameter, the mask,
-    the slip, the filter's band spread) is another entry whose value is the filter's own."""
+    """Model.loglik keeps the values of its last LOGLIK_CACHE distinct inputs on each of the last LOGLIK_RUNS runs
+    evaluated (docs/diagnosis.md, "Speed"): a repeated point returns the filter's value without running it, any input
+    that changes the value (a parameter, the mask, the slip, the filter's band spread) is another entry whose value is
+    the filter's own, and a fifth run makes room by dropping the first."""
     df = simulate_experiment(seed=5, duration_h=3.0, dt_s=10.0, effects={"stiction": {"band_mm": 0.02}})
     d = prepare(check_run(df))
     m = Model(("stiction",))
@@ -141,7 +142,7 @@ def test_a_kept_loglik_is_the_filters_value_for_exactly_its_inputs() -> None:
              ({}, None, 0.01)]
     for s, mask, slip in cases:
         assert m.loglik(d, {**vals, **s}, mask, slip) == m._filter(d, {**vals, **s}, mask, slip)[0]
-    assert len(m._lls) == len(cases)
+    assert len(m._lls) == 1 and len(m._lls[id(d)][1]) == len(cases)
     calls = []
     real = m._filter
     m._filter = lambda *a: calls.append(a) or real(*a)  # type: ignore[method-assign]
@@ -150,7 +151,17 @@ def test_a_kept_loglik_is_the_filters_value_for_exactly_its_inputs() -> None:
                                                                                               mask, slip)[0]
     assert calls == []
     m.band_spread *= 2.0
-    assert m.loglik(d, vals) == real(d, vals)[0] != m._lls[next(iter(m._lls))][1]
+    first = next(iter(m._lls[id(d)][1].values()))[1]
+    assert m.loglik(d, vals) == real(d, vals)[0] != first
     assert len(calls) == 1
+    # the values of the last LOGLIK_RUNS runs are kept, each run held by its entry: a model evaluated on many runs
+    # (null and bootstrap copies) holds a few of them, not each
+    import dataclasses
+
+    others = [dataclasses.replace(d, T=d.T + 0.1 * (i + 1), M=d.M + 0.1 * (i + 1)) for i in range(LOGLIK_RUNS)]
+    for o in others:
+        assert m.loglik(o, vals) == real(o, vals)[0]
+    held = [run for run, _ in m._lls.values()]
+    assert len(held) == LOGLIK_RUNS and all(a is b for a, b in zip(held, others, strict=True))  # the first made room
     m.forget_paths()
     assert m._lls == {}

@@ -118,10 +118,13 @@ PATH_CACHE = 8
 #: along it) that a :class:`Model` keeps: the valve parameters and the set point's drift leave a drive as it is, so
 #: the paths of their steps evaluate only :func:`~valve_env.valveid.oe.valve_pass` on it
 DRIVE_CACHE = 4
-#: the log-likelihoods (one float each) that a :class:`Model` keeps, by their exact inputs: a minimisation that starts
-#: where another ended, a profile or a Hessian re-evaluates points already evaluated (a quarter of the stick-slip
-#: filter's calls in a diagnosis), and the filter is deterministic, so a kept value is the value
+#: the log-likelihoods (one float each) that a :class:`Model` keeps, by their exact inputs, for the run it last
+#: evaluated: a minimisation that starts where another ended, a profile or a Hessian re-evaluates points already
+#: evaluated (a quarter of the stick-slip filter's calls in a diagnosis), and the filter is deterministic, so a kept
+#: value is the value. They are kept for the last LOGLIK_RUNS runs evaluated, so that a model evaluated on many runs
+#: (the null and bootstrap copies) holds a few of them, not each (at most PATH_CACHE, as its valve paths do)
 LOGLIK_CACHE = 4096
+LOGLIK_RUNS = 4
 
 
 def _kept(cache: OrderedDict[Any, tuple[RunData, Any]], key: Any, data: RunData, limit: int,
@@ -166,7 +169,9 @@ class Model:
             OrderedDict())
         self._drives: OrderedDict[tuple[int, bytes, float, float, float, bool], tuple[RunData, tuple[Any, ...]]] = (
             OrderedDict())
-        self._lls: OrderedDict[tuple[Any, ...], tuple[RunData, float]] = OrderedDict()
+        #: per run (by identity, the run held): its kept log-likelihoods by their other inputs
+        self._lls: OrderedDict[int, tuple[RunData, OrderedDict[tuple[Any, ...], tuple[RunData, float]]]] = (
+            OrderedDict())
 
     def forget_paths(self) -> None:
         """Drop the kept valve paths (:meth:`_valve_path`, about 0.5 MB each for 24 h at 10 s): a fitted model kept
@@ -312,13 +317,14 @@ class Model:
                slip: float = -1.0) -> float:
         """Exact Gaussian log-likelihood of the measured opening (over the samples in ``mask``); with stiction
         ``slip`` is the stick-slip filter's slip J (negative, the default: J = ``band_mm``). The last
-        :data:`LOGLIK_CACHE` distinct inputs' values are kept."""
+        :data:`LOGLIK_CACHE` distinct inputs' values on each of the last :data:`LOGLIK_RUNS` runs evaluated are
+        kept."""
+        kept = _kept(self._lls, id(data), data, LOGLIK_RUNS, OrderedDict)
         vp, e = self._vectors(values)
-        key = (id(data), vp.tobytes(), e.tobytes(), values["s_w"], values["s_e"], values["tau_e"],
+        key = (vp.tobytes(), e.tobytes(), values["s_w"], values["s_e"], values["tau_e"],
                None if mask is None else hashlib.blake2b(np.ascontiguousarray(mask).tobytes(), digest_size=16).digest(),
                float(slip), self.band_spread, self.landing_sd, self.delta(data, values))
-        return float(_kept(self._lls, key, data, LOGLIK_CACHE,
-                           lambda: float(self._filter(data, values, mask, slip)[0])))
+        return float(_kept(kept, key, data, LOGLIK_CACHE, lambda: float(self._filter(data, values, mask, slip)[0])))
 
     def one_step(self, data: RunData, values: dict[str, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One filter pass: the one-step prediction errors (mm), their variances and each sample's term of
