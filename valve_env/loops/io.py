@@ -454,8 +454,6 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
             notes.append(f"OP sits at {limit} on {share:.0%} of the samples: the controller saturates there, the loop "
                          "is open, and the shape tests and the band's fit read those stretches as part of the loop's "
                          "behaviour; read the verdict with care")
-    if not math.isfinite(h) or h <= 0:
-        raise LoopDataError(f"{where}: bad sampling interval {h!r}")
     return LoopData(time_s=t, sp=data["sp"], pv=data["pv"], op=op, mv=data.get("mv"), tag=tag, source=source,
                     notes=notes, op_scaled_from=scaled)
 
