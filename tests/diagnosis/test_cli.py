@@ -177,6 +177,7 @@ def test_a_valve_parameter_on_its_fit_bound_is_said_and_writes_no_valve(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and not out.exists() and not valve.exists()
     assert err[-1].startswith(f"thermovalve: error: {run}: the diagnosed model leaves F_hmax on its fit bound")
+    assert "derived from q_kgh and dp_mbar" in err[-1]  # the refusal gives the diagnosis's clue to the units too
     assert main(args) == 0
     printed = capsys.readouterr().out
     note = next(n for n in json.loads(out.read_text())["notes"] if "fit bound" in n)
@@ -236,6 +237,6 @@ def test_temperatures_in_degf_within_the_range_are_named_where_the_fit_fails(tmp
     out = tmp_path / "d.json"
     args = ["diagnose", str(run), "--json", str(out), "--no-report", "--bootstrap", "0"]
     assert main([*args, "--valve-out", str(tmp_path / "v.yaml")]) == 2
-    assert says in capsys.readouterr().err
+    assert says in capsys.readouterr().err  # the diagnosis's clue to the units
     assert main(args) == 0
     assert any(says in n for n in json.loads(out.read_text())["notes"])

@@ -146,19 +146,19 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         result = diagnose(run, validate=vdf, name=str(args.run), holdout=args.holdout, alpha=args.alpha,
                           effects=cands, bootstrap_B=args.bootstrap, progress=tick)
     if valve_out is not None:
-        from valve_env.data_io import temperature_unit_hint
         from valve_env.valveid.diagnose import on_bound, unidentified
 
+        # the diagnosis's clue to the record's units (diagnose.unit_clue), which it computes where either holds
         flat = unidentified(result.final)
         if flat:
             raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} (no finite standard error): "
-                             "no valve file can be written from it; run without --valve-out for the diagnosis"
-                             f"{temperature_unit_hint(run['T_tank_C'].to_numpy())}")
+                             "no valve file can be written from it; run without --valve-out for the diagnosis."
+                             f"{result.unit_clue}")
         bound = on_bound(result.final)
         if bound:
             raise UsageError(f"{args.run}: the diagnosed model leaves {', '.join(bound)} on its fit bound (a value "
                              "outside the valve's range would fit better): no valve file can be written from it; run "
-                             "without --valve-out for the diagnosis")
+                             f"without --valve-out for the diagnosis.{result.unit_clue}")
     with outs:
         outs.write_text(out, json_text(result.to_json()))
         if report is not None:

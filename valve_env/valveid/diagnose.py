@@ -220,13 +220,10 @@ class Diagnosis:
     sensitivity: dict[str, float | None] = field(default_factory=dict)
     #: what the record says of its channels' units where the diagnosed model ends on a bound (:func:`unit_clue`)
     unit_clue: str = ""
-
-    @property
-    def warnings(self) -> list[str]:
-        """The notes a user must not miss (the console shows them as warnings): a valve parameter the record does
-        not identify, or that ends on its fit bound (:func:`identification_notes`), and a medium weight that suggests
-        swapped temperature columns (:func:`swap_notes`)."""
-        return identification_notes(self.base, self.final, self.unit_clue) + swap_notes(self.final)
+    #: the notes a user must not miss, also in ``notes`` (the console shows them as warnings): a valve parameter the
+    #: record does not identify, or that ends on its fit bound (:func:`identification_notes`), and a medium weight
+    #: that suggests swapped temperature columns (:func:`swap_notes`)
+    warnings: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         b = self.base
@@ -1083,7 +1080,8 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
     clue = unit_clue(run, valve) if on_bound(final) or unidentified(final) else ""
-    notes += identification_notes(base, final, clue) + swap_notes(final)
+    warnings = identification_notes(base, final, clue) + swap_notes(final)
+    notes += warnings
     withheld = list(conditional_std(final))
     if withheld:
         notes.append(f"the sd of {', '.join(withheld)} is withheld in the {'+'.join(final.effects)} model (null): with "
@@ -1096,7 +1094,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
         cause=selected[0] if selected else "none", selected=selected, base=base, findings=findings, steps=steps,
         final=final, diagnostics=diagnostics, settings=settings, train=train, valid=valid, valid_range=vr,
         base_valid_rms=base_val[0], final_valid_rms=final_val, seconds=time.perf_counter() - t0, valve=valve,
-        sensitivity=sensitivity, unit_clue=clue,
+        sensitivity=sensitivity, unit_clue=clue, warnings=warnings,
     )
 
 
