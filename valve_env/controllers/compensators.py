@@ -6,7 +6,7 @@ In the papers a controller output ``u_c`` (% OP) drives a sticky valve whose ste
 stick-slip model (Choudhury et al. 2005). Here the controller trims the valve's temperature
 *setting* (ThermoValve-v0, the setting channel of ThermoValveDual-v0). The sticky element is the
 stem, and its input is the force balance's *demanded opening* ``x_d`` (mm; docs/reference.md,
-"stiction"). The setting spring moves the set pressure, so a setting change ``dT`` moves the demand by
+section 3, stiction). The setting spring moves the set pressure, so a setting change ``dT`` moves the demand by
 ``g dT``, with ``g = A_b p_b'(T) / (C_v + C_i + C_b + K_f dp)`` (``physics.valve.gain_mm_per_K``,
 about 0.18 mm/K at 60 degC and 100 mbar). Unlike the papers' loops, the demand also moves with the
 bulb temperature (the valve's own proportional action) and the Dahl friction force. The compensators

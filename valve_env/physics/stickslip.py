@@ -2,7 +2,7 @@
 
 One definition serves every consumer: the thermostatic valve's stem (units: mm of
 stem, the input is the demanded opening of the force balance, docs/reference.md,
-"stiction") and a control loop's valve (units: % of controller output, the input
+section 3, stiction) and a control loop's valve (units: % of controller output, the input
 is the controller output; valve_env.loops). The functions are pure and
 ``register_jitable``: plain Python/NumPy when called from Python, compiled inline
 by numba in the simulator kernels.
