@@ -132,9 +132,22 @@ UNITS: dict[str, tuple[str, frozenset[str]]] = {
     "T_med_C": ("degC", frozenset({"degc", "c", "celsius", "degcelsius", "oc"})),
     "q_kgh": ("kg/h", frozenset({"kg/h", "kgh", "kgh-1", "kg/hr", "kgperh"})),
     "dp_mbar": ("mbar", frozenset({"mbar", "mbarg", "mbard"})),
-    "ps_bar": ("bar", frozenset({"bar", "barg", "bara"})),
+    "ps_bar": ("bar", frozenset({"bar", "barg"})),
     "x_mm": ("mm", frozenset({"mm"})),
 }
+#: The ways a logger writes an absolute pressure in bar (:func:`unit_key`): ps_bar is the static pressure over the
+#: ambient (docs/reference.md, section 1: dp_s = p_1 - p_0), and an absolute one is refused with what to subtract.
+ABSOLUTE_BAR = frozenset({"bara", "barabs", "barabsolute"})
+
+
+def convert_to(name: str, unit: str) -> str:
+    """What to do with column ``name`` given in ``unit``, a unit that is not the format's (:data:`UNITS`): the end of
+    the refusal."""
+    want = UNITS[name][0]
+    if name == "ps_bar" and unit_key(unit) in ABSOLUTE_BAR:
+        return ("an absolute pressure: the format's ps_bar is the static pressure over the ambient (gauge; "
+                "docs/reference.md, section 1: dp_s = p_1 - p_0); subtract the ambient pressure, about 1.013 bar")
+    return f"the format's unit is {want} (docs/reference.md, section 2); convert the column to {want}"
 
 
 def unit_key(cell: str) -> str:
@@ -485,10 +498,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     row_lines: list[int] = list(at) if at is not None and len(at) == len(raw) else list(range(first, first + len(raw)))
     named = header_units(list(raw.columns), (*REQUIRED, *OPTIONAL))
     for col, (name, unit) in named.items():
-        want, ways = UNITS[name]
-        if unit_key(unit) not in ways:
-            raise DataError(f"{source}: column {col!r} gives {name} in {unit!r}: the format's unit is {want} "
-                            f"(docs/reference.md, section 2); convert the column to {want}")
+        if unit_key(unit) not in UNITS[name][1]:
+            raise DataError(f"{source}: column {col!r} gives {name} in {unit!r}: {convert_to(name, unit)}")
     if named:
         raw = raw.rename(columns={c: n for c, (n, _) in named.items()})
         raw.attrs["units_in_header"] = dict(named.values())
@@ -673,10 +684,9 @@ def _units_row(raw: pd.DataFrame, source: str, first: int) -> dict[str, str]:
     if not any(unit_key(v) in ways for v in filled.values() for _, ways in UNITS.values()):
         return {}  # text that names no unit at all: left for the numeric check to refuse as it is
     for c, v in filled.items():
-        want, ways = UNITS[c]
-        if unit_key(v) not in ways:
-            raise DataError(f"{source}: line {first} is a units row, and column {c} is given in {v!r}: the format's "
-                            f"unit is {want} (docs/reference.md, section 2); convert the column to {want}")
+        if unit_key(v) not in UNITS[c][1]:
+            raise DataError(f"{source}: line {first} is a units row, and column {c} is given in {v!r}: "
+                            f"{convert_to(c, v)}")
     return filled
 
 

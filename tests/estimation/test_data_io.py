@@ -372,6 +372,26 @@ def test_a_units_row_under_the_header_is_read_as_a_second_header_line(tmp_path: 
             load_run(path)
 
 
+def test_an_absolute_static_pressure_is_refused_with_what_to_subtract(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """ps_bar is the static pressure over the ambient (dp_s = p_1 - p_0 in the force balance): a units row or a header
+    that gives it in bar absolute is refused, naming the ambient pressure to subtract (a bar(a) column read as gauge
+    moves the stem seal's force by the ambient's 1 bar); bar(g) is read."""
+    path = tmp_path / "run.csv"
+    lines = run_df.to_csv(index=False).splitlines()
+    units = {c: "" for c in run_df.columns} | {"time_s": "s", "T_tank_C": "degC", "ps_bar": "bar(a)"}
+    path.write_text("\n".join([lines[0], ",".join(units[c] for c in run_df.columns), *lines[1:]]) + "\n")
+    with pytest.raises(DataError, match=r"column ps_bar is given in 'bar\(a\)': an absolute pressure: the format's "
+                                        r"ps_bar is the static pressure over the ambient .*subtract the ambient "
+                                        r"pressure, about 1.013 bar$"):
+        load_run(path)
+    for unit in ("bara", "bar abs"):
+        run_df.rename(columns={"ps_bar": f"ps_bar [{unit}]"}).to_csv(path, index=False)
+        with pytest.raises(DataError, match=rf"gives ps_bar in '{unit}': an absolute pressure"):
+            load_run(path)
+    run_df.rename(columns={"ps_bar": "ps_bar [barg]"}).to_csv(path, index=False)
+    assert load_run(path)["ps_bar"].to_numpy() == pytest.approx(run_df["ps_bar"].to_numpy())
+
+
 def test_a_record_of_minutes_or_hours_read_as_seconds_is_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
     """A time column in hours read as seconds makes an hour's run span a second: the pre-processing notes it (`fit`
     warns on the console) and `diagnose`'s refusal says what to give; a record of an hour gets no such note."""
