@@ -141,7 +141,7 @@ def test_accepted_candidates_ranked_by_held_out_gain() -> None:
     f = {x.effect: x for x in d.findings}
     lag, drift = f["sensor_lag"], f["setpoint_drift"]
     assert drift.accepted
-    # with the former temperature smoother (collapsed noise estimate, docs/estimation.md) the spurious lag
+    # with the former temperature smoother (collapsed noise estimate, docs/history/estimation.md) the spurious lag
     # was accepted too, with the larger in-sample statistic; with the Student-t smoother it is not accepted
     if lag.accepted:
         assert drift.validation_loglik_gain > lag.validation_loglik_gain  # held out: the drift
