@@ -149,16 +149,16 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         from valve_env.valveid.diagnose import on_bound, unidentified
 
         # the diagnosis's clue to the record's units (diagnose.unit_clue), which it computes where either holds
+        clue = "." + result.unit_clue if result.unit_clue else ""
         flat = unidentified(result.final)
         if flat:
             raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} (no finite standard error): "
-                             "no valve file can be written from it; run without --valve-out for the diagnosis."
-                             f"{result.unit_clue}")
+                             f"no valve file can be written from it; run without --valve-out for the diagnosis{clue}")
         bound = on_bound(result.final)
         if bound:
             raise UsageError(f"{args.run}: the diagnosed model leaves {', '.join(bound)} on its fit bound (a value "
                              "outside the valve's range would fit better): no valve file can be written from it; run "
-                             f"without --valve-out for the diagnosis.{result.unit_clue}")
+                             f"without --valve-out for the diagnosis{clue}")
     with outs:
         outs.write_text(out, json_text(result.to_json()))
         if report is not None:
