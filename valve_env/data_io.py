@@ -43,6 +43,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -67,21 +68,39 @@ RANGES: dict[str, tuple[float, float, bool, str]] = {
     "ps_bar": (0.0, 100.0, True, "a static pressure, bar"),
     "x_mm": (-1.0, 50.0, False, "a valve opening, mm"),
 }
-#: Units a column may arrive in instead of the format's, as a refusal of its range names them: (the unit, what to do,
-#: scale, offset, share), the value in the format's unit being scale * value + offset. The unit is named where every
-#: value converts into the range and more than ``share`` of the values lie outside it as they stand. A water
+class OtherUnit(NamedTuple):
+    """A unit a column may arrive in instead of the format's (:data:`OTHER_UNITS`)."""
+
+    unit: str
+    #: what to do, the end of the refusal
+    do: str
+    #: the value in the format's unit is ``scale * value + offset``
+    scale: float
+    offset: float
+    #: the unit is named where more than this share of the values lie outside the range as they stand
+    share: float
+    #: ... and only where every value is a whole number (a controller's integer register)
+    integers: bool = False
+
+
+#: Units a column may arrive in instead of the format's, as a refusal of its range names them (:class:`OtherUnit`):
+#: the first, in order, under which every value converts into the range and more than its share of the values lie
+#: outside it as they stand. A water
 #: temperature in degF lies above 150 only where it is hotter than 65.6 degC, so a medium's record in degF refuses on
 #: part of its rows (a quarter of a generated day's, medium 48-67 degC); a tenth of the rows keeps a few sentinels or
-#: spikes of a record in degC from reading as degF.
-OTHER_UNITS: dict[str, tuple[tuple[str, str, float, float, float], ...]] = {
-    "T_tank_C": (("kelvin", "subtract 273.15", 1.0, -273.15, 0.5),
-                 ("degF", "convert with (v - 32) * 5 / 9, and the other temperature column too", 5.0 / 9.0,
-                  -160.0 / 9.0, 0.1)),
-    "T_med_C": (("kelvin", "subtract 273.15", 1.0, -273.15, 0.5),
-                ("degF", "convert with (v - 32) * 5 / 9, and the other temperature column too", 5.0 / 9.0,
-                 -160.0 / 9.0, 0.1)),
-    "dp_mbar": (("Pa", "divide by 100", 0.01, 0.0, 0.5),),
-    "ps_bar": (("kPa", "divide by 100", 0.01, 0.0, 0.5), ("Pa", "divide by 100000", 1e-5, 0.0, 0.5)),
+#: spikes of a record in degC from reading as degF. A controller's integer register holds a temperature in whole tenths
+#: of a degC (526 for 52.6 degC), where a record in kelvin has decimals.
+_TEMPERATURE_UNITS: tuple[OtherUnit, ...] = (
+    OtherUnit("kelvin", "subtract 273.15", 1.0, -273.15, 0.5),
+    OtherUnit("degF", "convert with (v - 32) * 5 / 9, and the other temperature column too", 5.0 / 9.0, -160.0 / 9.0,
+              0.1),
+    OtherUnit("tenths of a degC (a controller's integer register)", "divide by 10, and the other temperature column "
+              "too", 0.1, 0.0, 0.5, integers=True))
+OTHER_UNITS: dict[str, tuple[OtherUnit, ...]] = {
+    "T_tank_C": _TEMPERATURE_UNITS,
+    "T_med_C": _TEMPERATURE_UNITS,
+    "dp_mbar": (OtherUnit("Pa", "divide by 100", 0.01, 0.0, 0.5),),
+    "ps_bar": (OtherUnit("kPa", "divide by 100", 0.01, 0.0, 0.5), OtherUnit("Pa", "divide by 100000", 1e-5, 0.0, 0.5)),
 }
 #: Units of dp_mbar that the flow can reveal where x_mm is measured (:func:`_check_dp_unit`): the name, what to do
 #: and the factor to mbar. An SI logger writes Pa; the flow at a given opening grows as sqrt(dp), so a dp in Pa makes
@@ -773,8 +792,13 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
         rows = ", ".join(str(int(j) + 1) for j in bad[1:6]) + (", ..." if bad.size > 6 else "")
         more = f"; {bad.size - 1} more row(s): {rows}" if bad.size > 1 else ""
         x = v[known]
-        unit = next((f"; every value reads as {u}: {do}" for u, do, a, b, share in OTHER_UNITS.get(col, ())
-                     if bad.size > share * x.size and np.all((a * x + b > lo) & (a * x + b <= hi))), "")
+
+        def fits(o: OtherUnit) -> bool:
+            y = o.scale * x + o.offset
+            return (bad.size > o.share * x.size and bool(np.all((y > lo) & (y <= hi)))
+                    and (not o.integers or bool(np.all(x == np.round(x)))))
+
+        unit = next((f"; every value reads as {o.unit}: {o.do}" for o in OTHER_UNITS.get(col, ()) if fits(o)), "")
         raise DataError(f"{source}: column {col}, row {i + 1} (line {line(i)}): {v[i]:.6g} is out of range "
                         f"(must be {bound}: {what}){more}{unit}")
 

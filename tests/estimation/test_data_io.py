@@ -372,6 +372,20 @@ def test_a_units_row_under_the_header_is_read_as_a_second_header_line(tmp_path: 
             load_run(path)
 
 
+def test_temperatures_in_whole_tenths_of_a_degree_are_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A controller's integer register holds a temperature in tenths of a degC (526 for 52.6 degC): the range refusal
+    names the unit; a record in kelvin, which has decimals, is still named kelvin, and one rounded to whole kelvin
+    (where both would fit) too, as the first unit that fits."""
+    tenths = run_df.assign(T_tank_C=(run_df.T_tank_C * 10).round(), T_med_C=(run_df.T_med_C * 10).round())
+    with pytest.raises(DataError, match=r"column T_tank_C, row 1 .*; every value reads as tenths of a degC \(a "
+                                        r"controller's integer register\): divide by 10, and the other temperature "
+                                        r"column too$"):
+        load_run(_write(tenths, tmp_path / "tenths.csv"))
+    for kelvin in (run_df.T_tank_C + 273.15, (run_df.T_tank_C + 273.15).round()):
+        with pytest.raises(DataError, match=r"every value reads as kelvin: subtract 273.15$"):
+            load_run(_write(run_df.assign(T_tank_C=kelvin), tmp_path / "k.csv"))
+
+
 def test_an_absolute_static_pressure_is_refused_with_what_to_subtract(tmp_path: Path, run_df: pd.DataFrame) -> None:
     """ps_bar is the static pressure over the ambient (dp_s = p_1 - p_0 in the force balance): a units row or a header
     that gives it in bar absolute is refused, naming the ambient pressure to subtract (a bar(a) column read as gauge
