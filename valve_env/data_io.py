@@ -285,14 +285,23 @@ def decimal_mark_hint(cell: str) -> str:
     """What a refusal of ``cell`` as not a number adds where the cell is a number written with a decimal comma
     (``0,0033``, ``1.234,5``) in a file whose other numbers have a decimal point (a spreadsheet that exported some
     columns as text): which mark is meant is not known, so the file is not read. Where a comma groups the thousands of
-    a number with a decimal point (``1,003.709``), it says so. Else ''."""
+    a number with a decimal point (``1,003.709``), or the cell carries its unit after the number (``243.9 kg/h``),
+    it says so. Else ''."""
     c = cell.strip()
     if _DECIMAL_COMMA.match(c) or (_GROUPED.match(c) and "," in c):
         return "; it has a decimal comma where the file's other numbers have a decimal point: write every number " \
                "with one decimal mark"
     if _COMMA_GROUPED.match(c):
         return "; a comma groups its thousands (a spreadsheet's thousands separator): write numbers without it"
+    m = _NUMBER_THEN_TEXT.match(c)
+    if m:
+        return (f"; the cell carries its unit ({m.group(2)!r}), as a formatted spreadsheet cell does: write the "
+                "numbers alone (a unit may follow the column's name in the header)")
     return ""
+
+
+#: a number followed by text, as a formatted cell writes a unit after its value (``243.9 kg/h``, ``52.3°C``)
+_NUMBER_THEN_TEXT = re.compile(r"^([-+]?(?:\d+(?:[.,]\d*)?|[.,]\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s.,+-].*)$")
 
 
 def decimal_comma(cell: str) -> str:

@@ -193,6 +193,23 @@ def test_a_thousands_separator_is_named(tmp_path: Path, run_df: pd.DataFrame) ->
         load_run(path)
 
 
+def test_a_unit_in_the_cells_is_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A formatted spreadsheet cell writes its unit after the number (``243.918 kg/h``, ``52.3°C``): the refusal names
+    the unit and says to write the numbers alone; a loop record's cell gets the same."""
+    for col, fmt, unit in (("q_kgh", "{:.3f} kg/h", "kg/h"), ("T_tank_C", "{:.1f}\u00b0C", "\u00b0C")):
+        df = run_df.astype({col: object})
+        df[col] = [fmt.format(v) for v in run_df[col]]
+        path = tmp_path / "units.csv"
+        df.to_csv(path, index=False, encoding="utf-8")
+        with pytest.raises(DataError, match=rf"in column '{col}' at row 1 \(line 2\); the cell carries its unit "
+                                            rf"\('{unit}'\), as a formatted spreadsheet cell does: write the numbers "
+                                            r"alone \(a unit may follow the column's name in the header\)$"):
+            load_run(path)
+    from valve_env.data_io import decimal_mark_hint
+
+    assert decimal_mark_hint("I/O Timeout") == "" and decimal_mark_hint("5 5") == ""
+
+
 @pytest.mark.parametrize(("sep", "decimal", "comments"), [
     (";", ",", ""), ("\t", ".", ""), (",", ".", "# rig 2, valve 7\n\n# logged every 10 s\n"), (";", ".", "# export\n"),
 ])

@@ -291,6 +291,12 @@ def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path)
     p.write_text("\n".join(semi) + "\n")
     with pytest.raises(LoopDataError, match=r"line 8, column op: '[\d,]+' is not a number; it has a decimal comma"):
         read_loop(p)
+    pct = [*lines[:9], ",".join([*lines[9].split(",")[:3], lines[9].split(",")[3] + " %", *lines[9].split(",")[4:]]),
+           *lines[10:]]  # a formatted cell: the unit after the number
+    p.write_text("\n".join(pct) + "\n")
+    with pytest.raises(LoopDataError, match=r"line 10, column op: '[\d.]+ %' is not a number; the cell carries its "
+                                            r"unit \('%'\)"):
+        read_loop(p)
 
 
 @pytest.mark.parametrize("kind", ["utf16_tabs", "spaces", "footer", "empty_sheet_rows", "gzip"])
