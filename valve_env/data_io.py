@@ -555,8 +555,13 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     clock = clock_in_time_s(raw["time_s"].head(5).astype(str).tolist(), "'time_s'")
     if clock:
         raise DataError(f"{source}: {clock}")
+    in_cells: dict[str, str] = {}
     for col in (*REQUIRED, *[c for c in OPTIONAL if c in raw.columns]):
-        out[col] = _numeric(raw[col], col, source, allow_empty=col != "time_s", line=first_line)
+        out[col] = values = _numeric(raw[col], col, source, allow_empty=col != "time_s", line=first_line)
+        if values.attrs.get("unit_in_cells"):
+            in_cells[col] = values.attrs["unit_in_cells"]
+    if in_cells:
+        out.attrs["units_in_cells"] = in_cells
     if "x_mm" in out.columns:  # before the ranges: an opening in % or a dp in Pa passes them on some rows only
         _check_stroke(out, valve, source)
         _check_opening_sign(out, valve, source)
@@ -812,13 +817,33 @@ def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, w
                         f"(must be {bound}: {what}){more}{unit}")
 
 
+def _unit_in_cells(s: pd.Series, name: str) -> tuple[pd.Series, str] | None:
+    """Where every cell of ``s`` (text, the empty ones left out) that is not a number is a number followed by one and
+    the same unit of the format's column ``name`` (:data:`UNITS`: ``243.9 kg/h``, ``52.3 °C``, as a formatted
+    spreadsheet cell writes it), the cells' numbers and that unit as written; else None."""
+    if name not in UNITS:
+        return None
+    parts = s.str.extract(_NUMBER_THEN_TEXT)
+    written = parts[1].dropna().str.strip()
+    if written.empty or written.map(unit_key).nunique() != 1 or unit_key(written.iloc[0]) not in UNITS[name][1]:
+        return None
+    return parts[0].where(parts[1].notna(), s), str(written.iloc[0])
+
+
 def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Callable[[int], int] = _default_line
              ) -> pd.Series:
+    """The column's numbers (empty cells NaN where ``allow_empty``); cells that carry the format's own unit after
+    their number are read as the number, the unit in the result's ``attrs["unit_in_cells"]``."""
+    unit = ""
     if not pd.api.types.is_numeric_dtype(col):
         s = col.astype(str).str.strip()
         empty = s.str.lower().isin(MISSING_MARKERS)
         num = pd.to_numeric(s.where(~empty, None), errors="coerce")
         nonnum = num.isna() & ~empty
+        own = _unit_in_cells(s.where(nonnum), name) if nonnum.any() else None
+        if own is not None:
+            num = pd.to_numeric(own[0].where(~empty, None), errors="coerce")
+            nonnum, unit = num.isna() & ~empty, own[1]
         if nonnum.any():
             i = int(np.flatnonzero(nonnum.to_numpy())[0])
             raise DataError(f"{source}: non-numeric value {col.iloc[i]!r} in column {name!r} "
@@ -835,7 +860,10 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Ca
     if bad.any() and not allow_empty:
         i = int(np.flatnonzero(bad)[0])
         raise DataError(f"{source}: NaN (empty or missing value) in column {name!r} at row {i + 1} (line {line(i)})")
-    return pd.Series(vals, index=col.index, name=name)
+    out = pd.Series(vals, index=col.index, name=name)
+    if unit:
+        out.attrs["unit_in_cells"] = unit
+    return out
 
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",

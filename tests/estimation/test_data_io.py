@@ -193,18 +193,30 @@ def test_a_thousands_separator_is_named(tmp_path: Path, run_df: pd.DataFrame) ->
         load_run(path)
 
 
-def test_a_unit_in_the_cells_is_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
-    """A formatted spreadsheet cell writes its unit after the number (``243.918 kg/h``, ``52.3°C``): the refusal names
-    the unit and says to write the numbers alone; a loop record's cell gets the same."""
-    for col, fmt, unit in (("q_kgh", "{:.3f} kg/h", "kg/h"), ("T_tank_C", "{:.1f}\u00b0C", "\u00b0C")):
+def test_cells_that_carry_a_unit_are_read_or_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A formatted spreadsheet cell writes its unit after the number (``243.918 kg/h``, ``52.3°C``): cells that carry
+    the format's own unit are read as their numbers, with a note; another unit, or text that is no unit, is refused
+    in one line that names it and what to do; a loop record's cell is named the same way (tests/loops)."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    path = tmp_path / "units.csv"
+    for col, fmt in (("q_kgh", "{:.6f} kg/h"), ("T_tank_C", "{:.6f} \u00b0C"), ("dp_mbar", "{:.6f}mbar")):
         df = run_df.astype({col: object})
         df[col] = [fmt.format(v) for v in run_df[col]]
-        path = tmp_path / "units.csv"
+        df.loc[3, col] = ""  # an empty cell stays empty
         df.to_csv(path, index=False, encoding="utf-8")
-        with pytest.raises(DataError, match=rf"in column '{col}' at row 1 \(line 2\); the cell carries its unit "
-                                            rf"\('{unit}'\), as a formatted spreadsheet cell does: write the numbers "
-                                            r"alone \(a unit may follow the column's name in the header\)$"):
-            load_run(path)
+        out = load_run(path)
+        assert out[col].to_numpy()[:3] == pytest.approx(run_df[col].to_numpy()[:3], rel=1e-4)
+        assert out.attrs["units_in_cells"] == {col: fmt.format(1.0).split("1.", 1)[1].lstrip("0123456789 ")}
+        _, notes = preprocess_run(out)
+        assert any(line.startswith(f"the cells of {col}: the format's units") for line in describe(notes))
+    df = run_df.astype({"T_tank_C": object})
+    df["T_tank_C"] = [f"{v * 1.8 + 32:.2f} \u00b0F" for v in run_df["T_tank_C"]]  # another unit: named, not read
+    df.to_csv(path, index=False, encoding="utf-8")
+    with pytest.raises(DataError, match=r"in column 'T_tank_C' at row 1 \(line 2\); the cell carries its unit "
+                                        r"\('\u00b0F'\), as a formatted spreadsheet cell does: write the numbers "
+                                        r"alone \(a unit may follow the column's name in the header\)$"):
+        load_run(path)
     from valve_env.data_io import decimal_mark_hint
 
     assert decimal_mark_hint("I/O Timeout") == "" and decimal_mark_hint("5 5") == ""

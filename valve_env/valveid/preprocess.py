@@ -34,7 +34,7 @@ each convention is handled once, here, and reported:
   interval and the longest gap (nothing is filled in).
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
-``comment_lines``, ``rows_repeated``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``,
+``units_in_cells``, ``comment_lines``, ``rows_repeated``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``,
 ``irregular_sampling``, ``gap``, ``short_span``), the
 ``channel`` where it applies, and ``why``. The ``fit`` and
 ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
@@ -68,8 +68,8 @@ SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
 #: (often to full scale) does not
 X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
-CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "comment_lines", "rows_repeated", "rows_dropped",
-                                 "spikes_replaced", "x_mm_derived")
+CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "comment_lines", "rows_repeated",
+                                 "rows_dropped", "spikes_replaced", "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -139,6 +139,12 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         given = ", ".join(f"{c} [{u}]" for c, u in named.items())
         notes.append({"what": "units_in_header", "channel": None, "units": dict(named),
                       "why": f"the header gives the format's own units after the names ({given}): read as the names"})
+    in_cells = df.attrs.get("units_in_cells")
+    if in_cells and ("units_in_cells", None) not in done:
+        given = ", ".join(f"{c} [{u}]" for c, u in in_cells.items())
+        notes.append({"what": "units_in_cells", "channel": None, "units": dict(in_cells),
+                      "why": f"the cells carry the format's own units after their numbers ({given}), as a formatted "
+                             "spreadsheet cell does: read as the numbers"})
     comments = df.attrs.get("comment_lines", [])
     if comments and ("comment_lines", None) not in done:
         notes.append({"what": "comment_lines", "channel": None, "lines": list(comments),
@@ -233,6 +239,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
             lines.append(f"line {nt['line']}: a units row, the format's units; read as a second header line")
         elif what == "units_in_header":
             lines.append("the header: the format's units after the names; read as the names")
+        elif what == "units_in_cells":
+            lines.append(f"the cells of {', '.join(nt['units'])}: the format's units after the numbers; read as the "
+                         "numbers")
         elif what == "comment_lines":
             lines.append(f"{len(nt['lines'])} comment line(s) among the data skipped (lines {short_list(nt['lines'])})")
         elif what == "rows_repeated":
