@@ -867,7 +867,8 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Ca
 
 
 __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",
-           "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "DP_UNITS",
+           "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "OtherUnit",
+           "ABSOLUTE_BAR", "convert_to", "DP_UNITS",
            "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "STROKE_MARGIN", "OPENING_SIGN_CORR",
            "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
