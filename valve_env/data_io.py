@@ -99,7 +99,9 @@ _TEMPERATURE_UNITS: tuple[OtherUnit, ...] = (
 OTHER_UNITS: dict[str, tuple[OtherUnit, ...]] = {
     "T_tank_C": _TEMPERATURE_UNITS,
     "T_med_C": _TEMPERATURE_UNITS,
-    "dp_mbar": (OtherUnit("Pa", "divide by 100", 0.01, 0.0, 0.5),),
+    "dp_mbar": (OtherUnit("Pa", "divide by 100", 0.01, 0.0, 0.5),
+                OtherUnit("mbar with the sign reversed (the outlet's pressure minus the inlet's)", "negate the column",
+                          -1.0, 0.0, 0.5)),
     "ps_bar": (OtherUnit("kPa", "divide by 100", 0.01, 0.0, 0.5), OtherUnit("Pa", "divide by 100000", 1e-5, 0.0, 0.5)),
 }
 #: Units of dp_mbar that the flow can reveal where x_mm is measured (:func:`_check_dp_unit`): the name, what to do
@@ -139,9 +141,12 @@ HISTORIAN_STATES: frozenset[str] = frozenset({
 #: A spreadsheet's error values, which an export writes where a formula had no value (Excel's and LibreOffice's).
 SPREADSHEET_ERRORS: frozenset[str] = frozenset({"#n/a", "n/a", "#value!", "#div/0!", "#ref!", "#num!", "#name?",
                                                 "#null!", "err:502", "err:504"})
-#: Cells read as empty (case-insensitive, after stripping): blanks, NaN markers, the historian states and a
+#: A dash for no value, as a report or a formatted spreadsheet writes it: hyphen(s), en dash, em dash.
+DASHES: frozenset[str] = frozenset({"-", "--", "\u2013", "\u2014"})
+#: Cells read as empty (case-insensitive, after stripping): blanks, NaN markers, a dash, the historian states and a
 #: spreadsheet's error values.
-MISSING_MARKERS: frozenset[str] = frozenset({"", "nan", "na", "null", "none"}) | HISTORIAN_STATES | SPREADSHEET_ERRORS
+MISSING_MARKERS: frozenset[str] = (frozenset({"", "nan", "na", "null", "none"}) | DASHES | HISTORIAN_STATES
+                                   | SPREADSHEET_ERRORS)
 #: The format's unit of each column (docs/reference.md, section 2) and the ways a logger writes it, lower case with
 #: spaces, brackets and the degree sign's variants removed (:func:`unit_key`). A units row under the header (a
 #: logger's or a spreadsheet's second header line) is read where it names these; any other unit is refused.
@@ -300,6 +305,16 @@ def decimal_mark_hint(cell: str) -> str:
     return ""
 
 
+#: a number with a Fortran program's double-precision exponent, ``D`` for ``E`` (``1.25D+01``)
+_FORTRAN_EXPONENT = re.compile(r"^([-+]?(?:\d+\.?\d*|\.\d+))[dD]([-+]?\d+)$")
+
+
+def fortran_exponent(cell: str) -> str:
+    """A number written with a Fortran program's double-precision exponent (``1.25D+01``) as Python reads it
+    (``1.25E+01``); other text as it is."""
+    return _FORTRAN_EXPONENT.sub(r"\1E\2", cell)
+
+
 #: a number followed by text, as a formatted cell writes a unit after its value (``243.9 kg/h``, ``52.3°C``)
 _NUMBER_THEN_TEXT = re.compile(r"^([-+]?(?:\d+(?:[.,]\d*)?|[.,]\d+)(?:[eE][-+]?\d+)?)\s*([^\d\s.,+-].*)$")
 
@@ -431,14 +446,18 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
     body = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
     # the data lines as the file numbers them (1-based): an empty line (or one of separators only, a spreadsheet's
     # emptied row) or a comment among the data (a logger's "# restarted") is left out, so every message names the
-    # file's own line
-    row_lines, comments, data = [], [], body[:1]
+    # file's own line; so is a line that repeats the header (a logger that writes it again after a restart)
+    row_lines, comments, headers, data = [], [], [], body[:1]
+    header = dialect.split(body[0]) if body else []
     for j, line in enumerate(body[1:], start=dialect.header_line + 1):
         cells = dialect.split(line)
         if all(not c for c in cells):
             continue
         if is_comment(cells):
             comments.append(j)
+            continue
+        if cells == header:
+            headers.append(j)
             continue
         row_lines.append(j)
         data.append(line)
@@ -457,6 +476,8 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
     raw.attrs["row_lines"] = row_lines
     if comments:
         raw.attrs["comment_lines"] = comments
+    if headers:
+        raw.attrs["header_lines"] = headers
     return validate_run(raw, source=str(p), valve=valve)
 
 
@@ -733,7 +754,7 @@ def text_cells(cells: dict[str, str]) -> dict[str, str]:
 def is_number(cell: str) -> bool:
     """Whether a cell reads as a number, with a decimal point or comma."""
     try:
-        float(cell.replace(",", "."))
+        float(fortran_exponent(cell.strip()).replace(",", "."))
     except ValueError:
         return False
     return True
@@ -840,6 +861,9 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Ca
         empty = s.str.lower().isin(MISSING_MARKERS)
         num = pd.to_numeric(s.where(~empty, None), errors="coerce")
         nonnum = num.isna() & ~empty
+        if nonnum.any():  # a Fortran program's exponent: 1.25D+01
+            num[nonnum] = pd.to_numeric(s[nonnum].map(fortran_exponent), errors="coerce")
+            nonnum = num.isna() & ~empty
         own = _unit_in_cells(s.where(nonnum), name) if nonnum.any() else None
         if own is not None:
             num = pd.to_numeric(own[0].where(~empty, None), errors="coerce")
@@ -877,4 +901,5 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
            "flow_ratio",
            "opening_derived", "SHORT_SPAN_S", "TANK_HOT_C",
-           "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint"]
+           "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint",
+           "fortran_exponent", "DASHES"]

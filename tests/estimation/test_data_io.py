@@ -319,6 +319,57 @@ def test_comment_and_empty_lines_among_the_data_are_skipped_and_lines_named_as_i
         load_run(path)
 
 
+def test_a_repeated_header_line_among_the_data_is_skipped_and_noted(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A logger that writes its header again after a restart (or two logs joined) repeats the header line among the
+    data: skipped, with a ``header_lines`` note naming the file's line; a bad cell after it is named by its own line.
+    Before, the repeated header was refused as a non-numeric value 'time_s'."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    plain = load_run(_write(run_df, tmp_path / "plain.csv"))
+    lines = (tmp_path / "plain.csv").read_text().splitlines()
+    edited = [*lines[:150], lines[0], *lines[150:]]  # the header again as the file's line 151
+    path = tmp_path / "restarted.csv"
+    path.write_text("\n".join(edited) + "\n")
+    out = load_run(path)
+    pd.testing.assert_frame_equal(out, plain, check_like=True)
+    assert out.attrs["header_lines"] == [151]
+    notes = preprocess_run(out)[1]
+    assert [n["lines"] for n in notes if n["what"] == "header_lines"] == [[151]]
+    assert "1 repeated header line(s) among the data skipped (lines 151)" in describe(notes)
+    cells = edited[200].split(",")  # data row 199: the file's line 201
+    cells[list(run_df.columns).index("T_tank_C")] = "abc"
+    edited[200] = ",".join(cells)
+    path.write_text("\n".join(edited) + "\n")
+    with pytest.raises(DataError, match=r"'abc' in column 'T_tank_C' at row 199 \(line 201\)"):
+        load_run(path)
+    joined = [*lines, *lines]  # two logs joined whose times start again: refused by the times, not read as one
+    path.write_text("\n".join(joined) + "\n")
+    with pytest.raises(DataError, match=r"time_s is not increasing at row \d+ \(line \d+\)"):
+        load_run(path)
+
+
+def test_a_dash_fortran_exponents_and_a_reversed_dp_are_read_or_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A dash for no value (``-``, ``--``, en or em dash, as a report or a formatted spreadsheet writes it) is a
+    missing sample; a Fortran program's exponent (``5.29D+01``) reads as the number; a dp measured the other way
+    round (every value negative) is refused in one line that says to negate it."""
+    dashed = run_df.astype({"T_med_C": object, "ps_bar": object})
+    for row, mark in zip((5, 17, 30, 44), ("-", "--", "\u2013", "\u2014"), strict=True):
+        dashed.loc[row, "T_med_C" if row < 30 else "ps_bar"] = mark
+    out = load_run(_write(dashed, tmp_path / "dashed.csv"))
+    assert out.attrs["rows_dropped_empty"] == [6, 18, 31, 45]
+    plain = load_run(_write(run_df, tmp_path / "plain.csv"))
+    fortran = tmp_path / "fortran.csv"
+    fortran.write_text("\n".join([",".join(run_df.columns)] + [",".join(f"{v:.15E}".replace("E", "D") for v in r)
+                                                              for r in run_df.to_numpy()]) + "\n")
+    pd.testing.assert_frame_equal(load_run(fortran), plain, check_like=True, check_dtype=False)
+    with pytest.raises(DataError, match=r"column dp_mbar, row 1 \(line 2\): -[\d.]+ is out of range .* every value "
+                                        r"reads as mbar with the sign reversed .*: negate the column$"):
+        load_run(_write(run_df.assign(dp_mbar=-run_df.dp_mbar), tmp_path / "reversed.csv"))
+    few = run_df.assign(dp_mbar=run_df.dp_mbar.where(~run_df.index.isin([3, 9]), -100.0))  # two bad rows only
+    with pytest.raises(DataError, match=r"row 4 .* 1 more row\(s\): 10$"):
+        load_run(_write(few, tmp_path / "few.csv"))
+
+
 def test_a_workbook_is_refused_saying_to_save_it_as_csv(tmp_path: Path, run_df: pd.DataFrame) -> None:
     """A spreadsheet's workbook given where a CSV file is wanted (an .xlsx is a zip archive, an .xls an Office binary
     file): one line saying what it is and to save the sheet as CSV; a broken gzip file, one line."""

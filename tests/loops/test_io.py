@@ -241,6 +241,25 @@ def test_comment_and_empty_lines_among_a_loops_data_are_skipped_and_noted(tmp_pa
         read_loop(_write_text(tmp_path / "bad.csv", "\n".join(edited) + "\n"))
 
 
+def test_a_repeated_header_a_dash_and_fortran_exponents_in_a_loop_are_read(tmp_path: Path) -> None:
+    """A loop CSV whose logger wrote its header again after a restart (skipped, with a note naming the line), a dash
+    for a missing value (a missing sample) and numbers with a Fortran program's exponent (``4.0D+01``): the same loop.
+    """
+    plain = read_loop(_write_csv(tmp_path / "plain.csv"))
+    lines = (tmp_path / "plain.csv").read_text().splitlines()
+    edited = [*lines[:120], lines[0], *lines[120:]]
+    loop = read_loop(_write_text(tmp_path / "restarted.csv", "\n".join(edited) + "\n"))
+    assert loop.n == plain.n and np.array_equal(loop.op, plain.op) and np.array_equal(loop.pv, plain.pv)
+    assert "1 line(s) among the data repeat the header (lines 121): skipped" in loop.notes
+    fortran = [lines[0]] + [",".join(f"{float(c):.12E}".replace("E", "D") for c in ln.split(",")) for ln in lines[1:]]
+    loop = read_loop(_write_text(tmp_path / "fortran.csv", "\n".join(fortran) + "\n"))
+    assert loop.n == plain.n and np.allclose(loop.op, plain.op, rtol=1e-11) and np.allclose(loop.pv, plain.pv)
+    dashed = [ln.split(",") for ln in lines]
+    dashed[100][2] = "-"  # pv
+    loop = read_loop(_write_text(tmp_path / "dashed.csv", "\n".join(",".join(r) for r in dashed) + "\n"))
+    assert any("missing value" in note for note in loop.notes)
+
+
 def _write_text(path: Path, text: str) -> Path:
     path.write_text(text)
     return path

@@ -48,6 +48,7 @@ from valve_env.data_io import (
     decimal_comma,
     decimal_mark_hint,
     footer_lines,
+    fortran_exponent,
     header_units,
     interval_problem,
     is_comment,
@@ -138,7 +139,7 @@ def _float(text: str, where: str) -> float:
     if text.lower() in MISSING_MARKERS:
         return math.nan
     try:
-        return float(text)
+        return float(fortran_exponent(text))
     except ValueError:
         raise LoopDataError(f"{where}: {text!r} is not a number{decimal_mark_hint(text)}") from None
 
@@ -171,7 +172,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
         [next(csv.reader([ln], delimiter=dialect.sep), []) for ln in text]
     if not rows:
         raise LoopDataError(f"{p}: empty file")
-    header = [h.strip() for h in rows[0]]
+    header = written = [h.strip() for h in rows[0]]
     named = header_units(header, ("time_s", "sp", "pv", "op", "mv", "mode"))
     t = next((u for n, u in named.values() if n == "time_s"), None)
     if t is not None and unit_key(t) not in UNITS["time_s"][1]:
@@ -203,11 +204,15 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     if clock:
         raise LoopDataError(f"{p}: {clock}")
     comments: list[int] = []
+    headers: list[int] = []
     for lineno, row in enumerate(body, start=dialect.header_line + 1 + bool(units)):
         if not row or all(not x.strip() for x in row):
             continue
         if is_comment([x.strip() for x in row]):  # a logger's "# restarted" among the data
             comments.append(lineno)
+            continue
+        if [x.strip() for x in row] == written:  # a logger that writes its header again after a restart
+            headers.append(lineno)
             continue
         if len(row) < len(header):
             raise LoopDataError(f"{p} line {lineno}: {len(row)} fields, the header has {len(header)}")
@@ -220,6 +225,9 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
                                   f"{p} line {lineno}, column {c}"))
     if comments:
         notes.append(f"{len(comments)} comment line(s) among the data (lines {short_list(comments)}): skipped")
+    if headers:
+        notes.append(f"{len(headers)} line(s) among the data repeat the header (lines {short_list(headers)}): "
+                     "skipped")
     return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, Path(p.name.removesuffix(".gz")).stem, notes
 
 

@@ -34,10 +34,9 @@ each convention is handled once, here, and reported:
   interval and the longest gap (nothing is filled in).
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
-``units_in_cells``, ``comment_lines``, ``rows_repeated``, ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``,
-``irregular_sampling``, ``gap``, ``short_span``), the
-``channel`` where it applies, and ``why``. The ``fit`` and
-``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
+``units_in_cells``, ``comment_lines``, ``header_lines``, ``rows_repeated``, ``rows_dropped``, ``spikes_replaced``,
+``x_mm_derived``, ``irregular_sampling``, ``gap``, ``short_span``), the ``channel`` where it applies, and ``why``.
+The ``fit`` and ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
 through here twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
 """
 
@@ -68,8 +67,8 @@ SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
 #: (often to full scale) does not
 X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
-CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "comment_lines", "rows_repeated",
-                                 "rows_dropped", "spikes_replaced", "x_mm_derived")
+CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "comment_lines", "header_lines",
+                                 "rows_repeated", "rows_dropped", "spikes_replaced", "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -150,6 +149,12 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         notes.append({"what": "comment_lines", "channel": None, "lines": list(comments),
                       "why": f"{len(comments)} comment line(s) (starting with '#') among the data (line numbers as in "
                              "the file), skipped; rows are counted without them"})
+    headers = df.attrs.get("header_lines", [])
+    if headers and ("header_lines", None) not in done:
+        notes.append({"what": "header_lines", "channel": None, "lines": list(headers),
+                      "why": f"{len(headers)} line(s) among the data repeat the header (a logger that writes it again "
+                             "after a restart, or logs joined; line numbers as in the file), skipped; rows are counted "
+                             "without them"})
     repeated = df.attrs.get("rows_repeated", [])
     if repeated and ("rows_repeated", None) not in done:
         notes.append({"what": "rows_repeated", "channel": None, "rows": list(repeated),
@@ -244,6 +249,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
                          "numbers")
         elif what == "comment_lines":
             lines.append(f"{len(nt['lines'])} comment line(s) among the data skipped (lines {short_list(nt['lines'])})")
+        elif what == "header_lines":
+            lines.append(f"{len(nt['lines'])} repeated header line(s) among the data skipped (lines "
+                         f"{short_list(nt['lines'])})")
         elif what == "rows_repeated":
             lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
         elif what == "rows_dropped":
