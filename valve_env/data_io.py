@@ -509,6 +509,42 @@ def clock_time_hint(columns: dict[str, list[str]]) -> str:
     return ""
 
 
+#: a time column named with a unit other than seconds (``time_min``, ``t_h``, ``Time [ms]`` spelled ``time_ms``)
+_TIME_NAME = re.compile(r"^(?:time|t|elapsed)[\s_.-]*(?P<u>ms|msec|millis|min|mins|minutes|h|hr|hrs|hours|d|days)$",
+                        re.IGNORECASE)
+#: each such unit's factor to seconds
+_TIME_FACTORS = {"ms": 1e-3, "msec": 1e-3, "millis": 1e-3, "min": 60.0, "mins": 60.0, "minutes": 60.0, "h": 3600.0,
+                 "hr": 3600.0, "hrs": 3600.0, "hours": 3600.0, "d": 86400.0, "days": 86400.0}
+
+
+def time_name_hint(columns: list[str]) -> str:
+    """Where a record has no ``time_s`` but a time column named in another unit (``time_min``, ``t_h``,
+    ``time_ms``), the refusal's hint: the time is seconds in ``time_s`` (SPEC sections 2 and 10), and the factor.
+    Else ''."""
+    for col in columns:
+        m = _TIME_NAME.match(str(col).strip())
+        if m:
+            a = _TIME_FACTORS[m.group("u").lower()]
+            do = f"multiply by {a:g}" if a > 1 else f"divide by {1 / a:g}"
+            return f"; the header has {col!r}, a time not in seconds: give it as time_s in seconds ({do})"
+    return ""
+
+
+def time_order_hint(t: np.ndarray) -> str:
+    """Where the times ``t`` do not increase, what the refusal adds where the cause is the rows' order: a
+    newest-first export (every time below the one before), or rows out of order whose times, sorted, are distinct.
+    Which rows are meant is then clear, but the file's own order is not changed behind its back. Else ''."""
+    t = np.asarray(t, dtype=float)
+    t = t[np.isfinite(t)]
+    if t.size < 3:
+        return ""
+    if np.all(np.diff(t) < 0):
+        return "; the rows run newest first, as some historians export them: sort them by time_s, oldest first"
+    if np.all(np.diff(np.sort(t)) > 0):
+        return "; the rows are out of time order, with no time repeated: sort them by time_s"
+    return ""
+
+
 def clock_in_time_s(cells: list[str], column: str = "time_s") -> str:
     """Where the first ``cells`` of time_s are date-times (a logger's clock written into it), the refusal's text,
     naming the ``column`` as the reader writes it; else ''. Both readers refuse with it."""
@@ -558,7 +594,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     missing = [c for c in REQUIRED if c not in raw.columns]
     if missing:
         heads = {str(c): raw[c].dropna().astype(str).head(5).tolist() for c in raw.columns}
-        hint = near_name_hint(missing[0], list(raw.columns), (*REQUIRED, *OPTIONAL))
+        hint = ((time_name_hint(list(raw.columns)) if missing[0] == "time_s" else "")
+                or near_name_hint(missing[0], list(raw.columns), (*REQUIRED, *OPTIONAL)))
         if not hint and missing[0] == "time_s":
             hint = clock_time_hint(heads)
         raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)}){hint}")
@@ -606,7 +643,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         i = int(bad[0]) + 1
         r = _file_row(out, i)
         raise DataError(f"{source}: time_s is not increasing at row {r} (line {first_line(r - 1)}) "
-                        f"({t[i - 1]:.6g} then {t[i]:.6g}); times must be strictly increasing")
+                        f"({t[i - 1]:.6g} then {t[i]:.6g}); times must be strictly increasing{time_order_hint(t)}")
     dt = np.diff(t)
     bad_interval = interval_problem(float(np.median(dt)))
     if bad_interval:
@@ -902,4 +939,5 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "flow_ratio",
            "opening_derived", "SHORT_SPAN_S", "TANK_HOT_C",
            "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint",
-           "fortran_exponent", "DASHES"]
+           "fortran_exponent", "DASHES", "time_name_hint",
+           "time_order_hint"]

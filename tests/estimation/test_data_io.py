@@ -94,7 +94,9 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
     (lambda d: d.rename(columns={"T_tank_C": "T_Tank_C"}),
      r"missing column 'T_tank_C' .*; the header has 'T_Tank_C': rename it T_tank_C \(names are exact\)$"),
     (lambda d: d.assign(time_h=d.time_s / 3600.0).drop(columns=["time_s"]),
-     r"; the header has 'time_h': if that is time_s in s, rename it \(names are exact\)$"),
+     r"; the header has 'time_h', a time not in seconds: give it as time_s in seconds \(multiply by 3600\)$"),
+    (lambda d: d.assign(time_x=d.time_s).drop(columns=["time_s"]),
+     r"; the header has 'time_x': if that is time_s in s, rename it \(names are exact\)$"),
     (lambda d: d.assign(time_s=d.time_s * 1000.0),
      r"median sampling interval 1e\+04 s is implausible \(expected 0.001 to 3600 s\); if time_s is in milliseconds, "
      r"divide it by 1000$"),
@@ -368,6 +370,23 @@ def test_a_dash_fortran_exponents_and_a_reversed_dp_are_read_or_named(tmp_path: 
     few = run_df.assign(dp_mbar=run_df.dp_mbar.where(~run_df.index.isin([3, 9]), -100.0))  # two bad rows only
     with pytest.raises(DataError, match=r"row 4 .* 1 more row\(s\): 10$"):
         load_run(_write(few, tmp_path / "few.csv"))
+
+
+def test_a_time_in_another_unit_by_name_and_rows_newest_first_are_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A time column named in another unit (``time_h``, ``t_min``, ``time_ms``) is named with its factor to seconds,
+    where before the refusal offered to rename it as if it were in seconds; rows newest first (some historians'
+    export) or shuffled are named as such. Two logs joined whose times start again get no such hint."""
+    for name, do in (("time_h", "multiply by 3600"), ("t_min", "multiply by 60"), ("time_ms", "divide by 1000")):
+        with pytest.raises(DataError, match=rf"missing column 'time_s' .*; the header has '{name}', a time not in "
+                                            rf"seconds: give it as time_s in seconds \({do}\)$"):
+            load_run(_write(run_df.rename(columns={"time_s": name}), tmp_path / "t.csv"))
+    with pytest.raises(DataError, match=r"not increasing at row 2 \(line 3\) .*; the rows run newest first"):
+        load_run(_write(run_df.iloc[::-1], tmp_path / "newest.csv"))
+    shuffled = run_df.iloc[np.random.default_rng(0).permutation(len(run_df))]
+    with pytest.raises(DataError, match=r"not increasing at row .*; the rows are out of time order"):
+        load_run(_write(shuffled, tmp_path / "shuffled.csv"))
+    with pytest.raises(DataError, match=r"times must be strictly increasing$"):
+        load_run(_write(pd.concat([run_df, run_df]), tmp_path / "joined.csv"))
 
 
 def test_a_workbook_is_refused_saying_to_save_it_as_csv(tmp_path: Path, run_df: pd.DataFrame) -> None:

@@ -260,6 +260,17 @@ def test_a_repeated_header_a_dash_and_fortran_exponents_in_a_loop_are_read(tmp_p
     assert any("missing value" in note for note in loop.notes)
 
 
+def test_a_loops_time_in_minutes_by_name_and_rows_newest_first_are_named(tmp_path: Path) -> None:
+    """A loop's time column named ``time_min`` is named with its factor to seconds; rows newest first are named."""
+    lines = _write_csv(tmp_path / "plain.csv").read_text().splitlines()
+    renamed = [lines[0].replace("time_s", "time_min"), *lines[1:]]
+    with pytest.raises(LoopDataError, match=r"the header has 'time_min', a time not in seconds: give it as time_s in "
+                                            r"seconds \(multiply by 60\)$"):
+        read_loop(_write_text(tmp_path / "min.csv", "\n".join(renamed) + "\n"))
+    with pytest.raises(LoopDataError, match=r"not strictly increasing at sample 2 .*; the rows run newest first"):
+        read_loop(_write_text(tmp_path / "newest.csv", "\n".join([lines[0], *lines[:0:-1]]) + "\n"))
+
+
 def _write_text(path: Path, text: str) -> Path:
     path.write_text(text)
     return path

@@ -56,6 +56,8 @@ from valve_env.data_io import (
     read_text,
     short_list,
     text_cells,
+    time_name_hint,
+    time_order_hint,
     unit_key,
 )
 
@@ -183,7 +185,8 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
         raise LoopDataError(f"{p}: the header names column(s) {', '.join(twice)} more than once")
     missing = [c for c in ("time_s", "sp", "pv", "op") if c not in header]
     if missing:
-        hint = near_name_hint(missing[0], header, ("time_s", "sp", "pv", "op", "mv", "mode"))
+        hint = ((time_name_hint(header) if missing[0] == "time_s" else "")
+                or near_name_hint(missing[0], header, ("time_s", "sp", "pv", "op", "mv", "mode")))
         if not hint and "time_s" in missing:
             hint = clock_time_hint({h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)})
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
@@ -410,7 +413,8 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
     if bad.size:
         k = int(bad[0])
         raise LoopDataError(f"{where}: time is not strictly increasing at sample {k + 2} "
-                            f"(time_s {cols['time_s'][k]:g} then {cols['time_s'][k + 1]:g})")
+                            f"(time_s {cols['time_s'][k]:g} then {cols['time_s'][k + 1]:g})"
+                            f"{time_order_hint(cols['time_s'])}")
     if np.any(dt == 0):
         cols, note = merge_repeated_timestamps(cols)
         notes.append(note)
