@@ -169,11 +169,11 @@ def test_a_historians_export_saved_by_a_spreadsheet_is_read(tmp_path) -> None:  
 # --------------------------------------------------------------------------- the corpus
 @pytest.mark.parametrize("case", corpus_cases("default"), ids=lambda c: f"{c['class']}-{c['convention']}")
 def test_the_foreign_data_corpus(case) -> None:
-    """Each class's run under four to seven conventions (30 transformed runs in all, every convention on one to
-    three classes; one test each, so that the two workers of the suite share them): no traceback, the right outcome
-    on each, and a spike's replacement reported in the diagnosis's notes (the run is read and checked, then
-    diagnosed: two passes). The cause is checked against the class, which the run as generated is named (asserted
-    for this seed in the slow suite's full corpus)."""
+    """Each class's run under four to seven conventions (31 transformed runs in all, every convention on one to
+    three classes, and one case of several at once; one test each, so that the two workers of the suite share them):
+    no traceback, the right outcome on each, and a spike's replacement reported in the diagnosis's notes (the run is
+    read and checked, then diagnosed: two passes). The cause is checked against the class, which the run as
+    generated is named (asserted for this seed in the slow suite's full corpus)."""
     cls = case["class"]
     r = run_case(case)
     ok, why = acceptable(r, cls)
@@ -185,7 +185,7 @@ def test_the_foreign_data_corpus(case) -> None:
 
 
 def test_the_default_corpus_covers_every_convention() -> None:
-    from valve_env.studies.foreign import GENERATIONS
+    from valve_env.studies.foreign import COMBINED, GENERATIONS
 
     seen = {c["convention"] for c in corpus_cases("default")}
     assert len(corpus_cases("default")) >= 30
@@ -194,16 +194,18 @@ def test_the_default_corpus_covers_every_convention() -> None:
     assert set(CONVENTIONS) - {"quantised_0.1"} <= seen
     assert {"jitter_20", "medium_constant", "medium_thermostat", "record_2h", "dt_60_gen"} <= seen
     assert len(corpus_cases("full")) >= 200
-    assert set(GENERATIONS) | set(CONVENTIONS) == {c["convention"] for c in corpus_cases("full")}
+    assert set(GENERATIONS) | set(CONVENTIONS) | set(COMBINED) == {c["convention"] for c in corpus_cases("full")}
+    assert seen & set(COMBINED)  # several conventions at once, in the default suite too
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [102, 211, 307])
 @pytest.mark.parametrize("cls", CLASSES)
 def test_the_full_foreign_data_corpus(cls, seed) -> None:
-    """Every convention on every class and seed (390 transformed runs in all): no traceback, and every outcome
-    right except the known wrong ones (:data:`valve_env.studies.foreign.KNOWN_WRONG`), which must stay wrong
-    until they are fixed and the list is shortened (so the list stays true)."""
+    """Every convention, and each combination of :data:`valve_env.studies.foreign.COMBINED`, on every class and seed
+    (480 transformed runs in all): no traceback, and every outcome right except the known wrong ones
+    (:data:`valve_env.studies.foreign.KNOWN_WRONG`), which must stay wrong until they are fixed and the list is
+    shortened (so the list stays true)."""
     from valve_env.studies.foreign import KNOWN_WRONG
 
     cases = [c for c in corpus_cases("full") if c["class"] == cls and c["seed"] == seed]
