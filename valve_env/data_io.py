@@ -700,16 +700,19 @@ def _check_stroke(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
                     f"{valve.stroke:g} mm stroke (the calibrated valve, docs/reference.md, section 1){hint}")
 
 
+def _flowing(run: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """x_mm, q_kgh and dp_mbar as floats, and the rows with a flow: all three finite, q and dp positive."""
+    x, q, dp = (run[c].to_numpy(dtype=float) for c in ("x_mm", "q_kgh", "dp_mbar"))
+    with np.errstate(invalid="ignore"):
+        return x, q, dp, np.isfinite(x) & np.isfinite(q) & np.isfinite(dp) & (q > 0) & (dp > 0)
+
+
 def _check_opening_sign(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
     """Refuse an opening that falls as the flow rises: the rank correlation of x_mm with the flow's Kv, q / sqrt(dp)
     (docs/reference.md, section 1), below :data:`OPENING_SIGN_CORR` on the rows with a flow. A position transmitter
     mounted the other way, or a closing travel logged as the opening, gives it; the force balance would read every
     move backwards."""
-    x = out["x_mm"].to_numpy(dtype=float)
-    q = out["q_kgh"].to_numpy(dtype=float)
-    dp = out["dp_mbar"].to_numpy(dtype=float)
-    with np.errstate(invalid="ignore"):
-        rows = np.isfinite(x) & np.isfinite(q) & np.isfinite(dp) & (q > 0) & (dp > 0)
+    x, q, dp, rows = _flowing(out)
     if int(rows.sum()) < 20:
         return
     rho = pd.Series(x[rows]).corr(pd.Series(q[rows] / np.sqrt(dp[rows])), method="spearman")
@@ -724,11 +727,9 @@ def flow_ratio(run: pd.DataFrame, valve: ValveParams | None = None) -> tuple[flo
     over the rows where the valve is open (x_mm above a tenth of the stroke, q > 0, dp > 0): about 1 for the valve's own
     record. Returns (ratio, rows, median dp over them); (nan, 0, nan) without such rows."""
     v = valve or ValveParams()
-    x = run["x_mm"].to_numpy(dtype=float)
-    q = run["q_kgh"].to_numpy(dtype=float)
-    dp = run["dp_mbar"].to_numpy(dtype=float)
+    x, q, dp, rows = _flowing(run)
     with np.errstate(invalid="ignore"):
-        rows = np.isfinite(x) & np.isfinite(q) & np.isfinite(dp) & (x > 0.1 * v.stroke) & (q > 0) & (dp > 0)
+        rows &= x > 0.1 * v.stroke
     n = int(rows.sum())
     if n == 0:
         return float("nan"), 0, float("nan")
