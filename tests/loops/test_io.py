@@ -388,6 +388,42 @@ def test_a_historian_export_saved_otherwise_is_read(tmp_path: Path, kind: str) -
     assert loop.tag == plain.tag and np.array_equal(loop.op, plain.op) and np.array_equal(loop.pv, plain.pv)
 
 
+@pytest.mark.parametrize(("pattern", "strftime"), [
+    ("dd.MM.yyyy HH:mm:ss", "%d.%m.%Y %H:%M:%S"),  # a European DCS's export
+    ("MM/dd/yyyy hh:mm:ss tt", "%m/%d/%Y %I:%M:%S %p"),
+    ("yyyy-MM-dd'T'HH:mm:ss.fff", "%Y-%m-%dT%H:%M:%S.000"),
+    ("yyyy-MM-dd HH:mm:ss", "%Y-%m-%d %H:%M:%S.000"),  # fractional seconds the declaration does not give
+])
+def test_a_historian_export_reads_its_timestamps_by_the_format_line_1_declares(tmp_path: Path, pattern: str,
+                                                                               strftime: str) -> None:
+    """Line 1 of the export declares its timestamps' format (``yyyy-MM-dd HH:mm:ss`` in the shared loops): another
+    declared format (.NET or Java letters, a quoted literal) is read by it, and the default with fractional seconds
+    is read too; a timestamp in none of them is refused in one line naming the formats."""
+    from datetime import datetime
+
+    from valve_env.loops.io import time_format
+
+    plain = read_loop(STICKY)
+    lines = STICKY.read_text().splitlines()
+    head = lines[0].split("\t")
+    head[2] = pattern
+    rows = []
+    for ln in lines[5:]:
+        f = ln.split("\t")
+        f[0] = datetime.strptime(f[0], "%Y-%m-%d %H:%M:%S").strftime(strftime)
+        rows.append("\t".join(f))
+    p = tmp_path / "export.txt"
+    p.write_text("\n".join(["\t".join(head), *lines[1:5], *rows]) + "\n")
+    loop = read_loop(p)
+    assert np.array_equal(loop.time_s, plain.time_s) and np.array_equal(loop.op, plain.op)
+    assert time_format("HH:mm:ss") is None and time_format("yyyy-MM-dd HH:mm:ss zzz") is None
+    rows[0] = "\t".join(["8 Oct 2024 13:45", *rows[0].split("\t")[1:]])
+    p.write_text("\n".join(["\t".join(head), *lines[1:5], *rows]) + "\n")
+    with pytest.raises(LoopDataError, match=r"line 6: timestamp '8 Oct 2024 13:45' is neither in the format line 1 "
+                                            r"declares \(.*\) nor in YYYY-MM-DD HH:MM:SS\[\.fff\]$"):
+        read_loop(p)
+
+
 def test_a_stray_quote_spoils_its_own_line_only(tmp_path: Path) -> None:
     """A quote left open in one line of a long loop CSV is refused naming that line. Read as one CSV stream, the
     quote ran over every later line into one field until Python's csv field limit (128 KB) failed without naming

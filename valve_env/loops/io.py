@@ -32,9 +32,10 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -246,6 +247,62 @@ def _units_row(row: list[str], idx: Mapping[str, int], p: Path, lineno: int) -> 
     return filled
 
 
+#: The historian export's default timestamp format (the shared loops' line 1 declares it as ``yyyy-MM-dd HH:mm:ss``)
+HISTORIAN_TIME = "%Y-%m-%d %H:%M:%S"
+#: a .NET/Java date pattern's tokens, longest first, and strptime's
+_PATTERN_TOKENS: tuple[tuple[str, str], ...] = (
+    ("yyyy", "%Y"), ("yy", "%y"), ("MM", "%m"), ("dd", "%d"), ("HH", "%H"), ("hh", "%I"), ("mm", "%M"), ("ss", "%S"),
+    ("fffffff", "%f"), ("ffffff", "%f"), ("fff", "%f"), ("FFF", "%f"), ("SSS", "%f"), ("tt", "%p"), ("a", "%p"),
+    ("M", "%m"), ("d", "%d"), ("H", "%H"), ("h", "%I"), ("m", "%M"), ("s", "%S"))
+
+
+def time_format(pattern: str) -> str | None:
+    """The strptime format of a timestamp pattern as a historian's export declares it (.NET or Java:
+    ``yyyy-MM-dd HH:mm:ss``, ``dd.MM.yyyy HH:mm:ss.fff``); None where it holds no year, day, hour and minute, or a
+    letter that is not a known token."""
+    out, i = [], 0
+    while i < len(pattern):
+        if pattern[i] == "'":  # a quoted literal: 'T'
+            end = pattern.find("'", i + 1)
+            if end < 0:
+                return None
+            out.append(pattern[i + 1:end].replace("%", "%%"))
+            i = end + 1
+            continue
+        tok = next(((t, f) for t, f in _PATTERN_TOKENS if pattern.startswith(t, i)), None)
+        if tok is None:
+            if pattern[i].isalpha():
+                return None
+            out.append("%%" if pattern[i] == "%" else pattern[i])
+            i += 1
+            continue
+        out.append(tok[1])
+        i += len(tok[0])
+    fmt = "".join(out)
+    return fmt if all(d in fmt for d in ("%d", "%M")) and ("%Y" in fmt or "%y" in fmt) and (
+        "%H" in fmt or "%I" in fmt) else None
+
+
+def _parse_stamp(text: str, fmt: str) -> datetime:
+    return datetime.strptime(text.strip(), fmt)
+
+
+def _stamp_reader(first_line: str, sample: str, where: str) -> Callable[[str], datetime]:
+    """The function that reads the export's timestamps: by the format line 1 declares (its third field), else the
+    default :data:`HISTORIAN_TIME`, with fractional seconds where the first timestamp, ``sample``, has them."""
+    fields = first_line.rstrip("\r\n").split("\t")
+    declared = fields[2].strip() if len(fields) > 2 else ""
+    formats = [f for f in (time_format(declared), HISTORIAN_TIME, HISTORIAN_TIME + ".%f") if f]
+    for fmt in formats:
+        try:
+            datetime.strptime(sample.strip(), fmt)
+        except ValueError:
+            continue
+        return partial(_parse_stamp, fmt=fmt)
+    said = f"the format line 1 declares ({declared!r}) nor in " if time_format(declared) else ""
+    raise LoopDataError(f"{where}: timestamp {sample!r} is neither in {said}YYYY-MM-DD HH:MM:SS[.fff]")
+
+
 def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[dict[str, np.ndarray], str]:
     """Columns of a plant-historian export (the format of the real loops; see the module doc). ``lines``: the
     file's, where they have been read."""
@@ -266,16 +323,21 @@ def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[di
     cols: dict[str, list[float]] = {"time_s": [], "sp": [], "pv": [], "op": []}
     if i_mode is not None:
         cols["mode"] = []
+    stamp: Callable[[str], datetime] | None = None
+    first = ""
     for lineno, line in enumerate(lines[5:], start=6):
         if not line.strip():
             continue
         f = line.split("\t")
         if len(f) < len(names):
             raise LoopDataError(f"{p} line {lineno}: {len(f)} fields, line 3 names {len(names)}")
+        if stamp is None:
+            stamp, first = _stamp_reader(lines[0], f[0], f"{p} line {lineno}"), f[0].strip()
         try:
-            ts = datetime.strptime(f[0].strip(), "%Y-%m-%d %H:%M:%S")
+            ts = stamp(f[0])
         except ValueError:
-            raise LoopDataError(f"{p} line {lineno}: timestamp {f[0]!r} is not YYYY-MM-DD HH:MM:SS") from None
+            raise LoopDataError(f"{p} line {lineno}: timestamp {f[0]!r} is not in the format of the first "
+                                f"({first!r})") from None
         t0 = ts if t0 is None else t0
         cols["time_s"].append((ts - t0).total_seconds())
         for c, i in (("op", i_op), ("pv", i_pv), ("sp", i_sp), ("mode", i_mode)):
