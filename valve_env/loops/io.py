@@ -310,7 +310,7 @@ def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[di
     lines = _text_lines(p) if lines is None else lines
     if len(lines) < 6 or not lines[0].startswith("PROCESSDATA"):
         raise LoopDataError(f"{p}: not a historian export (first line should start with PROCESSDATA)")
-    names = lines[2].split("\t")
+    names = [n.strip() for n in lines[2].split("\t")]
     try:
         i_op = next(i for i, n in enumerate(names) if n.endswith(".MV"))
         i_pv = next(i for i, n in enumerate(names) if n.endswith(".PV"))
