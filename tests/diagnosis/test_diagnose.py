@@ -564,19 +564,44 @@ def test_a_rounded_sensed_temperature_is_told_apart_from_a_noisy_one() -> None:
     assert told == {"": False, "quantised_0.1": True, "quantised_0.01": False, "quantised_tank_0.1": True}
 
 
-@pytest.mark.slow
-def test_a_run_without_an_effect_rounded_to_a_tenth_of_a_kelvin_is_named_none() -> None:
-    """A run without an effect whose temperatures are rounded to 0.1 K (confusion study seed 20271230, run 30; 20 s,
-    18.6 h): the stick-slip fit took up the rounding's misfit (LR 68.5, band 0.028 mm, four training slips) and
-    was named on the held-out simulation error with 3.7 nats held out. With the sensed temperature rounded the held
-    out likelihood alone judges it (diagnose.ROUNDED_TANK_RULE): `none`."""
-    from valve_env.experiment import random_cases, simulate_case
-    from valve_env.studies.conventions import apply_convention
+_ROUNDED_RUN = """
+import warnings
+import numpy as np
+warnings.simplefilter("ignore")
+from valve_env.experiment import random_cases, simulate_case
+from valve_env.studies.conventions import apply_convention
+from valve_env.valveid.diagnose import diagnose
+case = random_cases(31, 20271230)[30]
+assert case["truth"] == "none"
+df = apply_convention(simulate_case(case), "quantised_0.1", np.random.default_rng(case["seed"]))
+d = diagnose(df, bootstrap_B=0)
+st = next(f for f in d.findings if f.effect == "stiction")
+print(d.cause, st.significant, st.validated, round(st.lr_stat, 2), round(st.validation_loglik_gain, 2))
+"""
 
-    case = random_cases(31, 20271230)[30]
-    assert case["truth"] == "none"
-    df = apply_convention(simulate_case(case), "quantised_0.1", np.random.default_rng(case["seed"]))
-    d = diagnose(df, bootstrap_B=0)
-    st = next(f for f in d.findings if f.effect == "stiction")
-    assert d.cause == "none", d.summary()
-    assert st.significant and not st.validated and st.validation_loglik_gain < 5.0
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, raises=AssertionError,
+                   reason="the decision on this run moves with BLAS round-off: the stick-slip fit's optimum "
+                   "(LR 62-83) and its held-out gain (3.7-16.3 nats, against the 5 needed) change with OpenBLAS's "
+                   "kernel; docs/diagnosis.md, \"Known limits\"")
+def test_a_run_without_an_effect_rounded_to_a_tenth_of_a_kelvin_is_named_none_under_any_blas_kernel() -> None:
+    """A run without an effect whose temperatures are rounded to 0.1 K (confusion study seed 20271230, run 30; 20 s,
+    18.6 h): the stick-slip fit takes up the rounding's misfit, and with the sensed temperature rounded the held-out
+    likelihood alone judges it (diagnose.ROUNDED_TANK_RULE). Under OpenBLAS's Haswell kernels (those of the AMD
+    hosts the documented figures come from) it gains 3.7 nats held out and the run is named `none`; under its
+    Sandybridge kernels the fit lands on another optimum (LR 82.9 against 68.5) that gains 16.3 nats, and the run is
+    named `stiction`: a false finding. Strict: when the decision holds under both, this test passes and must be
+    unmarked. Each kernel runs in its own process (OPENBLAS_CORETYPE is read when the library loads)."""
+    import os
+    import subprocess
+    import sys
+
+    causes = {}
+    for kernel in ("Haswell", "Sandybridge"):
+        env = {**os.environ, "OPENBLAS_CORETYPE": kernel, "OMP_NUM_THREADS": "1"}
+        out = subprocess.run([sys.executable, "-c", _ROUNDED_RUN], env=env, capture_output=True, text=True,
+                             check=True).stdout.split()
+        causes[kernel] = out[0]
+        assert out[1] == "True", out  # the stick-slip fit is significant in training under every kernel
+    assert causes == {"Haswell": "none", "Sandybridge": "none"}, causes
