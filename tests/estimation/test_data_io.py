@@ -286,13 +286,26 @@ def test_a_run_as_other_programs_save_it_is_read_as_written(tmp_path: Path, run_
             load_run(path)
 
 
+def _skipped_and_noted(path: Path, edited: list[str], plain: pd.DataFrame, what: str, line: int) -> list[str]:
+    """Write ``edited`` to ``path`` and read it: the same run as ``plain``, with the ``what`` note naming the file's
+    ``line`` (in the run's attrs and in the pre-processing's notes); returns the notes as the report describes them."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    path.write_text("\n".join(edited) + "\n")
+    out = load_run(path)
+    pd.testing.assert_frame_equal(out, plain, check_like=True)
+    assert out.attrs[what] == [line]
+    notes = preprocess_run(out)[1]
+    assert [n["lines"] for n in notes if n["what"] == what] == [[line]]
+    assert not any(n["what"] == what for n in preprocess_run(plain)[1])
+    return describe(notes)
+
+
 def test_comment_and_empty_lines_among_the_data_are_skipped_and_lines_named_as_in_the_file(
         tmp_path: Path, run_df: pd.DataFrame) -> None:
     """A logger's comment among the data (``# logger restarted``), an empty line, a line of spaces and a
     spreadsheet's emptied row (separators only) are skipped: the same run, a ``comment_lines`` note naming the
     comment's line, and a bad cell after them named by the file's own line (rows are counted without them)."""
-    from valve_env.valveid.preprocess import describe, preprocess_run
-
     plain = load_run(_write(run_df, tmp_path / "plain.csv"))
     lines = (tmp_path / "plain.csv").read_text().splitlines()
     # line 1 the header; an empty line, a line of spaces and an emptied row before data row 50, the comment before
@@ -300,14 +313,8 @@ def test_comment_and_empty_lines_among_the_data_are_skipped_and_lines_named_as_i
     edited = [*lines[:50], "", "   ", "," * (len(run_df.columns) - 1), *lines[50:99], "# logger restarted, 10:12",
               *lines[99:]]
     path = tmp_path / "commented.csv"
-    path.write_text("\n".join(edited) + "\n")
-    out = load_run(path)
-    pd.testing.assert_frame_equal(out, plain, check_like=True)
-    assert out.attrs["comment_lines"] == [103]
-    notes = preprocess_run(out)[1]
-    assert [n["lines"] for n in notes if n["what"] == "comment_lines"] == [[103]]
-    assert "1 comment line(s) among the data skipped (lines 103)" in describe(notes)
-    assert not any(n["what"] == "comment_lines" for n in preprocess_run(plain)[1])
+    described = _skipped_and_noted(path, edited, plain, "comment_lines", 103)
+    assert "1 comment line(s) among the data skipped (lines 103)" in described
     cells = edited[200].split(",")  # data row 196: the file's line 201
     cells[list(run_df.columns).index("T_tank_C")] = "999"
     edited[200] = ",".join(cells)
@@ -325,19 +332,12 @@ def test_a_repeated_header_line_among_the_data_is_skipped_and_noted(tmp_path: Pa
     """A logger that writes its header again after a restart (or two logs joined) repeats the header line among the
     data: skipped, with a ``header_lines`` note naming the file's line; a bad cell after it is named by its own line.
     Before, the repeated header was refused as a non-numeric value 'time_s'."""
-    from valve_env.valveid.preprocess import describe, preprocess_run
-
     plain = load_run(_write(run_df, tmp_path / "plain.csv"))
     lines = (tmp_path / "plain.csv").read_text().splitlines()
     edited = [*lines[:150], lines[0], *lines[150:]]  # the header again as the file's line 151
     path = tmp_path / "restarted.csv"
-    path.write_text("\n".join(edited) + "\n")
-    out = load_run(path)
-    pd.testing.assert_frame_equal(out, plain, check_like=True)
-    assert out.attrs["header_lines"] == [151]
-    notes = preprocess_run(out)[1]
-    assert [n["lines"] for n in notes if n["what"] == "header_lines"] == [[151]]
-    assert "1 repeated header line(s) among the data skipped (lines 151)" in describe(notes)
+    described = _skipped_and_noted(path, edited, plain, "header_lines", 151)
+    assert "1 repeated header line(s) among the data skipped (lines 151)" in described
     cells = edited[200].split(",")  # data row 199: the file's line 201
     cells[list(run_df.columns).index("T_tank_C")] = "abc"
     edited[200] = ",".join(cells)

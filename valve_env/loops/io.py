@@ -142,6 +142,10 @@ def _float(text: str, where: str) -> float:
     if text.lower() in MISSING_MARKERS:
         return math.nan
     try:
+        return float(text)
+    except ValueError:
+        pass
+    try:  # only where float() fails: a Fortran program's exponent (1.25D+01)
         return float(fortran_exponent(text))
     except ValueError:
         raise LoopDataError(f"{where}: {text!r} is not a number{decimal_mark_hint(text)}") from None
@@ -290,16 +294,17 @@ def _parse_stamp(text: str, fmt: str) -> datetime:
 def _stamp_reader(first_line: str, sample: str, where: str) -> Callable[[str], datetime]:
     """The function that reads the export's timestamps: by the format line 1 declares (its third field), else the
     default :data:`HISTORIAN_TIME`, with fractional seconds where the first timestamp, ``sample``, has them."""
-    fields = first_line.rstrip("\r\n").split("\t")
+    fields = first_line.split("\t")
     declared = fields[2].strip() if len(fields) > 2 else ""
-    formats = [f for f in (time_format(declared), HISTORIAN_TIME, HISTORIAN_TIME + ".%f") if f]
+    declared_fmt = time_format(declared)
+    formats = [f for f in (declared_fmt, HISTORIAN_TIME, HISTORIAN_TIME + ".%f") if f]
     for fmt in formats:
         try:
             datetime.strptime(sample.strip(), fmt)
         except ValueError:
             continue
         return partial(_parse_stamp, fmt=fmt)
-    said = f"the format line 1 declares ({declared!r}) nor in " if time_format(declared) else ""
+    said = f"the format line 1 declares ({declared!r}) nor in " if declared_fmt else ""
     raise LoopDataError(f"{where}: timestamp {sample!r} is neither in {said}YYYY-MM-DD HH:MM:SS[.fff]")
 
 
