@@ -404,19 +404,27 @@ def footer_lines(lines: list[str], dialect: CsvDialect) -> int:
     return k
 
 
+#: a spreadsheet's first line that names the field separator (``sep=;``, ``"sep=,"``), followed by nothing but
+#: separators (a sheet's empty cells)
+_SEP_LINE = re.compile(r'^\s*"?sep=([,;\t|])"?[,;\t|]*\s*$', re.IGNORECASE)
+
+
 def csv_dialect(lines: list[str]) -> CsvDialect:
     """The dialect of a CSV text from its first lines: comment (``#``) and empty lines before the header are skipped;
     the separator is a comma where the header has one, else a semicolon or a tab where it has one of those, else runs
     of spaces where it has any; with another separator than a comma the decimal mark is a comma where the data lines
     write numbers with a comma and none with a decimal point (points that group thousands, ``1.234,5``, are read as
-    such: :func:`decimal_comma`). A text that fits none of these is read as commas (its columns then go missing, one
-    line)."""
+    such: :func:`decimal_comma`). A spreadsheet's separator line before the header (``sep=;``, which Excel reads
+    and writes: :data:`_SEP_LINE`) names the separator and is skipped. A text that fits none of these is read as
+    commas (its columns then go missing, one line)."""
     skip = 0
     while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith("#")):
         skip += 1
+    named = _SEP_LINE.match(lines[skip]) if skip < len(lines) else None
+    skip += bool(named)
     header = lines[skip] if skip < len(lines) else ""
-    sep = "," if "," in header else ";" if ";" in header else "\t" if "\t" in header else \
-        " " if len(header.split()) > 1 else ","
+    sep = named.group(1) if named else "," if "," in header else ";" if ";" in header else "\t" if "\t" in header \
+        else " " if len(header.split()) > 1 else ","
     decimal = "."
     if sep != ",":
         fields = [f for line in lines[skip + 1:skip + 51] for f in CsvDialect(skip, sep).split(line)]

@@ -226,11 +226,14 @@ def test_cells_that_carry_a_unit_are_read_or_named(tmp_path: Path, run_df: pd.Da
 
 @pytest.mark.parametrize(("sep", "decimal", "comments"), [
     (";", ",", ""), ("\t", ".", ""), (",", ".", "# rig 2, valve 7\n\n# logged every 10 s\n"), (";", ".", "# export\n"),
+    # a spreadsheet's line that names the separator (Excel's sep=): here a header with no semicolon to go by
+    (";", ",", "sep=;\n"), ("\t", ".", '"sep=\t"\n'),
 ])
 def test_a_run_of_another_locale_is_read_as_written(tmp_path: Path, run_df: pd.DataFrame, sep: str, decimal: str,
                                                     comments: str) -> None:
-    """A spreadsheet's export in a locale with a decimal comma (semicolons), a tab-separated file and comment lines
-    before the header give the same run as the comma file; a bad cell is named by the file's own line."""
+    """A spreadsheet's export in a locale with a decimal comma (semicolons), a tab-separated file, comment lines
+    and a spreadsheet's separator line (``sep=;``) before the header give the same run as the comma file; a bad cell
+    is named by the file's own line."""
     plain = load_run(_write(run_df, tmp_path / "plain.csv"))
     text = comments + run_df.to_csv(index=False, sep=sep, decimal=decimal)
     path = tmp_path / "other.csv"

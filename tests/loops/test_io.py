@@ -208,10 +208,12 @@ def test_a_column_named_twice_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("sep", "decimal", "comments"),
-                         [(";", ",", ""), ("\t", ".", "# exported by DCS X\n# unit: %\n")])
+                         [(";", ",", ""), ("\t", ".", "# exported by DCS X\n# unit: %\n"), (";", ",", "sep=;\n"),
+                          ("|", ".", "sep=|;;;\n")])
 def test_a_loop_csv_of_another_locale_is_read_as_written(tmp_path: Path, sep: str, decimal: str, comments: str) -> None:
-    """Semicolons or tabs with a decimal comma, and comment lines before the header: the same loop as the comma file
-    (a field read with the wrong dialect would miss its columns or fail to parse)."""
+    """Semicolons or tabs with a decimal comma, comment lines before the header, and a spreadsheet's line naming the
+    separator (``sep=;``, ``sep=|`` with a sheet's empty cells): the same loop as the comma file (a field read with
+    the wrong dialect would miss its columns or fail to parse)."""
     plain = read_loop(_write_csv(tmp_path / "plain.csv"))
     text = (tmp_path / "plain.csv").read_text().replace(",", sep)
     if decimal == ",":
