@@ -256,6 +256,47 @@ def test_json_document(results, tmp_path: Path) -> None:  # type: ignore[no-unty
         assert set(f["params"]) == set(f["std"])
     assert j["findings"][0]["params"].keys() == {"tau_s"}
     assert j["gain"]["validation_rms_after_mm"] < j["gain"]["validation_rms_before_mm"]
+    # each candidate says why it is not named; the named one says nothing
+    assert j["findings"][0]["not_named_because"] == []
+    assert all(f["not_named_because"] for f in j["findings"][1:])
+    assert any(f["not_named_because"][0].startswith("it passes every check, but sensor_lag gains more")
+               for f in j["findings"][1:]), [f["not_named_because"] for f in j["findings"]]
+
+
+def test_a_candidate_not_named_says_which_checks_stop_it() -> None:
+    """:meth:`Finding.not_named_because` names each failed check in words, with its figures: the likelihood test,
+    too few slips, slips that do not show the band (and the slips' band left unconfirmed), the null guard, the held-out
+    gain and the effect's size; a none's summary carries them where the likelihood favours the candidate."""
+    from types import SimpleNamespace
+
+    from valve_env.valveid.diagnose import Finding
+
+    def finding(**kw):  # type: ignore[no-untyped-def]
+        params = {"band_mm": 0.033, "s_w": 0.0024}
+        base = dict(effect="stiction", estimator=SimpleNamespace(result_=SimpleNamespace(params=params)),
+                    reference=(), lr_stat=1960.7, p_value=0.0, delta_aic=-1958.7, delta_bic=-1952.1,
+                    rms_before_mm=0.0046, rms_after_mm=0.0042, validation_rms_before_mm=0.00262,
+                    validation_rms_after_mm=0.0024, validation_loglik_gain=174.3, validation_sim_rms_before_mm=0.00255,
+                    validation_sim_rms_after_mm=0.00252, significant=False, validated=True, relevant=True,
+                    effect_size_mm=0.0165)
+        return Finding(**{**base, **kw})  # type: ignore[arg-type]
+
+    why = finding(training_slips={"n": 2, "median_mm": 0.052, "show_band": False, "slips_band_lr": 1954.8,
+                                  "held_out_expected": 0}).not_named_because(0.01, 2.0, 1.0)
+    assert len(why) == 2
+    assert "2 slips in the fitting part (median 52.0 um) do not show the fitted band (33.0 um)" in why[0]
+    assert "1954.8" in why[1] and "holds no slip" in why[1] and "the 4 that measure" in why[1]
+    assert "1 time(s)" in finding(training_slips={"n": 1, "median_mm": 0.05, "show_band": False}
+                                  ).not_named_because(0.01, 2.0, 1.0)[0]
+    assert finding(significant=True).not_named_because(0.01, 2.0, 1.0) == []
+    guard = {"null": [5.0, 40.0, 2000.0, 3000.0], "statistic": 1960.7, "passed": False}
+    assert finding(null_guard=guard).not_named_because(0.01, 2.0, 1.0) == [
+        "2 of 4 runs simulated without it reach its statistic (the null guard)"]
+    weak = finding(significant=True, p_value=0.2, delta_bic=3.0, validated=False, relevant=False,
+                   validation_loglik_gain=-0.4, effect_size_mm=0.001).not_named_because(0.01, 2.0, 1.0)
+    assert [w.split(" (")[0] for w in weak] == ["the likelihood does not favour it", "no held-out measure confirms it",
+                                                "its effect on the opening"]
+    assert "1.00 um RMS) is below 1 x the opening's noise (2.40 um)" in weak[2]
 
 
 def test_null_guard_stops_a_false_stiction_finding(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -159,6 +159,55 @@ class Finding:
     def accepted(self) -> bool:
         return self.significant and self.relevant and self.validated
 
+    def not_named_because(self, alpha: float, min_gain: float, min_size: float) -> list[str]:
+        """Each check that keeps this candidate from being named, in words (docs/diagnosis.md, "Method"; empty where
+        it is named): the likelihood test at ``alpha``, stiction's slips and null guard, the held-out gain
+        (``min_gain``, nats) and the effect's size (``min_size`` opening noise sds)."""
+        if self.accepted:
+            return []
+        um = 1e3
+        out = []
+        if not (self.p_value < alpha and self.delta_bic < 0):
+            out.append(f"the likelihood does not favour it (p = {self.p_value:.2g} at the {alpha:g} level, "
+                       f"delta BIC {self.delta_bic:+.1f})")
+        elif self.null_guard is not None and not self.null_guard.get("passed", True):
+            null = np.asarray(self.null_guard["null"])
+            out.append(f"{int(np.sum(null >= self.null_guard['statistic']))} of {null.size} runs simulated without it "
+                       "reach its statistic (the null guard)")
+        elif not self.significant and self.training_slips is not None:
+            ts = self.training_slips
+            n, med = int(ts["n"]), ts["median_mm"]
+            band = float(self.fit.params.get("band_mm", math.nan))
+            if med is None or n < 2:
+                out.append(f"the opening slips {n} time(s) in the fitting part, too few to show a band")
+            else:
+                out.append(f"the opening's {n} slips in the fitting part (median {med * um:.1f} um) do not show the "
+                           f"fitted band ({band * um:.1f} um)")
+            if "slips_band_lr" in ts:
+                held = ("the held-out part holds no slip of the model's opening" if ts.get("held_out_expected") == 0
+                        else "the held-out part's slips do not show it")
+                out.append(f"with the band at the slips' median the likelihood ratio is {ts['slips_band_lr']:.1f}, but "
+                           f"{held} and the record's slips, pooled, are not the {MIN_JUMPS} that measure a band alone")
+        if not self.validated:
+            one = f"{self.validation_rms_before_mm * um:.2f} -> {self.validation_rms_after_mm * um:.2f}"
+            sim = f"{self.validation_sim_rms_before_mm * um:.2f} -> {self.validation_sim_rms_after_mm * um:.2f}"
+            slipped = "; the held-out opening's slips" if self.training_slips is not None else ""
+            out.append(f"no held-out measure confirms it (log-likelihood {self.validation_loglik_gain:+.1f} nats; "
+                       f"one-step RMS {one} um; simulation RMS {sim} um{slipped})")
+        if not self.relevant:
+            s_w = float(self.fit.params["s_w"])
+            if self.effect_size_mm < min_size * s_w:
+                out.append(f"its effect on the opening ({self.effect_size_mm * um:.2f} um RMS) is below "
+                           f"{min_size:g} x the opening's noise ({s_w * um:.2f} um)")
+            elif self.input_resolution_mm and self.effect_size_mm < self.input_resolution_mm:
+                out.append(f"its effect on the opening ({self.effect_size_mm * um:.2f} um RMS) is below what the "
+                           f"temperatures' rounding makes ({self.input_resolution_mm * um:.2f} um)")
+            else:
+                res = (self.training_slips or {}).get("opening_resolution_mm", math.nan)
+                out.append(f"its band is within {RESOLUTION_BAND_FACTOR:g} x the opening's resolution "
+                           f"({res * um:.1f} um)")
+        return out
+
     def to_json(self) -> dict[str, Any]:
         names = EFFECTS[self.effect].param_names
         return {
@@ -250,7 +299,7 @@ class Diagnosis:
                 "n": int(b.n),
                 "diagnostics": self.diagnostics,
             },
-            "findings": [f.to_json() for f in self.findings],
+            "findings": [{**f.to_json(), "not_named_because": self.not_named_because(f)} for f in self.findings],
             "selection": [
                 {"step": i + 1, "on_top_of": list(step[0].reference) if step else [],
                  "tried": [f.effect for f in step],
@@ -273,6 +322,19 @@ class Diagnosis:
             "sensitivity": self.sensitivity,
         }
 
+    def not_named_because(self, f: Finding) -> list[str]:
+        """The checks that keep the candidate ``f`` from being named, at this diagnosis's settings
+        (:meth:`Finding.not_named_because`), or the candidate of its selection step that ranks before it."""
+        st = self.settings
+        why = f.not_named_because(st["alpha"], st["min_validation_gain"], st["min_effect_size_noise_sd"])
+        if not why and f.effect not in self.selected:  # it passes every check, and another ranked before it
+            step = next((st for st in self.steps if any(g is f for g in st)), [])
+            if step and step[0] is not f:
+                why = [f"it passes every check, but {step[0].effect} gains more on the held-out data "
+                       f"({step[0].validation_loglik_gain:.1f} against {f.validation_loglik_gain:.1f} nats) and is "
+                       "named"]
+        return why
+
     def _unseen(self) -> str:
         """What a ``none`` leaves open: the stick bands too small for the record's slips to show."""
         if "stiction_band_mm" not in self.sensitivity:
@@ -290,6 +352,8 @@ class Diagnosis:
                 why = (f" (best candidate {best.effect}: p={best.p_value:.2g}, dBIC={best.delta_bic:.1f}, "
                        f"validation RMS {best.validation_rms_before_mm * 1e3:.2f} -> "
                        f"{best.validation_rms_after_mm * 1e3:.2f} um)")
+                if best.p_value < self.settings["alpha"] and best.delta_bic < 0:
+                    why += f"; {best.effect} is not named: " + "; ".join(self.not_named_because(best))
             return f"cause: none: no extension of the base model is justified{why}{self._unseen()}"
         f = self.findings[0]
         def sd(k: str) -> str:

@@ -157,7 +157,8 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
             L += [f"Closest candidate: `{best.effect}` (LR = {best.lr_stat:.1f}, p = {best.p_value:.2g}, "
                   f"delta BIC = {best.delta_bic:.1f}; validation RMS {best.validation_rms_before_mm * 1e3:.2f} -> "
                   f"{best.validation_rms_after_mm * 1e3:.2f} um, held-out log-likelihood gain "
-                  f"{best.validation_loglik_gain:.1f}).", ""]
+                  f"{best.validation_loglik_gain:.1f})."
+                  + "".join(f" Not named because {w}." for w in ["; ".join(d.not_named_because(best))] if w), ""]
     else:
         f = d.findings[0]
         eff = EFFECTS[d.cause]
