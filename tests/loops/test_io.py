@@ -457,3 +457,20 @@ def test_an_op_at_its_limit_on_many_samples_is_noted(tmp_path: Path) -> None:
     assert any(n.startswith("OP sits at its observed minimum on") for n in eu.notes)
     assert not any("saturates" in n for n in read_loop(_write_csv(tmp_path / "wave.csv", op=50.0 + 40.0 * np.cos(
         np.arange(300) / 30.0))).notes)
+
+
+@pytest.mark.parametrize("tags", ["x.mv\tx.pv\tx.sv\tx.mode", "X.OP\tX.PV\tX.SP\tX.MODE"])
+def test_a_historians_tags_in_lower_case_or_as_op_and_sp_are_read(tmp_path: Path, tags: str) -> None:
+    """Tag suffixes in lower case, or ``.OP`` and ``.SP`` as other control systems name the controller output and the
+    set point: the same record as the format's ``.MV`` and ``.SV``; a tag list that lacks one is refused in one line
+    that names what is missing and what was read."""
+    plain = read_loop(_write_historian(tmp_path / "plain.txt", _rows()))
+    text = (tmp_path / "plain.txt").read_text().replace("X.MV\tX.PV\tX.SV\tX.MODE", tags)
+    loop = read_loop(_write_text(tmp_path / "other.txt", text))
+    assert loop.tag.upper() == plain.tag == "X"
+    for c in ("time_s", "sp", "pv", "op"):
+        np.testing.assert_array_equal(getattr(loop, c), getattr(plain, c))
+    no_sp = text.replace(tags.split("\t")[2], "X.TEMP")
+    with pytest.raises(LoopDataError, match=r"line 3: no <tag>\.SV/\.SP \(set point\) among the tags \(read: "
+                                            r"'[xX]\.(mv|OP)', "):
+        read_loop(_write_text(tmp_path / "no_sp.txt", no_sp))

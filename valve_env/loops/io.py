@@ -308,6 +308,12 @@ def _stamp_reader(first_line: str, sample: str, where: str) -> Callable[[str], d
     raise LoopDataError(f"{where}: timestamp {sample!r} is neither in {said}YYYY-MM-DD HH:MM:SS[.fff]")
 
 
+#: the historian export's tag suffixes of each column, in the order they are looked for, in any case: the format's
+#: own (``.MV`` the controller output, ``.SV`` the set value), and ``.OP``, ``.SP`` as other control systems name them
+HISTORIAN_SUFFIXES: dict[str, tuple[str, ...]] = {"op": (".MV", ".OP"), "pv": (".PV",), "sp": (".SV", ".SP"),
+                                                  "mode": (".MODE",)}
+
+
 def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[dict[str, np.ndarray], str]:
     """Columns of a plant-historian export (the format of the real loops; see the module doc). ``lines``: the
     file's, where they have been read."""
@@ -316,14 +322,19 @@ def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[di
     if len(lines) < 6 or not lines[0].startswith("PROCESSDATA"):
         raise LoopDataError(f"{p}: not a historian export (first line should start with PROCESSDATA)")
     names = [n.strip() for n in lines[2].split("\t")]
-    try:
-        i_op = next(i for i, n in enumerate(names) if n.endswith(".MV"))
-        i_pv = next(i for i, n in enumerate(names) if n.endswith(".PV"))
-        i_sp = next(i for i, n in enumerate(names) if n.endswith(".SV"))
-    except StopIteration:
-        raise LoopDataError(f"{p} line 3: tag names must include <tag>.MV, <tag>.PV and <tag>.SV") from None
-    i_mode = next((i for i, n in enumerate(names) if n.endswith(".MODE")), None)
-    tag = names[i_op][: -len(".MV")]
+
+    def column(*suffixes: str) -> int | None:  # the first tag with the first suffix found, in any case
+        return next((i for sfx in suffixes for i, n in enumerate(names) if n.upper().endswith(sfx)), None)
+
+    found = {role: column(*sfx) for role, sfx in HISTORIAN_SUFFIXES.items()}
+    lacking = [f"<tag>{'/'.join(HISTORIAN_SUFFIXES[r])} ({what})" for r, what in
+               (("op", "controller output"), ("pv", "process variable"), ("sp", "set point")) if found[r] is None]
+    if lacking:
+        have = ", ".join(repr(n) for n in names[1:] if n and "." in n) or "none"
+        raise LoopDataError(f"{p} line 3: no {' and no '.join(lacking)} among the tags (read: {have})")
+    i_op, i_pv, i_sp, i_mode = found["op"], found["pv"], found["sp"], found["mode"]
+    assert i_op is not None and i_pv is not None and i_sp is not None
+    tag = names[i_op].rsplit(".", 1)[0]
     t0: datetime | None = None
     cols: dict[str, list[float]] = {"time_s": [], "sp": [], "pv": [], "op": []}
     if i_mode is not None:
