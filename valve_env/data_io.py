@@ -540,8 +540,10 @@ def time_name_hint(columns: list[str]) -> str:
 
 def time_order_hint(t: np.ndarray) -> str:
     """Where the times ``t`` do not increase, what the refusal adds where the cause is the rows' order: a
-    newest-first export (every time below the one before), or rows out of order whose times, sorted, are distinct.
-    Which rows are meant is then clear, but the file's own order is not changed behind its back. Else ''."""
+    newest-first export (every time below the one before), rows out of order whose times, sorted, are distinct, a
+    time that starts again (two increasing parts, the second from at most the first's start) or two parts whose
+    times overlap (files joined). Which rows are meant is then clear, but the file's own order is not changed behind
+    its back. Else ''."""
     t = np.asarray(t, dtype=float)
     t = t[np.isfinite(t)]
     if t.size < 3:
@@ -550,6 +552,16 @@ def time_order_hint(t: np.ndarray) -> str:
         return "; the rows run newest first, as some historians export them: sort them by time_s, oldest first"
     if np.all(np.diff(np.sort(t)) > 0):
         return "; the rows are out of time order, with no time repeated: sort them by time_s"
+    drops = np.flatnonzero(np.diff(t) <= 0)
+    if drops.size == 1 and np.all(np.diff(t[drops[0] + 1:]) > 0):  # two increasing parts
+        before, after = t[:drops[0] + 1], t[drops[0] + 1:]
+        if after[0] <= before[0]:
+            return ("; the time starts again there (a logger's clock reset, or files joined whose times each start "
+                    "at 0?): make it run on, adding the last time before it and one interval to the times from there")
+        shared = int(np.isin(after, before).sum())
+        if shared:
+            return (f"; the rows from there repeat {shared} time(s) of the rows before them (two exports joined with "
+                    "an overlap?): drop the repeated rows")
     return ""
 
 

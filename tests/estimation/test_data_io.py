@@ -378,7 +378,8 @@ def test_a_dash_fortran_exponents_and_a_reversed_dp_are_read_or_named(tmp_path: 
 def test_a_time_in_another_unit_by_name_and_rows_newest_first_are_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
     """A time column named in another unit (``time_h``, ``t_min``, ``time_ms``) is named with its factor to seconds,
     where before the refusal offered to rename it as if it were in seconds; rows newest first (some historians'
-    export) or shuffled are named as such. Two logs joined whose times start again get no such hint."""
+    export) or shuffled are named as such, and so are two logs joined whose times start again (a logger's clock reset)
+    or overlap (two exports that share rows)."""
     for name, do in (("time_h", "multiply by 3600"), ("t_min", "multiply by 60"), ("time_ms", "divide by 1000")):
         with pytest.raises(DataError, match=rf"missing column 'time_s' .*; the header has '{name}', a time not in "
                                             rf"seconds: give it as time_s in seconds \({do}\)$"):
@@ -388,8 +389,12 @@ def test_a_time_in_another_unit_by_name_and_rows_newest_first_are_named(tmp_path
     shuffled = run_df.iloc[np.random.default_rng(0).permutation(len(run_df))]
     with pytest.raises(DataError, match=r"not increasing at row .*; the rows are out of time order"):
         load_run(_write(shuffled, tmp_path / "shuffled.csv"))
-    with pytest.raises(DataError, match=r"times must be strictly increasing$"):
+    with pytest.raises(DataError, match=rf"at row {len(run_df) + 1} .*; the time starts again there \(a logger's "
+                                        r"clock reset, or files joined whose times each start at 0\?\)"):
         load_run(_write(pd.concat([run_df, run_df]), tmp_path / "joined.csv"))
+    with pytest.raises(DataError, match=r"at row 31 .*; the rows from there repeat 5 time\(s\) of the rows before "
+                                        r"them \(two exports joined with an overlap\?\): drop the repeated rows$"):
+        load_run(_write(pd.concat([run_df.iloc[:30], run_df.iloc[25:]]), tmp_path / "overlap.csv"))
 
 
 def test_a_workbook_is_refused_saying_to_save_it_as_csv(tmp_path: Path, run_df: pd.DataFrame) -> None:

@@ -263,7 +263,8 @@ def test_a_repeated_header_a_dash_and_fortran_exponents_in_a_loop_are_read(tmp_p
 
 
 def test_a_loops_time_in_minutes_by_name_and_rows_newest_first_are_named(tmp_path: Path) -> None:
-    """A loop's time column named ``time_min`` is named with its factor to seconds; rows newest first are named."""
+    """A loop's time column named ``time_min`` is named with its factor to seconds; rows newest first, and a time that
+    starts again (two files joined), are named."""
     lines = _write_csv(tmp_path / "plain.csv").read_text().splitlines()
     renamed = [lines[0].replace("time_s", "time_min"), *lines[1:]]
     with pytest.raises(LoopDataError, match=r"the header has 'time_min', a time not in seconds: give it as time_s in "
@@ -271,6 +272,8 @@ def test_a_loops_time_in_minutes_by_name_and_rows_newest_first_are_named(tmp_pat
         read_loop(_write_text(tmp_path / "min.csv", "\n".join(renamed) + "\n"))
     with pytest.raises(LoopDataError, match=r"not strictly increasing at sample 2 .*; the rows run newest first"):
         read_loop(_write_text(tmp_path / "newest.csv", "\n".join([lines[0], *lines[:0:-1]]) + "\n"))
+    with pytest.raises(LoopDataError, match=r"not strictly increasing at sample 41 .*; the time starts again there"):
+        read_loop(_write_text(tmp_path / "reset.csv", "\n".join([*lines[:41], *lines[1:]]) + "\n"))
 
 
 def _write_text(path: Path, text: str) -> Path:
