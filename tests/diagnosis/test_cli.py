@@ -69,6 +69,24 @@ def test_diagnose_writes_spec_json_and_report(good: Path, tmp_path: Path, capsys
     assert _sha(good) == before, "the input must never change"
 
 
+def test_a_report_given_as_a_folder_is_written_into_it(good: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """``--report DIR`` (a path not ending in .md), as fit and loop-diagnose take it: DIR/report.md and its figures,
+    the folder made; given again without --force, one line and exit status 2, nothing replaced."""
+    d = tmp_path / "rep"
+    assert main(["diagnose", str(good), "--json", str(tmp_path / "a.json"), "--report", str(d),
+                 "--bootstrap", "0"]) == 0, capsys.readouterr().err
+    names = sorted(p.name for p in d.iterdir())
+    assert names == ["report.md", "report_fit.png", "report_phase.png", "report_residuals.png"]
+    assert "Cause: `medium_temperature`" in (d / "report.md").read_text()
+    before = _sha(d / "report.md")
+    capsys.readouterr()
+    assert main(["diagnose", str(good), "--json", str(tmp_path / "b.json"), "--report", str(d)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "exists; use --force" in err and "report.md" in err
+    assert _sha(d / "report.md") == before and not (tmp_path / "b.json").exists()
+
+
 def test_validate_other_run(good: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     other = tmp_path / "other.csv"
     simulate_experiment(seed=78, duration_h=4.0, dt_s=20.0,

@@ -45,8 +45,9 @@ def register(subparsers: Any) -> None:
                    help="fraction at the end of RUN.csv held out for validation when --validate is absent")
     d.add_argument("--alpha", type=float, default=0.001, help="significance level of the likelihood-ratio test")
     d.add_argument("--effects", default=None, metavar="A,B,...", help="candidate effects (default: all)")
-    d.add_argument("--report", default=None, metavar="REPORT.md",
-                   help="the human report (default: beside OUT.json, OUT.md with PNG figures)")
+    d.add_argument("--report", default=None, metavar="REPORT.md|DIR",
+                   help="the human report (default: beside OUT.json, OUT.md with PNG figures); a path not ending in "
+                        ".md is a folder: DIR/report.md and its figures")
     d.add_argument("--no-report", action="store_true", help="write the JSON only")
     d.add_argument("--bootstrap", type=int, default=16, metavar="B",
                    help="bootstrap replicates for the named effects' sd (0: inverse Hessian/HAC, "
@@ -134,11 +135,15 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     valve_out = outs.add(args.valve_out, "--valve-out") if args.valve_out else None
     report = None
     if not args.no_report:
-        report = Path(args.report) if args.report else out.with_suffix(".md")
-        outs.add(report, "--report" if args.report else "report (default: beside --json; give --report)")
         from valve_env.valveid.report import FIGURE_SUFFIXES
 
-        outs.add_in_dir(report.parent, [f"{report.stem}{sfx}" for sfx in FIGURE_SUFFIXES], "report figure")
+        report = Path(args.report) if args.report else out.with_suffix(".md")
+        if args.report and report.suffix.lower() != ".md":  # a folder, as fit's and loop-diagnose's --report take
+            report = report / "report.md"
+            outs.add_in_dir(report.parent, ["report.md", *(f"report{sfx}" for sfx in FIGURE_SUFFIXES)], "--report")
+        else:
+            outs.add(report, "--report" if args.report else "report (default: beside --json; give --report)")
+            outs.add_in_dir(report.parent, [f"{report.stem}{sfx}" for sfx in FIGURE_SUFFIXES], "report figure")
     run = read_run(args.run)
     vdf = read_run(args.validate) if args.validate is not None else None
     total = 1 + len(cands) * 2 + 1 + (2 if args.bootstrap else 0)
