@@ -328,7 +328,7 @@ class Diagnosis:
         st = self.settings
         why = f.not_named_because(st["alpha"], st["min_validation_gain"], st["min_effect_size_noise_sd"])
         if not why and f.effect not in self.selected:  # it passes every check, and another ranked before it
-            step = next((st for st in self.steps if any(g is f for g in st)), [])
+            step = next((s for s in self.steps if any(g is f for g in s)), [])
             if step and step[0] is not f:
                 why = [f"it passes every check, but {step[0].effect} gains more on the held-out data "
                        f"({step[0].validation_loglik_gain:.1f} against {f.validation_loglik_gain:.1f} nats) and is "
@@ -352,8 +352,9 @@ class Diagnosis:
                 why = (f" (best candidate {best.effect}: p={best.p_value:.2g}, dBIC={best.delta_bic:.1f}, "
                        f"validation RMS {best.validation_rms_before_mm * 1e3:.2f} -> "
                        f"{best.validation_rms_after_mm * 1e3:.2f} um)")
-                if best.p_value < self.settings["alpha"] and best.delta_bic < 0:
-                    why += f"; {best.effect} is not named: " + "; ".join(self.not_named_because(best))
+                because = self.not_named_because(best)
+                if best.p_value < self.settings["alpha"] and best.delta_bic < 0 and because:
+                    why += f"; {best.effect} is not named: " + "; ".join(because)
             return f"cause: none: no extension of the base model is justified{why}{self._unseen()}"
         f = self.findings[0]
         def sd(k: str) -> str:
