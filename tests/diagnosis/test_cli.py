@@ -87,6 +87,29 @@ def test_a_report_given_as_a_folder_is_written_into_it(good: Path, tmp_path: Pat
     assert _sha(d / "report.md") == before and not (tmp_path / "b.json").exists()
 
 
+def test_a_misspecified_effect_is_said_once_on_stdout_not_as_pythons_warning(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A run without x_mm (the opening derived from the flow) whose sensor lag is named with residuals that are not
+    white: the console says so on one 'warning:' line; Python's own print of the MisspecificationWarning, with this
+    package's file and line, is not also let through (it was, on stderr)."""
+    import warnings
+
+    from valve_env.ident.tests import MisspecificationWarning
+
+    run = tmp_path / "run.csv"
+    simulate_experiment(seed=41, duration_h=6.0, dt_s=10.0, effects={"sensor_lag": {"tau_s": 90.0}}).drop(
+        columns=["x_mm"]).to_csv(run, index=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = main(["diagnose", str(run), "--json", str(tmp_path / "d.json"), "--no-report", "--bootstrap", "0"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert json.loads((tmp_path / "d.json").read_text())["cause"] == "sensor_lag"
+    said = [line for line in out.splitlines() if line.startswith("warning: sensor_lag: the one-step residuals")]
+    assert len(said) == 1, out
+    assert not [w for w in caught if issubclass(w.category, MisspecificationWarning)]
+
+
 def test_validate_other_run(good: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     other = tmp_path / "other.csv"
     simulate_experiment(seed=78, duration_h=4.0, dt_s=20.0,

@@ -147,7 +147,12 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     run = read_run(args.run)
     vdf = read_run(args.validate) if args.validate is not None else None
     total = 1 + len(cands) * 2 + 1 + (2 if args.bootstrap else 0)
-    with stage_progress(total, "diagnose") as tick:
+    from valve_env.ident.tests import MisspecificationWarning
+
+    # a named effect's misspecification is printed below as one 'warning:' line; Python's own print of the
+    # warning (with this package's file and line) would say it twice
+    with stage_progress(total, "diagnose") as tick, warnings.catch_warnings():
+        warnings.simplefilter("ignore", MisspecificationWarning)
         result = diagnose(run, validate=vdf, name=str(args.run), holdout=args.holdout, alpha=args.alpha,
                           effects=cands, bootstrap_B=args.bootstrap, progress=tick)
     if valve_out is not None:
