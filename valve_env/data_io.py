@@ -358,12 +358,14 @@ NOT_TEXT: dict[bytes, str] = {
 }
 
 
-def read_text(p: Path) -> str:
-    """A text file's content: gzip-compressed or not (an archived logger file, ``run.csv.gz``), UTF-16 where it
-    starts with UTF-16's byte-order mark (a spreadsheet's "Unicode text" save), else UTF-8 (a byte-order mark
-    dropped), else Windows-1252 (a spreadsheet's plain "CSV" save on Windows writes ``°C`` so). Raises
-    UnicodeDecodeError for a file that is none of these or holds a NUL byte, and ValueError naming a workbook
-    (:data:`NOT_TEXT`)."""
+def read_text(p: Path) -> tuple[str, int]:
+    """A text file's content and the number of NUL bytes dropped from its end: gzip-compressed or not (an archived
+    logger file, ``run.csv.gz``), UTF-16 where it starts with UTF-16's byte-order mark (a spreadsheet's "Unicode
+    text" save), else UTF-8 (a byte-order mark dropped), else Windows-1252 (a spreadsheet's plain "CSV" save on
+    Windows writes ``°C`` so). NUL bytes that end the file are the space a logger preallocated and never wrote (a
+    file on an SD card cut off by a power loss reads so): they are dropped and counted, the caller notes them. Raises
+    UnicodeDecodeError for a file that is none of these or holds a NUL byte before its end, and ValueError naming a
+    workbook (:data:`NOT_TEXT`)."""
     import gzip
 
     raw = p.read_bytes()
@@ -376,13 +378,27 @@ def read_text(p: Path) -> str:
     if what:
         raise ValueError(f"not a text file but {what}")
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
-        return raw.decode("utf-16")
-    if b"\x00" in raw:
+        return raw.decode("utf-16"), 0
+    text = raw.rstrip(b"\x00")
+    nul = len(raw) - len(text)
+    if b"\x00" in text:
         raise UnicodeDecodeError("utf-8", raw, raw.index(b"\x00"), raw.index(b"\x00") + 1, "a NUL byte: not text")
     try:
-        return raw.decode("utf-8-sig")
+        return text.decode("utf-8-sig"), nul
     except UnicodeDecodeError:
-        return raw.decode("cp1252")
+        return text.decode("cp1252"), nul
+
+
+def nul_note(n: int) -> str:
+    """The note of ``n`` NUL bytes dropped from a file's end (:func:`read_text`), the same in both readers."""
+    return (f"{n} NUL byte(s) at the end of the file (space a logger preallocated and never wrote, as a power loss "
+            "leaves a file on an SD card), dropped")
+
+
+def cut_line_note(line: int, fields: int, of: int) -> str:
+    """The note of a last line cut off mid-write, dropped (both readers)."""
+    return (f"the last line (line {line}) holds {fields} of the {of} fields: a record cut off mid-write (a logger "
+            "stopped or lost power), perhaps within a number, so it is dropped whole")
 
 
 def is_comment(cells: list[str]) -> bool:
@@ -444,7 +460,8 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
     if p.is_dir():
         raise DataError(f"{p}: is a directory, not a CSV file")
     try:
-        lines = read_text(p).splitlines()
+        text, nul = read_text(p)
+        lines = text.splitlines()
     except UnicodeDecodeError as exc:
         raise DataError(f"{p}: not a text file (neither UTF-8, UTF-16 with a byte-order mark nor Windows-1252: "
                         f"{exc.reason} at byte {exc.start})") from exc
@@ -469,6 +486,12 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
             continue
         row_lines.append(j)
         data.append(line)
+    # a last line with fewer fields than the one before it was cut off mid-write (a logger stopped or lost power),
+    # perhaps within a number, so none of its cells is taken
+    cut = len(data) > 2 and len(dialect.split(data[-1])) < len(dialect.split(data[-2]))
+    if cut:
+        cut_line, cut_fields = row_lines.pop(), (len(dialect.split(data[-1])), len(dialect.split(data[-2])))
+        data.pop()
     try:
         raw = pd.read_csv(io.StringIO("\n".join(data)), dtype=str, keep_default_na=False, skipinitialspace=True,
                           sep=dialect.pandas_sep, skip_blank_lines=False)
@@ -486,6 +509,10 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         raw.attrs["comment_lines"] = comments
     if headers:
         raw.attrs["header_lines"] = headers
+    if nul:
+        raw.attrs["nul_padding"] = nul
+    if cut:
+        raw.attrs["last_line_cut"] = {"line": cut_line, "fields": cut_fields[0], "of": cut_fields[1]}
     return validate_run(raw, source=str(p), valve=valve)
 
 

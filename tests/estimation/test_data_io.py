@@ -353,6 +353,40 @@ def test_a_repeated_header_line_among_the_data_is_skipped_and_noted(tmp_path: Pa
         load_run(path)
 
 
+def test_a_last_line_cut_off_mid_write_and_nul_padding_are_dropped_and_noted(tmp_path: Path,
+                                                                             run_df: pd.DataFrame) -> None:
+    """A logger that stopped or lost power mid-write leaves its last line short, perhaps cut within its time (which
+    read '2161' then passed for a time out of order: 'sort them by time_s'), and a file on an SD card that was
+    preallocated ends in NUL bytes (refused as not text). Both are dropped with a note: the same run as the plain
+    file. A NUL byte before the end is still refused, and a short line among the data is not taken for a cut one."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    plain = load_run(_write(run_df, tmp_path / "plain.csv"))
+    text = (tmp_path / "plain.csv").read_text()
+    lines = text.splitlines()
+    n = len(lines)
+    for tail in (lines[-1][:4], lines[-1][:len(lines[-1]) // 2]):
+        path = tmp_path / "cut.csv"
+        path.write_bytes(("\n".join([*lines, tail])).encode() + bytes(4096))
+        out = load_run(path)
+        pd.testing.assert_frame_equal(out, plain, check_like=True)
+        notes = preprocess_run(out)[1]
+        cut = [nt for nt in notes if nt["what"] == "last_line_cut"]
+        assert [(nt["line"], nt["of"]) for nt in cut] == [(n + 1, len(run_df.columns))]
+        assert cut[0]["fields"] < len(run_df.columns)
+        assert [nt["bytes"] for nt in notes if nt["what"] == "nul_padding"] == [4096]
+        assert f"line {n + 1}: the last line, cut off mid-write" in "\n".join(describe(notes))
+    assert not {"last_line_cut", "nul_padding"} & {nt["what"] for nt in preprocess_run(plain)[1]}
+    (tmp_path / "nul.csv").write_bytes(text.encode()[:300] + b"\x00" + text.encode()[300:])
+    with pytest.raises(DataError, match=r"a NUL byte: not text at byte 300\)$"):
+        load_run(tmp_path / "nul.csv")
+    short = [*lines[:100], lines[100][:4], *lines[101:]]  # data row 100 cut: a missed sample, dropped as such
+    (tmp_path / "short.csv").write_text("\n".join(short) + "\n")
+    notes = preprocess_run(load_run(tmp_path / "short.csv"))[1]
+    assert [nt["rows"] for nt in notes if nt["what"] == "rows_dropped"] == [[100]]
+    assert not any(nt["what"] == "last_line_cut" for nt in notes)
+
+
 def test_a_dash_fortran_exponents_and_a_reversed_dp_are_read_or_named(tmp_path: Path, run_df: pd.DataFrame) -> None:
     """A dash for no value (``-``, ``--``, en or em dash, as a report or a formatted spreadsheet writes it) is a
     missing sample; a Fortran program's exponent (``5.29D+01``) reads as the number; a dp measured the other way

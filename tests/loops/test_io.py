@@ -262,6 +262,32 @@ def test_a_repeated_header_a_dash_and_fortran_exponents_in_a_loop_are_read(tmp_p
     assert any("missing value" in note for note in loop.notes)
 
 
+def test_a_last_line_cut_off_mid_write_and_nul_padding_end_a_loop_with_a_note(tmp_path: Path) -> None:
+    """A logger stopped mid-write: a loop CSV's or a historian export's last line holds fewer fields (it was refused,
+    'line 302: 2 fields, the header has 4'), and the file may end in the NUL bytes of a preallocated file (refused as
+    not text). Both are dropped with a note: the same loop. A short line before the last is still refused."""
+    plain = read_loop(_write_csv(tmp_path / "plain.csv"))
+    text = (tmp_path / "plain.csv").read_text()
+    (tmp_path / "cut.csv").write_bytes(text.encode() + b"3000,50" + bytes(512))
+    loop = read_loop(tmp_path / "cut.csv")
+    assert loop.n == plain.n and np.array_equal(loop.op, plain.op) and np.array_equal(loop.pv, plain.pv)
+    assert loop.notes[:2] == [
+        "512 NUL byte(s) at the end of the file (space a logger preallocated and never wrote, as a power loss leaves "
+        "a file on an SD card), dropped",
+        "the last line (line 302) holds 2 of the 4 fields: a record cut off mid-write (a logger stopped or lost "
+        "power), perhaps within a number, so it is dropped whole"]
+    lines = text.splitlines()
+    (tmp_path / "mid.csv").write_text("\n".join([*lines[:100], "990,50", *lines[100:]]) + "\n")
+    with pytest.raises(LoopDataError, match=r"mid.csv line 101: 2 fields, the header has 4$"):
+        read_loop(tmp_path / "mid.csv")
+    hist = _write_historian(tmp_path / "plain.txt", _rows())
+    (tmp_path / "cut.txt").write_text(hist.read_text() + "2024-01-01 00:")
+    loop, whole = read_loop(tmp_path / "cut.txt"), read_loop(hist)
+    assert loop.n == whole.n == 300 and np.array_equal(loop.op, whole.op)
+    assert loop.notes == [f"the last line (line {5 + 300 + 1}) holds 1 of the 9 fields: a record cut off mid-write (a "
+                          "logger stopped or lost power), perhaps within a number, so it is dropped whole"]
+
+
 def test_a_loops_time_in_minutes_by_name_and_rows_newest_first_are_named(tmp_path: Path) -> None:
     """A loop's time column named ``time_min`` is named with its factor to seconds; rows newest first, and a time that
     starts again (two files joined), are named."""

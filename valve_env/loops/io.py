@@ -46,6 +46,7 @@ from valve_env.data_io import (
     clock_in_time_s,
     clock_time_hint,
     csv_dialect,
+    cut_line_note,
     decimal_comma,
     decimal_mark_hint,
     footer_lines,
@@ -54,6 +55,7 @@ from valve_env.data_io import (
     interval_problem,
     is_comment,
     near_name_hint,
+    nul_note,
     read_text,
     short_list,
     text_cells,
@@ -151,11 +153,13 @@ def _float(text: str, where: str) -> float:
         raise LoopDataError(f"{where}: {text!r} is not a number{decimal_mark_hint(text)}") from None
 
 
-def _text_lines(p: Path) -> list[str]:
+def _text_lines(p: Path) -> tuple[list[str], list[str]]:
     """The lines of a loop record's file (:func:`valve_env.data_io.read_text`: UTF-8, UTF-16 or Windows-1252,
-    gzip-compressed or not); a file that is not text is refused in one line."""
+    gzip-compressed or not) and the note of NUL bytes dropped from its end; a file that is not text is refused in
+    one line."""
     try:
-        return read_text(p).splitlines()
+        text, nul = read_text(p)
+        return text.splitlines(), [nul_note(nul)] if nul else []
     except UnicodeDecodeError:
         raise LoopDataError(f"{p}: not a text file") from None
     except ValueError as exc:  # a workbook, or a broken gzip file
@@ -169,7 +173,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     of what was read as other than data (a units row under the header: :func:`_units_row`). ``lines``: the file's,
     where they have been read."""
     p = Path(path)
-    lines = _text_lines(p) if lines is None else lines
+    lines, read_notes = _text_lines(p) if lines is None else (lines, [])
     # commas, or semicolons, tabs (with a decimal comma) or spaces, after '#' comments; a footer left out
     dialect = csv_dialect(lines[:64])
     text = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
@@ -200,7 +204,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     cols: dict[str, list[float]] = {c: [] for c in wanted}
     body = rows[1:]
     units = _units_row(body[0], idx, p, dialect.header_line + 1) if body else {}
-    notes: list[str] = []
+    notes: list[str] = list(read_notes)
     if named:
         notes.append(f"the header gives units after the names ({', '.join(f'{n} [{u}]' for n, u in named.values())}): "
                      "read as the names")
@@ -213,6 +217,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
         raise LoopDataError(f"{p}: {clock}")
     comments: list[int] = []
     headers: list[int] = []
+    last = dialect.header_line + bool(units) + len(body)  # the last line's number (a footer is left out)
     for lineno, row in enumerate(body, start=dialect.header_line + 1 + bool(units)):
         if not row or all(not x.strip() for x in row):
             continue
@@ -223,6 +228,9 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
             headers.append(lineno)
             continue
         if len(row) < len(header):
+            if lineno == last and lineno > dialect.header_line + 1 + bool(units):
+                notes.append(cut_line_note(lineno, len(row), len(header)))
+                continue
             raise LoopDataError(f"{p} line {lineno}: {len(row)} fields, the header has {len(header)}")
         for c in wanted:
             cell = row[idx[c]].strip()
@@ -314,11 +322,13 @@ HISTORIAN_SUFFIXES: dict[str, tuple[str, ...]] = {"op": (".MV", ".OP"), "pv": ("
                                                   "mode": (".MODE",)}
 
 
-def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[dict[str, np.ndarray], str]:
-    """Columns of a plant-historian export (the format of the real loops; see the module doc). ``lines``: the
-    file's, where they have been read."""
+def read_historian(path: str | Path,
+                   lines: list[str] | None = None) -> tuple[dict[str, np.ndarray], str, list[str]]:
+    """Columns of a plant-historian export (the format of the real loops; see the module doc), the tag and the notes
+    of what was read as other than data (a last line cut off mid-write). ``lines``: the file's, where they have been
+    read."""
     p = Path(path)
-    lines = _text_lines(p) if lines is None else lines
+    lines, notes = _text_lines(p) if lines is None else (lines, [])
     if len(lines) < 6 or not lines[0].startswith("PROCESSDATA"):
         raise LoopDataError(f"{p}: not a historian export (first line should start with PROCESSDATA)")
     names = [n.strip() for n in lines[2].split("\t")]
@@ -341,11 +351,15 @@ def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[di
         cols["mode"] = []
     stamp: Callable[[str], datetime] | None = None
     first = ""
+    last = max((j for j, line in enumerate(lines, start=1) if line.strip()), default=0)
     for lineno, line in enumerate(lines[5:], start=6):
         if not line.strip():
             continue
         f = line.split("\t")
         if len(f) < len(names):
+            if lineno == last and lineno > 6:
+                notes.append(cut_line_note(lineno, len(f), len(names)))
+                continue
             raise LoopDataError(f"{p} line {lineno}: {len(f)} fields, line 3 names {len(names)}")
         if stamp is None:
             stamp, first = _stamp_reader(lines[0], f[0], f"{p} line {lineno}"), f[0].strip()
@@ -359,7 +373,7 @@ def read_historian(path: str | Path, lines: list[str] | None = None) -> tuple[di
         for c, i in (("op", i_op), ("pv", i_pv), ("sp", i_sp), ("mode", i_mode)):
             if i is not None:
                 cols[c].append(_float(f[i].strip(), f"{p} line {lineno}, column {names[i]}"))
-    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, tag
+    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, tag, notes
 
 
 def read_loop(path: str | Path) -> LoopData:
@@ -371,13 +385,13 @@ def read_loop(path: str | Path) -> LoopData:
     if p.is_dir():
         raise LoopDataError(f"{p}: is a directory")
     notes: list[str] = []
-    lines = _text_lines(p)
+    lines, read_notes = _text_lines(p)
     if lines and lines[0].startswith("PROCESSDATA"):
-        cols, tag = read_historian(p, lines)
+        cols, tag, notes = read_historian(p, lines)
     else:
         cols, tag, notes = read_loop_csv(p, lines)
     data = check_loop(cols, tag=tag, source=str(p))
-    data.notes[:0] = notes
+    data.notes[:0] = [*read_notes, *notes]
     return data
 
 

@@ -34,10 +34,11 @@ each convention is handled once, here, and reported:
   interval and the longest gap (nothing is filled in).
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
-``units_in_cells``, ``comment_lines``, ``header_lines``, ``rows_repeated``, ``rows_dropped``, ``spikes_replaced``,
-``x_mm_derived``, ``irregular_sampling``, ``gap``, ``short_span``), the ``channel`` where it applies, and ``why``.
-The ``fit`` and ``diagnose`` JSON carry them under ``preprocessing``, and their reports print them. A run that passes
-through here twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
+``units_in_cells``, ``nul_padding``, ``last_line_cut``, ``comment_lines``, ``header_lines``, ``rows_repeated``,
+``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``, ``short_span``), the
+``channel`` where it applies, and ``why``. The ``fit`` and ``diagnose`` JSON carry them under ``preprocessing``, and
+their reports print them. A run that passes through here twice (read and checked, then diagnosed) keeps the first
+pass's notes of what was changed.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from valve_env.data_io import DataError, short_list, time_unit_hint
+from valve_env.data_io import DataError, cut_line_note, nul_note, short_list, time_unit_hint
 from valve_env.valveid.stiction import opening_noise
 from valve_env.valveid.temperature import channel_noise, noise_sd
 
@@ -67,8 +68,9 @@ SPIKE_MIN = {"T_tank_C": 0.5, "T_med_C": 0.5, "dp_mbar": 0.1, "ps_bar": 0.1}
 #: (often to full scale) does not
 X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
-CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "comment_lines", "header_lines",
-                                 "rows_repeated", "rows_dropped", "spikes_replaced", "x_mm_derived")
+CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "nul_padding", "last_line_cut",
+                                 "comment_lines", "header_lines", "rows_repeated", "rows_dropped", "spikes_replaced",
+                                 "x_mm_derived")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -149,6 +151,13 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         notes.append({"what": "comment_lines", "channel": None, "lines": list(comments),
                       "why": f"{len(comments)} comment line(s) (starting with '#') among the data (line numbers as in "
                              "the file), skipped; rows are counted without them"})
+    nul = df.attrs.get("nul_padding", 0)
+    if nul and ("nul_padding", None) not in done:
+        notes.append({"what": "nul_padding", "channel": None, "bytes": int(nul), "why": nul_note(int(nul))})
+    cut = df.attrs.get("last_line_cut")
+    if cut and ("last_line_cut", None) not in done:
+        notes.append({"what": "last_line_cut", "channel": None, **cut,
+                      "why": cut_line_note(cut["line"], cut["fields"], cut["of"])})
     headers = df.attrs.get("header_lines", [])
     if headers and ("header_lines", None) not in done:
         notes.append({"what": "header_lines", "channel": None, "lines": list(headers),
@@ -249,6 +258,11 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
                          "numbers")
         elif what == "comment_lines":
             lines.append(f"{len(nt['lines'])} comment line(s) among the data skipped (lines {short_list(nt['lines'])})")
+        elif what == "nul_padding":
+            lines.append(f"{nt['bytes']} NUL byte(s) at the end of the file dropped")
+        elif what == "last_line_cut":
+            lines.append(f"line {nt['line']}: the last line, cut off mid-write ({nt['fields']} of {nt['of']} fields), "
+                         "dropped")
         elif what == "header_lines":
             lines.append(f"{len(nt['lines'])} repeated header line(s) among the data skipped (lines "
                          f"{short_list(nt['lines'])})")
