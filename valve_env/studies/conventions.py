@@ -225,6 +225,22 @@ def logger_comments(df: pd.DataFrame, rng: np.random.Generator, k: int = 2) -> p
     return out
 
 
+def logger_cut_off(df: pd.DataFrame, rng: np.random.Generator, pad: int = 4096) -> pd.DataFrame:
+    """A logger stopped mid-write (a power loss): the file ends in the next sample's line cut within its second field,
+    then in ``pad`` NUL bytes of the space the logger had preallocated. Both go in ``attrs["csv_tail"]``, which the
+    writer appends after the rows (:func:`valve_env.studies.foreign.run_case`). Applied last of a run's conventions."""
+    out = df.copy()
+    out.attrs = dict(df.attrs)
+    sep = str(df.attrs.get("csv_sep", ","))
+    nxt = df[[c for c in df.columns if not str(c).startswith("true_")]].iloc[[-1]].copy()
+    if "time_s" in nxt and len(df) > 1:
+        nxt["time_s"] += float(np.median(np.diff(df["time_s"].to_numpy(dtype=float))))
+    line = nxt.to_csv(header=False, index=False, sep=sep).rstrip("\r\n")
+    cut = line.index(sep) + 1 + int(rng.integers(1, 4))  # one to three characters into the second field
+    out.attrs["csv_tail"] = line[:cut].encode() + bytes(pad)
+    return out
+
+
 def _on_opening(apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
                 ) -> Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]:
     """A convention of the measured opening: a run without x_mm (its opening derived from the flow) has none to
@@ -296,6 +312,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                file_only=True),
     Convention("logger_comments", "two comment lines ('# logger restarted') among the data", logger_comments,
                file_only=True),
+    Convention("logger_cut_off", "a logger stopped mid-write: the last line cut within its second field, then 4 KiB "
+               "of NUL bytes", logger_cut_off, file_only=True),
 )}
 
 
@@ -303,8 +321,9 @@ def frame_problem(names: tuple[str, ...] | list[str]) -> str:
     """Why conventions ``names`` cannot be applied to a run that goes to the diagnosis as a DataFrame: the first one
     that is a convention of the file (``file_only``), in one line; "" where none is."""
     name = next((n for n in names if n in CONVENTIONS and CONVENTIONS[n].file_only), None)
-    return "" if name is None else (f"{name} is a convention of the file (its separator, decimal mark, units row "
-                                    "or comment lines): the foreign-data corpus runs it (studies/foreign_data.py)")
+    return "" if name is None else (f"{name} is a convention of the file (its separator, decimal mark, units row, "
+                                    "comment lines or how it ends): the foreign-data corpus runs it "
+                                    "(studies/foreign_data.py)")
 
 
 def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | None = None,
@@ -325,5 +344,5 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
 
 
 __all__ = ["CONVENTIONS", "Convention", "apply_convention", "frame_problem", "drop_rows", "extra_columns", "gap",
-           "held_constant", "historian_export", "logger_comments", "noiseless", "quantise", "resample", "spikes",
-           "spreadsheet_export", "stepped", "store_on_change", "truncate"]
+           "held_constant", "historian_export", "logger_comments", "logger_cut_off", "noiseless", "quantise",
+           "resample", "spikes", "spreadsheet_export", "stepped", "store_on_change", "truncate"]
