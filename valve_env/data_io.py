@@ -568,9 +568,9 @@ def time_name_hint(columns: list[str]) -> str:
 def time_order_hint(t: np.ndarray) -> str:
     """Where the times ``t`` do not increase, what the refusal adds where the cause is the rows' order: a
     newest-first export (every time below the one before), rows out of order whose times, sorted, are distinct, a
-    time that starts again (two increasing parts, the second from at most the first's start) or two parts whose
-    times overlap (files joined). Which rows are meant is then clear, but the file's own order is not changed behind
-    its back. Else ''."""
+    time that starts again (two increasing parts, the second from at most the first's start), a time that goes back
+    by an hour (a local clock at the end of summer time) or two parts whose times overlap (files joined). Which rows
+    are meant is then clear, but the file's own order is not changed behind its back. Else ''."""
     t = np.asarray(t, dtype=float)
     t = t[np.isfinite(t)]
     if t.size < 3:
@@ -585,6 +585,10 @@ def time_order_hint(t: np.ndarray) -> str:
         if after[0] <= before[0]:
             return ("; the time starts again there (a logger's clock reset, or files joined whose times each start "
                     "at 0?): make it run on, adding the last time before it and one interval to the times from there")
+        dt = float(np.median(np.diff(before))) if before.size > 1 else 0.0
+        if dt > 0 and abs(before[-1] + dt - after[0] - 3600.0) <= 0.5 * dt:
+            return ("; the time goes back by an hour there (times from a clock on local time, at the end of summer "
+                    "time?): give the times in UTC, or add 3600 s to the times from there")
         shared = int(np.isin(after, before).sum())
         if shared:
             return (f"; the rows from there repeat {shared} time(s) of the rows before them (two exports joined with "

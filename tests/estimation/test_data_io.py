@@ -429,6 +429,14 @@ def test_a_time_in_another_unit_by_name_and_rows_newest_first_are_named(tmp_path
     with pytest.raises(DataError, match=r"at row 31 .*; the rows from there repeat 5 time\(s\) of the rows before "
                                         r"them \(two exports joined with an overlap\?\): drop the repeated rows$"):
         load_run(_write(pd.concat([run_df.iloc[:30], run_df.iloc[25:]]), tmp_path / "overlap.csv"))
+    # times from a clock on local time: at the end of summer time they go back by an hour (before, named an overlap
+    # of joined exports, whose advice, to drop the repeated rows, would lose an hour of samples)
+    t = np.arange(len(run_df)) * 20.0
+    local = run_df.assign(time_s=np.where(np.arange(len(run_df)) >= 250, t - 3600.0, t))
+    with pytest.raises(DataError, match=r"at row 251 .*; the time goes back by an hour there \(times from a clock on "
+                                        r"local time, at the end of summer time\?\): give the times in UTC, or add "
+                                        r"3600 s to the times from there$"):
+        load_run(_write(local, tmp_path / "local.csv"))
 
 
 def test_a_workbook_is_refused_saying_to_save_it_as_csv(tmp_path: Path, run_df: pd.DataFrame) -> None:

@@ -300,6 +300,10 @@ def test_a_loops_time_in_minutes_by_name_and_rows_newest_first_are_named(tmp_pat
         read_loop(_write_text(tmp_path / "newest.csv", "\n".join([lines[0], *lines[:0:-1]]) + "\n"))
     with pytest.raises(LoopDataError, match=r"not strictly increasing at sample 41 .*; the time starts again there"):
         read_loop(_write_text(tmp_path / "reset.csv", "\n".join([*lines[:41], *lines[1:]]) + "\n"))
+    t = np.arange(600) * 10.0
+    with pytest.raises(LoopDataError, match=r"not strictly increasing at sample 451 .*; the time goes back by an hour "
+                                            r"there \(times from a clock on local time"):
+        read_loop(_write_csv(tmp_path / "local.csv", n=600, time_s=np.where(t >= 4500.0, t - 3600.0, t)))
 
 
 def _write_text(path: Path, text: str) -> Path:
