@@ -176,6 +176,39 @@ def _rows(n: int = 300) -> list[tuple[str, float, float, float, int]]:
              50.0 + np.sin(k / 30.0), 50.0, 1) for k in range(n)]
 
 
+def test_a_value_the_historians_status_flag_marks_is_read_as_missing(tmp_path: Path) -> None:
+    """The export's status flags (``bOpOFL``, ``bPvOFL``, ``bSpOFL``) mark a value that is not a new sample (it repeats
+    the one before it): read as missing, so the loop is resampled over it, with a note. Where more samples are flagged
+    than may be missing (10 %), the values are kept as exported, and the note says so (the record is not refused)."""
+    rows = _rows()
+    text = _write_historian(tmp_path / "plain.txt", rows).read_text().splitlines()
+    # samples (0-based) whose OP and PV the historian held at the value before them (a run of three repeats its first)
+    # and flagged
+    for k in (100, 101, 102, 200):
+        f, b = text[5 + k].split("\t"), text[5 + k - 1].split("\t")
+        f[1], f[2], f[5], f[6] = b[1], b[2], "1", "1"
+        text[5 + k] = "\t".join(f)
+    path = tmp_path / "flagged.txt"
+    path.write_text("\r\n".join(text))
+    loop, plain = read_loop(path), read_loop(tmp_path / "plain.txt")
+    assert loop.n == plain.n == 300
+    assert loop.notes[0] == ("4 sample(s) carry a value the export's status flags mark (OP 4, PV 4; first at sample "
+                             "101): read as missing, as a flagged value repeats the one before it and is not a new "
+                             "sample")
+    # resampled over: between the unflagged neighbours, close to the true values, not held at the value before
+    true_op = np.array([r[1] for r in rows])
+    assert np.abs(loop.op[100:103] - true_op[100:103]).max() < 0.05
+    assert np.abs(np.array([float(text[5 + k].split("\t")[1]) for k in (100, 101, 102)]) - true_op[100:103]).max() > 0.1
+    text = (tmp_path / "plain.txt").read_text().splitlines()
+    many = [*text[:5], *["\t".join([*ln.split("\t")[:5], "1", "0", "0", "0"]) if j % 5 == 0 else ln
+                         for j, ln in enumerate(text[5:])]]
+    (tmp_path / "many.txt").write_text("\r\n".join(many))
+    loop = read_loop(tmp_path / "many.txt")
+    assert loop.n == 300 and np.array_equal(loop.op, plain.op)
+    assert loop.notes == ["60 sample(s) carry a value the export's status flags mark (OP 60): too many to read as "
+                          "missing, read as exported (a flagged value repeats the one before it)"]
+
+
 def test_repeated_timestamps_are_merged_with_a_note(tmp_path: Path) -> None:
     rows = _rows()
     rows.insert(31, rows[30])                                  # an exact duplicate row

@@ -12,7 +12,8 @@ Rows that repeat a timestamp (historian exports do: duplicate rows, two values s
 are merged with a note: exact duplicates dropped, differing rows averaged
 (:func:`merge_repeated_timestamps`); time that goes backwards stays an error.
 
-Samples that miss a value (an empty cell or a NaN marker, :data:`MISSING_MARKERS`) are dropped with a note, up to
+Samples that miss a value (an empty cell or a NaN marker, :data:`MISSING_MARKERS`, or a historian value whose status
+flag is set, :func:`historian_flags`) are dropped with a note, up to
 :data:`MAX_MISSING_FRACTION` of them, and the record is resampled over them. A value far outside its column's record
 (a historian's sentinel such as -9999, or a gross spike), in short isolated runs, is read as missing, with a note
 naming the samples (:func:`gross_outliers`).
@@ -320,6 +321,31 @@ def _stamp_reader(first_line: str, sample: str, where: str) -> Callable[[str], d
 #: own (``.MV`` the controller output, ``.SV`` the set value), and ``.OP``, ``.SP`` as other control systems name them
 HISTORIAN_SUFFIXES: dict[str, tuple[str, ...]] = {"op": (".MV", ".OP"), "pv": (".PV",), "sp": (".SV", ".SP"),
                                                   "mode": (".MODE",)}
+#: the export's status flag of each column (line 3 ``bOpOFL``, ``bPvOFL``, ``bSpOFL``, read by prefix in any case).
+#: A value whose flag is set is not a new sample: in the three shared loops' exports that set them, every flagged OP and
+#: PV value after the first sample (346) repeats the value before it exactly, against 16 of the 4154 others, so it is
+#: read as missing (:func:`historian_flags`)
+HISTORIAN_FLAGS: dict[str, str] = {"op": "BOP", "pv": "BPV", "sp": "BSP"}
+
+
+def historian_flags(cols: dict[str, np.ndarray], flagged: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], str]:
+    """The historian's columns with each value its status flag marks (``flagged``: a mask per column) read as missing
+    (NaN), and the note ('' where none is set). Where the samples with a flagged value exceed
+    :data:`MAX_MISSING_FRACTION`, they would refuse the record: the values are kept as read, and the note says so."""
+    any_flag = np.zeros(len(cols["time_s"]), dtype=bool)
+    for m in flagged.values():
+        any_flag |= m
+    k = int(any_flag.sum())
+    if not k:
+        return cols, ""
+    which = ", ".join(f"{c.upper()} {int(m.sum())}" for c, m in flagged.items() if m.any())
+    if k > MAX_MISSING_FRACTION * any_flag.size:
+        return cols, (f"{k} sample(s) carry a value the export's status flags mark ({which}): too many to read as "
+                      "missing, read as exported (a flagged value repeats the one before it)")
+    out = {c: np.where(flagged[c], np.nan, v) if c in flagged else v for c, v in cols.items()}
+    return out, (f"{k} sample(s) carry a value the export's status flags mark ({which}; first at sample "
+                 f"{int(np.flatnonzero(any_flag)[0]) + 1}): read as missing, as a flagged value repeats the one before "
+                 "it and is not a new sample")
 
 
 def read_historian(path: str | Path,
@@ -344,6 +370,9 @@ def read_historian(path: str | Path,
         raise LoopDataError(f"{p} line 3: no {' and no '.join(lacking)} among the tags (read: {have})")
     i_op, i_pv, i_sp, i_mode = found["op"], found["pv"], found["sp"], found["mode"]
     assert i_op is not None and i_pv is not None and i_sp is not None
+    flag_at = {role: i for role, prefix in HISTORIAN_FLAGS.items()
+               for i in [next((j for j, n in enumerate(names) if n.upper().startswith(prefix)), None)] if i is not None}
+    flags: dict[str, list[bool]] = {role: [] for role in flag_at}
     tag = names[i_op].rsplit(".", 1)[0]
     t0: datetime | None = None
     cols: dict[str, list[float]] = {"time_s": [], "sp": [], "pv": [], "op": []}
@@ -373,7 +402,11 @@ def read_historian(path: str | Path,
         for c, i in (("op", i_op), ("pv", i_pv), ("sp", i_sp), ("mode", i_mode)):
             if i is not None:
                 cols[c].append(_float(f[i].strip(), f"{p} line {lineno}, column {names[i]}"))
-    return {c: np.asarray(v, dtype=float) for c, v in cols.items()}, tag, notes
+        for c, i in flag_at.items():
+            flags[c].append(f[i].strip() not in ("", "0"))
+    read, note = historian_flags({c: np.asarray(v, dtype=float) for c, v in cols.items()},
+                                 {c: np.asarray(v, dtype=bool) for c, v in flags.items()})
+    return read, tag, [*notes, *([note] if note else [])]
 
 
 def read_loop(path: str | Path) -> LoopData:
