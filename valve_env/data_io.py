@@ -346,6 +346,12 @@ class CsvDialect:
         """A line's fields, stripped (no quoting: for the header and the dialect's checks)."""
         return [f.strip().strip('"') for f in (line.split() if self.sep == " " else line.split(self.sep))]
 
+    def count(self, line: str) -> int:
+        """How many fields a data line holds, a quoted field counted once whatever it holds."""
+        import csv
+
+        return len(line.split()) if self.sep == " " else len(next(csv.reader([line], delimiter=self.sep), []))
+
     @property
     def pandas_sep(self) -> str:
         return r"\s+" if self.sep == " " else self.sep
@@ -488,9 +494,10 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         data.append(line)
     # a last line with fewer fields than the one before it was cut off mid-write (a logger stopped or lost power),
     # perhaps within a number, so none of its cells is taken
-    cut = len(data) > 2 and len(dialect.split(data[-1])) < len(dialect.split(data[-2]))
+    fields = [dialect.count(line) for line in data[-2:]]
+    cut = len(data) > 2 and fields[1] < fields[0]
     if cut:
-        cut_line, cut_fields = row_lines.pop(), (len(dialect.split(data[-1])), len(dialect.split(data[-2])))
+        cut_line, cut_fields = row_lines.pop(), (fields[1], fields[0])
         data.pop()
     try:
         raw = pd.read_csv(io.StringIO("\n".join(data)), dtype=str, keep_default_na=False, skipinitialspace=True,

@@ -380,6 +380,12 @@ def test_a_last_line_cut_off_mid_write_and_nul_padding_are_dropped_and_noted(tmp
     (tmp_path / "nul.csv").write_bytes(text.encode()[:300] + b"\x00" + text.encode()[300:])
     with pytest.raises(DataError, match=r"a NUL byte: not text at byte 300\)$"):
         load_run(tmp_path / "nul.csv")
+    # a quoted separator in the line before the last (a status column's text) does not make the last one look cut
+    quoted = [lines[0] + ",status", *[ln + ",OK" for ln in lines[1:-2]], lines[-2] + ',"ALARM, high"',
+              lines[-1] + ",OK"]
+    (tmp_path / "quoted.csv").write_text("\n".join(quoted) + "\n")
+    out = load_run(tmp_path / "quoted.csv")
+    assert len(out) == len(plain) and "last_line_cut" not in out.attrs
     short = [*lines[:100], lines[100][:4], *lines[101:]]  # data row 100 cut: a missed sample, dropped as such
     (tmp_path / "short.csv").write_text("\n".join(short) + "\n")
     notes = preprocess_run(load_run(tmp_path / "short.csv"))[1]
