@@ -537,6 +537,37 @@ def test_a_historians_tags_in_lower_case_or_as_op_and_sp_are_read(tmp_path: Path
     for c in ("time_s", "sp", "pv", "op"):
         np.testing.assert_array_equal(getattr(loop, c), getattr(plain, c))
     no_sp = text.replace(tags.split("\t")[2], "X.TEMP")
-    with pytest.raises(LoopDataError, match=r"line 3: no <tag>\.SV/\.SP \(set point\) among the tags \(read: "
+    with pytest.raises(LoopDataError, match=r"line 3: no [xX]\.SV/\.SP \(set point\) among the tags \(read: "
                                             r"'[xX]\.(mv|OP)', "):
         read_loop(_write_text(tmp_path / "no_sp.txt", no_sp))
+
+
+def test_an_export_of_several_loops_is_read_for_the_loop_tag_chooses(tmp_path: Path) -> None:
+    """A historian export whose line 3 names two loops' tags (Y's first): without ``tag``, refused in one line naming
+    the loops; with it, each column is the chosen tag's own, and the flags that follow its columns are its flags.
+    Before, the first .MV, .PV and .SV found were read whatever their tag: OP of one loop against PV of another."""
+    plain = _write_historian(tmp_path / "plain.txt", _rows())
+    lines = plain.read_text().splitlines()
+    other = [(ts, 60.0, 20.0, 20.0, 1) for ts, *_ in _rows()]
+    y = _write_historian(tmp_path / "y.txt", other).read_text().splitlines()
+    joined = [lines[0], lines[1],
+              "tagname\tY.MV\tY.PV\tY.SV\tY.MODE\tbOpOFL\tbPvOFL\tbSpOFL\tbAutOFL\t"
+              "X.MV\tX.PV\tX.SV\tX.MODE\tbOpOFL\tbPvOFL\tbSpOFL\tbAutOFL",
+              lines[3] + "\t" + "\t".join(lines[3].split("\t")[1:]), lines[4],
+              *[a + "\t" + "\t".join(b.split("\t")[1:]) for a, b in zip(y[5:], lines[5:], strict=True)]]
+    path = _write_text(tmp_path / "two.txt", "\r\n".join(joined) + "\r\n")
+    with pytest.raises(LoopDataError, match=r"two.txt line 3: the export holds 2 loops \(Y, X\): choose one with "
+                                            r"--tag$"):
+        read_loop(path)
+    x, whole = read_loop(path, tag="x"), read_loop(plain)
+    assert x.tag == "X" and np.array_equal(x.op, whole.op) and np.array_equal(x.pv, whole.pv)
+    assert np.array_equal(read_loop(path, tag="Y").op, np.full(300, 60.0))
+    with pytest.raises(LoopDataError, match=r"line 3: no loop 'Z' among the tags \(loops: Y, X\)$"):
+        read_loop(path, tag="Z")
+    with pytest.raises(LoopDataError, match=r"a loop CSV holds one loop; --tag chooses the loop of a historian export"):
+        read_loop(_write_csv(tmp_path / "loop.csv"), tag="X")
+    flagged = [*joined[:5], *[ln if j != 100 else "\t".join([*ln.split("\t")[:13], "1", "1", "0", "0"])
+                              for j, ln in enumerate(joined[5:])]]
+    x = read_loop(_write_text(tmp_path / "flagged.txt", "\r\n".join(flagged) + "\r\n"), tag="X")
+    assert x.notes[0].startswith("1 sample(s) carry a value the export's status flags mark (OP 1, PV 1; first at "
+                                 "sample 101)")

@@ -1,4 +1,5 @@
-"""``thermovalve loop-diagnose LOOP.csv --json OUT.json [--report DIR] [--quantify] [--force]`` (docs/loops.md)."""
+"""``thermovalve loop-diagnose LOOP.csv --json OUT.json [--report DIR] [--quantify] [--tag TAG] [--force]``
+(docs/loops.md)."""
 
 from __future__ import annotations
 
@@ -27,6 +28,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--rule", choices=RULES, default=DEFAULT_RULE,
                    help="the detection's decision: horch (default; Horch's test as published) or learned (the "
                    "shape tests combined by a logistic regression fitted on simulated loops; docs/loops.md)")
+    p.add_argument("--tag", default=None,
+                   help="the loop to read from a historian export that holds several (its tag, before .MV/.PV/.SV)")
     add_force(p)
     p.set_defaults(func=_cmd)
 
@@ -48,7 +51,7 @@ def _cmd(args: argparse.Namespace) -> int:
         report_dir = outs.add_dir(args.report, "--report")
         for name in (*FIGURES, "report.md"):
             outs.add(report_dir / name, "report file")
-    loop = read_loop(args.loop)
+    loop = read_loop(args.loop, tag=args.tag)
     with stage_progress(4, "loop") as tick:
         diag = diagnose_loop(loop, quantify=True if args.quantify else None, rule=args.rule, progress=tick)
     with outs:

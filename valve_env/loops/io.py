@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from functools import partial
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -348,32 +349,57 @@ def historian_flags(cols: dict[str, np.ndarray], flagged: dict[str, np.ndarray])
                  "it and is not a new sample")
 
 
-def read_historian(path: str | Path,
-                   lines: list[str] | None = None) -> tuple[dict[str, np.ndarray], str, list[str]]:
+def _no_loop(p: Path, why: str) -> NoReturn:
+    raise LoopDataError(f"{p} line 3: {why}")
+
+
+def historian_loops(names: list[str]) -> dict[str, dict[str, int]]:
+    """The loops that line 3 of a historian export names (``names``, its fields): each tag (the name before the
+    suffix) with the column of each role it has (:data:`HISTORIAN_SUFFIXES`, the first suffix found, in any case),
+    in the order of their first column."""
+    loops: dict[str, dict[str, int]] = {}
+    for role, suffixes in HISTORIAN_SUFFIXES.items():
+        for sfx in suffixes:
+            for i, n in enumerate(names):
+                if len(n) > len(sfx) and n.upper().endswith(sfx):
+                    loops.setdefault(n[:-len(sfx)], {}).setdefault(role, i)
+    return dict(sorted(loops.items(), key=lambda kv: min(kv[1].values())))
+
+
+def read_historian(path: str | Path, lines: list[str] | None = None,
+                   tag: str | None = None) -> tuple[dict[str, np.ndarray], str, list[str]]:
     """Columns of a plant-historian export (the format of the real loops; see the module doc), the tag and the notes
     of what was read as other than data (a last line cut off mid-write). ``lines``: the file's, where they have been
-    read."""
+    read. An export of several loops (line 3 names the tags of more than one) is read for the loop ``tag``, and
+    refused in one line that names its loops where no ``tag`` is given."""
     p = Path(path)
     lines, notes = _text_lines(p) if lines is None else (lines, [])
     if len(lines) < 6 or not lines[0].startswith("PROCESSDATA"):
         raise LoopDataError(f"{p}: not a historian export (first line should start with PROCESSDATA)")
     names = [n.strip() for n in lines[2].split("\t")]
-
-    def column(*suffixes: str) -> int | None:  # the first tag with the first suffix found, in any case
-        return next((i for sfx in suffixes for i, n in enumerate(names) if n.upper().endswith(sfx)), None)
-
-    found = {role: column(*sfx) for role, sfx in HISTORIAN_SUFFIXES.items()}
-    lacking = [f"<tag>{'/'.join(HISTORIAN_SUFFIXES[r])} ({what})" for r, what in
-               (("op", "controller output"), ("pv", "process variable"), ("sp", "set point")) if found[r] is None]
+    loops = historian_loops(names)
+    whole = [t for t, roles in loops.items() if {"op", "pv", "sp"} <= set(roles)]
+    if tag is not None:
+        tag = next((t for t in loops if t.upper() == tag.upper()), None) or \
+            _no_loop(p, f"no loop {tag!r} among the tags (loops: {', '.join(whole) or 'none'})")
+    elif len(whole) > 1:
+        _no_loop(p, f"the export holds {len(whole)} loops ({', '.join(whole)}): choose one with --tag")
+    else:
+        tag = whole[0] if whole else next((t for t, roles in loops.items() if "op" in roles), None)
+    found = loops.get(tag, {}) if tag is not None else {}
+    lacking = [f"{tag if tag is not None else '<tag>'}{'/'.join(HISTORIAN_SUFFIXES[r])} ({what})" for r, what in
+               (("op", "controller output"), ("pv", "process variable"), ("sp", "set point")) if r not in found]
     if lacking:
         have = ", ".join(repr(n) for n in names[1:] if n and "." in n) or "none"
-        raise LoopDataError(f"{p} line 3: no {' and no '.join(lacking)} among the tags (read: {have})")
-    i_op, i_pv, i_sp, i_mode = found["op"], found["pv"], found["sp"], found["mode"]
-    assert i_op is not None and i_pv is not None and i_sp is not None
+        _no_loop(p, f"no {' and no '.join(lacking)} among the tags (read: {have})")
+    assert tag is not None
+    i_op, i_pv, i_sp, i_mode = found["op"], found["pv"], found["sp"], found.get("mode")
+    # the status flags that follow the loop's own columns (in a one-loop export, wherever they are)
+    start = min(found.values())
     flag_at = {role: i for role, prefix in HISTORIAN_FLAGS.items()
-               for i in [next((j for j, n in enumerate(names) if n.upper().startswith(prefix)), None)] if i is not None}
+               for i in [next((j for j in [*range(start, len(names)), *(range(start) if len(loops) == 1 else [])]
+                               if names[j].upper().startswith(prefix)), None)] if i is not None}
     flags: dict[str, list[bool]] = {role: [] for role in flag_at}
-    tag = names[i_op].rsplit(".", 1)[0]
     t0: datetime | None = None
     cols: dict[str, list[float]] = {"time_s": [], "sp": [], "pv": [], "op": []}
     if i_mode is not None:
@@ -409,9 +435,10 @@ def read_historian(path: str | Path,
     return read, tag, [*notes, *([note] if note else [])]
 
 
-def read_loop(path: str | Path) -> LoopData:
+def read_loop(path: str | Path, tag: str | None = None) -> LoopData:
     """Read either format (detected from the first line), check it, drop manual-mode samples and
-    return a :class:`LoopData` on a uniform grid."""
+    return a :class:`LoopData` on a uniform grid. ``tag``: the loop of a historian export that holds several (a
+    loop CSV holds one, and takes none)."""
     p = Path(path)
     if not p.exists():
         raise LoopDataError(f"{p}: no such file")
@@ -420,7 +447,9 @@ def read_loop(path: str | Path) -> LoopData:
     notes: list[str] = []
     lines, read_notes = _text_lines(p)
     if lines and lines[0].startswith("PROCESSDATA"):
-        cols, tag, notes = read_historian(p, lines)
+        cols, tag, notes = read_historian(p, lines, tag=tag)
+    elif tag is not None:
+        raise LoopDataError(f"{p}: a loop CSV holds one loop; --tag chooses the loop of a historian export")
     else:
         cols, tag, notes = read_loop_csv(p, lines)
     data = check_loop(cols, tag=tag, source=str(p))
