@@ -380,8 +380,9 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
     loops = historian_loops(names)
     whole = [t for t, roles in loops.items() if {"op", "pv", "sp"} <= set(roles)]
     if tag is not None:
-        tag = next((t for t in loops if t.upper() == tag.upper()), None) or \
-            _no_loop(p, f"no loop {tag!r} among the tags (loops: {', '.join(whole) or 'none'})")
+        asked, tag = tag, next((t for t in loops if t.upper() == tag.upper()), None)
+        if tag is None:
+            _no_loop(p, f"no loop {asked!r} among the tags (loops: {', '.join(whole) or 'none'})")
     elif len(whole) > 1:
         _no_loop(p, f"the export holds {len(whole)} loops ({', '.join(whole)}): choose one with --tag")
     else:
@@ -394,11 +395,14 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
         _no_loop(p, f"no {' and no '.join(lacking)} among the tags (read: {have})")
     assert tag is not None
     i_op, i_pv, i_sp, i_mode = found["op"], found["pv"], found["sp"], found.get("mode")
-    # the status flags that follow the loop's own columns (in a one-loop export, wherever they are)
+    # the status flags are the first that follow the loop's own columns (in a one-loop export, wherever they are)
     start = min(found.values())
-    flag_at = {role: i for role, prefix in HISTORIAN_FLAGS.items()
-               for i in [next((j for j in [*range(start, len(names)), *(range(start) if len(loops) == 1 else [])]
-                               if names[j].upper().startswith(prefix)), None)] if i is not None}
+    order = [*range(start, len(names)), *(range(start) if len(loops) == 1 else [])]
+    flag_at: dict[str, int] = {}
+    for role, prefix in HISTORIAN_FLAGS.items():
+        j = next((j for j in order if names[j].upper().startswith(prefix)), None)
+        if j is not None:
+            flag_at[role] = j
     flags: dict[str, list[bool]] = {role: [] for role in flag_at}
     t0: datetime | None = None
     cols: dict[str, list[float]] = {"time_s": [], "sp": [], "pv": [], "op": []}
