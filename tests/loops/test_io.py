@@ -542,6 +542,21 @@ def test_a_historians_tags_in_lower_case_or_as_op_and_sp_are_read(tmp_path: Path
         read_loop(_write_text(tmp_path / "no_sp.txt", no_sp))
 
 
+def test_an_export_without_its_description_or_scale_line_or_with_a_mode_by_name_is_read(tmp_path: Path) -> None:
+    """An export that leaves out line 4 (``desc ...``) or line 5 (``fsMax=...``): its first sample was taken for a
+    header line (the loop came out one sample short); now the data start at the first of lines 4 and 5 that begins
+    with a timestamp. A MODE written as a name (``AUTO``, as the loop CSV reads it) was refused as not a number."""
+    plain = read_loop(_write_historian(tmp_path / "plain.txt", _rows()))
+    lines = (tmp_path / "plain.txt").read_text().splitlines()
+    for name, kept in (("nodesc.txt", [*lines[:3], *lines[4:]]), ("nofs.txt", [*lines[:4], *lines[5:]]),
+                       ("neither.txt", [*lines[:3], *lines[5:]]),
+                       ("auto.txt", [*lines[:5], *[ln.replace("\t1\t0\t0\t0\t0", "\tAUTO\t0\t0\t0\t0")
+                                                   for ln in lines[5:]]])):
+        loop = read_loop(_write_text(tmp_path / name, "\r\n".join(kept) + "\r\n"))
+        assert loop.n == plain.n == 300 and np.array_equal(loop.op, plain.op), name
+        assert np.array_equal(loop.time_s, plain.time_s), name
+
+
 def test_an_export_of_several_loops_is_read_for_the_loop_tag_chooses(tmp_path: Path) -> None:
     """A historian export whose line 3 names two loops' tags (Y's first): without ``tag``, refused in one line naming
     the loops; with it, each column is the chosen tag's own, and the flags that follow its columns are its flags.

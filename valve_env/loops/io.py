@@ -411,12 +411,13 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
     stamp: Callable[[str], datetime] | None = None
     first = ""
     last = max((j for j, line in enumerate(lines, start=1) if line.strip()), default=0)
-    for lineno, line in enumerate(lines[5:], start=6):
+    begin = _historian_data_start(lines)
+    for lineno, line in enumerate(lines[begin:], start=begin + 1):
         if not line.strip():
             continue
         f = line.split("\t")
         if len(f) < len(names):
-            if lineno == last and lineno > 6:
+            if lineno == last and lineno > begin + 1:
                 notes.append(cut_line_note(lineno, len(f), len(names)))
                 continue
             raise LoopDataError(f"{p} line {lineno}: {len(f)} fields, line 3 names {len(names)}")
@@ -430,13 +431,30 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
         t0 = ts if t0 is None else t0
         cols["time_s"].append((ts - t0).total_seconds())
         for c, i in (("op", i_op), ("pv", i_pv), ("sp", i_sp), ("mode", i_mode)):
-            if i is not None:
-                cols[c].append(_float(f[i].strip(), f"{p} line {lineno}, column {names[i]}"))
+            if i is None:
+                continue
+            cell = f[i].strip()
+            cols[c].append(MODE_NAMES[cell.lower()] if c == "mode" and cell.lower() in MODE_NAMES else
+                           _float(cell, f"{p} line {lineno}, column {names[i]}"))
         for c, i in flag_at.items():
             flags[c].append(f[i].strip() not in ("", "0"))
     read, note = historian_flags({c: np.asarray(v, dtype=float) for c, v in cols.items()},
                                  {c: np.asarray(v, dtype=bool) for c, v in flags.items()})
     return read, tag, [*notes, *([note] if note else [])]
+
+
+def _historian_data_start(lines: list[str]) -> int:
+    """The index of a historian export's first data line: after the tags (line 3), its description (``desc ...``) and
+    scale (``fsMax=...``) lines, or the first of lines 4 and 5 whose first field is a timestamp in the format line 1
+    declares, where an export leaves either out (its first sample was taken for a header line)."""
+    for j in (3, 4):
+        cell = lines[j].split("\t")[0].strip() if j < len(lines) else ""
+        try:
+            _stamp_reader(lines[0], cell, "")(cell)
+        except (LoopDataError, ValueError):
+            continue
+        return j
+    return 5
 
 
 def read_loop(path: str | Path, tag: str | None = None) -> LoopData:
