@@ -346,11 +346,12 @@ class CsvDialect:
         """A line's fields, stripped (no quoting: for the header and the dialect's checks)."""
         return [f.strip().strip('"') for f in (line.split() if self.sep == " " else line.split(self.sep))]
 
-    def count(self, line: str) -> int:
-        """How many fields a data line holds, a quoted field counted once whatever it holds."""
+    def cells(self, line: str) -> list[str]:
+        """A line's fields as CSV reads them, unstripped: a quoted field is one field whatever it holds, and a stray
+        quote spoils its own line only."""
         import csv
 
-        return len(line.split()) if self.sep == " " else len(next(csv.reader([line], delimiter=self.sep), []))
+        return line.split() if self.sep == " " else next(csv.reader([line], delimiter=self.sep), [])
 
     @property
     def pandas_sep(self) -> str:
@@ -494,7 +495,7 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
         data.append(line)
     # a last line with fewer fields than the one before it was cut off mid-write (a logger stopped or lost power),
     # perhaps within a number, so none of its cells is taken
-    fields = [dialect.count(line) for line in data[-2:]]
+    fields = [len(dialect.cells(line)) for line in data[-2:]]
     cut = len(data) > 2 and fields[1] < fields[0]
     if cut:
         cut_line, cut_fields = row_lines.pop(), (fields[1], fields[0])
@@ -526,10 +527,7 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
 def _check_header(p: Path, dialect: CsvDialect, line: str) -> None:
     """Refuse a header that names a column twice: pandas renames the second copy (``T_tank_C.1``), so
     :func:`validate_run` would silently take the first. ``line``: the header's line."""
-    import csv
-
-    header = [c.strip() for c in (line.split() if dialect.sep == " " else
-                                  next(csv.reader([line], delimiter=dialect.sep), []))]
+    header = [c.strip() for c in dialect.cells(line)]
     dup = sorted({c for c in header if header.count(c) > 1})
     if dup:
         raise DataError(f"{p}: duplicate column(s) {dup} in the header")

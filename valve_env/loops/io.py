@@ -155,6 +155,14 @@ def _float(text: str, where: str) -> float:
         raise LoopDataError(f"{where}: {text!r} is not a number{decimal_mark_hint(text)}") from None
 
 
+def _cell_value(column: str, cell: str, where: str) -> float:
+    """A cell of either format as a number: a mode may be written as a name (:data:`MODE_NAMES`), the rest by
+    :func:`_float`."""
+    if column == "mode" and cell.lower() in MODE_NAMES:
+        return MODE_NAMES[cell.lower()]
+    return _float(cell, where)
+
+
 def _text_lines(p: Path) -> tuple[list[str], list[str]]:
     """The lines of a loop record's file (:func:`valve_env.data_io.read_text`: UTF-8, UTF-16 or Windows-1252,
     gzip-compressed or not) and the note of NUL bytes dropped from its end; a file that is not text is refused in
@@ -181,8 +189,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     text = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
     # each line its own row: a loop CSV holds no field across lines, and a stray quote then spoils its own line
     # (named below by its number) instead of running to the file's end
-    rows = [ln.split() for ln in text] if dialect.sep == " " else \
-        [next(csv.reader([ln], delimiter=dialect.sep), []) for ln in text]
+    rows = [dialect.cells(ln) for ln in text]
     if not rows:
         raise LoopDataError(f"{p}: empty file")
     header = written = [h.strip() for h in rows[0]]
@@ -236,11 +243,8 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
             raise LoopDataError(f"{p} line {lineno}: {len(row)} fields, the header has {len(header)}")
         for c in wanted:
             cell = row[idx[c]].strip()
-            if c == "mode" and cell.lower() in MODE_NAMES:
-                cols[c].append(MODE_NAMES[cell.lower()])
-                continue
-            cols[c].append(_float(decimal_comma(cell) if dialect.decimal == "," else cell,
-                                  f"{p} line {lineno}, column {c}"))
+            cols[c].append(_cell_value(c, decimal_comma(cell) if dialect.decimal == "," else cell,
+                                       f"{p} line {lineno}, column {c}"))
     if comments:
         notes.append(f"{len(comments)} comment line(s) among the data (lines {short_list(comments)}): skipped")
     if headers:
@@ -433,9 +437,7 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
         for c, i in (("op", i_op), ("pv", i_pv), ("sp", i_sp), ("mode", i_mode)):
             if i is None:
                 continue
-            cell = f[i].strip()
-            cols[c].append(MODE_NAMES[cell.lower()] if c == "mode" and cell.lower() in MODE_NAMES else
-                           _float(cell, f"{p} line {lineno}, column {names[i]}"))
+            cols[c].append(_cell_value(c, f[i].strip(), f"{p} line {lineno}, column {names[i]}"))
         for c, i in flag_at.items():
             flags[c].append(f[i].strip() not in ("", "0"))
     read, note = historian_flags({c: np.asarray(v, dtype=float) for c, v in cols.items()},
@@ -466,7 +468,6 @@ def read_loop(path: str | Path, tag: str | None = None) -> LoopData:
         raise LoopDataError(f"{p}: no such file")
     if p.is_dir():
         raise LoopDataError(f"{p}: is a directory")
-    notes: list[str] = []
     lines, read_notes = _text_lines(p)
     if lines and lines[0].startswith("PROCESSDATA"):
         cols, tag, notes = read_historian(p, lines, tag=tag)
