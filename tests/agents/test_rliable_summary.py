@@ -54,3 +54,21 @@ def test_task_leaderboard_refuses_runs_scored_on_other_seeds() -> None:
     assert len(scratch_rows(runs, list(range(5000, 5005)))) == 2
     with pytest.raises(ValueError, match="5000-5009"):
         scratch_rows(runs, list(range(5000, 5010)))
+
+
+def test_the_hundred_times_budget_table_is_what_its_stored_runs_give() -> None:
+    """docs/agents.md, "A hundred times the budget (PPO)": each task's gap-score IQM and interval in the table is
+    the rliable summary of the stored per-run scores (docs/scratch_ppo_100x_runs.csv), to the printed digits."""
+    docs = Path(__file__).resolve().parents[2] / "docs"
+    s = summarise(pd.read_csv(docs / "scratch_ppo_100x_runs.csv")).set_index("task")
+    text = (docs / "agents.md").read_text(encoding="utf-8").split("### A hundred times the budget (PPO)")[1]
+    text = text.split("\n#")[0]  # the section alone
+    rows = {line.split("|")[1].strip(): line.split("|")[4] for line in text.splitlines()
+            if line.startswith("| ") and "-v" in line}
+    assert len(rows) == 5
+    for task, cell in rows.items():
+        point, lo, hi = (float(v) for v in cell.replace("*", "").replace("[", " ").replace("]", " ")
+                         .replace(",", " ").split())
+        got = s.loc[f"ThermoValve{task}"]
+        assert got["gap_score_iqm"] == pytest.approx(point, rel=5e-3, abs=5e-4)
+        assert (got["gap_score_lo"], got["gap_score_hi"]) == pytest.approx((lo, hi), rel=5e-3, abs=5e-4)
