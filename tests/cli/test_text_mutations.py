@@ -1,9 +1,10 @@
 """Both readers under random edits of a valid file, the way files get damaged or hand-edited: a line
 dropped, repeated, moved or cut short, a character inserted or deleted, a cell replaced by a marker, a
 field deleted or added, a BOM, CRLF line ends, the file cut off. Whatever the edit, the reader either
-reads the file or refuses it with its own error in one line; never another exception (the traceback a
-user would see as ``TypeError: ...`` and exit 2 from the CLI's catch-all), and the file is left as it
-was. docs/reference.md, section 2 (measured runs) and docs/loops.md, "Input formats" (loop records).
+reads the file or refuses it with its own error in one line; never another exception (which the CLI
+would print as a bare ``TypeError: ...`` or ``IndexError: ...`` line that names no row or column), and
+the file is left as it was. docs/reference.md, section 2 (measured runs) and docs/loops.md, "Input
+formats" (loop records).
 
 Hypothesis draws the edits (``derandomize``: the same cases on every run)."""
 
