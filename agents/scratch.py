@@ -13,7 +13,8 @@ time, into ``<out>/runs/<task>/<algo>_s<seed>/`` (its resolved ``config.yml``, `
 ``run.json``, monitor CSVs and the best checkpoint on the evaluation seeds 10000+); a finished run
 is skipped. ``evaluate`` loads each run's best checkpoint (agents.loader) and runs it on the held-out
 seeds ``--seed .. --seed + episodes - 1`` beside the task's baselines (``pi``, ``self_acting``) and
-the oracle's cached episodes (``thermovalve benchmark``'s ``episodes.csv``), and writes:
+the oracle's cached episodes (``thermovalve benchmark``'s ``episodes.csv``, else the tracked board's
+``docs/task_episodes.csv``, which holds them on 5000-5004; without them it refuses), and writes:
 
 * ``runs.csv`` / ``runs.json``: one row per run: algo, task, training seed, mean cost (= -return)
   over the held-out episodes, its gap score (0 = pi, 1 = oracle: valve_env.tasks.benchmark) and
@@ -47,6 +48,10 @@ EVAL_EPISODES = 5
 DEFAULT_OUT = Path("out") / "scratch"
 #: the from-scratch hyperparameters (agents/configs/scratch/<algo>.yml)
 CONFIG_DIR = Path(__file__).resolve().parent / "configs" / "scratch"
+#: the tracked task board's episodes (thermovalve task-leaderboard --docs), which hold the oracle's
+#: on the held-out seeds 5000-5004: the last place ``evaluate`` looks for the oracle
+BOARD_EPISODES = Path(__file__).resolve().parents[1] / "docs" / "task_episodes.csv"
+ORACLE_CACHE = f"out/benchmark/episodes.csv,out/benchmark_*/episodes.csv,{BOARD_EPISODES}"
 #: the baselines every run is scored against (the gap score needs pi, the score self_acting)
 REFERENCES: tuple[str, ...] = ("pi", "self_acting")
 
@@ -263,7 +268,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     e.add_argument("--out", default=str(DEFAULT_OUT))
     e.add_argument("--episodes", type=int, default=EVAL_EPISODES)
     e.add_argument("--seed", type=int, default=EVAL_SEED)
-    e.add_argument("--oracle-cache", default="out/benchmark/episodes.csv,out/benchmark_*/episodes.csv")
+    e.add_argument("--oracle-cache", default=ORACLE_CACHE,
+                   help="where the oracle's held-out episodes are read from: thermovalve benchmark's episodes.csv "
+                        "files (globs), then the tracked board's docs/task_episodes.csv")
     e.add_argument("--force", action="store_true", help="replace an earlier summary")
     c = sub.add_parser("curves", help="the learning curves of the runs (one figure, a panel per task)")
     c.add_argument("--out", default=str(DEFAULT_OUT))
@@ -305,6 +312,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     return train_all(algos, tasks, seeds, args.out, args.timesteps)
 
 
+def missing_oracle(cache: Sequence[str], tasks: Sequence[str], seeds: Sequence[int]) -> None:
+    """Refuse (ValueError, one line) before any episode runs where the cache lacks the oracle's episodes of a task
+    on exactly ``seeds``: without them every gap score and score is NaN."""
+    from agents.task_leaderboard import cache_files, oracle_episodes
+
+    cache_files(cache)  # a file that is not a benchmark's episodes.csv is named
+    lacking = [t for t in tasks if oracle_episodes(cache, t, seeds) is None]
+    if lacking:
+        raise ValueError(f"no oracle episodes on seeds {seeds[0]}-{seeds[-1]} for {', '.join(lacking)} in "
+                         f"--oracle-cache {','.join(cache)}: run thermovalve benchmark --controllers oracle "
+                         f"--episodes {len(seeds)} --seed {seeds[0]} --out out/benchmark_oracle (its episodes.csv "
+                         "is then found)")
+
+
 def evaluate_main(args: argparse.Namespace) -> int:
     import shlex
 
@@ -316,13 +337,16 @@ def evaluate_main(args: argparse.Namespace) -> int:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
         if not run_dirs(args.out):
             raise ValueError(f"no finished run under {Path(args.out) / 'runs'} (python -m agents.scratch train)")
+        cache = [c for c in args.oracle_cache.split(",") if c]
+        missing_oracle(cache, sorted({task for task, _, _, _ in run_dirs(args.out)}),
+                       list(range(args.seed, args.seed + args.episodes)))
         outs = OutputSet(force=args.force)
         names = ("runs.csv", "runs.json", "episodes.csv", "summary.csv", "summary.md")
         paths = dict(zip(names, outs.add_in_dir(args.out, names), strict=True))
     except (ValueError, OutputError) as exc:
         print(f"python -m agents.scratch: error: {exc}", file=sys.stderr)
         return 2
-    runs, episodes = evaluate_runs(args.out, args.episodes, args.seed, [c for c in args.oracle_cache.split(",") if c])
+    runs, episodes = evaluate_runs(args.out, args.episodes, args.seed, cache)
     summary = summarise(runs)
     meta = {"command": "python -m agents.scratch " + shlex.join(sys.argv[1:]),
             "budget": int(runs["n_timesteps"].max()), "train_seeds": ", ".join(map(str, sorted(runs["seed"].unique()))),

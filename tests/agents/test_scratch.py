@@ -42,3 +42,27 @@ def test_a_budget_other_than_the_configs_is_passed_to_every_run(tmp_path: Path, 
     assert main(["train", "--timesteps", "5", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--timesteps" in err[0]
+
+
+def test_evaluate_refuses_without_the_oracles_episodes_before_any_episode(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """Without the oracle's held-out episodes every gap score and score would be NaN: `evaluate` refuses in one line
+    naming the task and the command that makes them, before it runs an episode or loads a run (the run here has no
+    model). The default cache ends with the tracked board's episodes, which hold the oracle on 5000-5004 for every
+    current task, so a fresh clone needs no benchmark run for the default seeds."""
+    import json
+
+    from agents.scratch import ORACLE_CACHE, main, missing_oracle
+
+    d = run_dir(tmp_path, "ThermoValveSmallCylinder-v0", "ppo", 0)
+    d.mkdir(parents=True)
+    (d / "run.json").write_text(json.dumps({"finished_utc": "2026-12-02T00:00:00Z", "num_timesteps": 10}))
+    empty = tmp_path / "none.csv"
+    assert main(["evaluate", "--out", str(tmp_path), "--oracle-cache", str(empty)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no oracle episodes on seeds 5000-5004 for ThermoValveSmallCylinder-v0" in err[0]
+    assert "thermovalve benchmark --controllers oracle --episodes 5 --seed 5000" in err[0]
+    assert not (tmp_path / "runs.csv").exists()
+    cache = ORACLE_CACHE.split(",")
+    missing_oracle(cache, list(valve_env.CURRENT_TASK_IDS), list(range(5000, 5005)))  # found: no error
+    with pytest.raises(ValueError, match="no oracle episodes on seeds 6000-6004"):
+        missing_oracle(cache, ["ThermoValveSmallCylinder-v0"], list(range(6000, 6005)))
