@@ -48,7 +48,7 @@ EVAL_EPISODES = 5
 DEFAULT_OUT = Path("out") / "scratch"
 #: the from-scratch hyperparameters (agents/configs/scratch/<algo>.yml)
 CONFIG_DIR = Path(__file__).resolve().parent / "configs" / "scratch"
-#: the tracked task board's episodes (thermovalve task-leaderboard --docs), which hold the oracle's
+#: the tracked task board's episodes (thermovalve task-leaderboard --docs), which hold the oracle's episodes
 #: on the held-out seeds 5000-5004: the last place ``evaluate`` looks for the oracle
 BOARD_EPISODES = Path(__file__).resolve().parents[1] / "docs" / "task_episodes.csv"
 ORACLE_CACHE = f"out/benchmark/episodes.csv,out/benchmark_*/episodes.csv,{BOARD_EPISODES}"
