@@ -37,7 +37,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -156,12 +156,13 @@ def _episodes_cached(d: Path, task: str, algo: str, episodes: int, seed: int) ->
     return df
 
 
-def evaluate_runs(out: str | Path, episodes: int, seed: int, cache: Sequence[str]) -> tuple[Any, Any]:
+def evaluate_runs(out: str | Path, episodes: int, seed: int, oracle: Mapping[str, Any]) -> tuple[Any, Any]:
     """(runs, episodes): one row per finished run with its held-out cost, gap score, score and
-    training cost; the per-episode rows of the runs and of the references."""
+    training cost; the per-episode rows of the runs and of the references. ``oracle``: each run's task's
+    oracle episodes on the same seeds (:func:`oracle_for`)."""
     import pandas as pd
 
-    from agents.task_leaderboard import ORACLE, oracle_episodes
+    from agents.task_leaderboard import ORACLE
     from valve_env.controllers import make_controller
     from valve_env.evaluation.evaluator import run_episodes
     from valve_env.tasks.benchmark import gap_scores, normalised_scores
@@ -171,9 +172,7 @@ def evaluate_runs(out: str | Path, episodes: int, seed: int, cache: Sequence[str
     for task, algo, s, d in run_dirs(out):
         if task not in refs:
             refs[task] = {n: run_episodes(make_controller(n, task), task, episodes, seed) for n in REFERENCES}
-            orc = oracle_episodes(cache, task, seeds)
-            if orc is not None:
-                refs[task][ORACLE] = orc
+            refs[task][ORACLE] = oracle[task]
             frames += [df.assign(task=task, controller=n, algo="", train_seed=-1) for n, df in refs[task].items()]
         df = _episodes_cached(d, task, algo, episodes, seed)
         frames.append(df.assign(task=task, controller=f"{algo}_s{s}", algo=algo, train_seed=s))
@@ -184,7 +183,7 @@ def evaluate_runs(out: str | Path, episodes: int, seed: int, cache: Sequence[str
         row = {"algo": algo, "task": task, "seed": s, "cost": cost["run"],
                "gap_score": gap_scores(cost)["run"], "score": normalised_scores(cost)["run"],
                "tdis_Kh": float(df["tdis_Kh"].mean()), "pi_cost": cost["pi"],
-               "oracle_cost": cost.get(ORACLE, float("nan")), "n_timesteps": int(meta["num_timesteps"]),
+               "oracle_cost": cost[ORACLE], "n_timesteps": int(meta["num_timesteps"]),
                # the checkpoint scored: 0 = the untrained policy (its mean action is the middle of the
                # setting's range, 60 degC) was the best on the evaluation seeds 10000+
                "best_checkpoint_step": (meta.get("best_eval") or {}).get("timesteps"),
@@ -312,18 +311,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     return train_all(algos, tasks, seeds, args.out, args.timesteps)
 
 
-def missing_oracle(cache: Sequence[str], tasks: Sequence[str], seeds: Sequence[int]) -> None:
-    """Refuse (ValueError, one line) before any episode runs where the cache lacks the oracle's episodes of a task
-    on exactly ``seeds``: without them every gap score and score is NaN."""
-    from agents.task_leaderboard import cache_files, oracle_episodes
+def oracle_for(cache: Sequence[str], tasks: Sequence[str], seeds: Sequence[int]) -> dict[str, Any]:
+    """Each task's oracle episodes on exactly ``seeds``, read once from the cache; refused (ValueError, one line)
+    before any episode runs where a task has none: without them every gap score and score is NaN."""
+    from agents.task_leaderboard import oracle_episodes
 
-    cache_files(cache)  # a file that is not a benchmark's episodes.csv is named
-    lacking = [t for t in tasks if oracle_episodes(cache, t, seeds) is None]
+    found = {t: oracle_episodes(cache, t, seeds) for t in tasks}
+    lacking = [t for t, df in found.items() if df is None]
     if lacking:
         raise ValueError(f"no oracle episodes on seeds {seeds[0]}-{seeds[-1]} for {', '.join(lacking)} in "
                          f"--oracle-cache {','.join(cache)}: run thermovalve benchmark --controllers oracle "
                          f"--episodes {len(seeds)} --seed {seeds[0]} --out out/benchmark_oracle (its episodes.csv "
                          "is then found)")
+    return found
 
 
 def evaluate_main(args: argparse.Namespace) -> int:
@@ -335,18 +335,18 @@ def evaluate_main(args: argparse.Namespace) -> int:
     try:
         if args.episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-        if not run_dirs(args.out):
+        found = run_dirs(args.out)
+        if not found:
             raise ValueError(f"no finished run under {Path(args.out) / 'runs'} (python -m agents.scratch train)")
-        cache = [c for c in args.oracle_cache.split(",") if c]
-        missing_oracle(cache, sorted({task for task, _, _, _ in run_dirs(args.out)}),
-                       list(range(args.seed, args.seed + args.episodes)))
+        oracle = oracle_for([c for c in args.oracle_cache.split(",") if c], sorted({task for task, *_ in found}),
+                            list(range(args.seed, args.seed + args.episodes)))
         outs = OutputSet(force=args.force)
         names = ("runs.csv", "runs.json", "episodes.csv", "summary.csv", "summary.md")
         paths = dict(zip(names, outs.add_in_dir(args.out, names), strict=True))
     except (ValueError, OutputError) as exc:
         print(f"python -m agents.scratch: error: {exc}", file=sys.stderr)
         return 2
-    runs, episodes = evaluate_runs(args.out, args.episodes, args.seed, cache)
+    runs, episodes = evaluate_runs(args.out, args.episodes, args.seed, oracle)
     summary = summarise(runs)
     meta = {"command": "python -m agents.scratch " + shlex.join(sys.argv[1:]),
             "budget": int(runs["n_timesteps"].max()), "train_seeds": ", ".join(map(str, sorted(runs["seed"].unique()))),

@@ -51,7 +51,7 @@ def test_evaluate_refuses_without_the_oracles_episodes_before_any_episode(tmp_pa
     current task, so a fresh clone needs no benchmark run for the default seeds."""
     import json
 
-    from agents.scratch import ORACLE_CACHE, main, missing_oracle
+    from agents.scratch import ORACLE_CACHE, main, oracle_for
 
     d = run_dir(tmp_path, "ThermoValveSmallCylinder-v0", "ppo", 0)
     d.mkdir(parents=True)
@@ -63,6 +63,6 @@ def test_evaluate_refuses_without_the_oracles_episodes_before_any_episode(tmp_pa
     assert "thermovalve benchmark --controllers oracle --episodes 5 --seed 5000" in err[0]
     assert not (tmp_path / "runs.csv").exists()
     cache = ORACLE_CACHE.split(",")
-    missing_oracle(cache, list(valve_env.CURRENT_TASK_IDS), list(range(5000, 5005)))  # found: no error
+    oracle_for(cache, list(valve_env.CURRENT_TASK_IDS), list(range(5000, 5005)))  # found: no error
     with pytest.raises(ValueError, match="no oracle episodes on seeds 6000-6004"):
-        missing_oracle(cache, ["ThermoValveSmallCylinder-v0"], list(range(6000, 6005)))
+        oracle_for(cache, ["ThermoValveSmallCylinder-v0"], list(range(6000, 6005)))
