@@ -68,6 +68,45 @@ RANGES: dict[str, tuple[float, float, bool, str]] = {
     "ps_bar": (0.0, 100.0, True, "a static pressure, bar"),
     "x_mm": (-1.0, 50.0, False, "a valve opening, mm"),
 }
+#: what takes a temperature in kelvin, and one in degF, to degC
+KELVIN_TO_C, FAHRENHEIT_TO_C = "subtract 273.15", "convert with (v - 32) * 5 / 9"
+#: The water's density at 60 degC, kg/m3 (IAPWS-95 at 1 bar: 983.2), for the hint that takes a volume flow to kg/h.
+WATER_DENSITY_60C = 983.2
+#: Other units loggers write a column in (as :func:`unit_key` gives them), and how to take the column to the format's
+#: unit (:data:`UNITS`): the factor that multiplies the values, or a text where no factor does (an offset; a volume
+#: flow, which needs the water's density; a position in % of the stroke, which needs the valve's stroke).
+CONVERSIONS: dict[str, dict[str, float | str]] = {
+    "T_tank_C": {"k": KELVIN_TO_C, "kelvin": KELVIN_TO_C, "degf": FAHRENHEIT_TO_C, "f": FAHRENHEIT_TO_C},
+    "q_kgh": {"kg/s": 3600.0, "kgs": 3600.0, "kg/min": 60.0, "t/h": 1000.0, "th": 1000.0,
+              **{u: f"a volume flow: the mass flow is the volume flow times the water's density at its "
+                    f"temperature; at 60 degC multiply by {WATER_DENSITY_60C * f:.4g}"
+                 for u, f in (("m3/h", 1.0), ("m3h", 1.0), ("m³/h", 1.0), ("l/h", 1e-3), ("lh", 1e-3),
+                              ("l/min", 0.06), ("lmin", 0.06), ("lpm", 0.06), ("l/s", 3.6), ("ls", 3.6))}},
+    "dp_mbar": {"pa": 0.01, "kpa": 10.0, "bar": 1000.0, "bard": 1000.0, "psi": 68.94757, "psid": 68.94757,
+                "mh2o": 98.0665, "mwc": 98.0665, "mmh2o": 0.0980665, "mmwc": 0.0980665},
+    "ps_bar": {"pa": 1e-5, "kpa": 0.01, "kpag": 0.01, "mpa": 10.0, "mbar": 1e-3, "psi": 0.06894757,
+               "psig": 0.06894757},
+    "x_mm": {"um": 1e-3, "\u00b5m": 1e-3, "\u03bcm": 1e-3, "micron": 1e-3, "m": 1000.0, "cm": 10.0,
+             "%": f"a position in % of the stroke: multiply by the valve's stroke in mm over 100, "
+                  f"{ValveParams().stroke / 100:g} for the calibrated valve's {ValveParams().stroke:g} mm"},
+}
+CONVERSIONS["T_med_C"] = CONVERSIONS["T_tank_C"]  # CONVERSIONS["time_s"]: _TIME_FACTORS, below
+
+
+def factor(name: str, unit: str) -> float:
+    """The factor of :data:`CONVERSIONS` that takes column ``name`` from ``unit`` (as :func:`unit_key` gives it) to
+    the format's unit."""
+    f = CONVERSIONS[name][unit]
+    assert isinstance(f, float), (name, unit)
+    return f
+
+
+def scale_text(factor: float) -> str:
+    """``multiply by 10``, or ``divide by 1000`` for a factor below 1 whose inverse is a round number."""
+    inv = 1.0 / factor
+    return f"divide by {inv:g}" if factor < 1 and abs(inv - round(inv)) < 1e-9 * inv else f"multiply by {factor:g}"
+
+
 class OtherUnit(NamedTuple):
     """A unit a column may arrive in instead of the format's (:data:`OTHER_UNITS`)."""
 
@@ -91,24 +130,24 @@ class OtherUnit(NamedTuple):
 #: spikes of a record in degC from reading as degF. A controller's integer register holds a temperature in whole tenths
 #: of a degC (526 for 52.6 degC), where a record in kelvin has decimals.
 _TEMPERATURE_UNITS: tuple[OtherUnit, ...] = (
-    OtherUnit("kelvin", "subtract 273.15", 1.0, -273.15, 0.5),
-    OtherUnit("degF", "convert with (v - 32) * 5 / 9, and the other temperature column too", 5.0 / 9.0, -160.0 / 9.0,
-              0.1),
+    OtherUnit("kelvin", KELVIN_TO_C, 1.0, -273.15, 0.5),
+    OtherUnit("degF", f"{FAHRENHEIT_TO_C}, and the other temperature column too", 5.0 / 9.0, -160.0 / 9.0, 0.1),
     OtherUnit("tenths of a degC (a controller's integer register)", "divide by 10, and the other temperature column "
               "too", 0.1, 0.0, 0.5, integers=True))
 OTHER_UNITS: dict[str, tuple[OtherUnit, ...]] = {
     "T_tank_C": _TEMPERATURE_UNITS,
     "T_med_C": _TEMPERATURE_UNITS,
-    "dp_mbar": (OtherUnit("Pa", "divide by 100", 0.01, 0.0, 0.5),
+    "dp_mbar": (OtherUnit("Pa", scale_text(factor("dp_mbar", "pa")), factor("dp_mbar", "pa"), 0.0, 0.5),
                 OtherUnit("mbar with the sign reversed (the outlet's pressure minus the inlet's)", "negate the column",
                           -1.0, 0.0, 0.5)),
-    "ps_bar": (OtherUnit("kPa", "divide by 100", 0.01, 0.0, 0.5), OtherUnit("Pa", "divide by 100000", 1e-5, 0.0, 0.5)),
+    "ps_bar": tuple(OtherUnit(u, scale_text(factor("ps_bar", u.lower())), factor("ps_bar", u.lower()), 0.0, 0.5)
+                    for u in ("kPa", "Pa")),
 }
 #: Units of dp_mbar that the flow can reveal where x_mm is measured (:func:`_check_dp_unit`): the name, what to do
 #: and the factor to mbar. An SI logger writes Pa; the flow at a given opening grows as sqrt(dp), so a dp in Pa makes
 #: the flow a tenth of what the valve characteristic gives.
-DP_UNITS: tuple[tuple[str, str, float], ...] = (("Pa", "divide by 100", 0.01), ("kPa", "multiply by 10", 10.0),
-                                               ("bar", "multiply by 1000", 1000.0))
+DP_UNITS: tuple[tuple[str, str, float], ...] = tuple((u, scale_text(factor("dp_mbar", u.lower())),
+                                                      factor("dp_mbar", u.lower())) for u in ("Pa", "kPa", "bar"))
 #: The flow-characteristic check's tolerances: the median ratio of q_kgh to the characteristic's flow is "off" beyond a
 #: factor FLOW_OFF, and a unit explains it where it brings the ratio within a factor FLOW_EXPLAINED of 1 and the median
 #: dp within a factor DP_PLAUSIBLE of the valve's calibration dp (dp_k_sp), where the file's own median lies outside it
@@ -155,23 +194,48 @@ UNITS: dict[str, tuple[str, frozenset[str]]] = {
     "T_tank_C": ("degC", frozenset({"degc", "c", "celsius", "degcelsius", "oc"})),
     "T_med_C": ("degC", frozenset({"degc", "c", "celsius", "degcelsius", "oc"})),
     "q_kgh": ("kg/h", frozenset({"kg/h", "kgh", "kgh-1", "kg/hr", "kgperh"})),
-    "dp_mbar": ("mbar", frozenset({"mbar", "mbarg", "mbard"})),
+    "dp_mbar": ("mbar", frozenset({"mbar", "mbarg", "mbard", "hpa"})),
     "ps_bar": ("bar", frozenset({"bar", "barg"})),
     "x_mm": ("mm", frozenset({"mm"})),
 }
 #: The ways a logger writes an absolute pressure in bar (:func:`unit_key`): ps_bar is the static pressure over the
 #: ambient (docs/reference.md, section 1: dp_s = p_1 - p_0), and an absolute one is refused with what to subtract.
 ABSOLUTE_BAR = frozenset({"bara", "barabs", "barabsolute"})
+#: absolute pressures in bar or the other units of :data:`CONVERSIONS`' ps_bar
+ABSOLUTE_PRESSURE = ABSOLUTE_BAR | {"psia", "kpaa", "kpaabs", "mpaa"}
 
 
 def convert_to(name: str, unit: str) -> str:
     """What to do with column ``name`` given in ``unit``, a unit that is not the format's (:data:`UNITS`): the end of
-    the refusal."""
+    the refusal, with the factor or offset where :data:`CONVERSIONS` knows the unit."""
     want = UNITS[name][0]
-    if name == "ps_bar" and unit_key(unit) in ABSOLUTE_BAR:
+    key = unit_key(unit)
+    if name == "ps_bar" and key in ABSOLUTE_PRESSURE:
         return ("an absolute pressure: the format's ps_bar is the static pressure over the ambient (gauge; "
                 "docs/reference.md, section 1: dp_s = p_1 - p_0); subtract the ambient pressure, about 1.013 bar")
-    return f"the format's unit is {want} (docs/reference.md, section 2); convert the column to {want}"
+    how = CONVERSIONS[name].get(key)
+    how_text = "" if how is None else f" ({how if isinstance(how, str) else scale_text(how)})"
+    return f"the format's unit is {want} (docs/reference.md, section 2); convert the column to {want}{how_text}"
+
+
+def unit_name_hint(missing: str, columns: list[str]) -> str:
+    """Where a required column is missing and the header has its quantity named with another unit that
+    :data:`CONVERSIONS` knows (``T_tank_K``, ``dp_kPa``, ``q_m3h``, ``x_um``), the refusal's hint: which column, and
+    the factor or offset to the format's unit. Else ''."""
+    stem = missing.rsplit("_", 1)[0]
+    for col in columns:
+        m = re.match(rf"^{re.escape(stem)}[\s_.-]*(?P<u>.+)$", str(col).strip(), re.IGNORECASE)
+        if not m:
+            continue
+        unit = m.group("u").strip("[]() \t")
+        key = unit_key(unit)
+        if missing == "ps_bar" and key in ABSOLUTE_PRESSURE:
+            return f"; the header has {col!r}: {convert_to(missing, unit)}, and name it {missing}"
+        how = CONVERSIONS[missing].get(key)
+        if how is not None:
+            return (f"; the header has {col!r}, {stem} in {unit}: give it as {missing} in {UNITS[missing][0]} "
+                    f"({how if isinstance(how, str) else scale_text(how)})")
+    return ""
 
 
 def unit_key(cell: str) -> str:
@@ -555,6 +619,7 @@ _TIME_NAME = re.compile(r"^(?:time|t|elapsed)[\s_.-]*(?P<u>ms|msec|millis|min|mi
 #: each such unit's factor to seconds
 _TIME_FACTORS = {"ms": 1e-3, "msec": 1e-3, "millis": 1e-3, "min": 60.0, "mins": 60.0, "minutes": 60.0, "h": 3600.0,
                  "hr": 3600.0, "hrs": 3600.0, "hours": 3600.0, "d": 86400.0, "days": 86400.0}
+CONVERSIONS["time_s"] = dict(_TIME_FACTORS)
 
 
 def time_name_hint(columns: list[str]) -> str:
@@ -564,8 +629,7 @@ def time_name_hint(columns: list[str]) -> str:
     for col in columns:
         m = _TIME_NAME.match(str(col).strip())
         if m:
-            a = _TIME_FACTORS[m.group("u").lower()]
-            do = f"multiply by {a:g}" if a > 1 else f"divide by {1 / a:g}"
+            do = scale_text(_TIME_FACTORS[m.group("u").lower()])
             return f"; the header has {col!r}, a time not in seconds: give it as time_s in seconds ({do})"
     return ""
 
@@ -651,6 +715,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     if missing:
         heads = {str(c): raw[c].dropna().astype(str).head(5).tolist() for c in raw.columns}
         hint = ((time_name_hint(list(raw.columns)) if missing[0] == "time_s" else "")
+                or unit_name_hint(missing[0], list(raw.columns))
                 or near_name_hint(missing[0], list(raw.columns), (*REQUIRED, *OPTIONAL)))
         if not hint and missing[0] == "time_s":
             hint = clock_time_hint(heads)
@@ -732,6 +797,10 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     else:
         out["x_mm"] = derived
         out.attrs["x_mm_derived_rows"] = n
+        # an opening measured but named in another unit (x_um, x_%) is an extra column, and so not read: a note says so
+        other = unit_name_hint("x_mm", [str(c) for c in raw.columns])
+        if other:
+            out.attrs["x_mm_other_unit"] = other.removeprefix("; ")
     out.attrs["source"] = source
     return out.reset_index(drop=True)
 
@@ -991,7 +1060,7 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
-           "clock_in_time_s", "near_name_hint", "short_list",
+           "clock_in_time_s", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
            "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
            "flow_ratio",
            "opening_derived", "SHORT_SPAN_S", "TANK_HOT_C",

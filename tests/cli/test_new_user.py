@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from valve_env.cli import main
@@ -214,3 +215,20 @@ def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly() -> None:
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert p.returncode == 141
     assert p.stderr == ""
+
+
+def test_fit_warns_on_the_console_that_an_opening_named_in_another_unit_was_not_read(
+        tmp_path: Path, short_run_df: pd.DataFrame, capsys: pytest.CaptureFixture[str]) -> None:
+    """A rig that logs the opening as ``x_um``: the column is an extra one (x_mm is optional), so the opening is derived
+    from the flow; the fit runs, and the console says which column was left unread and how to give it."""
+    run = tmp_path / "um.csv"
+    short_run_df.assign(x_um=short_run_df.x_mm * 1000.0).drop(columns=["x_mm"]).to_csv(run, index=False)
+    code = main(["fit", str(run), "--json", str(tmp_path / "f.json"), "--ml"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert ("warning: no x_mm column: the opening is derived from q_kgh and dp_mbar with the valve characteristic "
+            "(docs/reference.md, section 2); the header has 'x_um', x in um: give it as x_mm in mm (divide by 1000), "
+            "to read the measured opening instead (the column is not read)") in out.splitlines()
+    notes = json.loads((tmp_path / "f.json").read_text())["preprocessing"]
+    note = next(n for n in notes if n["what"] == "x_mm_derived")
+    assert note["warn"] is True

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gzip
 import hashlib
+import re
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -484,7 +485,8 @@ def test_units_after_the_names_in_the_header_are_read(tmp_path: Path, run_df: pd
     assert [nt["what"] for nt in notes][:1] == ["units_in_header"]
     assert "the header: the format's units after the names; read as the names" in describe(notes)
     with pytest.raises(DataError, match=r"column 'dp_mbar \[Pa\]' gives dp_mbar in 'Pa': the format's unit is mbar "
-                                        r"\(docs/reference.md, section 2\); convert the column to mbar$"):
+                                        r"\(docs/reference.md, section 2\); convert the column to mbar \(divide by "
+                                        r"100\)$"):
         load_run(_write(run_df.rename(columns={"dp_mbar": "dp_mbar [Pa]"}), tmp_path / "pa.csv"))
 
 
@@ -518,12 +520,17 @@ def test_a_units_row_under_the_header_is_read_as_a_second_header_line(tmp_path: 
     path.write_text("\n".join(bad) + "\n", encoding="utf-8")
     with pytest.raises(DataError, match=r"'abc' in column 'q_kgh' at row 8 \(line 10\)"):
         load_run(path)
-    for col, unit, want in (("dp_mbar", "Pa", "mbar"), ("T_med_C", "K", "degC"), ("time_s", "ms", "s"),
-                            ("x_mm", "%", "mm")):
+    for col, unit, want, how in (("dp_mbar", "Pa", "mbar", "divide by 100"),
+                                 ("T_med_C", "K", "degC", "subtract 273.15"),
+                                 ("time_s", "ms", "s", "divide by 1000"),
+                                 ("x_mm", "%", "mm", "a position in % of the stroke: .* over 100, 0.02 for the "
+                                                     "calibrated valve's 2 mm"),
+                                 ("x_mm", "furlong", "mm", None)):
         other = sep.join({**units, col: unit}.get(c, "") for c in run_df.columns)
         path.write_text("\n".join([lines[0], other, *lines[1:]]) + "\n", encoding="utf-8")
+        end = rf" \({how}\)$" if how else "$"  # a unit without a known factor: the unit to convert to, alone
         with pytest.raises(DataError, match=rf"line 2 is a units row, and column {col} is given in '{unit}': the "
-                                            rf"format's unit is {want} .*convert the column to {want}$"):
+                                            rf"format's unit is {want} .*convert the column to {want}{end}"):
             load_run(path)
 
 
@@ -559,6 +566,54 @@ def test_an_absolute_static_pressure_is_refused_with_what_to_subtract(tmp_path: 
             load_run(path)
     run_df.rename(columns={"ps_bar": "ps_bar [barg]"}).to_csv(path, index=False)
     assert load_run(path)["ps_bar"].to_numpy() == pytest.approx(run_df["ps_bar"].to_numpy())
+
+
+@pytest.mark.parametrize(("column", "new", "scale", "hint"), [
+    ("T_tank_C", "T_tank_K", lambda v: v + 273.15, "T_tank in K: give it as T_tank_C in degC (subtract 273.15)"),
+    ("T_med_C", "T_med_degF", lambda v: v * 1.8 + 32, r"T_med in degF: give it as T_med_C in degC (convert with "
+                                                      r"(v - 32) \* 5 / 9)"),
+    ("dp_mbar", "dp_kPa", lambda v: v / 10, "dp in kPa: give it as dp_mbar in mbar (multiply by 10)"),
+    ("dp_mbar", "dp [Pa]", lambda v: v * 100, "dp in Pa: give it as dp_mbar in mbar (divide by 100)"),
+    ("ps_bar", "ps_kPa", lambda v: v * 100, "ps in kPa: give it as ps_bar in bar (divide by 100)"),
+    ("ps_bar", "ps_psia", lambda v: v * 14.5 + 14.7, "an absolute pressure: .* subtract the ambient pressure, about "
+                                                     "1.013 bar, and name it ps_bar"),
+    ("q_kgh", "q_m3h", lambda v: v / 983.2, "q in m3h: give it as q_kgh in kg/h (a volume flow: .*; at 60 degC "
+                                            "multiply by 983.2)"),
+    ("q_kgh", "q (l/min)", lambda v: v / 59.0, "q in l/min: give it as q_kgh in kg/h (a volume flow: .*; at 60 "
+                                               "degC multiply by 58.99)"),
+    ("q_kgh", "q_kgs", lambda v: v / 3600, "q in kgs: give it as q_kgh in kg/h (multiply by 3600)"),
+])
+def test_a_column_named_in_another_unit_is_refused_with_its_conversion(tmp_path: Path, run_df: pd.DataFrame,
+                                                                       column: str, new: str,
+                                                                       scale: Callable[[pd.Series], pd.Series],
+                                                                       hint: str) -> None:
+    """A logger that names a channel with its own unit (``T_tank_K``, ``dp_kPa``, ``q_m3h``) gets the missing column's
+    refusal with the column it has and the factor or offset to the format's unit, in one line."""
+    df = run_df.assign(**{new: scale(run_df[column])}).drop(columns=[column])
+    with pytest.raises(DataError, match=rf"missing column '{column}' .*; the header has {re.escape(repr(new))}"
+                                        rf"(, |: ){hint.replace('(', '[(]').replace(')', '[)]')}$") as err:
+        load_run(_write(df, tmp_path / "unit.csv"))
+    assert "\n" not in str(err.value)
+
+
+def test_an_opening_named_in_another_unit_is_not_read_and_a_warning_says_so(tmp_path: Path,
+                                                                            run_df: pd.DataFrame) -> None:
+    """The opening is optional, so an ``x_um`` column is an extra column and the opening is derived from the flow (as
+    without it); the pre-processing note says which column was left unread and how to give it, marked for the console
+    (``warn``), where a column named otherwise gets no such note."""
+    from valve_env.valveid.preprocess import preprocess_run
+
+    df = run_df.assign(x_um=run_df.x_mm * 1000.0).drop(columns=["x_mm"])
+    out = load_run(_write(df, tmp_path / "um.csv"))
+    plain = load_run(_write(run_df.drop(columns=["x_mm"]), tmp_path / "none.csv"))
+    np.testing.assert_array_equal(out["x_mm"].to_numpy(), plain["x_mm"].to_numpy())  # derived, x_um unread
+    note = next(nt for nt in preprocess_run(out)[1] if nt["what"] == "x_mm_derived")
+    assert note.get("warn") is True
+    assert note["why"].endswith("; the header has 'x_um', x in um: give it as x_mm in mm (divide by 1000), to read "
+                                "the measured opening instead (the column is not read)")
+    other = load_run(_write(run_df.assign(x_pos=run_df.x_mm).drop(columns=["x_mm"]), tmp_path / "pos.csv"))
+    note = next(nt for nt in preprocess_run(other)[1] if nt["what"] == "x_mm_derived")
+    assert "warn" not in note and "x_pos" not in note["why"]
 
 
 def test_a_record_of_minutes_or_hours_read_as_seconds_is_named(tmp_path: Path, run_df: pd.DataFrame) -> None:

@@ -182,7 +182,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
                         {e: {k: result.final.params[k] for k in EFFECTS[e].param_names} for e in result.selected},
                         source=f"diagnosed by thermovalve diagnose {args.run}: cause {result.cause}")
     print(result.summary())
-    for note in result.warnings:
+    for note in [nt["why"] for nt in result.preprocessing.get("run", []) if nt.get("warn")] + result.warnings:
         print(f"warning: {note}")
     for f in result.findings:  # a named effect whose residuals say its model does not fit
         mis = (f.robust or {}).get("misspecification") or {}
@@ -296,6 +296,8 @@ def run_fit(args: argparse.Namespace) -> int:
             if not (isinstance(s.get(k), (int, float)) and math.isfinite(s[k]))]
     if flat:
         # an estimate without a standard error is not a result (docs/estimation.md, "Bad input")
+        other = data.attrs.get("x_mm_other_unit")
+        unread = f"; no x_mm column, so the opening was derived from the flow: {other}" if other else ""
         why = next((m.split(": these parameters")[0] for m in summary["identifiability"] if any(k in m for k in flat)),
                    "no finite standard error")
         mis = summary["misspecification"]
@@ -313,9 +315,9 @@ def run_fit(args: argparse.Namespace) -> int:
             raise UsageError(f"{args.run}: the paper's model does not explain this record ({at}, "
                              f"and the one-step residuals are not white, Ljung-Box p = {p_lb:.2g}): "
                              f"an effect the model lacks, or too little excitation; `thermovalve diagnose "
-                             f"{args.run}` tries the named effects{hint}")
+                             f"{args.run}` tries the named effects{hint}{unread}")
         raise UsageError(f"{args.run}: the record does not identify {', '.join(flat)} ({why}); "
-                         "a longer record with wider temperature swings is needed"
+                         f"a longer record with wider temperature swings is needed{unread}"
                          f"{temperature_unit_hint(data['T_tank_C'].to_numpy())}")
     with outs:
         outs.write_text(json_out, json_text(summary))
@@ -329,7 +331,7 @@ def run_fit(args: argparse.Namespace) -> int:
     for m in summary["identifiability"]:
         print(f"warning: {m}")
     for nt in summary["preprocessing"]:
-        if nt["what"] == "short_span":
+        if nt.get("warn"):
             print(f"warning: {nt['why']}")
     qnote = quantisation_note(summary)
     if qnote:

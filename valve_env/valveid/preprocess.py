@@ -37,8 +37,9 @@ Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, `
 ``units_in_cells``, ``nul_padding``, ``last_line_cut``, ``comment_lines``, ``header_lines``, ``rows_repeated``,
 ``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``, ``short_span``), the
 ``channel`` where it applies, and ``why``. The ``fit`` and ``diagnose`` JSON carry them under ``preprocessing``, and
-their reports print them. A run that passes through here twice (read and checked, then diagnosed) keeps the first
-pass's notes of what was changed.
+their reports print them; a note a user must not miss (a record of seconds, not hours; an opening measured in another
+unit and so not read) has ``warn: true``, and the console prints it as a warning. A run that passes through here
+twice (read and checked, then diagnosed) keeps the first pass's notes of what was changed.
 """
 
 from __future__ import annotations
@@ -176,10 +177,13 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
                              "the file), dropped as samples the logger missed"})
     derived = int(df.attrs.get("x_mm_derived_rows", 0))
     if derived and ("x_mm_derived", "x_mm") not in done:
+        other = df.attrs.get("x_mm_other_unit")
         notes.append({"what": "x_mm_derived", "channel": "x_mm", "rows": derived,
                       "why": ("no x_mm column" if derived == n else f"x_mm empty in {derived} of {n} rows")
                       + ": the opening is derived from q_kgh and dp_mbar with the valve characteristic "
-                        "(docs/reference.md, section 2)"})
+                        "(docs/reference.md, section 2)"
+                      + (f"; {other}, to read the measured opening instead (the column is not read)" if other else ""),
+                      **({"warn": True} if other else {})})
     for ch in SPIKE_CHANNELS:
         if ch not in out.columns:
             continue
@@ -209,7 +213,7 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
     short = time_unit_hint(t)
     if short:
         notes.append({"what": "short_span", "channel": None, "seconds": float(t[-1] - t[0]),
-                      "why": f"a valve's test runs for hours{short}"})
+                      "why": f"a valve's test runs for hours{short}", "warn": True})
     if n > 2:
         dt = np.diff(t)
         med = float(np.median(dt))
