@@ -586,3 +586,26 @@ def test_an_export_of_several_loops_is_read_for_the_loop_tag_chooses(tmp_path: P
     x = read_loop(_write_text(tmp_path / "flagged.txt", "\r\n".join(flagged) + "\r\n"), tag="X")
     assert x.notes[0].startswith("1 sample(s) carry a value the export's status flags mark (OP 1, PV 1; first at "
                                  "sample 101)")
+
+
+@pytest.mark.parametrize(("names", "pattern"), [
+    ({"op": "CO"}, r"missing column\(s\) op \(need time_s, sp, pv, op\); if 'CO' is the controller output \(%\), name "
+                   r"it op \(names are exact: docs/reference.md, section 10\)$"),
+    ({"sp": "Set Point", "pv": "measurement", "op": "output"},
+     r"missing column\(s\) sp, pv, op .*; if 'Set Point' is the set point, name it sp; if 'measurement' is the process "
+     r"variable, name it pv; if 'output' is the controller output \(%\), name it op \(names are exact"),
+    # a historian's .MV is the controller output, the loop CSV's mv the measured valve position: asked, not guessed
+    ({"op": "mv"}, r"missing column\(s\) op .*; 'mv' is the measured valve position in a loop CSV; if it is the "
+                   r"controller output \(a historian's .MV\), name it op"),
+    # a name whose meaning differs between conventions gets no guess
+    ({"op": "y"}, r"missing column\(s\) op \(need time_s, sp, pv, op\)$"),
+])
+def test_a_loop_csv_with_another_tools_column_names_is_refused_naming_them(tmp_path: Path, names: dict[str, str],
+                                                                          pattern: str) -> None:
+    """Column names other tools write (``CO``, ``setpoint``, ``output``; a historian's ``MV`` for the output): the
+    refusal of the missing columns names the header's column that is likely meant, in one line."""
+    lines = _write_csv(tmp_path / "plain.csv").read_text().splitlines()
+    header = ",".join(names.get(c, c) for c in lines[0].split(","))
+    with pytest.raises(LoopDataError, match=pattern) as err:
+        read_loop(_write_text(tmp_path / "named.csv", "\n".join([header, *lines[1:]]) + "\n"))
+    assert "\n" not in str(err.value)

@@ -66,6 +66,40 @@ from valve_env.data_io import (
     unit_key,
 )
 
+#: Names other tools give the loop CSV's columns (docs/reference.md, section 10), compared by their letters and digits
+#: in lower case: a refusal of the missing column names the header's column that is likely meant. ``mv`` is the loop
+#: CSV's own name for the measured valve position, but a historian's ``.MV`` is the controller output
+#: (:data:`HISTORIAN_SUFFIXES`), so a file with ``mv`` and no ``op`` is asked which it is. Names whose meaning differs
+#: between conventions (``y`` is the measurement in English texts and the controller output in German ones; ``cv``)
+#: are not guessed at.
+LOOP_SYNONYMS: dict[str, tuple[str, ...]] = {
+    "sp": ("setpoint", "setpt", "spt", "sv", "setvalue", "ref", "reference", "target", "r", "sollwert"),
+    "pv": ("processvalue", "processvariable", "measurement", "meas", "measured", "istwert"),
+    "op": ("co", "controlleroutput", "controllerout", "output", "out", "u", "mv"),
+}
+#: what each of :data:`LOOP_SYNONYMS`' columns is, for the refusal
+LOOP_MEANINGS = {"sp": "the set point", "pv": "the process variable", "op": "the controller output (%)"}
+
+
+def synonym_hint(missing: list[str], header: list[str]) -> str:
+    """Where the loop CSV's columns ``missing`` are absent and the header has names other tools give them
+    (:data:`LOOP_SYNONYMS`), the refusal's hint naming each such column and what to rename it to. Else ''."""
+    def key(name: str) -> str:
+        return "".join(ch for ch in name.lower() if ch.isalnum())
+
+    found = [(c, h) for c in missing for h in header if key(h) in LOOP_SYNONYMS.get(c, ())]
+    if not found:
+        return ""
+    parts = []
+    for c, h in found:
+        if key(h) == "mv":
+            parts.append(f"'{h}' is the measured valve position in a loop CSV; if it is the controller output (a "
+                         f"historian's .MV), name it op")
+        else:
+            parts.append(f"if '{h}' is {LOOP_MEANINGS[c]}, name it {c}")
+    return "; " + "; ".join(parts) + " (names are exact: docs/reference.md, section 10)"
+
+
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
 #: ``insufficient_data``
 MIN_SAMPLES = 240
@@ -204,6 +238,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     missing = [c for c in ("time_s", "sp", "pv", "op") if c not in header]
     if missing:
         hint = ((time_name_hint(header) if missing[0] == "time_s" else "")
+                or synonym_hint(missing, header)
                 or near_name_hint(missing[0], header, ("time_s", "sp", "pv", "op", "mv", "mode")))
         if not hint and "time_s" in missing:
             hint = clock_time_hint({h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)})
@@ -651,4 +686,4 @@ __all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "MAX_MISSING_FRACTION", "
            "SATURATION_SHARE", "MISSING_MARKERS", "MODE_NAMES",
            "read_loop", "read_loop_csv", "read_historian",
            "check_loop", "merge_repeated_timestamps", "gross_outliers", "GROSS_RANGES", "GROSS_MAX_RUN",
-           "GROSS_MAX_FRACTION"]
+           "GROSS_MAX_FRACTION", "LOOP_SYNONYMS", "synonym_hint"]
