@@ -634,6 +634,25 @@ def time_name_hint(columns: list[str]) -> str:
     return ""
 
 
+#: finer time units a logger or a program writes (a Unix time in ms, or pandas' datetime64 in ns), and their factor
+FINE_TIME_UNITS: tuple[tuple[str, float], ...] = (("milliseconds", 1e-3), ("microseconds", 1e-6), ("nanoseconds", 1e-9))
+
+
+def fine_time_hint(t: np.ndarray) -> str:
+    """Where times ``t`` beyond :data:`MAX_ABS_TIME_S` would be plausible seconds in a finer unit (a Unix time in
+    milliseconds, 1.7e12; datetime64's nanoseconds, 1.7e18): every value within it and the median interval within
+    :data:`DT_RANGE_S`, the refusal's hint naming the first such unit. Else ''."""
+    t = np.asarray(t, dtype=float)
+    t = t[np.isfinite(t)]
+    if t.size < 2:
+        return ""
+    for unit, f in FINE_TIME_UNITS:
+        dt = float(np.median(np.diff(t))) * f
+        if np.all(np.abs(t) * f <= MAX_ABS_TIME_S) and DT_RANGE_S[0] <= dt <= DT_RANGE_S[1]:
+            return f"; if time_s is in {unit} (a Unix time?), {scale_text(f)}"
+    return ""
+
+
 def time_order_hint(t: np.ndarray) -> str:
     """Where the times ``t`` do not increase, what the refusal adds where the cause is the rows' order: a
     newest-first export (every time below the one before), rows out of order whose times, sorted, are distinct, a
@@ -756,7 +775,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     if far.size:
         i = int(far[0])
         raise DataError(f"{source}: column time_s, row {i + 1} (line {first_line(i)}): {t[i]:.6g} s is not a plausible "
-                        f"time (|time_s| <= {MAX_ABS_TIME_S:g} s)")
+                        f"time (|time_s| <= {MAX_ABS_TIME_S:g} s){fine_time_hint(t)}")
     out = _drop_repeated_rows(out, [c for c in (*REQUIRED, *OPTIONAL) if c in out.columns])
     t = out["time_s"].to_numpy()
     bad = np.flatnonzero(np.diff(t) <= 0)

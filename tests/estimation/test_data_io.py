@@ -109,6 +109,13 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
     (lambda d: d.assign(time_s=46082.25 + d.time_s / 86400.0),
      r"median sampling interval 0.000116 s is implausible .*; if time_s is in days \(a spreadsheet's date number\), "
      r"multiply it by 86400$"),
+    # a Unix time in milliseconds, or datetime64's nanoseconds: the unit under which it is plausible seconds
+    (lambda d: d.assign(time_s=(1.7e12 + d.time_s * 1e3).astype("int64")),
+     r"1.7e\+12 s is not a plausible time \(\|time_s\| <= 1e\+10 s\); if time_s is in milliseconds \(a Unix time\?\), "
+     r"divide by 1000$"),
+    (lambda d: d.assign(time_s=(1.7e18 + d.time_s * 1e9).astype("int64")),
+     r"; if time_s is in nanoseconds \(a Unix time\?\), divide by 1e\+09$"),
+    (lambda d: d.assign(time_s=1e16 + d.time_s), r"is not a plausible time \(\|time_s\| <= 1e\+10 s\)$"),
     # a logger's spikes out of the physical range: every row is named
     (lambda d: d.assign(x_mm=lambda x: x.x_mm.where(~x.index.isin([3, 9, 20]), -1.004)),
      r"column x_mm, row 4 \(line 5\): -1.004 is out of range \(must be >= -1 and <= 50: [^)]*\); "
