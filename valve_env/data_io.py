@@ -589,10 +589,12 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
 
 
 def _check_header(p: Path, dialect: CsvDialect, line: str) -> None:
-    """Refuse a header that names a column twice: pandas renames the second copy (``T_tank_C.1``), so
-    :func:`validate_run` would silently take the first. ``line``: the header's line."""
+    """Refuse a header that names one of the format's columns twice: pandas renames the second copy (``T_tank_C.1``),
+    so :func:`validate_run` would silently take the first. Extra columns are ignored (docs/reference.md, section 2),
+    so two of them of one name (a logger's two ``comment`` columns, two empty names from trailing separators) are
+    not refused. ``line``: the header's line."""
     header = [c.strip() for c in dialect.cells(line)]
-    dup = sorted({c for c in header if header.count(c) > 1})
+    dup = sorted({c for c in header if c in (*REQUIRED, *OPTIONAL) and header.count(c) > 1})
     if dup:
         raise DataError(f"{p}: duplicate column(s) {dup} in the header")
 
@@ -727,7 +729,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     if named:
         raw = raw.rename(columns={c: n for c, (n, _) in named.items()})
         raw.attrs["units_in_header"] = dict(named.values())
-    dup = sorted({c for c in raw.columns if list(raw.columns).count(c) > 1})
+    dup = sorted({c for c in raw.columns if c in (*REQUIRED, *OPTIONAL) and list(raw.columns).count(c) > 1})
     if dup:
         raise DataError(f"{source}: duplicate column(s) {dup}")
     missing = [c for c in REQUIRED if c not in raw.columns]

@@ -111,6 +111,21 @@ def test_a_header_naming_a_column_twice_is_refused(tmp_path: Path, run_csv: Path
     assert bad.read_bytes() == before and not (tmp_path / "f.json").exists()
 
 
+def test_extra_columns_of_one_name_are_ignored_as_extra_columns_are(tmp_path: Path, run_csv: Path) -> None:
+    """Two extra columns of one name (a logger's two ``comment`` columns; two empty names of trailing separators):
+    extra columns are ignored (docs/reference.md, section 2), so the run reads as without them (it was refused as a
+    duplicate column)."""
+    from valve_env.data_io import load_run
+
+    lines = run_csv.read_text().splitlines()
+    plain = load_run(run_csv)
+    for extra, cells in ((",comment,comment", ",a,b"), (",,", ",,")):
+        run = tmp_path / "extra.csv"
+        run.write_text("\n".join([lines[0] + extra, *(ln + cells for ln in lines[1:])]) + "\n")
+        out = load_run(run)
+        pd.testing.assert_frame_equal(out[plain.columns], plain)
+
+
 def test_an_output_named_twice_into_a_new_directory_is_refused_up_front(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """``--json out/ev/table.md --out out/ev`` with out/ev not there yet: the clash was found only while

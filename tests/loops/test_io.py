@@ -238,6 +238,12 @@ def test_a_column_named_twice_is_refused(tmp_path: Path) -> None:
     p.write_text("\n".join([lines[0] + ",pv"] + [line + ",1" for line in lines[1:]]) + "\n")
     with pytest.raises(LoopDataError, match="names column.s. pv more than once"):
         read_loop(p)
+    # extra columns are ignored, so two of one name (two comments, two empty names of trailing separators) are read
+    plain = read_loop(_write_csv(tmp_path / "plain.csv"))
+    for extra, cells in ((",note,note", ",a,b"), (",,", ",,")):
+        p.write_text("\n".join([lines[0] + extra] + [line + cells for line in lines[1:]]) + "\n")
+        loop = read_loop(p)
+        assert np.array_equal(loop.op, plain.op) and np.array_equal(loop.pv, plain.pv)
 
 
 @pytest.mark.parametrize(("sep", "decimal", "comments"),

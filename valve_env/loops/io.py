@@ -232,8 +232,9 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     if t is not None and unit_key(t) not in UNITS["time_s"][1]:
         raise LoopDataError(f"{p}: the header gives time_s in {t!r}: give it in seconds")
     header = [named[h][0] if h in named else h for h in header]
-    twice = sorted({h for h in header if h and header.count(h) > 1})
-    if twice:  # which copy is the signal? (csv would silently take the first)
+    # which copy is the signal? (csv would silently take the first); extra columns are ignored, twice or not
+    twice = sorted({h for h in header if h in ("time_s", "sp", "pv", "op", "mv", "mode") and header.count(h) > 1})
+    if twice:
         raise LoopDataError(f"{p}: the header names column(s) {', '.join(twice)} more than once")
     missing = [c for c in ("time_s", "sp", "pv", "op") if c not in header]
     if missing:
