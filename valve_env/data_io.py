@@ -142,6 +142,8 @@ OTHER_UNITS: dict[str, tuple[OtherUnit, ...]] = {
                           -1.0, 0.0, 0.5)),
     "ps_bar": tuple(OtherUnit(u, scale_text(factor("ps_bar", u.lower())), factor("ps_bar", u.lower()), 0.0, 0.5)
                     for u in ("kPa", "Pa")),
+    "q_kgh": (OtherUnit("kg/h with the sign reversed (a flow meter that counts the valve's flow as negative)",
+                        "negate the column", -1.0, 0.0, 0.5),),
 }
 #: Units of dp_mbar that the flow can reveal where x_mm is measured (:func:`_check_dp_unit`): the name, what to do
 #: and the factor to mbar. An SI logger writes Pa; the flow at a given opening grows as sqrt(dp), so a dp in Pa makes
@@ -164,6 +166,11 @@ STROKE_MARGIN = 1.25
 DT_RANGE_S: tuple[float, float] = (1.0e-3, 3600.0)
 #: No single interval between samples may be longer than this (s): one day.
 MAX_GAP_S = 86400.0
+#: A flow meter reads about 0 with its own noise where the valve is shut, partly below 0 (a magnetic or ultrasonic
+#: meter without a low-flow cut-off). Flows below 0 down to this share of the record's high flow (its 99th percentile)
+#: are read as 0, with a note (:func:`_zero_flow_noise`); one further below 0 is refused by the range check, which names
+#: a meter that counts the flow as negative where every value would fit so.
+ZERO_FLOW_NOISE_SHARE = 0.05
 #: |time_s| beyond this (s, ~300 years) is not a time.
 MAX_ABS_TIME_S = 1.0e10
 #: The measured channels, whose empty cells drop their row (a logger that missed a value: the row is then
@@ -766,6 +773,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         _check_stroke(out, valve, source)
         _check_opening_sign(out, valve, source)
         _check_dp_unit(out, valve, source)
+    out = _zero_flow_noise(out, data.attrs.get("q_zero_noise"))
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
             _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source, first_line)
@@ -826,6 +834,28 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     return out.reset_index(drop=True)
 
 
+def _zero_flow_noise(out: pd.DataFrame, before: dict[str, float] | None) -> pd.DataFrame:
+    """``out`` with the flows below 0 read as 0 where every one lies within the meter's noise about 0, on a shut
+    valve: no lower than :data:`ZERO_FLOW_NOISE_SHARE` times the record's high flow (its 99th percentile), and so are
+    the flows of the rows before and after it (a negative flow between open rows is a glitch, not a shut valve's
+    noise). ``attrs["q_zero_noise"]`` then gives how many, the lowest and the high flow (``before``: a run read before
+    keeps its count). Else ``out`` as it is, for the range check to refuse."""
+    q = out["q_kgh"].to_numpy(dtype=float)
+    below = np.isfinite(q) & (q < 0.0)
+    high = float(np.nanpercentile(q, 99)) if np.isfinite(q).any() else float("nan")
+    band = ZERO_FLOW_NOISE_SHARE * high
+    near = ~(np.abs(q) > band)  # NaN (a missing sample) counts as near
+    i = np.flatnonzero(below)
+    shut = bool(np.all(near[np.maximum(i - 1, 0)]) and np.all(near[np.minimum(i + 1, q.size - 1)]))
+    if not below.any() or not high > 0.0 or float(q[below].min()) < -band or not shut:
+        if before and not below.any():
+            out.attrs["q_zero_noise"] = before
+        return out
+    out["q_kgh"] = np.where(below, 0.0, q)
+    out.attrs["q_zero_noise"] = {"rows": int(below.sum()), "lowest_kgh": float(q[below].min()), "high_kgh": high}
+    return out
+
+
 def _check_stroke(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
     """Refuse an opening that reaches beyond the valve's stroke (a tenth of the samples or more above
     :data:`STROKE_MARGIN` strokes), naming the unit that would bring it within the stroke where one does: a position
@@ -863,9 +893,13 @@ def _check_opening_sign(out: pd.DataFrame, valve: ValveParams, source: str) -> N
         return
     rho = pd.Series(x[rows]).corr(pd.Series(q[rows] / np.sqrt(dp[rows])), method="spearman")
     if np.isfinite(rho) and rho < OPENING_SIGN_CORR:
+        # an opening at or below 0 on most rows that carry a flow is one measured with the other sign, not a travel
+        do = ("if x_mm is the opening measured with the other sign (at or below 0 on "
+              f"{float(np.mean(x[rows] <= 0.0)):.0%} of these rows), negate it"
+              if np.median(x[rows]) < 0.0 else
+              f"if x_mm is the closing travel, give the opening ({valve.stroke:g} mm - x_mm)")
         raise DataError(f"{source}: column x_mm falls as the flow rises (rank correlation {rho:.2f} between x_mm and "
-                        f"q_kgh / sqrt(dp_mbar) over {int(rows.sum())} rows): if x_mm is the closing travel, give the "
-                        f"opening ({valve.stroke:g} mm - x_mm)")
+                        f"q_kgh / sqrt(dp_mbar) over {int(rows.sum())} rows): {do}")
 
 
 def flow_ratio(run: pd.DataFrame, valve: ValveParams | None = None) -> tuple[float, int, float]:
@@ -1079,7 +1113,7 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "ABSOLUTE_BAR", "convert_to", "DP_UNITS",
            "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "STROKE_MARGIN", "OPENING_SIGN_CORR",
            "DT_RANGE_S",
-           "MAX_GAP_S", "MAX_ABS_TIME_S", "MEASURED", "MAX_EMPTY_FRACTION",
+           "MAX_GAP_S", "MAX_ABS_TIME_S", "ZERO_FLOW_NOISE_SHARE", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
            "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",

@@ -720,3 +720,37 @@ def test_temperatures_in_degf_are_named(tmp_path: Path, run_df: pd.DataFrame) ->
     assert hint.startswith(f"; T_tank_C's median 126 lies above {TANK_HOT_C:g} degC")
     assert "the median would be 52.2 degC" in hint
     assert temperature_unit_hint(np.full(50, 140.0)) != "" and temperature_unit_hint(np.full(50, 200.0)) == ""
+
+
+def test_a_flow_meters_noise_about_zero_is_read_as_no_flow(tmp_path: Path, open_run: pd.DataFrame) -> None:
+    """A flow meter without a low-flow cut-off reads a shut valve as 0 plus its noise, partly below 0: those flows are
+    read as 0 with a note (kept when the run is checked again, as diagnose does), where the record was refused as out
+    of range; a flow further below 0 is still refused, and a record whose every flow is negative is named as a meter
+    that counts the flow as negative."""
+    from valve_env.data_io import validate_run
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    q = open_run.q_kgh.to_numpy()
+    noisy = q + np.random.default_rng(0).normal(0.0, 0.5, q.size)
+    assert (noisy < 0).sum() > 10 and q.min() >= 0
+    out = load_run(_write(open_run.assign(q_kgh=noisy), tmp_path / "noisy.csv"))
+    np.testing.assert_allclose(out.q_kgh.to_numpy(), np.where(noisy < 0, 0.0, noisy), rtol=1e-8)
+    notes = [nt for nt in preprocess_run(out)[1] if nt["what"] == "q_zero_noise"]
+    assert len(notes) == 1 and notes[0]["rows"] == int((noisy < 0).sum())
+    assert notes[0]["lowest_kgh"] == pytest.approx(noisy.min(), rel=1e-6)
+    assert any(line.startswith(f"q_kgh: {notes[0]['rows']} flow(s) below 0") for line in describe(notes))
+    again = preprocess_run(validate_run(preprocess_run(out)[0], "again"))[1]
+    assert [nt["rows"] for nt in again if nt["what"] == "q_zero_noise"] == [notes[0]["rows"]]
+    # further below 0 than a meter's noise: refused by the range check, as before
+    deep = noisy.copy()
+    deep[40] = -0.2 * np.percentile(q, 99)
+    with pytest.raises(DataError, match=r"column q_kgh, row \d+ \(line \d+\): -[\d.]+ is out of range .* more row"):
+        load_run(_write(open_run.assign(q_kgh=deep), tmp_path / "deep.csv"))
+    with pytest.raises(DataError, match=r"every value reads as kg/h with the sign reversed .*: negate the column$"):
+        load_run(_write(open_run.assign(q_kgh=-q - 1.0), tmp_path / "negated.csv"))
+    # a small negative flow between open rows is a glitch, not a shut valve's noise
+    glitch = q.copy()
+    j = int(np.argmax(q[1:-1])) + 1
+    glitch[j] = -1.0
+    with pytest.raises(DataError, match=rf"column q_kgh, row {j + 1} \(line {j + 2}\): -1 is out of range"):
+        load_run(_write(open_run.assign(q_kgh=glitch), tmp_path / "glitch.csv"))

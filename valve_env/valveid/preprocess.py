@@ -35,7 +35,8 @@ each convention is handled once, here, and reported:
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
 ``units_in_cells``, ``nul_padding``, ``last_line_cut``, ``comment_lines``, ``header_lines``, ``rows_repeated``,
-``rows_dropped``, ``spikes_replaced``, ``x_mm_derived``, ``irregular_sampling``, ``gap``, ``short_span``), the
+``rows_dropped``, ``spikes_replaced``, ``q_zero_noise``, ``x_mm_derived``, ``irregular_sampling``, ``gap``,
+``short_span``), the
 ``channel`` where it applies, and ``why``. The ``fit`` and ``diagnose`` JSON carry them under ``preprocessing``, and
 their reports print them; a note a user must not miss (a record of seconds, not hours; an opening measured in another
 unit and so not read) has ``warn: true``, and the console prints it as a warning. A run that passes through here
@@ -50,7 +51,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from valve_env.data_io import DataError, cut_line_note, nul_note, short_list, time_unit_hint
+from valve_env.data_io import ZERO_FLOW_NOISE_SHARE, DataError, cut_line_note, nul_note, short_list, time_unit_hint
 from valve_env.valveid.stiction import opening_noise
 from valve_env.valveid.temperature import channel_noise, noise_sd
 
@@ -71,7 +72,7 @@ X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
 CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "nul_padding", "last_line_cut",
                                  "comment_lines", "header_lines", "rows_repeated", "rows_dropped", "spikes_replaced",
-                                 "x_mm_derived")
+                                 "x_mm_derived", "q_zero_noise")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -175,6 +176,12 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         notes.append({"what": "rows_dropped", "channel": None, "rows": list(dropped),
                       "why": f"{len(dropped)} row(s) with an empty cell in a measured column (row numbers as in "
                              "the file), dropped as samples the logger missed"})
+    zero = df.attrs.get("q_zero_noise")
+    if zero and ("q_zero_noise", "q_kgh") not in done:
+        notes.append({"what": "q_zero_noise", "channel": "q_kgh", **zero,
+                      "why": f"{zero['rows']} flow(s) below 0, down to {zero['lowest_kgh']:.3g} kg/h, within a flow "
+                             f"meter's noise about 0 (at most {ZERO_FLOW_NOISE_SHARE:.0%} of the record's high flow, "
+                             f"{zero['high_kgh']:.4g} kg/h), read as 0"})
     derived = int(df.attrs.get("x_mm_derived_rows", 0))
     if derived and ("x_mm_derived", "x_mm") not in done:
         other = df.attrs.get("x_mm_other_unit")
@@ -274,6 +281,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
             lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
         elif what == "rows_dropped":
             lines.append(f"{len(nt['rows'])} row(s) with an empty cell dropped ({_row_list(nt['rows'])})")
+        elif what == "q_zero_noise":
+            lines.append(f"q_kgh: {nt['rows']} flow(s) below 0, down to {nt['lowest_kgh']:.3g} kg/h, read as 0 (a "
+                         "meter's noise about 0)")
         elif what == "x_mm_derived":
             lines.append(f"x_mm: derived from the flow in {nt['rows']} row(s) ({nt['why'].split(':')[0]})")
         elif what == "irregular_sampling":
