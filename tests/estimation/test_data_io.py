@@ -754,3 +754,13 @@ def test_a_flow_meters_noise_about_zero_is_read_as_no_flow(tmp_path: Path, open_
     glitch[j] = -1.0
     with pytest.raises(DataError, match=rf"column q_kgh, row {j + 1} \(line {j + 2}\): -1 is out of range"):
         load_run(_write(open_run.assign(q_kgh=glitch), tmp_path / "glitch.csv"))
+
+
+def test_an_opening_with_the_other_sign_is_told_to_be_negated(tmp_path: Path, open_run: pd.DataFrame) -> None:
+    """An opening that falls as the flow rises: at or below 0 on most flowing rows it is one measured with the other
+    sign (negate it); within the stroke it is a closing travel (stroke - x)."""
+    with pytest.raises(DataError, match=r"column x_mm falls as the flow rises .*: if x_mm is the opening measured "
+                                        r"with the other sign \(at or below 0 on \d+% of these rows\), negate it$"):
+        load_run(_write(open_run.assign(x_mm=-open_run.x_mm), tmp_path / "neg.csv"))
+    with pytest.raises(DataError, match=r"if x_mm is the closing travel, give the opening \(2 mm - x_mm\)$"):
+        load_run(_write(open_run.assign(x_mm=2.0 - open_run.x_mm), tmp_path / "travel.csv"))
