@@ -370,13 +370,15 @@ def test_a_units_row_under_the_header_is_read_and_noted(tmp_path: Path) -> None:
 
 
 def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path) -> None:
-    """A historian exports the controller's mode as a state's name (AUTO, CAS, MAN): automatic and cascade are 1,
-    manual 0. A spreadsheet's error value (#N/A, #DIV/0!) is a missing sample; other text in mode is refused."""
+    """A historian exports the controller's mode as a state's name (AUTO, CAS, MAN; the Fieldbus modes RCAS, OOS,
+    IMAN): automatic and the cascades are 1, manual, out of service and initialisation manual 0. A spreadsheet's
+    error value (#N/A, #DIV/0!) is a missing sample; other text in mode is refused."""
     mode = np.ones(400)
     mode[:60] = 0.0
     numeric = read_loop(_write_csv(tmp_path / "m.csv", n=400, mode=mode))
     lines = (tmp_path / "m.csv").read_text().splitlines()
-    names = ["MAN" if k < 30 else "Manual" if k < 60 else "AUTO" if k < 200 else "cas" for k in range(400)]
+    names = ["MAN" if k < 20 else "OOS" if k < 30 else "Manual" if k < 50 else "IMAN" if k < 60 else "AUTO" if k < 200
+             else "cas" if k < 300 else "RCAS" for k in range(400)]
     p = tmp_path / "named.csv"
     rows = [ln.rsplit(",", 1)[0] + "," + m for ln, m in zip(lines[1:], names, strict=True)]
     p.write_text("\n".join([lines[0], *rows]) + "\n")
@@ -386,9 +388,9 @@ def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path)
     errs[100][2], errs[250][3] = "#N/A", "#DIV/0!"  # pv, op
     p.write_text("\n".join(",".join(r) for r in errs) + "\n")
     assert any("missing value" in note for note in read_loop(p).notes)
-    bad = [*lines[:5], lines[5].rsplit(",", 1)[0] + ",Tracking", *lines[6:]]
+    bad = [*lines[:5], lines[5].rsplit(",", 1)[0] + ",Standby", *lines[6:]]
     p.write_text("\n".join(bad) + "\n")
-    with pytest.raises(LoopDataError, match=r"line 6, column mode: 'Tracking' is not a number"):
+    with pytest.raises(LoopDataError, match=r"line 6, column mode: 'Standby' is not a number"):
         read_loop(p)
     semi = [ln.replace(",", ";") for ln in lines]  # a decimal point in every cell, and one with a comma
     semi[7] = ";".join([*semi[7].split(";")[:3], semi[7].split(";")[3].replace(".", ","), *semi[7].split(";")[4:]])

@@ -117,7 +117,12 @@ MISSING_MARKERS = RUN_MISSING_MARKERS
 #: a mode column written as the controller's mode by name, as a historian exports a digital state: automatic and
 #: cascade (the loop closed, its set point from another loop) are 1, manual 0
 MODE_NAMES: dict[str, float] = {"auto": 1.0, "aut": 1.0, "automatic": 1.0, "cas": 1.0, "casc": 1.0, "cascade": 1.0,
-                                "man": 0.0, "manual": 0.0, "hand": 0.0}
+                                "man": 0.0, "manual": 0.0, "hand": 0.0,
+                                # the Foundation Fieldbus block modes (as DeltaV and other DCSs export them): remote
+                                # cascade closes the loop; out of service, initialisation manual, local override,
+                                # remote output and tracking hold or set the output from elsewhere
+                                "rcas": 1.0, "oos": 0.0, "iman": 0.0, "lo": 0.0, "rout": 0.0, "trk": 0.0,
+                                "track": 0.0, "tracking": 0.0}
 
 
 #: a sample lies far outside its column's own record (:func:`gross_outliers`) where it is this many times the width of
