@@ -836,17 +836,17 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
 
 def _zero_flow_noise(out: pd.DataFrame, before: dict[str, float] | None) -> pd.DataFrame:
     """``out`` with the flows below 0 read as 0 where every one lies within the meter's noise about 0, on a shut
-    valve: no lower than :data:`ZERO_FLOW_NOISE_SHARE` times the record's high flow (its 99th percentile), and so are
-    the flows of the rows before and after it (a negative flow between open rows is a glitch, not a shut valve's
-    noise). ``attrs["q_zero_noise"]`` then gives how many, the lowest and the high flow (``before``: a run read before
-    keeps its count). Else ``out`` as it is, for the range check to refuse."""
+    valve: no lower than :data:`ZERO_FLOW_NOISE_SHARE` times the record's high flow (its 99th percentile), and so is
+    the flow of the row before or after it (the valve shut on at least one side; a negative flow between two open rows
+    is a glitch, not a shut valve's noise). ``attrs["q_zero_noise"]`` then gives how many, the lowest and the high
+    flow (``before``: a run read before keeps its count). Else ``out`` as it is, for the range check to refuse."""
     q = out["q_kgh"].to_numpy(dtype=float)
     below = np.isfinite(q) & (q < 0.0)
     high = float(np.nanpercentile(q, 99)) if np.isfinite(q).any() else float("nan")
     band = ZERO_FLOW_NOISE_SHARE * high
     near = ~(np.abs(q) > band)  # NaN (a missing sample) counts as near
     i = np.flatnonzero(below)
-    shut = bool(np.all(near[np.maximum(i - 1, 0)]) and np.all(near[np.minimum(i + 1, q.size - 1)]))
+    shut = bool(np.all(near[np.maximum(i - 1, 0)] | near[np.minimum(i + 1, q.size - 1)]))
     if not below.any() or not high > 0.0 or float(q[below].min()) < -band or not shut:
         if before and not below.any():
             out.attrs["q_zero_noise"] = before

@@ -748,6 +748,11 @@ def test_a_flow_meters_noise_about_zero_is_read_as_no_flow(tmp_path: Path, open_
         load_run(_write(open_run.assign(q_kgh=deep), tmp_path / "deep.csv"))
     with pytest.raises(DataError, match=r"every value reads as kg/h with the sign reversed .*: negate the column$"):
         load_run(_write(open_run.assign(q_kgh=-q - 1.0), tmp_path / "negated.csv"))
+    # the last shut row before the valve opens (an open row beside it) is still a shut valve's noise
+    edge = q.copy()
+    k = int(np.flatnonzero(q[1:-1] < 0.01 * np.percentile(q, 99))[0]) + 1  # a shut row; the one after it opens
+    edge[k], edge[k + 1] = -0.3, 0.5 * np.percentile(q, 99)
+    assert load_run(_write(open_run.assign(q_kgh=edge), tmp_path / "edge.csv")).attrs["q_zero_noise"]["rows"] == 1
     # a small negative flow between open rows is a glitch, not a shut valve's noise
     glitch = q.copy()
     j = int(np.argmax(q[1:-1])) + 1
