@@ -702,15 +702,18 @@ def clock_in_time_s(cells: list[str], column: str = "time_s") -> str:
             "e.g. (t - t[0]).total_seconds()")
 
 
+def name_key(name: str) -> str:
+    """A column's name as the name hints compare it: its letters and digits, in lower case (``T Tank-C`` is
+    ``ttankc``)."""
+    return "".join(ch for ch in name.lower() if ch.isalnum())
+
+
 def near_name_hint(missing: str, columns: list[str], taken: tuple[str, ...] = ()) -> str:
     """Where a required column is missing and the header has a name close to it (another case, spacing or
     spelling: ``T_Tank_C``, ``t tank c``, ``T_tank``), the refusal's hint naming that column; names are exact (SPEC
     sections 2 and 10). ``taken``: the format's names, which are not offered."""
-    def key(name: str) -> str:
-        return "".join(ch for ch in name.lower() if ch.isalnum())
-
     free = [c for c in columns if c not in taken]
-    same = [c for c in free if key(c) == key(missing)]
+    same = [c for c in free if name_key(c) == name_key(missing)]
     close = same or difflib.get_close_matches(missing.lower(), [c.lower() for c in free], n=1, cutoff=0.75)
     if not close:
         return ""
@@ -773,7 +776,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         _check_stroke(out, valve, source)
         _check_opening_sign(out, valve, source)
         _check_dp_unit(out, valve, source)
-    out = _zero_flow_noise(out, data.attrs.get("q_zero_noise"))
+    out = _zero_flow_noise(out)
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
             _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source, first_line)
@@ -834,12 +837,13 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     return out.reset_index(drop=True)
 
 
-def _zero_flow_noise(out: pd.DataFrame, before: dict[str, float] | None) -> pd.DataFrame:
+def _zero_flow_noise(out: pd.DataFrame) -> pd.DataFrame:
     """``out`` with the flows below 0 read as 0 where every one lies within the meter's noise about 0, on a shut
     valve: no lower than :data:`ZERO_FLOW_NOISE_SHARE` times the record's high flow (its 99th percentile), and so is
     the flow of the row before or after it (the valve shut on at least one side; a negative flow between two open rows
     is a glitch, not a shut valve's noise). ``attrs["q_zero_noise"]`` then gives how many, the lowest and the high
-    flow (``before``: a run read before keeps its count). Else ``out`` as it is, for the range check to refuse."""
+    flow (a run read before keeps its own, which its attrs carry). Else ``out`` as it is, for the range check to
+    refuse."""
     q = out["q_kgh"].to_numpy(dtype=float)
     below = np.isfinite(q) & (q < 0.0)
     high = float(np.nanpercentile(q, 99)) if np.isfinite(q).any() else float("nan")
@@ -848,8 +852,6 @@ def _zero_flow_noise(out: pd.DataFrame, before: dict[str, float] | None) -> pd.D
     i = np.flatnonzero(below)
     shut = bool(np.all(near[np.maximum(i - 1, 0)] | near[np.minimum(i + 1, q.size - 1)]))
     if not below.any() or not high > 0.0 or float(q[below].min()) < -band or not shut:
-        if before and not below.any():
-            out.attrs["q_zero_noise"] = before
         return out
     out["q_kgh"] = np.where(below, 0.0, q)
     out.attrs["q_zero_noise"] = {"rows": int(below.sum()), "lowest_kgh": float(q[below].min()), "high_kgh": high}
@@ -1115,7 +1117,7 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "ZERO_FLOW_NOISE_SHARE", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
-           "clock_in_time_s", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
+           "clock_in_time_s", "name_key", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
            "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
            "flow_ratio",
            "opening_derived", "SHORT_SPAN_S", "TANK_HOT_C",

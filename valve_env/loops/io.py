@@ -56,6 +56,7 @@ from valve_env.data_io import (
     header_units,
     interval_problem,
     is_comment,
+    name_key,
     near_name_hint,
     nul_note,
     read_text,
@@ -65,6 +66,11 @@ from valve_env.data_io import (
     time_order_hint,
     unit_key,
 )
+
+#: the loop CSV's columns (docs/reference.md, section 10): the four it needs, then the optional measured valve
+#: position and mode
+COLUMNS: tuple[str, ...] = ("time_s", "sp", "pv", "op", "mv", "mode")
+REQUIRED_COLUMNS: tuple[str, ...] = COLUMNS[:4]
 
 #: Names other tools give the loop CSV's columns (docs/reference.md, section 10), compared by their letters and digits
 #: in lower case: a refusal of the missing column names the header's column that is likely meant. ``mv`` is the loop
@@ -84,15 +90,12 @@ LOOP_MEANINGS = {"sp": "the set point", "pv": "the process variable", "op": "the
 def synonym_hint(missing: list[str], header: list[str]) -> str:
     """Where the loop CSV's columns ``missing`` are absent and the header has names other tools give them
     (:data:`LOOP_SYNONYMS`), the refusal's hint naming each such column and what to rename it to. Else ''."""
-    def key(name: str) -> str:
-        return "".join(ch for ch in name.lower() if ch.isalnum())
-
-    found = [(c, h) for c in missing for h in header if key(h) in LOOP_SYNONYMS.get(c, ())]
+    found = [(c, h) for c in missing for h in header if name_key(h) in LOOP_SYNONYMS.get(c, ())]
     if not found:
         return ""
     parts = []
     for c, h in found:
-        if key(h) == "mv":
+        if name_key(h) == "mv":
             parts.append(f"'{h}' is the measured valve position in a loop CSV; if it is the controller output (a "
                          f"historian's .MV), name it op")
         else:
@@ -173,7 +176,7 @@ class LoopData:
         """The record as the project's loop CSV."""
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        cols = ["time_s", "sp", "pv", "op"] + (["mv"] if self.mv is not None else [])
+        cols = list(REQUIRED_COLUMNS) + (["mv"] if self.mv is not None else [])
         w.writerow(cols)
         arrs = [self.time_s, self.sp, self.pv, self.op] + ([self.mv] if self.mv is not None else [])
         for row in zip(*arrs, strict=True):
@@ -232,24 +235,24 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
     if not rows:
         raise LoopDataError(f"{p}: empty file")
     header = written = [h.strip() for h in rows[0]]
-    named = header_units(header, ("time_s", "sp", "pv", "op", "mv", "mode"))
+    named = header_units(header, COLUMNS)
     t = next((u for n, u in named.values() if n == "time_s"), None)
     if t is not None and unit_key(t) not in UNITS["time_s"][1]:
         raise LoopDataError(f"{p}: the header gives time_s in {t!r}: give it in seconds")
     header = [named[h][0] if h in named else h for h in header]
     # which copy is the signal? (csv would silently take the first); extra columns are ignored, twice or not
-    twice = sorted({h for h in header if h in ("time_s", "sp", "pv", "op", "mv", "mode") and header.count(h) > 1})
+    twice = sorted({h for h in header if h in COLUMNS and header.count(h) > 1})
     if twice:
         raise LoopDataError(f"{p}: the header names column(s) {', '.join(twice)} more than once")
-    missing = [c for c in ("time_s", "sp", "pv", "op") if c not in header]
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
         hint = ((time_name_hint(header) if missing[0] == "time_s" else "")
                 or synonym_hint(missing, header)
-                or near_name_hint(missing[0], header, ("time_s", "sp", "pv", "op", "mv", "mode")))
+                or near_name_hint(missing[0], header, COLUMNS))
         if not hint and "time_s" in missing:
             hint = clock_time_hint({h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)})
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
-    wanted = [c for c in ("time_s", "sp", "pv", "op", "mv", "mode") if c in header]
+    wanted = [c for c in COLUMNS if c in header]
     idx: dict[str, int] = {c: header.index(c) for c in wanted}
     cols: dict[str, list[float]] = {c: [] for c in wanted}
     body = rows[1:]
@@ -592,7 +595,7 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
     n = cols["time_s"].size
     if n < 2:
         raise LoopDataError(f"{where}: {n} sample(s): a record needs at least two")
-    for c in ("time_s", "sp", "pv", "op", "mv", "mode"):
+    for c in COLUMNS:
         if c in cols:
             # a missing value is dropped below, except a missing time
             bad = np.flatnonzero(~np.isfinite(cols[c]) if c == "time_s" else np.isinf(cols[c]))
@@ -692,4 +695,4 @@ __all__ = ["LoopData", "LoopDataError", "MIN_SAMPLES", "MAX_MISSING_FRACTION", "
            "SATURATION_SHARE", "MISSING_MARKERS", "MODE_NAMES",
            "read_loop", "read_loop_csv", "read_historian",
            "check_loop", "merge_repeated_timestamps", "gross_outliers", "GROSS_RANGES", "GROSS_MAX_RUN",
-           "GROSS_MAX_FRACTION", "LOOP_SYNONYMS", "synonym_hint"]
+           "GROSS_MAX_FRACTION", "LOOP_SYNONYMS", "synonym_hint", "COLUMNS", "REQUIRED_COLUMNS"]
