@@ -40,7 +40,7 @@ import difflib
 import io
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -724,6 +724,51 @@ def near_name_hint(missing: str, columns: list[str], taken: tuple[str, ...] = ()
     return f"; the header has {name!r}: if that is {missing}{unit}, rename it (names are exact)"
 
 
+def rename_hint(missing: list[str], columns: list[str], taken: tuple[str, ...] = ()) -> str:
+    """The refusal's hint for every one of the ``missing`` columns that the header has under a close name
+    (:func:`near_name_hint`), in one clause where several have the same letters in another case or spacing (a header
+    ``Time, SP, PV, OP`` is told all four renames at once, not one per attempt). Else ''."""
+    renames: list[tuple[str, str]] = []
+    parts: list[str] = []
+    for m in missing:
+        same = [c for c in columns if c not in taken and name_key(c) == name_key(m)
+                and all(c != h for h, _ in renames)]
+        if same:
+            if not renames:
+                parts.append("")  # the renames' clause goes where the first of them stands
+            renames.append((same[0], m))
+        else:
+            parts.append(near_name_hint(m, columns, taken))
+    if len(renames) == 1:
+        parts[parts.index("")] = f"; the header has {renames[0][0]!r}: rename it {renames[0][1]} (names are exact)"
+    elif renames:
+        parts[parts.index("")] = (f"; the header has {', '.join(repr(h) for h, _ in renames)}: rename them "
+                                  f"{', '.join(m for _, m in renames)} (names are exact)")
+    return "".join(parts)
+
+
+def long_format_hint(missing: list[str], columns: Mapping[str, Iterable[object]]) -> str:
+    """Where the missing columns are named in the cells of one column (a historian's long, or narrow, export: one
+    row per channel and time, the channel in a ``tag`` column, as OSIsoft PI or a pandas ``melt`` writes it), the
+    refusal's hint: give one column per channel. A cell ``FIC101.PV`` names ``pv``. ``columns``: each column's
+    cells. Else ''."""
+    wanted = {name_key(m): m for m in missing}
+    for col, cells in columns.items():
+        names = set()
+        for cell in cells:
+            text = str(cell).strip()
+            names.add(text)
+            if len(names) > 200:  # a column of values, not of channel names
+                break
+        else:
+            named = {wanted[k] for n in names for k in (name_key(n), name_key(n.rsplit(".", 1)[-1])) if k in wanted}
+            if len(named) >= 2:
+                return (f"; column {col!r} names the channels ({', '.join(sorted(named))}) row by row, a long export: "
+                        f"give one column per channel (pandas: df.pivot(index=<time>, columns={col!r}, "
+                        f"values=<value>))")
+    return ""
+
+
 def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | None = None) -> pd.DataFrame:
     """Validate a run given as a DataFrame (strings or numbers); returns a validated copy."""
     valve = valve or ValveParams()
@@ -744,13 +789,15 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         raise DataError(f"{source}: duplicate column(s) {dup}")
     missing = [c for c in REQUIRED if c not in raw.columns]
     if missing:
-        heads = {str(c): raw[c].dropna().astype(str).head(5).tolist() for c in raw.columns}
-        hint = ((time_name_hint(list(raw.columns)) if missing[0] == "time_s" else "")
-                or unit_name_hint(missing[0], list(raw.columns))
-                or near_name_hint(missing[0], list(raw.columns), (*REQUIRED, *OPTIONAL)))
-        if not hint and missing[0] == "time_s":
-            hint = clock_time_hint(heads)
-        raise DataError(f"{source}: missing column {missing[0]!r} (required: {', '.join(REQUIRED)}){hint}")
+        cols = list(raw.columns)
+        special = {c: (time_name_hint(cols) or clock_time_hint(
+                       {str(h): raw[h].dropna().astype(str).head(5).tolist() for h in cols})) if c == "time_s"
+                   else unit_name_hint(c, cols) for c in missing}
+        hint = long_format_hint(missing, {str(h): raw[h].tolist() for h in cols}) if len(missing) > 1 else ""
+        hint = hint or "".join(special.values()) + rename_hint([c for c in missing if not special[c]], cols,
+                                                      (*REQUIRED, *OPTIONAL))
+        which = f"column {missing[0]!r}" if len(missing) == 1 else f"columns {', '.join(map(repr, missing))}"
+        raise DataError(f"{source}: missing {which} (required: {', '.join(REQUIRED)}){hint}")
     units = _units_row(raw, source, row_lines[0] if row_lines else first)
     if units:  # a second header line: the data begin a line later, and the rows are counted from there
         raw = raw.iloc[1:].reset_index(drop=True)

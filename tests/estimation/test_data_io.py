@@ -94,6 +94,19 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
     # a name in another case or spelling: the refusal names the header's column
     (lambda d: d.rename(columns={"T_tank_C": "T_Tank_C"}),
      r"missing column 'T_tank_C' .*; the header has 'T_Tank_C': rename it T_tank_C \(names are exact\)$"),
+    # every missing column's hint at once (before: the first missing column's alone)
+    (lambda d: d.rename(columns={"T_tank_C": "T_Tank_C", "q_kgh": "Q_kgh", "T_med_C": "T_med_K"})
+     .assign(T_med_K=lambda e: e.T_med_K + 273.15),
+     r"missing columns 'T_tank_C', 'T_med_C', 'q_kgh' \(required: .*\); the header has 'T_med_K', T_med in K: give it "
+     r"as T_med_C in degC \(subtract 273.15\); the header has 'T_Tank_C', 'Q_kgh': rename them T_tank_C, q_kgh "
+     r"\(names are exact\)$"),
+    # a clock named like time_s is a clock, not a name to correct (before: 'rename it')
+    (lambda d: d.assign(Time=pd.Timestamp("2026-03-01 06:00") + pd.to_timedelta(d.time_s, unit="s"))
+     .drop(columns=["time_s"]), r"missing column 'time_s' .*; column 'Time' holds date-times: give the time as "),
+    # a long export (one row per channel and time): one column per channel
+    (lambda d: d.melt(id_vars="time_s", var_name="channel", value_name="value"),
+     r"missing columns 'T_tank_C', .*; column 'channel' names the channels \(T_med_C, T_tank_C, dp_mbar, ps_bar, "
+     r"q_kgh\) row by row, a long export: give one column per channel"),
     (lambda d: d.assign(time_h=d.time_s / 3600.0).drop(columns=["time_s"]),
      r"; the header has 'time_h', a time not in seconds: give it as time_s in seconds \(multiply by 3600\)$"),
     (lambda d: d.assign(time_x=d.time_s).drop(columns=["time_s"]),

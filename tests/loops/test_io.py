@@ -143,8 +143,37 @@ def test_short_record_is_read_and_missing_column_refused(tmp_path: Path) -> None
         read_loop(clock)
     upper = tmp_path / "upper.csv"  # a name in another case: the refusal names it
     upper.write_text("time_s,SP,PV,OP\n" + "".join(f"{10 * k},1,2,{40 + k % 3}\n" for k in range(30)))
-    with pytest.raises(LoopDataError, match=r"missing column\(s\) sp, pv, op .*; the header has 'SP': rename it sp"):
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) sp, pv, op .*; the header has 'SP', 'PV', 'OP': "
+                                            r"rename them sp, pv, op"):
         read_loop(upper)
+
+
+def test_every_missing_column_is_named_at_once(tmp_path: Path) -> None:
+    """A header whose names are all in another case or spelling (``Time (s), SP, PV, OP``) is told every rename in
+    one line, not one per attempt (before, only time_s's)."""
+    upper = _write_text(tmp_path / "upper.csv", "Time (s),SP,PV,OP\n" + "".join(f"{10 * k},1,2,{40 + k % 3}\n"
+                                                                               for k in range(30)))
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) time_s, sp, pv, op .*; the header has 'Time \(s\)', "
+                                            r"'SP', 'PV', 'OP': rename them time_s, sp, pv, op \(names are exact\)$"):
+        read_loop(upper)
+    mixed = _write_text(tmp_path / "mixed.csv", "time_min,Setpoint,PV,op\n" + "".join(
+        f"{k},1,2,{40 + k % 3}\n" for k in range(30)))
+    with pytest.raises(LoopDataError, match=r"the header has 'time_min', a time not in seconds: .*; if 'Setpoint' is "
+                                            r"the set point, name it sp .*; the header has 'PV': rename it pv"):
+        read_loop(mixed)
+
+
+@pytest.mark.parametrize("tag", ["{c}", "FIC101.{C}"])
+def test_a_long_export_is_refused_naming_its_channel_column(tmp_path: Path, tag: str) -> None:
+    """A historian's long (narrow) export, one row per channel and time with the channel in a ``tag`` column (PI's
+    ``FIC101.PV`` or pandas' melt), is refused telling to give one column per channel (before: the missing columns
+    alone)."""
+    rows = [f"{10 * k},{tag.format(c=c, C=c.upper())},{v}" for c, v in (("sp", 1), ("pv", 2), ("op", 40))
+            for k in range(30)]
+    p = _write_text(tmp_path / "long.csv", "time_s,tag,value\n" + "\n".join(rows) + "\n")
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) sp, pv, op .*; column 'tag' names the channels "
+                                            r"\(op, pv, sp\) row by row, a long export: give one column per channel"):
+        read_loop(p)
 
 
 def test_manual_mode_dropped_with_a_note(tmp_path: Path) -> None:

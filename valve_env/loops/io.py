@@ -56,10 +56,11 @@ from valve_env.data_io import (
     header_units,
     interval_problem,
     is_comment,
+    long_format_hint,
     name_key,
-    near_name_hint,
     nul_note,
     read_text,
+    rename_hint,
     short_list,
     text_cells,
     time_name_hint,
@@ -246,11 +247,16 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
         raise LoopDataError(f"{p}: the header names column(s) {', '.join(twice)} more than once")
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
-        hint = ((time_name_hint(header) if missing[0] == "time_s" else "")
-                or synonym_hint(missing, header)
-                or near_name_hint(missing[0], header, COLUMNS))
-        if not hint and "time_s" in missing:
-            hint = clock_time_hint({h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)})
+        # every missing column's hint at once: its time unit or clock, the name another tool gives it, or its name
+        # in another case or spelling
+        time_hint = (time_name_hint(header) or clock_time_hint(
+            {h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)})) if "time_s" in missing else ""
+        other = [c for c in missing if c != "time_s" or not time_hint]
+        told = [c for c in other if synonym_hint([c], header)]
+        hint = (long_format_hint(missing, {h: [r[j] for r in rows[1:] if j < len(r)] for j, h in enumerate(header)})
+                if len(missing) > 1 else "")
+        hint = hint or (time_hint + synonym_hint(told, header)
+                        + rename_hint([c for c in other if c not in told], header, COLUMNS))
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
     wanted = [c for c in COLUMNS if c in header]
     idx: dict[str, int] = {c: header.index(c) for c in wanted}
