@@ -171,6 +171,16 @@ MAX_GAP_S = 86400.0
 #: are read as 0, with a note (:func:`_zero_flow_noise`); one further below 0 is refused by the range check, which names
 #: a meter that counts the flow as negative where every value would fit so.
 ZERO_FLOW_NOISE_SHARE = 0.05
+#: A flow meter's low-flow cut-off (a magnetic or ultrasonic meter reads 0 below a set flow, commonly 0.5-5 % of its
+#: range): a record whose flow is exactly 0 on at least :data:`CUT_OFF_MIN_ROWS` rows and a share
+#: :data:`CUT_OFF_MIN_SHARE` of them, and whose smallest flow above 0 is at least :data:`CUT_OFF_MIN_FLOW_SHARE` of the
+#: high flow (its 99th percentile), has one (:func:`flow_cut_off`): a valve that opens from its seat passes every small
+#: flow on the way, which the record then lacks. An opening derived from such a flow is only known to be below the
+#: cut-off's opening where the flow reads 0; it is derived as 0 there, and a warning says so (docs/reference.md,
+#: section 2; docs/diagnosis.md, "Known limits").
+CUT_OFF_MIN_ROWS = 10
+CUT_OFF_MIN_SHARE = 0.01
+CUT_OFF_MIN_FLOW_SHARE = 0.01
 #: |time_s| beyond this (s, ~300 years) is not a time.
 MAX_ABS_TIME_S = 1.0e10
 #: The measured channels, whose empty cells drop their row (a logger that missed a value: the row is then
@@ -876,6 +886,10 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     else:
         out["x_mm"] = derived
         out.attrs["x_mm_derived_rows"] = n
+        cut = flow_cut_off(q)
+        if cut is not None:  # a flow read as 0 says only that the opening lies below the one the cut-off passes
+            out.attrs["q_cut_off"] = {"rows": int(np.sum(q == 0.0)), "cut_off_kgh": cut, "x_below_mm": float(
+                np.median(opening_from_flow(np.full(n, cut), out["dp_mbar"].to_numpy(), vp)))}
         # an opening measured but named in another unit (x_um, x_%) is an extra column, and so not read: a note says so
         other = unit_name_hint("x_mm", [str(c) for c in raw.columns])
         if other:
@@ -903,6 +917,19 @@ def _zero_flow_noise(out: pd.DataFrame) -> pd.DataFrame:
     out["q_kgh"] = np.where(below, 0.0, q)
     out.attrs["q_zero_noise"] = {"rows": int(below.sum()), "lowest_kgh": float(q[below].min()), "high_kgh": high}
     return out
+
+
+def flow_cut_off(q: np.ndarray) -> float | None:
+    """The low-flow cut-off (kg/h) of the meter that recorded the flows ``q``, its smallest flow above 0, where the
+    record shows one (:data:`CUT_OFF_MIN_FLOW_SHARE`); else None."""
+    q = np.asarray(q, dtype=float)
+    q = q[np.isfinite(q)]
+    zero, pos = q == 0.0, q > 0.0
+    n0 = int(zero.sum())
+    if n0 < max(CUT_OFF_MIN_ROWS, CUT_OFF_MIN_SHARE * q.size) or not pos.any():
+        return None
+    low, high = float(q[pos].min()), float(np.percentile(q, 99))
+    return low if high > 0.0 and low >= CUT_OFF_MIN_FLOW_SHARE * high else None
 
 
 def _check_stroke(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
@@ -1167,7 +1194,7 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "clock_in_time_s", "name_key", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
            "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
            "flow_ratio",
-           "opening_derived", "SHORT_SPAN_S", "TANK_HOT_C",
+           "opening_derived", "flow_cut_off", "CUT_OFF_MIN_FLOW_SHARE", "SHORT_SPAN_S", "TANK_HOT_C",
            "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint",
            "fortran_exponent", "DASHES", "time_name_hint",
            "time_order_hint"]

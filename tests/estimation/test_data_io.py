@@ -782,3 +782,29 @@ def test_an_opening_with_the_other_sign_is_told_to_be_negated(tmp_path: Path, op
         load_run(_write(open_run.assign(x_mm=-open_run.x_mm), tmp_path / "neg.csv"))
     with pytest.raises(DataError, match=r"if x_mm is the closing travel, give the opening \(2 mm - x_mm\)$"):
         load_run(_write(open_run.assign(x_mm=2.0 - open_run.x_mm), tmp_path / "travel.csv"))
+
+
+def test_a_flow_meters_low_flow_cut_off_is_named_where_the_opening_is_derived(tmp_path: Path,
+                                                                              open_run: pd.DataFrame) -> None:
+    """A meter that reads 0 below a set flow (a low-flow cut-off) leaves the opening derived from the flow unknown
+    below the cut-off's: with no x_mm the record gets a warning note (``q_cut_off``) naming the cut-off, the rows and
+    that opening; with x_mm measured, or with a meter's noise about 0 (no gap above 0), none. Before, nothing was
+    said, and a valve without an effect was named stiction on such a record (the corpus's KNOWN_WRONG)."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    q = open_run.q_kgh.to_numpy()
+    high = float(np.percentile(q, 99))
+    cut = np.where(q < 0.03 * high, 0.0, q)
+    assert 10 < int((cut == 0).sum()) < q.size
+    derived = load_run(_write(open_run.assign(q_kgh=cut).drop(columns=["x_mm"]), tmp_path / "cut.csv"))
+    notes = [nt for nt in preprocess_run(derived)[1] if nt["what"] == "q_cut_off"]
+    assert len(notes) == 1 and notes[0]["warn"] and notes[0]["rows"] == int((cut == 0).sum())
+    assert notes[0]["cut_off_kgh"] == pytest.approx(cut[cut > 0].min())
+    assert 0.0 < notes[0]["x_below_mm"] < 0.2
+    assert any(line.startswith(f"q_kgh: 0 in {notes[0]['rows']} row(s), never between 0 and") for line in
+               describe(notes))
+    measured = load_run(_write(open_run.assign(q_kgh=cut), tmp_path / "measured.csv"))
+    assert "q_cut_off" not in measured.attrs
+    noisy = np.maximum(q + np.random.default_rng(0).normal(0.0, 0.5, q.size), 0.0)  # zero noise: no gap above 0
+    assert "q_cut_off" not in load_run(_write(open_run.assign(q_kgh=noisy).drop(columns=["x_mm"]),
+                                              tmp_path / "noisy.csv")).attrs

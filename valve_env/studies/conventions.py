@@ -91,6 +91,15 @@ def flow_zero_noise(df: pd.DataFrame, rng: np.random.Generator, sd_kgh: float = 
     return out
 
 
+def flow_cut_off(df: pd.DataFrame, share: float = 0.03) -> pd.DataFrame:
+    """The flow read by a meter with a low-flow cut-off: every flow below ``share`` of the run's high flow (its 99th
+    percentile) read as 0 (magnetic and ultrasonic meters cut off at 0.5-5 % of their range). It loses information
+    where the opening is derived from the flow: near the seat the derived opening is only known to be below the
+    cut-off's."""
+    q = df["q_kgh"].to_numpy(dtype=float)
+    return df.assign(q_kgh=np.where(q < share * np.percentile(q, 99), 0.0, q))
+
+
 def held_constant(df: pd.DataFrame, column: str) -> pd.DataFrame:
     """``column`` exactly constant (its median): a rig that holds an input fixed and logs its set value.
 
@@ -315,6 +324,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: df.drop(columns=["x_mm"])),
     Convention("flow_zero_noise", "the flow meter's noise about 0 (0.5 kg/h added to every reading): a shut valve "
                "reads partly below 0", flow_zero_noise, loses_information=True),
+    Convention("flow_cut_off", "the flow meter's low-flow cut-off: flows below 3 % of the run's high flow read as 0",
+               lambda df, rng: flow_cut_off(df), loses_information=True),
     Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
                lambda df, rng: extra_columns(df, rng)),
     Convention("historian_export", "1 % of the rows written twice, 0.4 % of each measured channel's cells a PI "
@@ -356,6 +367,6 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
 
 
 __all__ = ["CONVENTIONS", "Convention", "apply_convention", "frame_problem", "drop_rows", "extra_columns", "gap",
-           "flow_zero_noise",
+           "flow_zero_noise", "flow_cut_off",
            "held_constant", "historian_export", "logger_comments", "logger_cut_off", "noiseless", "quantise",
            "resample", "spikes", "spreadsheet_export", "stepped", "store_on_change", "truncate"]

@@ -28,14 +28,17 @@ each convention is handled once, here, and reported:
   samples the logger missed: the note names them (every row number in the notes is the file's).
 * **an opening derived from the flow** (no ``x_mm`` column, or empty cells in it, which
   :func:`~valve_env.data_io.validate_run` fills from ``q_kgh`` and ``dp_mbar`` with the valve
-  characteristic): the note says in how many rows.
+  characteristic): the note says in how many rows. Where the flow meter has a low-flow cut-off (``q_cut_off``,
+  :func:`~valve_env.data_io.flow_cut_off`, a warning), the opening derived as 0 where the flow reads 0 only lies
+  below the cut-off's opening: a stick band about that size may be named where there is none, or missed.
 * **irregular sampling and gaps**: the likelihoods integrate over each interval as it is, so the
   data are not changed; the note gives the interval's spread, the rows missing against the median
   interval and the longest gap (nothing is filled in).
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
 ``units_in_cells``, ``nul_padding``, ``last_line_cut``, ``comment_lines``, ``header_lines``, ``rows_repeated``,
-``rows_dropped``, ``spikes_replaced``, ``q_zero_noise``, ``x_mm_derived``, ``irregular_sampling``, ``gap``,
+``rows_dropped``, ``spikes_replaced``, ``q_zero_noise``, ``q_cut_off``, ``x_mm_derived``, ``irregular_sampling``,
+``gap``,
 ``short_span``), the
 ``channel`` where it applies, and ``why``. The ``fit`` and ``diagnose`` JSON carry them under ``preprocessing``, and
 their reports print them; a note a user must not miss (a record of seconds, not hours; an opening measured in another
@@ -72,7 +75,7 @@ X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
 CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "nul_padding", "last_line_cut",
                                  "comment_lines", "header_lines", "rows_repeated", "rows_dropped", "spikes_replaced",
-                                 "x_mm_derived", "q_zero_noise")
+                                 "x_mm_derived", "q_zero_noise", "q_cut_off")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -182,6 +185,15 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
                       "why": f"{zero['rows']} flow(s) below 0, down to {zero['lowest_kgh']:.3g} kg/h, within a flow "
                              f"meter's noise about 0 (at most {ZERO_FLOW_NOISE_SHARE:.0%} of the record's high flow, "
                              f"{zero['high_kgh']:.4g} kg/h), read as 0"})
+    cut = df.attrs.get("q_cut_off")
+    if cut and ("q_cut_off", "q_kgh") not in done:
+        notes.append({"what": "q_cut_off", "channel": "q_kgh", **cut,
+                      "why": f"the flow reads 0 in {cut['rows']} row(s) and never between 0 and "
+                             f"{cut['cut_off_kgh']:.3g} kg/h: a flow meter's low-flow cut-off. The opening derived "
+                             f"from the flow is 0 there, where it is only known to be below about "
+                             f"{cut['x_below_mm']:.3g} mm: a stick band up to about that size may be named where there "
+                             "is none, or missed; give the measured opening x_mm, or the meter's reading without the "
+                             "cut-off", "warn": True})
     derived = int(df.attrs.get("x_mm_derived_rows", 0))
     if derived and ("x_mm_derived", "x_mm") not in done:
         other = df.attrs.get("x_mm_other_unit")
@@ -284,6 +296,10 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
         elif what == "q_zero_noise":
             lines.append(f"q_kgh: {nt['rows']} flow(s) below 0, down to {nt['lowest_kgh']:.3g} kg/h, read as 0 (a "
                          "meter's noise about 0)")
+        elif what == "q_cut_off":
+            lines.append(f"q_kgh: 0 in {nt['rows']} row(s), never between 0 and {nt['cut_off_kgh']:.3g} kg/h (a "
+                         f"low-flow cut-off): the opening derived as 0 there lies anywhere below about "
+                         f"{nt['x_below_mm']:.3g} mm")
         elif what == "x_mm_derived":
             lines.append(f"x_mm: derived from the flow in {nt['rows']} row(s) ({nt['why'].split(':')[0]})")
         elif what == "irregular_sampling":
