@@ -932,6 +932,18 @@ def flow_cut_off(q: np.ndarray) -> float | None:
     return low if high > 0.0 and low >= CUT_OFF_MIN_FLOW_SHARE * high else None
 
 
+def censored_opening(run: pd.DataFrame) -> np.ndarray | None:
+    """The rows of a validated run whose opening, derived from a flow read as 0 under a meter's low-flow cut-off
+    (:func:`flow_cut_off`; the note ``q_cut_off``), is only known to lie below the cut-off's opening; None where there
+    are none. The EKF likelihood takes their opening as missing
+    (:func:`valve_env.valveid.valve_model.prepare_inputs`)."""
+    cut = run.attrs.get("q_cut_off") or any(nt.get("what") == "q_cut_off" for nt in run.attrs.get("preprocessing", ()))
+    if not cut or "q_kgh" not in run.columns:
+        return None
+    rows = run["q_kgh"].to_numpy(dtype=float) == 0.0
+    return rows if rows.any() else None
+
+
 def _check_stroke(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
     """Refuse an opening that reaches beyond the valve's stroke (a tenth of the samples or more above
     :data:`STROKE_MARGIN` strokes), naming the unit that would bring it within the stroke where one does: a position
@@ -1194,7 +1206,8 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "clock_in_time_s", "name_key", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
            "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
            "flow_ratio",
-           "opening_derived", "flow_cut_off", "CUT_OFF_MIN_FLOW_SHARE", "SHORT_SPAN_S", "TANK_HOT_C",
+           "opening_derived", "flow_cut_off", "censored_opening", "CUT_OFF_MIN_FLOW_SHARE", "SHORT_SPAN_S",
+           "TANK_HOT_C",
            "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint",
            "fortran_exponent", "DASHES", "time_name_hint",
            "time_order_hint"]

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from valve_env.data_io import censored_opening
 from valve_env.ident.mle import MLEstimator
 from valve_env.ident.tests import misspecification_check
 from valve_env.ident.uncertainty import robust_std
@@ -29,6 +30,14 @@ def fit_run(data: pd.DataFrame, *, valve: ValveParams | None = None, n_starts: i
     return MLEstimator(model, n_starts=n_starts, seed=seed, fixed=fixed).fit(data)
 
 
+def measured_opening(data: pd.DataFrame) -> np.ndarray:
+    """x_mm, NaN where it is not measured: derived from a flow read as 0 under a meter's low-flow cut-off
+    (:func:`valve_env.data_io.censored_opening`)."""
+    x = data["x_mm"].to_numpy(dtype=float)
+    censored = censored_opening(data)
+    return x if censored is None else np.where(censored, np.nan, x)
+
+
 def _f(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
@@ -37,7 +46,7 @@ def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame |
     """The ``thermovalve fit`` JSON: docs/reference.md, section 7 keys first (params holds ValveParams fields only,
     so it can be passed to ``gym.make("ThermoValve-v0", valve=params)``), then extras."""
     sim = est.simulate(data)
-    meas = data["x_mm"].to_numpy(dtype=float)
+    meas = measured_opening(data)
     out: dict[str, Any] = {
         "params": {k: float(est.params_[k]) for k in VALVE_FIELDS},
         "std": {k: _f(est.std_.get(k, float("nan"))) for k in VALVE_FIELDS},
@@ -65,7 +74,7 @@ def fit_summary(est: MLEstimator, data: pd.DataFrame, validation: pd.DataFrame |
         out["validation"] = {
             "n": len(validation),
             "rms_mm": float(np.sqrt(np.nanmean(res**2))),
-            "rms_sim_mm": float(np.sqrt(np.nanmean((validation["x_mm"].to_numpy(dtype=float) - vsim) ** 2))),
+            "rms_sim_mm": float(np.sqrt(np.nanmean((measured_opening(validation) - vsim) ** 2))),
             "loglik": float(-est.nll(data=validation)),
         }
     return out

@@ -190,10 +190,10 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         notes.append({"what": "q_cut_off", "channel": "q_kgh", **cut,
                       "why": f"the flow reads 0 in {cut['rows']} row(s) and never between 0 and "
                              f"{cut['cut_off_kgh']:.3g} kg/h: a flow meter's low-flow cut-off. The opening derived "
-                             f"from the flow is 0 there, where it is only known to be below about "
-                             f"{cut['x_below_mm']:.3g} mm: a stick band up to about that size may be named where there "
-                             "is none, or missed; give the measured opening x_mm, or the meter's reading without the "
-                             "cut-off", "warn": True})
+                             f"from the flow there is only known to be below about {cut['x_below_mm']:.3g} mm: fit "
+                             "takes it as missing; diagnose reads it as 0, so a stick band up to about that size may "
+                             "be named where there is none, or missed. Give the measured opening x_mm, or the meter's "
+                             "reading without the cut-off", "warn": True})
     derived = int(df.attrs.get("x_mm_derived_rows", 0))
     if derived and ("x_mm_derived", "x_mm") not in done:
         other = df.attrs.get("x_mm_other_unit")

@@ -47,6 +47,7 @@ import numpy as np
 import pandas as pd
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
+from valve_env.data_io import censored_opening
 from valve_env.ident.kalman import _alloc
 from valve_env.ident.sde import CompiledFunctions, CompiledSDEModel, Parameter, with_overrides
 from valve_env.params import I_F_HMAX, I_P_BSET, I_SIGMA, I_STROKE, N_VALVE, ValveParams
@@ -73,8 +74,13 @@ def prepare_inputs(data: pd.DataFrame, tv_factor: float = 4.5, time: str = "time
     """A copy of ``data`` with ``T_tank_s``, ``v_tank`` (from ``T_tank_C``) and ``T_med_s``,
     ``v_med`` (from ``T_med_C``): the denoised temperatures and their rates (see the module doc),
     and ``t_in``, the sample time (so that a hook can interpolate inside an interval, see
-    :func:`tank_temperature`)."""
+    :func:`tank_temperature`). An opening derived from a flow read as 0 under a meter's low-flow cut-off
+    (:func:`valve_env.data_io.censored_opening`) is only known to lie below the cut-off's: it is missing (NaN) here,
+    as the filter takes a missing output."""
     out = data.copy()
+    censored = censored_opening(data)
+    if censored is not None and "x_mm" in out.columns:
+        out["x_mm"] = np.where(censored, np.nan, out["x_mm"].to_numpy(dtype=float))
     t = out[time].to_numpy(dtype=float)
     out["t_in"] = t
     out["T_tank_s"], out["v_tank"] = denoise_temperature(out["T_tank_C"].to_numpy(dtype=float), t, tv_factor,
