@@ -181,6 +181,14 @@ ZERO_FLOW_NOISE_SHARE = 0.05
 CUT_OFF_MIN_ROWS = 10
 CUT_OFF_MIN_SHARE = 0.01
 CUT_OFF_MIN_FLOW_SHARE = 0.01
+#: A circulation pump that stops (at night, or in summer) leaves the valve without a differential pressure or a flow:
+#: rows whose dp_mbar lies within this share of the record's median dp of 0 (either side: a transmitter's noise) and
+#: whose flow is within :data:`ZERO_FLOW_NOISE_SHARE` of the high flow of 0, in stretches of at least
+#: :data:`PUMP_OFF_MIN_ROWS` rows, are dropped with a note (:func:`_pump_off`): the valve's flow and force balance
+#: hold no information there, and the likelihoods take the stretch as a gap. An isolated such row is a glitch, refused
+#: by the range check.
+PUMP_OFF_DP_SHARE = 0.05
+PUMP_OFF_MIN_ROWS = 3
 #: |time_s| beyond this (s, ~300 years) is not a time.
 MAX_ABS_TIME_S = 1.0e10
 #: The measured channels, whose empty cells drop their row (a logger that missed a value: the row is then
@@ -834,6 +842,10 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         _check_opening_sign(out, valve, source)
         _check_dp_unit(out, valve, source)
     out = _zero_flow_noise(out)
+    pump_off = _pump_off(out)
+    if pump_off is not None:  # left out of the checks, then dropped with the empty rows' drop (below)
+        out[_PUMP_OFF] = pump_off
+        out.loc[pump_off, ["dp_mbar", "q_kgh"]] = np.nan
     for col, (lo, hi, lo_open, what) in RANGES.items():
         if col in out.columns:
             _check_range(out[col].to_numpy(dtype=float), col, lo, hi, lo_open, what, source, first_line)
@@ -864,6 +876,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         r = _file_row(out, i)
         raise DataError(f"{source}: column time_s, row {r} (line {first_line(r - 1)}): a gap of {dt[i - 1]:.3g} s "
                         f"after the previous sample (at most {MAX_GAP_S:g} s)")
+    if _PUMP_OFF in out.columns:
+        out = _drop_rows(out, out.pop(_PUMP_OFF).to_numpy(dtype=bool), "rows_dropped_pump_off")
     out = _drop_empty_rows(out, source, first_line)
     n = len(out)
     T = out["T_tank_C"].to_numpy()
@@ -917,6 +931,37 @@ def _zero_flow_noise(out: pd.DataFrame) -> pd.DataFrame:
     out["q_kgh"] = np.where(below, 0.0, q)
     out.attrs["q_zero_noise"] = {"rows": int(below.sum()), "lowest_kgh": float(q[below].min()), "high_kgh": high}
     return out
+
+
+_PUMP_OFF = "\x00pump_off"  # a row marker no header can name
+
+
+def _pump_off(out: pd.DataFrame) -> np.ndarray | None:
+    """The rows of stretches in which the circulation pump was off (:data:`PUMP_OFF_DP_SHARE`), or None. Their
+    threshold, the record's median dp, goes to ``attrs["pump_off"]`` with the count."""
+    dp = out["dp_mbar"].to_numpy(dtype=float)
+    q = out["q_kgh"].to_numpy(dtype=float)
+    on = np.isfinite(dp) & (dp > 0.0)
+    if not on.any() or not np.isfinite(q).any():
+        return None
+    med = float(np.median(dp[on]))
+    band = PUMP_OFF_DP_SHARE * med
+    with np.errstate(invalid="ignore"):
+        off = (np.abs(dp) <= band) & (np.abs(q) <= ZERO_FLOW_NOISE_SHARE * float(np.nanpercentile(q, 99)))
+    if not off.any():
+        return None
+    # stretches of at least PUMP_OFF_MIN_ROWS rows
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], off.astype(np.int8), [0]])))
+    keep = np.zeros(off.size, dtype=bool)
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        if b - a >= PUMP_OFF_MIN_ROWS:
+            keep[a:b] = True
+    if not keep.any():
+        return None
+    out.attrs["pump_off"] = {"rows": int(keep.sum()), "stretches": int(np.sum(np.diff(keep.astype(np.int8)) == 1)
+                                                                       + keep[0]),
+                             "dp_at_most_mbar": band, "median_dp_mbar": med}
+    return keep
 
 
 def flow_cut_off(q: np.ndarray) -> float | None:
@@ -1206,8 +1251,8 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "clock_in_time_s", "name_key", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
            "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
            "flow_ratio",
-           "opening_derived", "flow_cut_off", "censored_opening", "CUT_OFF_MIN_FLOW_SHARE", "SHORT_SPAN_S",
-           "TANK_HOT_C",
+           "opening_derived", "flow_cut_off", "censored_opening", "PUMP_OFF_DP_SHARE", "CUT_OFF_MIN_FLOW_SHARE",
+           "SHORT_SPAN_S", "TANK_HOT_C",
            "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint",
            "fortran_exponent", "DASHES", "time_name_hint",
            "time_order_hint"]

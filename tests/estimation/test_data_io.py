@@ -808,3 +808,32 @@ def test_a_flow_meters_low_flow_cut_off_is_named_where_the_opening_is_derived(tm
     noisy = np.maximum(q + np.random.default_rng(0).normal(0.0, 0.5, q.size), 0.0)  # zero noise: no gap above 0
     assert "q_cut_off" not in load_run(_write(open_run.assign(q_kgh=noisy).drop(columns=["x_mm"]),
                                               tmp_path / "noisy.csv")).attrs
+
+
+def test_a_pump_that_stops_leaves_a_gap(tmp_path: Path, open_run: pd.DataFrame) -> None:
+    """A circulation pump that stops (dp and flow about 0 for a stretch; a transmitter's noise either side of 0) is
+    read: those rows are dropped with a note naming them, and the likelihoods take the stretch as a gap; before, the
+    record was refused as out of range. A single such row is still a refused glitch, and so is a dp below 0 beyond a
+    transmitter's noise."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    n = len(open_run)
+    off = np.zeros(n, dtype=bool)
+    off[n // 3:n // 3 + 40] = True
+    dp = open_run.dp_mbar.to_numpy().copy()
+    dp[off] = np.random.default_rng(1).normal(0.0, 0.3, int(off.sum()))
+    stopped = open_run.assign(dp_mbar=dp, q_kgh=np.where(off, 0.0, open_run.q_kgh))
+    out = load_run(_write(stopped, tmp_path / "stopped.csv"))
+    assert len(out) == n - 40 and out.attrs["rows_dropped_pump_off"] == list(range(n // 3 + 1, n // 3 + 41))
+    checked, notes = preprocess_run(out)
+    off_note = next(nt for nt in notes if nt["what"] == "pump_off")
+    assert off_note["rows"] == 40 and off_note["stretches"] == 1
+    assert any(nt["what"] == "gap" for nt in notes)
+    assert any(line.startswith("dp_mbar: the pump off in 1 stretch(es), 40 row(s) dropped") for line in describe(notes))
+    glitch = open_run.assign(dp_mbar=np.where(np.arange(n) == n // 2, 0.0, open_run.dp_mbar),
+                             q_kgh=np.where(np.arange(n) == n // 2, 0.0, open_run.q_kgh))
+    with pytest.raises(DataError, match=rf"column dp_mbar, row {n // 2 + 1} .*: 0 is out of range"):
+        load_run(_write(glitch, tmp_path / "glitch.csv"))
+    deep = stopped.assign(dp_mbar=np.where(off, -20.0, stopped.dp_mbar))
+    with pytest.raises(DataError, match=r"column dp_mbar, row \d+ .*: -20 is out of range"):
+        load_run(_write(deep, tmp_path / "deep.csv"))

@@ -37,8 +37,8 @@ each convention is handled once, here, and reported:
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
 ``units_in_cells``, ``nul_padding``, ``last_line_cut``, ``comment_lines``, ``header_lines``, ``rows_repeated``,
-``rows_dropped``, ``spikes_replaced``, ``q_zero_noise``, ``q_cut_off``, ``x_mm_derived``, ``irregular_sampling``,
-``gap``,
+``rows_dropped``, ``spikes_replaced``, ``q_zero_noise``, ``q_cut_off``, ``pump_off``, ``x_mm_derived``,
+``irregular_sampling``, ``gap``,
 ``short_span``), the
 ``channel`` where it applies, and ``why``. The ``fit`` and ``diagnose`` JSON carry them under ``preprocessing``, and
 their reports print them; a note a user must not miss (a record of seconds, not hours; an opening measured in another
@@ -54,7 +54,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from valve_env.data_io import ZERO_FLOW_NOISE_SHARE, DataError, cut_line_note, nul_note, short_list, time_unit_hint
+from valve_env.data_io import (
+    PUMP_OFF_DP_SHARE,
+    ZERO_FLOW_NOISE_SHARE,
+    DataError,
+    cut_line_note,
+    nul_note,
+    short_list,
+    time_unit_hint,
+)
 from valve_env.valveid.stiction import opening_noise
 from valve_env.valveid.temperature import channel_noise, noise_sd
 
@@ -75,7 +83,7 @@ X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
 CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "nul_padding", "last_line_cut",
                                  "comment_lines", "header_lines", "rows_repeated", "rows_dropped", "spikes_replaced",
-                                 "x_mm_derived", "q_zero_noise", "q_cut_off")
+                                 "x_mm_derived", "q_zero_noise", "q_cut_off", "pump_off")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -185,6 +193,14 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
                       "why": f"{zero['rows']} flow(s) below 0, down to {zero['lowest_kgh']:.3g} kg/h, within a flow "
                              f"meter's noise about 0 (at most {ZERO_FLOW_NOISE_SHARE:.0%} of the record's high flow, "
                              f"{zero['high_kgh']:.4g} kg/h), read as 0"})
+    off = df.attrs.get("pump_off")
+    if off and ("pump_off", "dp_mbar") not in done:
+        rows = df.attrs.get("rows_dropped_pump_off", [])
+        notes.append({"what": "pump_off", "channel": "dp_mbar", **off, "dropped_rows": list(rows),
+                      "why": f"{off['rows']} row(s) in {off['stretches']} stretch(es) with dp_mbar within "
+                             f"{off['dp_at_most_mbar']:.3g} mbar of 0 ({PUMP_OFF_DP_SHARE:.0%} of the record's median "
+                             f"dp, {off['median_dp_mbar']:.4g} mbar) and no flow: the circulation pump was off. They "
+                             "are dropped, and the likelihoods take each stretch as a gap"})
     cut = df.attrs.get("q_cut_off")
     if cut and ("q_cut_off", "q_kgh") not in done:
         notes.append({"what": "q_cut_off", "channel": "q_kgh", **cut,
@@ -296,6 +312,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
         elif what == "q_zero_noise":
             lines.append(f"q_kgh: {nt['rows']} flow(s) below 0, down to {nt['lowest_kgh']:.3g} kg/h, read as 0 (a "
                          "meter's noise about 0)")
+        elif what == "pump_off":
+            lines.append(f"dp_mbar: the pump off in {nt['stretches']} stretch(es), {nt['rows']} row(s) dropped "
+                         f"({_row_list(nt['dropped_rows'])})")
         elif what == "q_cut_off":
             lines.append(f"q_kgh: 0 in {nt['rows']} row(s), never between 0 and {nt['cut_off_kgh']:.3g} kg/h (a "
                          f"low-flow cut-off): the opening derived as 0 there lies anywhere below about "
