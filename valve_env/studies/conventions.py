@@ -100,6 +100,19 @@ def flow_cut_off(df: pd.DataFrame, share: float = 0.03) -> pd.DataFrame:
     return df.assign(q_kgh=np.where(q < share * np.percentile(q, 99), 0.0, q))
 
 
+def pump_off(df: pd.DataFrame, hours: float, rng: np.random.Generator, dp_noise_mbar: float = 0.3) -> pd.DataFrame:
+    """The circulation pump off for ``hours`` at a random place in the middle 60 % of the record: dp_mbar 0 with a
+    transmitter's noise of ``dp_noise_mbar``, and no flow (the rig's night setback). The opening and the temperatures
+    are left as recorded."""
+    t = df["time_s"].to_numpy(dtype=float)
+    span = t[-1] - t[0]
+    start = t[0] + span * (0.2 + 0.6 * rng.random()) - hours * 1800.0
+    off = (t >= start) & (t < start + hours * 3600.0)
+    dp = df["dp_mbar"].to_numpy(dtype=float).copy()
+    dp[off] = rng.normal(0.0, dp_noise_mbar, int(off.sum()))
+    return df.assign(dp_mbar=dp, q_kgh=np.where(off, 0.0, df["q_kgh"].to_numpy(dtype=float)))
+
+
 def held_constant(df: pd.DataFrame, column: str) -> pd.DataFrame:
     """``column`` exactly constant (its median): a rig that holds an input fixed and logs its set value.
 
@@ -324,6 +337,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: df.drop(columns=["x_mm"])),
     Convention("flow_zero_noise", "the flow meter's noise about 0 (0.5 kg/h added to every reading): a shut valve "
                "reads partly below 0", flow_zero_noise, loses_information=True),
+    Convention("pump_off_1h", "the circulation pump off for an hour: dp_mbar 0 with 0.3 mbar of noise, no flow",
+               lambda df, rng: pump_off(df, 1.0, rng), loses_information=True),
     Convention("flow_cut_off", "the flow meter's low-flow cut-off: flows below 3 % of the run's high flow read as 0",
                lambda df, rng: flow_cut_off(df), loses_information=True),
     Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
@@ -367,6 +382,6 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
 
 
 __all__ = ["CONVENTIONS", "Convention", "apply_convention", "frame_problem", "drop_rows", "extra_columns", "gap",
-           "flow_zero_noise", "flow_cut_off",
+           "flow_zero_noise", "flow_cut_off", "pump_off",
            "held_constant", "historian_export", "logger_comments", "logger_cut_off", "noiseless", "quantise",
            "resample", "spikes", "spreadsheet_export", "stepped", "store_on_change", "truncate"]
