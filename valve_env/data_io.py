@@ -9,7 +9,7 @@ measured, an opening beyond the valve's stroke (:func:`_check_stroke`) or fallin
 (:func:`_check_opening_sign`) and a dp_mbar in another unit that the flow
 through the valve characteristic shows (:func:`_check_dp_unit`); the physical ranges of :data:`RANGES` (dp_mbar > 0,
 flows >= 0, static pressure > 0 and plausible, temperatures within -30..150 degC); time strictly increasing with a
-plausible sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S`, times within
+plausible sampling interval (:data:`DT_RANGE_S`, no gap longer than :data:`MAX_GAP_S` in the time column, times within
 :data:`MAX_ABS_TIME_S`); the record length; a temperature that moves; an opening that can be
 known (a flow that is zero everywhere with no x_mm column is rejected). Each failure is one
 line naming the column and the row (row 1 is the first data row; the line is the file's own). An empty cell in
@@ -870,7 +870,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     bad_interval = interval_problem(float(np.median(dt)))
     if bad_interval:
         raise DataError(f"{source}: column time_s: {bad_interval}")
-    gap = np.flatnonzero(dt > MAX_GAP_S)
+    gap = np.flatnonzero((dt > MAX_GAP_S) & ~_spans_dropped(out))
     if gap.size:
         i = int(gap[0]) + 1
         r = _file_row(out, i)
@@ -1136,6 +1136,18 @@ def _drop_rows(out: pd.DataFrame, drop: np.ndarray, key: str) -> pd.DataFrame:
     kept.attrs = {**out.attrs, key: [int(rows[j]) for j in np.flatnonzero(drop)],
                   "file_rows": [int(rows[j]) for j in np.flatnonzero(~drop)]}
     return kept
+
+
+def _spans_dropped(out: pd.DataFrame) -> np.ndarray:
+    """For each pair of consecutive rows of a run read before, whether it spans rows that reading dropped with the
+    pump off or an empty cell: such a gap is the file's rows, not its time column's (checked on the first read)."""
+    rows = out.attrs.get("file_rows")
+    a = out.attrs
+    dropped = np.sort(np.asarray([*a.get("rows_dropped_pump_off", ()), *a.get("rows_dropped_empty", ())], dtype=float))
+    if rows is None or len(rows) != len(out) or not dropped.size:
+        return np.zeros(max(len(out) - 1, 0), dtype=bool)
+    r = np.asarray(rows, dtype=float)
+    return np.searchsorted(dropped, r[1:]) > np.searchsorted(dropped, r[:-1], side="right")
 
 
 def _drop_repeated_rows(out: pd.DataFrame, columns: list[str]) -> pd.DataFrame:

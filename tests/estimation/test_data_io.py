@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from tests.estimation.conftest import _small_run
-from valve_env.data_io import MIN_ROWS, DataError, flow_unit_hint, load_run
+from valve_env.data_io import MAX_GAP_S, MIN_ROWS, DataError, flow_unit_hint, load_run
 from valve_env.params import ValveParams
 from valve_env.physics.valve import opening_from_flow
 
@@ -837,3 +837,29 @@ def test_a_pump_that_stops_leaves_a_gap(tmp_path: Path, open_run: pd.DataFrame) 
     deep = stopped.assign(dp_mbar=np.where(off, -20.0, stopped.dp_mbar))
     with pytest.raises(DataError, match=r"column dp_mbar, row \d+ .*: -20 is out of range"):
         load_run(_write(deep, tmp_path / "deep.csv"))
+
+
+def test_a_pump_off_for_over_a_day_is_a_gap_the_run_is_still_read_with(tmp_path: Path, open_run: pd.DataFrame) -> None:
+    """The rows of a pump off for longer than a day (a summer's stop) are dropped when the run is read, which leaves
+    more than a day between two of its rows; checked again (preprocess_run, as fit and diagnose do), such a run was
+    refused as 'a gap of 1.2e+05 s after the previous sample' at a row whose time has none in the file (diagnose's
+    check_run; fit read it). A gap in the file's own time column is still refused, a repeated row beside it or not."""
+    from valve_env.data_io import validate_run
+    from valve_env.valveid.diagnose import check_run
+
+    n = len(open_run)
+    slow = open_run.assign(time_s=np.arange(n) * 3000.0)  # 50 min a row: 40 rows are 33 h
+    off = np.zeros(n, dtype=bool)
+    off[n // 3:n // 3 + 40] = True
+    dp = slow.dp_mbar.to_numpy().copy()
+    dp[off] = np.random.default_rng(2).normal(0.0, 0.3, int(off.sum()))
+    stopped = slow.assign(dp_mbar=dp, q_kgh=np.where(off, 0.0, slow.q_kgh))
+    out = load_run(_write(stopped, tmp_path / "summer.csv"))
+    assert float(np.diff(out.time_s).max()) > MAX_GAP_S
+    assert len(validate_run(out)) == n - 40 and len(check_run(out)) == n - 40
+    t = slow.time_s.to_numpy().copy()
+    t[n // 2:] += MAX_GAP_S
+    gap = pd.concat([slow.assign(time_s=t).iloc[:n // 2], slow.assign(time_s=t).iloc[n // 2 - 1:]]).sort_index(
+        kind="stable")  # the row before the gap written twice, which the reader drops as a repeat
+    with pytest.raises(DataError, match=rf"column time_s, row {n // 2 + 2} .*: a gap of .* after the previous sample"):
+        load_run(_write(gap, tmp_path / "gap.csv"))
