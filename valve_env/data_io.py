@@ -628,16 +628,24 @@ def clock_time_hint(columns: dict[str, list[str]]) -> str:
     """Where a record has no ``time_s`` but a column of date-times (a logger's or historian's clock), the
     refusal's hint: the time is seconds from any origin in ``time_s`` (SPEC sections 2 and 10), so that column
     must be converted. ``columns``: each column's first cells, as text."""
-    for col, cells in columns.items():
-        head = pd.Series([c.strip() for c in cells if c is not None and str(c).strip()][:5], dtype=str)
-        if head.empty or not head.str.contains(r"\d[-/.:]\d", regex=True).all():
-            continue
-        if pd.to_numeric(head, errors="coerce").notna().all():  # numbers, not clock times
-            continue
-        if pd.to_datetime(head, errors="coerce", format="mixed").notna().all():
-            return (f"; column {col!r} holds date-times: give the time as seconds in a column time_s, "
-                    f"e.g. (t - t[0]).total_seconds()")
+    heads = {col: pd.Series([str(c).strip() for c in cells if c is not None and str(c).strip()][:5], dtype=str)
+             for col, cells in columns.items()}
+    dated = [col for col, head in heads.items() if not head.empty and head.str.contains(r"\d[-/.:]\d", regex=True).all()
+             and not pd.to_numeric(head, errors="coerce").notna().all()  # numbers, not clock times
+             and pd.to_datetime(head, errors="coerce", format="mixed").notna().all()]
+    dates = [c for c in dated if not heads[c].str.contains(":").any()]
+    clocks = [c for c in dated if heads[c].str.fullmatch(_CLOCK).all()]
+    if dates and clocks:  # a logger's date and time of day in two columns
+        return (f"; columns {dates[0]!r} and {clocks[0]!r} hold a date and a time of day: give the time as seconds in "
+                f"a column time_s, e.g. t = pd.to_datetime({dates[0]} + ' ' + {clocks[0]}), (t - t[0]).total_seconds()")
+    if dated:
+        return (f"; column {dated[0]!r} holds date-times: give the time as seconds in a column time_s, "
+                f"e.g. (t - t[0]).total_seconds()")
     return ""
+
+
+#: a time of day alone (``08:00``, ``08:00:10``, ``08:00:10.5``)
+_CLOCK = r"\d{1,2}:\d{2}(?::\d{2}(?:[.,]\d+)?)?"
 
 
 #: a time column named with a unit other than seconds (``time_min``, ``t_h``, ``Time [ms]`` spelled ``time_ms``)

@@ -89,6 +89,12 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
     (lambda d: d.assign(stamp="01.03.2026 " + (d.time_s // 3600 + 10).astype(int).astype(str) + ":00")
      .drop(columns=["time_s"]), r"column 'stamp' holds date-times"),
     (lambda d: d.drop(columns=["time_s"]), r"missing column 'time_s' \(required: [a-zA-Z_, ]+\)$"),
+    # a logger's date and time of day in two columns: both are named (before: 'date' alone, as date-times)
+    (lambda d: d.assign(date="2026-03-01", clock=(pd.Timestamp("2026-03-01 06:00")
+                                                  + pd.to_timedelta(d.time_s, unit="s")).dt.strftime("%H:%M:%S"))
+     .drop(columns=["time_s"]),
+     r"columns 'date' and 'clock' hold a date and a time of day: give the time as seconds in a column time_s, e\.g\. "
+     r"t = pd\.to_datetime\(date \+ ' ' \+ clock\)"),
     (lambda d: d.assign(time_s=(pd.Timestamp("2026-03-01 06:00") + pd.to_timedelta(d.time_s, unit="s")).astype(str)),
      r"column 'time_s' holds date-times \('2026-03-01 06:00:00'\): give the time as seconds from any origin"),
     # a name in another case or spelling: the refusal names the header's column

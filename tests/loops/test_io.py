@@ -141,6 +141,10 @@ def test_short_record_is_read_and_missing_column_refused(tmp_path: Path) -> None
     clock.write_text("stamp,sp,pv,op\n" + "".join(f"2026-03-01 06:{m:02d}:00,1,2,{40 + m % 3}\n" for m in range(30)))
     with pytest.raises(LoopDataError, match=r"missing column\(s\) time_s .*; column 'stamp' holds date-times"):
         read_loop(clock)
+    rows = "".join(f"01.03.2026;06:{m:02d}:00;1;2;{40 + m % 3}\n" for m in range(30))
+    clock.write_text("Date;Time;sp;pv;op\n" + rows)
+    with pytest.raises(LoopDataError, match=r"columns 'Date' and 'Time' hold a date and a time of day"):
+        read_loop(clock)
     upper = tmp_path / "upper.csv"  # a name in another case: the refusal names it
     upper.write_text("time_s,SP,PV,OP\n" + "".join(f"{10 * k},1,2,{40 + k % 3}\n" for k in range(30)))
     with pytest.raises(LoopDataError, match=r"missing column\(s\) sp, pv, op .*; the header has 'SP', 'PV', 'OP': "
