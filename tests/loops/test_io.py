@@ -109,6 +109,20 @@ def test_a_historians_sentinels_and_gross_spikes_are_read_as_missing(tmp_path: P
     assert loop.pv.min() > 48.9 and loop.pv.max() < 51.1 and loop.op.min() > 34.9
     np.testing.assert_allclose(loop.pv[60:140], clean.pv[61:141], atol=1e-4)  # the grid starts at the second sample
     assert clean.notes == []
+    held = np.full(n, 50.0)  # a set point held throughout (its central width 0): a sentinel in it is still one
+    loop = read_loop(_write_csv(tmp_path / "held.csv", sp=np.where(np.arange(n) == 200, -9999.0, held)))
+    assert loop.notes[0].startswith("read 1 value(s)") and "sp at sample(s) 201 (-9999 first)" in loop.notes[0]
+
+
+def test_an_operators_brief_set_point_change_is_kept(tmp_path: Path) -> None:
+    """A set point held for most of the record and changed by an operator for two samples (0.6 and 0.2 below it,
+    within the PV's swing): before, its central width was 0, so any change was 'far outside', and the change was read
+    as a historian's sentinel, dropped, and resampled over; now the PV's width is the set point's floor."""
+    n = 300
+    sp = np.full(n, 50.0)
+    sp[120:122] = [49.4, 49.8]
+    loop = read_loop(_write_csv(tmp_path / "bump.csv", sp=sp))
+    assert loop.notes == [] and loop.n == n and loop.sp.min() == pytest.approx(49.4)
 
 
 @pytest.mark.parametrize("kind", ["kick", "frequent", "long"])

@@ -565,7 +565,13 @@ def merge_repeated_timestamps(cols: dict[str, np.ndarray]) -> tuple[dict[str, np
     return out, note
 
 
-def gross_outliers(v: np.ndarray) -> np.ndarray:
+def central_width(v: np.ndarray) -> float:
+    """The width of the central 90 % of a channel's finite values (its 5 to 95 percentiles); 0 with fewer than 10."""
+    ok = v[np.isfinite(v)]
+    return float(np.subtract(*np.percentile(ok, [95.0, 5.0]))) if ok.size >= 10 else 0.0
+
+
+def gross_outliers(v: np.ndarray, width: float = 0.0) -> np.ndarray:
     """The samples of a column that lie far outside its record and come back at once.
 
     Far: beyond the column's central 90 % (its 5 and 95 percentiles, width w: robust to the sentinels themselves) by
@@ -575,13 +581,18 @@ def gross_outliers(v: np.ndarray) -> np.ndarray:
     transmitter's fault gives an isolated spike; either, left in, moves the correlations and the fit (one -9999 in an
     OP read as % made the OP's observed range its scale). A controller's kick at a set-point step also leaves the
     range for a few samples, but it rises and decays through its neighbours, which lie outside the range too, and it
-    is kept. Missing values (NaN) are not counted. Returns a boolean mask."""
+    is kept. Missing values (NaN) are not counted. ``width``: a floor on w, the central width of the channels in the
+    same units (:func:`check_loop`: a set point's floor is the PV's, and the other way round): a set point held for
+    most of the record has w = 0, and a brief change of it by an operator is not a sentinel. Where w is 0 even so
+    (every channel in those units holds one value), nothing is flagged. Returns a boolean mask."""
     ok = np.isfinite(v)
     flags = np.zeros(v.size, dtype=bool)
     if ok.sum() < 10:
         return flags
     lo, hi = (float(q) for q in np.percentile(v[ok], [5.0, 95.0]))
-    w = hi - lo
+    w = max(hi - lo, width)
+    if not w > 0.0:
+        return flags
     with np.errstate(invalid="ignore"):
         far = ok & ((v < lo - GROSS_RANGES * w) | (v > hi + GROSS_RANGES * w))
         near = ok & (v >= lo - w) & (v <= hi + w)
@@ -608,7 +619,9 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
             if bad.size:
                 raise LoopDataError(f"{where}: column {c} has {bad.size} NaN/infinite value(s), first at "
                                     f"sample {bad[0] + 1}")
-    gross = {c: gross_outliers(cols[c]) for c in ("sp", "pv", "op", "mv") if c in cols}
+    width: dict[str, float] = {c: central_width(cols[c]) for c in ("sp", "pv", "op", "mv") if c in cols}
+    same_units: dict[str, str] = {"sp": "pv", "pv": "sp", "op": "mv", "mv": "op"}
+    gross = {c: gross_outliers(cols[c], width.get(same_units[c], 0.0)) for c in width}
     if any(g.any() for g in gross.values()):
         said = []
         for c, g in gross.items():
