@@ -164,6 +164,12 @@ def test_short_record_is_read_and_missing_column_refused(tmp_path: Path) -> None
     with pytest.raises(LoopDataError, match=r"missing column\(s\) sp, pv, op .*; the header has 'SP', 'PV', 'OP': "
                                             r"rename them sp, pv, op"):
         read_loop(upper)
+    # a unit after an underscore (before: the missing columns named, with no hint)
+    upper.write_text("time_s,sp_degC,pv_degC,op_pct\n" + "".join(f"{10 * k},1,2,{40 + k % 3}\n" for k in range(30)))
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) sp, pv, op .*; the header has 'sp_degC', 'pv_degC', "
+                                            r"'op_pct': if these are sp, pv, op with a unit, name them sp, pv, op, or "
+                                            r"give the unit in brackets \('sp \[degC\]', which is read\)$"):
+        read_loop(upper)
 
 
 def test_every_missing_column_is_named_at_once(tmp_path: Path) -> None:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -102,6 +103,28 @@ def synonym_hint(missing: list[str], header: list[str]) -> str:
         else:
             parts.append(f"if '{h}' is {LOOP_MEANINGS[c]}, name it {c}")
     return "; " + "; ".join(parts) + " (names are exact: docs/reference.md, section 10)"
+
+
+def _suffixed(column: str, header: list[str]) -> str | None:
+    """The header's name that is ``column`` followed by a unit or qualifier after ``_``, ``.``, ``-`` or a space
+    (``pv_degC``, ``op_pct``, ``sp.m3h``), if one; else None."""
+    pattern = re.compile(rf"{column}[\s_.-]+\S{{1,12}}", re.IGNORECASE)
+    return next((h for h in header if pattern.fullmatch(h.strip())), None)
+
+
+def unit_suffix_hint(missing: list[str], header: list[str]) -> str:
+    """Where the loop CSV's columns ``missing`` are absent and the header has each followed by a unit after an
+    underscore (``pv_degC``, ``op_pct``), the refusal's hint: name them so, with the unit in brackets if wanted
+    (``pv [degC]``, which is read). Else ''."""
+    found = [(c, h) for c in missing if (h := _suffixed(c, header))]
+    if not found:
+        return ""
+    have, want = ", ".join(repr(h) for _, h in found), ", ".join(c for c, _ in found)
+    example = next(h for _, h in found)
+    c0 = next(c for c, _ in found)
+    return (f"; the header has {have}: if {'that is' if len(found) == 1 else 'these are'} {want} with a unit, "
+            f"name {'it' if len(found) == 1 else 'them'} {want}, or give the unit in brackets "
+            f"('{c0} [{example.strip()[len(c0) + 1:]}]', which is read)")
 
 
 #: the shortest record, in samples, that is diagnosed (about 40 min at 10 s); a shorter one is read, and diagnosed
@@ -253,10 +276,11 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
             {h: [r[j] for r in rows[1:6] if j < len(r)] for j, h in enumerate(header)})) if "time_s" in missing else ""
         other = [c for c in missing if c != "time_s" or not time_hint]
         told = [c for c in other if synonym_hint([c], header)]
+        suffixed = [c for c in other if c not in told and _suffixed(c, header)]
         hint = (long_format_hint(missing, {h: [r[j] for r in rows[1:] if j < len(r)] for j, h in enumerate(header)})
                 if len(missing) > 1 else "")
-        hint = hint or (time_hint + synonym_hint(told, header)
-                        + rename_hint([c for c in other if c not in told], header, COLUMNS))
+        hint = hint or (time_hint + synonym_hint(told, header) + unit_suffix_hint(suffixed, header)
+                        + rename_hint([c for c in other if c not in told and c not in suffixed], header, COLUMNS))
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
     wanted = [c for c in COLUMNS if c in header]
     idx: dict[str, int] = {c: header.index(c) for c in wanted}
