@@ -424,7 +424,8 @@ def test_a_units_row_under_the_header_is_read_and_noted(tmp_path: Path) -> None:
 
 def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path) -> None:
     """A historian exports the controller's mode as a state's name (AUTO, CAS, MAN; the Fieldbus modes RCAS, OOS,
-    IMAN): automatic and the cascades are 1, manual, out of service and initialisation manual 0. A spreadsheet's
+    IMAN): automatic and the cascades are 1, manual, out of service and initialisation manual 0; a logical column's
+    True 1, as its number is. A spreadsheet's
     error value (#N/A, #DIV/0!) is a missing sample; other text in mode is refused."""
     mode = np.ones(400)
     mode[:60] = 0.0
@@ -437,6 +438,10 @@ def test_a_mode_by_name_and_a_spreadsheets_error_values_are_read(tmp_path: Path)
     p.write_text("\n".join([lines[0], *rows]) + "\n")
     named = read_loop(p)
     assert named.n == numeric.n == 340 and np.array_equal(named.op, numeric.op)
+    logical = [ln.rsplit(",", 1)[0] + "," + ("True" if m == 1.0 else "FALSE") for ln, m in zip(lines[1:], mode,
+                                                                                              strict=True)]
+    p.write_text("\n".join([lines[0], *logical]) + "\n")  # a logical column (before: 'True' is not a number)
+    assert np.array_equal(read_loop(p).op, numeric.op)
     errs = [ln.split(",") for ln in (tmp_path / "m.csv").read_text().splitlines()]
     errs[100][2], errs[250][3] = "#N/A", "#DIV/0!"  # pv, op
     p.write_text("\n".join(",".join(r) for r in errs) + "\n")

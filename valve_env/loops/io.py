@@ -142,14 +142,16 @@ MAX_MISSING_FRACTION = 0.10
 #: cells read as a missing value (case-insensitive): the valve runs' reader's (a spreadsheet's #N/A included)
 MISSING_MARKERS = RUN_MISSING_MARKERS
 #: a mode column written as the controller's mode by name, as a historian exports a digital state: automatic and
-#: cascade (the loop closed, its set point from another loop) are 1, manual 0
+#: cascade (the loop closed, its set point from another loop) are 1, manual 0; a logical True is 1, as its number is
 MODE_NAMES: dict[str, float] = {"auto": 1.0, "aut": 1.0, "automatic": 1.0, "cas": 1.0, "casc": 1.0, "cascade": 1.0,
                                 "man": 0.0, "manual": 0.0, "hand": 0.0,
                                 # the Foundation Fieldbus block modes (as DeltaV and other DCSs export them): remote
                                 # cascade closes the loop; out of service, initialisation manual, local override,
                                 # remote output and tracking hold or set the output from elsewhere
                                 "rcas": 1.0, "oos": 0.0, "iman": 0.0, "lo": 0.0, "rout": 0.0, "trk": 0.0,
-                                "track": 0.0, "tracking": 0.0}
+                                "track": 0.0, "tracking": 0.0,
+                                # a logical column (pandas writes True/False, a spreadsheet TRUE/FALSE): 1 = automatic
+                                "true": 1.0, "false": 0.0}
 
 
 #: a sample lies far outside its column's own record (:func:`gross_outliers`) where it is this many times the width of
