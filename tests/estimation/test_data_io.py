@@ -816,6 +816,16 @@ def test_a_flow_meters_low_flow_cut_off_is_named_where_the_opening_is_derived(tm
                                               tmp_path / "noisy.csv")).attrs
 
 
+def _pump_stopped(run: pd.DataFrame, seed: int) -> tuple[pd.DataFrame, np.ndarray]:
+    """``run`` with the pump off for 40 rows from a third of the way in (dp 0 with a transmitter's 0.3 mbar of noise,
+    no flow), and those rows."""
+    off = np.zeros(len(run), dtype=bool)
+    off[len(run) // 3:len(run) // 3 + 40] = True
+    dp = run.dp_mbar.to_numpy().copy()
+    dp[off] = np.random.default_rng(seed).normal(0.0, 0.3, int(off.sum()))
+    return run.assign(dp_mbar=dp, q_kgh=np.where(off, 0.0, run.q_kgh)), off
+
+
 def test_a_pump_that_stops_leaves_a_gap(tmp_path: Path, open_run: pd.DataFrame) -> None:
     """A circulation pump that stops (dp and flow about 0 for a stretch; a transmitter's noise either side of 0) is
     read: those rows are dropped with a note naming them, and the likelihoods take the stretch as a gap; before, the
@@ -824,11 +834,7 @@ def test_a_pump_that_stops_leaves_a_gap(tmp_path: Path, open_run: pd.DataFrame) 
     from valve_env.valveid.preprocess import describe, preprocess_run
 
     n = len(open_run)
-    off = np.zeros(n, dtype=bool)
-    off[n // 3:n // 3 + 40] = True
-    dp = open_run.dp_mbar.to_numpy().copy()
-    dp[off] = np.random.default_rng(1).normal(0.0, 0.3, int(off.sum()))
-    stopped = open_run.assign(dp_mbar=dp, q_kgh=np.where(off, 0.0, open_run.q_kgh))
+    stopped, off = _pump_stopped(open_run, 1)
     out = load_run(_write(stopped, tmp_path / "stopped.csv"))
     assert len(out) == n - 40 and out.attrs["rows_dropped_pump_off"] == list(range(n // 3 + 1, n // 3 + 41))
     checked, notes = preprocess_run(out)
@@ -855,11 +861,7 @@ def test_a_pump_off_for_over_a_day_is_a_gap_the_run_is_still_read_with(tmp_path:
 
     n = len(open_run)
     slow = open_run.assign(time_s=np.arange(n) * 3000.0)  # 50 min a row: 40 rows are 33 h
-    off = np.zeros(n, dtype=bool)
-    off[n // 3:n // 3 + 40] = True
-    dp = slow.dp_mbar.to_numpy().copy()
-    dp[off] = np.random.default_rng(2).normal(0.0, 0.3, int(off.sum()))
-    stopped = slow.assign(dp_mbar=dp, q_kgh=np.where(off, 0.0, slow.q_kgh))
+    stopped, _ = _pump_stopped(slow, 2)
     out = load_run(_write(stopped, tmp_path / "summer.csv"))
     assert float(np.diff(out.time_s).max()) > MAX_GAP_S
     assert len(validate_run(out)) == n - 40 and len(check_run(out)) == n - 40
