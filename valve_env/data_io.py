@@ -539,12 +539,15 @@ def csv_dialect(lines: list[str]) -> CsvDialect:
         else " " if len(header.split()) > 1 else ","
     decimal = "."
     if sep != ",":
-        fields = [f for line in lines[skip + 1:skip + 51] for f in CsvDialect(skip, sep).split(line)]
-        # a point in a number grouped by thousands (1.234,5 and 12.500) is not a decimal point
-        comma = any(_DECIMAL_COMMA.match(f) or (_GROUPED.match(f) and "," in f) for f in fields)
-        if comma and not any(_DECIMAL_POINT.match(f) and not _GROUPED.match(f) for f in fields):
-            decimal = ","
+        decimal = decimal_mark([f for line in lines[skip + 1:skip + 51] for f in CsvDialect(skip, sep).split(line)])
     return CsvDialect(skip=skip, sep=sep, decimal=decimal)
+
+
+def decimal_mark(fields: list[str]) -> str:
+    """The decimal mark of a text's number ``fields``: ``,`` where some are written with a decimal comma and none
+    with a decimal point (a point in a number grouped by thousands, 1.234,5 and 12.500, is not one), else ``.``."""
+    comma = any(_DECIMAL_COMMA.match(f) or (_GROUPED.match(f) and "," in f) for f in fields)
+    return "," if comma and not any(_DECIMAL_POINT.match(f) and not _GROUPED.match(f) for f in fields) else "."
 
 
 def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> pd.DataFrame:
@@ -1267,7 +1270,7 @@ __all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines"
            "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "STROKE_MARGIN", "OPENING_SIGN_CORR",
            "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "ZERO_FLOW_NOISE_SHARE", "MEASURED", "MAX_EMPTY_FRACTION",
-           "MISSING_MARKERS", "HISTORIAN_STATES", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
+           "MISSING_MARKERS", "HISTORIAN_STATES", "decimal_mark", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
            "clock_in_time_s", "name_key", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
            "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
            "flow_ratio",

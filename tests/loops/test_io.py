@@ -554,7 +554,8 @@ def test_a_historian_export_reads_its_timestamps_by_the_format_line_1_declares(t
     rows[0] = "\t".join(["8 Oct 2024 13:45", *rows[0].split("\t")[1:]])
     p.write_text("\n".join(["\t".join(head), *lines[1:5], *rows]) + "\n")
     with pytest.raises(LoopDataError, match=r"line 6: timestamp '8 Oct 2024 13:45' is neither in the format line 1 "
-                                            r"declares \(.*\) nor in YYYY-MM-DD HH:MM:SS\[\.fff\]$"):
+                                            r"declares \(.*\) nor in YYYY-MM-DD HH:MM:SS\[\.fff\] \(with a T for the "
+                                            r"space, or / for the -\)$"):
         read_loop(p)
 
 
@@ -675,3 +676,36 @@ def test_a_loop_csv_with_another_tools_column_names_is_refused_naming_them(tmp_p
     with pytest.raises(LoopDataError, match=pattern) as err:
         read_loop(_write_text(tmp_path / "named.csv", "\n".join([header, *lines[1:]]) + "\n"))
     assert "\n" not in str(err.value)
+
+
+def _historian_variant(text: str, kind: str) -> str:
+    """The shared sticky loop's export (CRLF, tabs) as another locale or a spreadsheet's save writes it."""
+    lines = text.split("\r\n")
+    head, data = lines[:5], lines[5:]
+    if kind == "decimal_comma":  # the values in a decimal-comma locale (the header's scale line keeps its points)
+        return "\r\n".join(head + [ln.replace(".", ",") for ln in data])
+    if kind == "semicolon_decimal_comma":  # a German spreadsheet's CSV save
+        return "\r\n".join(ln.replace("\t", ";") for ln in head + [ln.replace(".", ",") for ln in data])
+    if kind == "comma":  # a spreadsheet's CSV save
+        return "\r\n".join(ln.replace("\t", ",") for ln in lines)
+    if kind == "iso_t":  # ISO 8601's T between date and time
+        return "\r\n".join(head + [ln.replace(" ", "T", 1) for ln in data])
+    assert kind == "slashes"  # a year-first date with slashes
+    return "\r\n".join(head + [ln.replace("-", "/", 2) for ln in data])
+
+
+@pytest.mark.parametrize("kind", ["decimal_comma", "semicolon_decimal_comma", "comma", "iso_t", "slashes"])
+def test_a_historian_export_in_another_locale_or_saved_by_a_spreadsheet_is_read(tmp_path: Path, kind: str) -> None:
+    """The export with decimal commas, its fields separated by ';' or ',' (a spreadsheet's CSV save), or timestamps
+    with ISO 8601's T or a year-first date with slashes: the same record as the export. Before, each was refused: 'has
+    a decimal comma where the file's other numbers have a decimal point' (the only points were in the header's scale
+    line), 'no <tag>.MV ... among the tags (read: none)', or the timestamp not in YYYY-MM-DD HH:MM:SS."""
+    plain = read_loop(STICKY)
+    p = tmp_path / "export.txt"
+    p.write_bytes(_historian_variant(STICKY.read_bytes().decode("utf-8"), kind).encode("utf-8"))
+    loop = read_loop(p)
+    assert loop.tag == plain.tag and loop.n == plain.n
+    for c in ("time_s", "sp", "pv", "op"):
+        np.testing.assert_array_equal(getattr(loop, c), getattr(plain, c))
+    saved = [n for n in loop.notes if "a spreadsheet's save" in n]
+    assert len(saved) == (kind in ("semicolon_decimal_comma", "comma"))

@@ -51,6 +51,7 @@ from valve_env.data_io import (
     csv_dialect,
     cut_line_note,
     decimal_comma,
+    decimal_mark,
     decimal_mark_hint,
     footer_lines,
     fortran_exponent,
@@ -343,6 +344,10 @@ def _units_row(row: list[str], idx: Mapping[str, int], p: Path, lineno: int) -> 
 
 #: The historian export's default timestamp format (the shared loops' line 1 declares it as ``yyyy-MM-dd HH:mm:ss``)
 HISTORIAN_TIME = "%Y-%m-%d %H:%M:%S"
+#: the timestamps read where line 1 declares none, or one they are not in: the default, ISO 8601's T for its space,
+#: and a year-first date with slashes, each with or without fractional seconds
+HISTORIAN_TIMES: tuple[str, ...] = tuple(f + frac for f in (HISTORIAN_TIME, "%Y-%m-%dT%H:%M:%S", "%Y/%m/%d %H:%M:%S")
+                                         for frac in ("", ".%f"))
 #: a .NET/Java date pattern's tokens, longest first, and strptime's
 _PATTERN_TOKENS: tuple[tuple[str, str], ...] = (
     ("yyyy", "%Y"), ("yy", "%y"), ("MM", "%m"), ("dd", "%d"), ("HH", "%H"), ("hh", "%I"), ("mm", "%M"), ("ss", "%S"),
@@ -387,7 +392,7 @@ def _stamp_reader(first_line: str, sample: str, where: str) -> Callable[[str], d
     fields = first_line.split("\t")
     declared = fields[2].strip() if len(fields) > 2 else ""
     declared_fmt = time_format(declared)
-    formats = [f for f in (declared_fmt, HISTORIAN_TIME, HISTORIAN_TIME + ".%f") if f]
+    formats = [f for f in (declared_fmt, *HISTORIAN_TIMES) if f]
     for fmt in formats:
         try:
             datetime.strptime(sample.strip(), fmt)
@@ -395,7 +400,8 @@ def _stamp_reader(first_line: str, sample: str, where: str) -> Callable[[str], d
             continue
         return partial(_parse_stamp, fmt=fmt)
     said = f"the format line 1 declares ({declared!r}) nor in " if declared_fmt else ""
-    raise LoopDataError(f"{where}: timestamp {sample!r} is neither in {said}YYYY-MM-DD HH:MM:SS[.fff]")
+    raise LoopDataError(f"{where}: timestamp {sample!r} is neither in {said}YYYY-MM-DD HH:MM:SS[.fff] (with a T "
+                        "for the space, or / for the -)")
 
 
 #: the historian export's tag suffixes of each column, in the order they are looked for, in any case: the format's
@@ -446,6 +452,13 @@ def historian_loops(names: list[str]) -> dict[str, dict[str, int]]:
     return dict(sorted(loops.items(), key=lambda kv: min(kv[1].values())))
 
 
+def historian_separator(first_line: str) -> str:
+    """The field separator of a historian export, from its first line (``PROCESSDATA`` and the export's name): the
+    format's tab, or where a spreadsheet saved the export as CSV, the ``;`` or ``,`` that follows ``PROCESSDATA``."""
+    after = first_line[len("PROCESSDATA"):len("PROCESSDATA") + 1]
+    return after if after in (";", ",") else "\t"
+
+
 def read_historian(path: str | Path, lines: list[str] | None = None,
                    tag: str | None = None) -> tuple[dict[str, np.ndarray], str, list[str]]:
     """Columns of a plant-historian export (the format of the real loops; see the module doc), the tag and the notes
@@ -456,6 +469,10 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
     lines, notes = _text_lines(p) if lines is None else (lines, [])
     if len(lines) < 6 or not lines[0].startswith("PROCESSDATA"):
         raise LoopDataError(f"{p}: not a historian export (first line should start with PROCESSDATA)")
+    sep = historian_separator(lines[0])
+    if sep != "\t":  # a spreadsheet's save of the export: its fields as the export's own tabs
+        lines = ["\t".join(next(csv.reader([line], delimiter=sep), [])) for line in lines]
+        notes.append(f"the export's fields are separated by {sep!r} (a spreadsheet's save), not by tabs: read so")
     names = [n.strip() for n in lines[2].split("\t")]
     loops = historian_loops(names)
     whole = [t for t, roles in loops.items() if {"op", "pv", "sp"} <= set(roles)]
@@ -492,6 +509,8 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
     first = ""
     last = max((j for j, line in enumerate(lines, start=1) if line.strip()), default=0)
     begin = _historian_data_start(lines)
+    # the values' decimal mark, from the data's first 50 lines (an export in a decimal-comma locale: 25,08)
+    comma = decimal_mark([c.strip() for line in lines[begin:begin + 50] for c in line.split("\t")[1:]]) == ","
     for lineno, line in enumerate(lines[begin:], start=begin + 1):
         if not line.strip():
             continue
@@ -513,7 +532,8 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
         for c, i in (("op", i_op), ("pv", i_pv), ("sp", i_sp), ("mode", i_mode)):
             if i is None:
                 continue
-            cols[c].append(_cell_value(c, f[i].strip(), f"{p} line {lineno}, column {names[i]}"))
+            cell = decimal_comma(f[i].strip()) if comma else f[i].strip()
+            cols[c].append(_cell_value(c, cell, f"{p} line {lineno}, column {names[i]}"))
         for c, i in flag_at.items():
             flags[c].append(f[i].strip() not in ("", "0"))
     read, note = historian_flags({c: np.asarray(v, dtype=float) for c, v in cols.items()},
