@@ -709,3 +709,22 @@ def test_a_historian_export_in_another_locale_or_saved_by_a_spreadsheet_is_read(
         np.testing.assert_array_equal(getattr(loop, c), getattr(plain, c))
     saved = [n for n in loop.notes if "a spreadsheet's save" in n]
     assert len(saved) == (kind in ("semicolon_decimal_comma", "comma"))
+
+
+def test_an_output_given_in_ma_is_read_as_percent(tmp_path: Path) -> None:
+    """OP (or MV) given as a 4-20 mA signal's current, its unit in the header (``op [mA]``) or in a units row: read as
+    % by (mA - 4) / 16 x 100, with a note. Before, the unit was read and dropped, and 4-20 lay within the range of a %
+    OP: every band came out 16 % of its size."""
+    n = 300
+    op_pct = 40.0 + 5.0 * np.cos(np.arange(n) * 10.0 / 300.0)
+    plain = read_loop(_write_csv(tmp_path / "pct.csv", op=op_pct))
+    ma = 4.0 + op_pct * 0.16
+    named = _write_csv(tmp_path / "ma.csv", op=ma)
+    lines = named.read_text().splitlines()
+    named.write_text("\n".join([lines[0].replace("op", "op [mA]"), *lines[1:]]) + "\n")
+    row = tmp_path / "row.csv"
+    row.write_text("\n".join([lines[0], "s,degC,degC,mA", *lines[1:]]) + "\n")
+    for p in (named, row):
+        loop = read_loop(p)
+        np.testing.assert_allclose(loop.op, plain.op, atol=1e-3)
+        assert any(nt.startswith("op is given in mA (a 4-20 mA signal)") for nt in loop.notes)
