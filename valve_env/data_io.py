@@ -53,6 +53,11 @@ from valve_env.physics.valve import flow_kgh, opening_from_flow
 
 REQUIRED: tuple[str, ...] = ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar")
 OPTIONAL: tuple[str, ...] = ("x_mm",)
+#: the loop CSV's columns (docs/reference.md, section 10; read by :mod:`valve_env.loops.io`): the four it needs, then
+#: the optional measured valve position and mode. Here so that either reader can tell a file of the other format
+LOOP_COLUMNS: tuple[str, ...] = ("time_s", "sp", "pv", "op", "mv", "mode")
+#: the first word of a plant-historian export of a control loop (docs/reference.md, section 10)
+HISTORIAN_MARK = "PROCESSDATA"
 #: The shortest record that identifies the base model's parameters.
 MIN_ROWS = 30
 #: A temperature range below this (K) identifies nothing (no hysteresis loop, no gain).
@@ -566,6 +571,9 @@ def load_run(path: str | os.PathLike[str], valve: ValveParams | None = None) -> 
                         f"{exc.reason} at byte {exc.start})") from exc
     except ValueError as exc:  # a workbook, or a broken gzip file
         raise DataError(f"{p}: {exc}") from exc
+    if lines and lines[0].startswith(HISTORIAN_MARK):
+        raise DataError(f"{p}: a plant-historian export of a control loop (first word {HISTORIAN_MARK}), not a "
+                        "measured valve run: diagnose it with thermovalve loop-diagnose")
     dialect = csv_dialect(lines[:64])
     body = lines[dialect.skip:len(lines) - footer_lines(lines, dialect)]
     # the data lines as the file numbers them (1-based): an empty line (or one of separators only, a spreadsheet's
@@ -776,6 +784,21 @@ def rename_hint(missing: list[str], columns: list[str], taken: tuple[str, ...] =
     return "".join(parts)
 
 
+def other_format_hint(columns: list[str], reader: str) -> str:
+    """Where the header given to the ``reader`` (``"valve"`` or ``"loop"``) is the other format's (a control loop's
+    ``sp, pv, op`` given to the valve's reader, or a valve run's ``T_tank_C ... ps_bar`` to the loop's, and none of
+    the reader's own), the refusal's hint naming the command that reads it. Else ''."""
+    loop, valve = (all(c in columns for c in names) for names in (LOOP_COLUMNS[1:4], REQUIRED[1:]))
+    own = any(c in columns for c in (REQUIRED[1:] if reader == "valve" else LOOP_COLUMNS[1:4]))
+    if reader == "valve" and loop and not own:
+        return ("; the header is a control loop's record (sp, pv, op: docs/reference.md, section 10): diagnose it with "
+                "thermovalve loop-diagnose")
+    if reader == "loop" and valve and not own:
+        return ("; the header is a measured valve run's (docs/reference.md, section 2): identify it with thermovalve "
+                "fit or thermovalve diagnose")
+    return ""
+
+
 def long_format_hint(missing: list[str], columns: Mapping[str, Iterable[object]]) -> str:
     """Where the missing columns are named in the cells of one column (a historian's long, or narrow, export: one
     row per channel and time, the channel in a ``tag`` column, as OSIsoft PI or a pandas ``melt`` writes it), the
@@ -822,7 +845,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
         special = {c: (time_name_hint(cols) or clock_time_hint(
                        {str(h): raw[h].dropna().astype(str).head(5).tolist() for h in cols})) if c == "time_s"
                    else unit_name_hint(c, cols) for c in missing}
-        hint = long_format_hint(missing, {str(h): raw[h].tolist() for h in cols}) if len(missing) > 1 else ""
+        hint = other_format_hint(cols, "valve") or (long_format_hint(missing, {str(h): raw[h].tolist() for h in cols})
+                                           if len(missing) > 1 else "")
         hint = hint or "".join(special.values()) + rename_hint([c for c in missing if not special[c]], cols,
                                                       (*REQUIRED, *OPTIONAL))
         which = f"column {missing[0]!r}" if len(missing) == 1 else f"columns {', '.join(map(repr, missing))}"
@@ -1264,18 +1288,14 @@ def _numeric(col: pd.Series, name: str, source: str, allow_empty: bool, line: Ca
     return out
 
 
-__all__ = ["DataError", "CsvDialect", "csv_dialect", "read_text", "footer_lines", "NOT_TEXT", "load_run",
-           "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS", "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "OtherUnit",
-           "ABSOLUTE_BAR", "convert_to", "DP_UNITS",
-           "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "STROKE_MARGIN", "OPENING_SIGN_CORR",
-           "DT_RANGE_S",
+__all__ = ["LOOP_COLUMNS", "HISTORIAN_MARK", "other_format_hint", "DataError", "CsvDialect", "csv_dialect",
+           "read_text", "footer_lines", "NOT_TEXT", "load_run", "validate_run", "REQUIRED", "OPTIONAL", "MIN_ROWS",
+           "MIN_T_RANGE_K", "RANGES", "OTHER_UNITS", "OtherUnit", "ABSOLUTE_BAR", "convert_to", "DP_UNITS",
+           "FLOW_OFF", "FLOW_EXPLAINED", "DP_PLAUSIBLE", "STROKE_MARGIN", "OPENING_SIGN_CORR", "DT_RANGE_S",
            "MAX_GAP_S", "MAX_ABS_TIME_S", "ZERO_FLOW_NOISE_SHARE", "MEASURED", "MAX_EMPTY_FRACTION",
            "MISSING_MARKERS", "HISTORIAN_STATES", "decimal_mark", "SPREADSHEET_ERRORS", "UNITS", "clock_time_hint",
-           "clock_in_time_s", "name_key", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS", "scale_text",
-           "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint", "FLOW_UNITS",
-           "flow_ratio",
-           "opening_derived", "flow_cut_off", "censored_opening", "PUMP_OFF_DP_SHARE", "CUT_OFF_MIN_FLOW_SHARE",
-           "SHORT_SPAN_S", "TANK_HOT_C",
-           "temperature_unit_hint", "text_cells", "is_number", "decimal_comma", "decimal_mark_hint",
-           "fortran_exponent", "DASHES", "time_name_hint",
-           "time_order_hint"]
+           "clock_in_time_s", "name_key", "near_name_hint", "short_list", "unit_name_hint", "CONVERSIONS",
+           "scale_text", "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint",
+           "FLOW_UNITS", "flow_ratio", "opening_derived", "flow_cut_off", "censored_opening", "PUMP_OFF_DP_SHARE",
+           "CUT_OFF_MIN_FLOW_SHARE", "SHORT_SPAN_S", "TANK_HOT_C", "temperature_unit_hint", "text_cells", "is_number",
+           "decimal_comma", "decimal_mark_hint", "fortran_exponent", "DASHES", "time_name_hint", "time_order_hint"]

@@ -871,3 +871,19 @@ def test_a_pump_off_for_over_a_day_is_a_gap_the_run_is_still_read_with(tmp_path:
         kind="stable")  # the row before the gap written twice, which the reader drops as a repeat
     with pytest.raises(DataError, match=rf"column time_s, row {n // 2 + 2} .*: a gap of .* after the previous sample"):
         load_run(_write(gap, tmp_path / "gap.csv"))
+
+
+def test_a_control_loops_file_is_told_to_go_to_loop_diagnose(tmp_path: Path) -> None:
+    """A loop CSV (sp, pv, op) or a plant-historian export given to fit or diagnose is told which command reads it;
+    before, the loop CSV got the missing columns alone and the export 'not a readable CSV file (Error tokenizing
+    data ...)'."""
+    loop = tmp_path / "loop.csv"
+    loop.write_text("time_s,sp,pv,op\n" + "".join(f"{10 * k},50,{50 + k % 3},{40 + k % 5}\n" for k in range(40)))
+    with pytest.raises(DataError, match=r"missing columns 'T_tank_C', .*; the header is a control loop's record "
+                                        r"\(sp, pv, op: docs/reference.md, section 10\): diagnose it with thermovalve "
+                                        r"loop-diagnose$"):
+        load_run(loop)
+    export = Path(__file__).parents[1] / "data" / "plant_loops" / "2411FIC20102_1008_1552.txt"
+    with pytest.raises(DataError, match=r"a plant-historian export of a control loop \(first word PROCESSDATA\), not "
+                                        r"a measured valve run: diagnose it with thermovalve loop-diagnose$"):
+        load_run(export)

@@ -728,3 +728,15 @@ def test_an_output_given_in_ma_is_read_as_percent(tmp_path: Path) -> None:
         loop = read_loop(p)
         np.testing.assert_allclose(loop.op, plain.op, atol=1e-3)
         assert any(nt.startswith("op is given in mA (a 4-20 mA signal)") for nt in loop.notes)
+
+
+def test_a_valve_run_is_told_to_go_to_fit_or_diagnose(tmp_path: Path) -> None:
+    """A measured valve run given to loop-diagnose is told which commands read it (before: the missing columns
+    alone)."""
+    run = tmp_path / "run.csv"
+    run.write_text("time_s,T_tank_C,T_med_C,q_kgh,dp_mbar,ps_bar,x_mm\n" + "".join(
+        f"{10 * k},{55 + k % 3},70,120,100,2,0.{k % 5}\n" for k in range(40)))
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) sp, pv, op .*; the header is a measured valve run's "
+                                            r"\(docs/reference.md, section 2\): identify it with thermovalve fit or "
+                                            r"thermovalve diagnose$"):
+        read_loop(run)

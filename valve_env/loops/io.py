@@ -43,8 +43,9 @@ from typing import NoReturn
 
 import numpy as np
 
-from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
 from valve_env.data_io import (
+    HISTORIAN_MARK,
+    LOOP_COLUMNS,
     UNITS,
     clock_in_time_s,
     clock_time_hint,
@@ -61,6 +62,7 @@ from valve_env.data_io import (
     long_format_hint,
     name_key,
     nul_note,
+    other_format_hint,
     read_text,
     rename_hint,
     short_list,
@@ -69,10 +71,11 @@ from valve_env.data_io import (
     time_order_hint,
     unit_key,
 )
+from valve_env.data_io import MISSING_MARKERS as RUN_MISSING_MARKERS
 
 #: the loop CSV's columns (docs/reference.md, section 10): the four it needs, then the optional measured valve
 #: position and mode
-COLUMNS: tuple[str, ...] = ("time_s", "sp", "pv", "op", "mv", "mode")
+COLUMNS: tuple[str, ...] = LOOP_COLUMNS
 REQUIRED_COLUMNS: tuple[str, ...] = COLUMNS[:4]
 
 #: Names other tools give the loop CSV's columns (docs/reference.md, section 10), compared by their letters and digits
@@ -282,8 +285,9 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
         suffixed = [c for c in other if c not in told and _suffixed(c, header)]
         hint = (long_format_hint(missing, {h: [r[j] for r in rows[1:] if j < len(r)] for j, h in enumerate(header)})
                 if len(missing) > 1 else "")
-        hint = hint or (time_hint + synonym_hint(told, header) + unit_suffix_hint(suffixed, header)
-                        + rename_hint([c for c in other if c not in told and c not in suffixed], header, COLUMNS))
+        hint = other_format_hint(header, "loop") or hint or (
+            time_hint + synonym_hint(told, header) + unit_suffix_hint(suffixed, header)
+            + rename_hint([c for c in other if c not in told and c not in suffixed], header, COLUMNS))
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
     wanted = [c for c in COLUMNS if c in header]
     idx: dict[str, int] = {c: header.index(c) for c in wanted}
@@ -459,7 +463,7 @@ def historian_loops(names: list[str]) -> dict[str, dict[str, int]]:
 def historian_separator(first_line: str) -> str:
     """The field separator of a historian export, from its first line (``PROCESSDATA`` and the export's name): the
     format's tab, or where a spreadsheet saved the export as CSV, the ``;`` or ``,`` that follows ``PROCESSDATA``."""
-    after = first_line[len("PROCESSDATA"):len("PROCESSDATA") + 1]
+    after = first_line[len(HISTORIAN_MARK):len(HISTORIAN_MARK) + 1]
     return after if after in (";", ",") else "\t"
 
 
@@ -471,7 +475,7 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
     refused in one line that names its loops where no ``tag`` is given."""
     p = Path(path)
     lines, notes = _text_lines(p) if lines is None else (lines, [])
-    if len(lines) < 6 or not lines[0].startswith("PROCESSDATA"):
+    if len(lines) < 6 or not lines[0].startswith(HISTORIAN_MARK):
         raise LoopDataError(f"{p}: not a historian export (first line should start with PROCESSDATA)")
     sep = historian_separator(lines[0])
     if sep != "\t":  # a spreadsheet's save of the export: its fields as the export's own tabs
@@ -569,7 +573,7 @@ def read_loop(path: str | Path, tag: str | None = None) -> LoopData:
     if p.is_dir():
         raise LoopDataError(f"{p}: is a directory")
     lines, read_notes = _text_lines(p)
-    if lines and lines[0].startswith("PROCESSDATA"):
+    if lines and lines[0].startswith(HISTORIAN_MARK):
         cols, tag, notes = read_historian(p, lines, tag=tag)
     elif tag is not None:
         raise LoopDataError(f"{p}: a loop CSV holds one loop; --tag chooses the loop of a historian export")
