@@ -4,8 +4,8 @@ calls it: a result with finite numbers (the cause one of the format's), or a ref
 The reader's tests (tests/loops/test_io.py) take each convention alone; here they are stacked on simulated loops of
 wide variety (:func:`valve_env.loops.sim.random_case`): a historian's states and repeated rows, a spreadsheet's
 semicolons, decimal commas, units row and error values, a mode by name, rounding, storage on change, jitter, dropped
-samples, OP as a fraction or in engineering units, extra columns in any order, another interval, a short record,
-a logger's comment lines among the data and a historian's -9999 sentinels.
+samples, OP as a fraction, in engineering units or in mA, a logical mode, extra columns in any order, another
+interval, a short record, a logger's comment lines among the data and a historian's -9999 sentinels.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from valve_env.loops.sim import random_case, simulate_case
 #: the conventions of a loop record's file (:func:`loop_file`)
 LOOP_CONVENTIONS = ("quantised", "stored_on_change", "dropped_10", "jitter_20", "op_fraction", "op_eng", "sheet",
                     "mode_names", "extra_columns", "historian", "every_other", "first_40_min", "logger_comments",
-                    "sentinels")
+                    "sentinels", "op_ma", "mode_logical")
 
 
 def _store_on_change(y: np.ndarray, deadband: float) -> np.ndarray:
@@ -63,9 +63,13 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
         df = df.assign(op=df.op / 100.0)
     elif "op_eng" in names:  # OP in engineering units: a flow controller's output as its set point, 0-250 m3/h
         df = df.assign(op=2.5 * df.op)
+    elif "op_ma" in names:  # OP as a 4-20 mA signal's current, its unit in the header (or the units row)
+        df = df.assign(op=4.0 + 0.16 * df.op)
     df = df.astype(object)
     if "mode_names" in names:  # manual for the first tenth
         df["mode"] = np.where(np.arange(len(df)) < len(df) // 10, "MAN", "AUTO")
+    elif "mode_logical" in names:  # a logical column, as pandas writes one
+        df["mode"] = np.where(np.arange(len(df)) < len(df) // 10, "False", "True")
     if "extra_columns" in names:
         df["timestamp"] = (pd.Timestamp("2026-03-01") + pd.to_timedelta(df.time_s.astype(float), unit="s")).astype(str)
         df["quality"] = "Good"
@@ -94,9 +98,10 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
             return text.replace(".", ",") if comma else text
         return str(v)
 
-    lines = [sep.join(map(str, df.columns))]
+    ma = "op_ma" in names and not {"op_fraction", "op_eng"} & set(names)
+    lines = [sep.join("op [mA]" if ma and c == "op" and "sheet" not in names else str(c) for c in df.columns)]
     if "sheet" in names:  # its units row
-        units = {"time_s": "s", "sp": "m3/h", "pv": "m3/h", "op": "%"}
+        units = {"time_s": "s", "sp": "m3/h", "pv": "m3/h", "op": "mA" if ma else "%"}
         lines.append(sep.join(units.get(str(c), "") for c in df.columns))
     lines += [sep.join(cell(v) for v in row) for row in df.itertuples(index=False)]
     if "logger_comments" in names:  # a logger's restarts among the data, one with an empty line after it
@@ -116,6 +121,7 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
          quantify=True)
 @example(names=["first_40_min", "jitter_20", "op_fraction"], seed=5, plant=True, quantify=False)
 @example(names=["sentinels", "op_eng", "dropped_10"], seed=7, plant=False, quantify=True)
+@example(names=["op_ma", "sheet", "mode_logical"], seed=17, plant=True, quantify=True)
 def test_stacked_loop_conventions_give_finite_results_or_refuse_in_one_line(
         tmp_path_factory: pytest.TempPathFactory, capsys: pytest.CaptureFixture[str], names: list[str], seed: int,
         plant: bool, quantify: bool) -> None:
@@ -152,7 +158,7 @@ def test_the_loop_file_conventions_are_read(tmp_path: Path) -> None:
     noted = {"dropped_10": "resampled", "jitter_20": "resampled", "op_eng": "engineering units",
              "op_fraction": "within 0 to 1", "sheet": "units row", "mode_names": "manual mode",
              "historian": "missing value", "logger_comments": "comment line(s) among the data",
-             "sentinels": "far outside their column's record"}
+             "sentinels": "far outside their column's record", "op_ma": "4-20 mA", "mode_logical": "manual mode"}
     for name in LOOP_CONVENTIONS:
         p = tmp_path / f"{name}.csv"
         p.write_text(loop_file(df, [name], np.random.default_rng(11)))
