@@ -1085,7 +1085,8 @@ def flow_ratio(run: pd.DataFrame, valve: ValveParams | None = None) -> tuple[flo
 
 
 def _check_dp_unit(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
-    """Refuse a dp_mbar in another unit (:data:`DP_UNITS`) where the measured opening and flow show it.
+    """Refuse a dp_mbar in another unit (:data:`DP_UNITS`) where the measured opening and flow show it, and note a
+    q_kgh in another (:data:`FLOW_UNITS`).
 
     With x_mm measured, q_kgh, x_mm and dp_mbar are redundant through the valve characteristic (docs/reference.md,
     section 1: q = 31.62 Kv(x) sqrt(dp)). On the rows where the valve is open (x above a tenth of the stroke, q > 0),
@@ -1102,14 +1103,19 @@ def _check_dp_unit(out: pd.DataFrame, valve: ValveParams, source: str) -> None:
     def plausible(d: float) -> bool:
         return abs(np.log(d / dp_cal)) <= np.log(DP_PLAUSIBLE)
 
-    if dp_cal <= 0 or plausible(dp_med):
-        return
-    for unit, do, a in DP_UNITS:
-        if abs(np.log(ratio / np.sqrt(a))) <= np.log(FLOW_EXPLAINED) and plausible(a * dp_med):
-            raise DataError(f"{source}: column dp_mbar reads as {unit}: the flow q_kgh is {ratio:.3g} times what x_mm "
-                            f"and dp_mbar give through the valve characteristic (median over {n} rows "
-                            f"with the valve open), and the median dp {dp_med:.5g} would be {a * dp_med:.3g} mbar "
-                            f"against the valve's calibration {dp_cal:.4g} mbar; {do}")
+    if dp_cal > 0 and not plausible(dp_med):
+        for unit, do, a in DP_UNITS:
+            if abs(np.log(ratio / np.sqrt(a))) <= np.log(FLOW_EXPLAINED) and plausible(a * dp_med):
+                raise DataError(f"{source}: column dp_mbar reads as {unit}: the flow q_kgh is {ratio:.3g} times what "
+                                f"x_mm and dp_mbar give through the valve characteristic (median over {n} rows "
+                                f"with the valve open), and the median dp {dp_med:.5g} would be {a * dp_med:.3g} mbar "
+                                f"against the valve's calibration {dp_cal:.4g} mbar; {do}")
+    # a flow in another unit under q_kgh (kg/s, l/min): with x_mm measured the flow is not read, but where x_mm is
+    # empty the opening derived from it would be wrong; a warning note (attrs["q_other_unit"]) says so
+    for unit, a in FLOW_UNITS:
+        if abs(np.log(ratio * a)) <= np.log(FLOW_EXPLAINED):
+            out.attrs["q_other_unit"] = {"unit": unit, "factor": a, "ratio": float(ratio), "open_rows": int(n)}
+            return
 
 
 def _units_row(raw: pd.DataFrame, source: str, first: int) -> dict[str, str]:

@@ -887,3 +887,20 @@ def test_a_control_loops_file_is_told_to_go_to_loop_diagnose(tmp_path: Path) -> 
     with pytest.raises(DataError, match=r"a plant-historian export of a control loop \(first word PROCESSDATA\), not "
                                         r"a measured valve run: diagnose it with thermovalve loop-diagnose$"):
         load_run(export)
+
+
+@pytest.mark.parametrize(("unit", "factor"), [("kg/s", 3600.0), ("l/min", 60.0)])
+def test_a_flow_in_another_unit_beside_a_measured_opening_is_warned_of(tmp_path: Path, open_run: pd.DataFrame,
+                                                                       unit: str, factor: float) -> None:
+    """A flow in kg/s or l/min under q_kgh, with x_mm measured: the measured opening is used, so the run is read, but
+    a warning note names the unit the flow reads as against x_mm and dp_mbar through the valve characteristic (before,
+    nothing was said, and where x_mm was empty the opening was derived from the wrong flow). The run as written gets
+    no such note."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    assert "q_other_unit" not in load_run(_write(open_run, tmp_path / "plain.csv")).attrs
+    run = load_run(_write(open_run.assign(q_kgh=open_run.q_kgh / factor), tmp_path / "other.csv"))
+    notes = [nt for nt in preprocess_run(run)[1] if nt["what"] == "q_other_unit"]
+    assert len(notes) == 1 and notes[0]["warn"] and notes[0]["unit"] == unit
+    assert notes[0]["ratio"] == pytest.approx(1.0 / factor, rel=0.1)
+    assert any(line.startswith(f"q_kgh: {notes[0]['ratio']:.3g} times the flow") for line in describe(notes))

@@ -210,6 +210,13 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
                              "takes it as missing; diagnose reads it as 0, so a stick band up to about that size may "
                              "be named where there is none, or missed. Give the measured opening x_mm, or the meter's "
                              "reading without the cut-off", "warn": True})
+    q_unit = df.attrs.get("q_other_unit")
+    if q_unit and ("q_other_unit", "q_kgh") not in done:
+        notes.append({"what": "q_other_unit", "channel": "q_kgh", **q_unit,
+                      "why": f"q_kgh is {q_unit['ratio']:.3g} times the flow that x_mm and dp_mbar give through the "
+                             f"valve characteristic (median over {q_unit['open_rows']} rows with the valve open): it "
+                             f"reads as {q_unit['unit']} (multiply by {q_unit['factor']:g}). The measured opening is "
+                             "used, not the flow, except where x_mm is empty", "warn": True})
     derived = int(df.attrs.get("x_mm_derived_rows", 0))
     if derived and ("x_mm_derived", "x_mm") not in done:
         other = df.attrs.get("x_mm_other_unit")
@@ -319,6 +326,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
             lines.append(f"q_kgh: 0 in {nt['rows']} row(s), never between 0 and {nt['cut_off_kgh']:.3g} kg/h (a "
                          f"low-flow cut-off): the opening derived as 0 there lies anywhere below about "
                          f"{nt['x_below_mm']:.3g} mm")
+        elif what == "q_other_unit":
+            lines.append(f"q_kgh: {nt['ratio']:.3g} times the flow x_mm and dp_mbar give; it reads as {nt['unit']} "
+                         f"(multiply by {nt['factor']:g}); the measured opening is used")
         elif what == "x_mm_derived":
             lines.append(f"x_mm: derived from the flow in {nt['rows']} row(s) ({nt['why'].split(':')[0]})")
         elif what == "irregular_sampling":
