@@ -1182,8 +1182,8 @@ def _drop_rows(out: pd.DataFrame, drop: np.ndarray, key: str) -> pd.DataFrame:
 def _spans_dropped(out: pd.DataFrame) -> np.ndarray:
     """For each pair of consecutive rows of a run read before, whether it spans rows that reading dropped with the
     pump off or an empty cell: such a gap is the file's rows, not its time column's (checked on the first read)."""
-    rows = out.attrs.get("file_rows")
     a = out.attrs
+    rows = a.get("file_rows")
     dropped = np.sort(np.asarray([*a.get("rows_dropped_pump_off", ()), *a.get("rows_dropped_empty", ())], dtype=float))
     if rows is None or len(rows) != len(out) or not dropped.size:
         return np.zeros(max(len(out) - 1, 0), dtype=bool)

@@ -112,7 +112,7 @@ def synonym_hint(missing: list[str], header: list[str]) -> str:
 def _suffixed(column: str, header: list[str]) -> str | None:
     """The header's name that is ``column`` followed by a unit or qualifier after ``_``, ``.``, ``-`` or a space
     (``pv_degC``, ``op_pct``, ``sp.m3h``), if one; else None."""
-    pattern = re.compile(rf"{column}[\s_.-]+\S{{1,12}}", re.IGNORECASE)
+    pattern = re.compile(rf"{re.escape(column)}[\s_.-]+\S{{1,12}}", re.IGNORECASE)
     return next((h for h in header if pattern.fullmatch(h.strip())), None)
 
 
