@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gzip
+import re
 from pathlib import Path
 
 import numpy as np
@@ -740,3 +741,17 @@ def test_a_valve_run_is_told_to_go_to_fit_or_diagnose(tmp_path: Path) -> None:
                                             r"\(docs/reference.md, section 2\): identify it with thermovalve fit or "
                                             r"thermovalve diagnose$"):
         read_loop(run)
+
+
+def test_a_spreadsheets_save_that_rewrote_the_timestamps_is_refused_saying_so(tmp_path: Path) -> None:
+    """A spreadsheet that saves the export (';' for the tabs) rewrites its timestamps in its locale, without the
+    seconds ('08.10.2024 13:45'): the refusal names the timestamp and says what the save did."""
+    lines = STICKY.read_bytes().decode("utf-8").split("\r\n")
+    stamp = re.compile(r"^(\d{4})-(\d\d)-(\d\d) (\d\d:\d\d):\d\d")
+    data = [stamp.sub(lambda m: f"{m[3]}.{m[2]}.{m[1]} {m[4]}", ln) for ln in lines[5:]]
+    p = tmp_path / "saved.txt"
+    p.write_text("\r\n".join(ln.replace("\t", ";") for ln in lines[:5] + data))
+    with pytest.raises(LoopDataError, match=r"line 6: timestamp '08\.10\.2024 13:45' is neither in the format line 1 "
+                                            r"declares .*; a spreadsheet that saves the export rewrites its "
+                                            r"timestamps"):
+        read_loop(p)

@@ -529,7 +529,14 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
                 continue
             raise LoopDataError(f"{p} line {lineno}: {len(f)} fields, line 3 names {len(names)}")
         if stamp is None:
-            stamp, first = _stamp_reader(lines[0], f[0], f"{p} line {lineno}"), f[0].strip()
+            try:
+                stamp, first = _stamp_reader(lines[0], f[0], f"{p} line {lineno}"), f[0].strip()
+            except LoopDataError as exc:
+                if sep == "\t":
+                    raise
+                raise LoopDataError(f"{exc}; a spreadsheet that saves the export rewrites its timestamps in its own "
+                                    "format, often without the seconds: export it again, or save the timestamps "
+                                    "as text") from None
         try:
             ts = stamp(f[0])
         except ValueError:
