@@ -194,6 +194,13 @@ CUT_OFF_MIN_FLOW_SHARE = 0.01
 #: by the range check.
 PUMP_OFF_DP_SHARE = 0.05
 PUMP_OFF_MIN_ROWS = 3
+#: A measured opening's zero offset (:func:`zero_offset`): the rows whose flow is at most this share of the high flow
+#: are the valve on its seat ...
+SEAT_FLOW_SHARE = 0.01
+#: ... and at least this many of them ...
+SEAT_MIN_ROWS = 20
+#: ... rest at an opening this many noise sd (and 1 % of the stroke) off 0: a transducer's zero offset, with a warning
+ZERO_OFFSET_NOISE = 5.0
 #: |time_s| beyond this (s, ~300 years) is not a time.
 MAX_ABS_TIME_S = 1.0e10
 #: The measured channels, whose empty cells drop their row (a logger that missed a value: the row is then
@@ -932,6 +939,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
             out["x_mm"] = np.where(gap, derived, x)
         # a run validated before keeps its count: its derived cells are filled now
         out.attrs["x_mm_derived_rows"] = int(gap.sum()) or int(data.attrs.get("x_mm_derived_rows", 0))
+        offset = zero_offset(x, q, float(valve.stroke))
+        if offset is not None:
+            out.attrs["x_mm_zero_offset"] = offset
     else:
         out["x_mm"] = derived
         out.attrs["x_mm_derived_rows"] = n
@@ -945,6 +955,28 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
             out.attrs["x_mm_other_unit"] = other.removeprefix("; ")
     out.attrs["source"] = source
     return out.reset_index(drop=True)
+
+
+def zero_offset(x: np.ndarray, q: np.ndarray, stroke: float) -> dict[str, float] | None:
+    """A measured opening's zero offset, where the record shows one: on the rows whose flow is about 0 (at most
+    :data:`SEAT_FLOW_SHARE` of the high flow, its 99th percentile: the valve on its seat, which the model puts at
+    0 mm), at least :data:`SEAT_MIN_ROWS` rows and 2 % of them, the opening rests at a value off 0 by more than
+    :data:`ZERO_OFFSET_NOISE` times its noise and 1 % of the stroke, and scatters about it within 3 times its noise
+    (a transducer's zero, not a valve lifting under a meter's low-flow cut-off). The offset, its rows and the noise;
+    else None. The data are not changed: the note says what to subtract."""
+    ok = np.isfinite(x) & np.isfinite(q)
+    if ok.sum() < SEAT_MIN_ROWS:
+        return None
+    xs, qs = x[ok], q[ok]
+    seat = qs <= SEAT_FLOW_SHARE * float(np.percentile(qs, 99))
+    if seat.sum() < max(SEAT_MIN_ROWS, 0.02 * xs.size):
+        return None
+    noise = max(float(1.4826 * np.median(np.abs(np.diff(xs) - np.median(np.diff(xs)))) / np.sqrt(2.0)), 1e-4)
+    c = float(np.median(xs[seat]))
+    spread = 1.4826 * float(np.median(np.abs(xs[seat] - c)))
+    if abs(c) <= max(ZERO_OFFSET_NOISE * noise, 0.01 * stroke) or spread > 3.0 * noise:
+        return None
+    return {"offset_mm": c, "rows": int(seat.sum()), "noise_mm": noise}
 
 
 def _zero_flow_noise(out: pd.DataFrame) -> pd.DataFrame:
@@ -1304,4 +1336,5 @@ __all__ = ["LOOP_COLUMNS", "HISTORIAN_MARK", "other_format_hint", "DataError", "
            "scale_text", "unit_key", "header_units", "time_unit_hint", "interval_problem", "flow_unit_hint",
            "FLOW_UNITS", "flow_ratio", "opening_derived", "flow_cut_off", "censored_opening", "PUMP_OFF_DP_SHARE",
            "CUT_OFF_MIN_FLOW_SHARE", "SHORT_SPAN_S", "TANK_HOT_C", "temperature_unit_hint", "text_cells", "is_number",
-           "decimal_comma", "decimal_mark_hint", "fortran_exponent", "DASHES", "time_name_hint", "time_order_hint"]
+           "decimal_comma", "decimal_mark_hint", "fortran_exponent", "DASHES", "time_name_hint", "time_order_hint",
+           "zero_offset", "SEAT_FLOW_SHARE", "SEAT_MIN_ROWS", "ZERO_OFFSET_NOISE"]
