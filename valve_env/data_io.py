@@ -199,7 +199,8 @@ PUMP_OFF_MIN_ROWS = 3
 SEAT_FLOW_SHARE = 0.01
 #: ... and at least this many of them ...
 SEAT_MIN_ROWS = 20
-#: ... rest at an opening this many noise sd (and 1 % of the stroke) off 0: a transducer's zero offset, with a warning
+#: ... rest at an opening this many noise sd (and 1 % of the stroke) off 0: a transducer's zero offset, subtracted with
+#: a note
 ZERO_OFFSET_NOISE = 5.0
 #: |time_s| beyond this (s, ~300 years) is not a time.
 MAX_ABS_TIME_S = 1.0e10
@@ -939,8 +940,9 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
             out["x_mm"] = np.where(gap, derived, x)
         # a run validated before keeps its count: its derived cells are filled now
         out.attrs["x_mm_derived_rows"] = int(gap.sum()) or int(data.attrs.get("x_mm_derived_rows", 0))
-        offset = zero_offset(x, q, float(valve.stroke))
-        if offset is not None:
+        offset = zero_offset(out["x_mm"].to_numpy(dtype=float), q, float(valve.stroke))
+        if offset is not None:  # the seat is 0 mm: the transducer's zero is taken out
+            out["x_mm"] = out["x_mm"].to_numpy(dtype=float) - offset["offset_mm"]
             out.attrs["x_mm_zero_offset"] = offset
     else:
         out["x_mm"] = derived
@@ -963,7 +965,7 @@ def zero_offset(x: np.ndarray, q: np.ndarray, stroke: float) -> dict[str, float]
     0 mm), at least :data:`SEAT_MIN_ROWS` rows and 2 % of them, the opening rests at a value off 0 by more than
     :data:`ZERO_OFFSET_NOISE` times its noise and 1 % of the stroke, and scatters about it within 3 times its noise
     (a transducer's zero, not a valve lifting under a meter's low-flow cut-off). The offset, its rows and the noise;
-    else None. The data are not changed: the note says what to subtract."""
+    else None. :func:`validate_run` subtracts it, with a note."""
     ok = np.isfinite(x) & np.isfinite(q)
     if ok.sum() < SEAT_MIN_ROWS:
         return None

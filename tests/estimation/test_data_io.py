@@ -906,11 +906,11 @@ def test_a_flow_in_another_unit_beside_a_measured_opening_is_warned_of(tmp_path:
     assert any(line.startswith(f"q_kgh: {notes[0]['ratio']:.3g} times the flow") for line in describe(notes))
 
 
-def test_an_opening_transducers_zero_offset_is_warned_of(tmp_path: Path, open_run: pd.DataFrame) -> None:
+def test_an_opening_transducers_zero_offset_is_taken_out(tmp_path: Path, open_run: pd.DataFrame) -> None:
     """An opening whose transducer's zero reads off (the valve on its seat, its flow about 0, reads +-0.03 mm instead
-    of 0) gets a warning note naming the offset; the data are not changed. Before, nothing was said, and fit's RMS rose
+    of 0): the offset is subtracted, with a note naming it. Before, nothing was said or done, and fit's RMS rose
     fivefold with residuals that were not white, with no cause named. The run as written and the same run under a
-    flow meter's low-flow cut-off (openings near the seat read as flow 0) get none."""
+    flow meter's low-flow cut-off (openings near the seat read as flow 0) are left as they are."""
     from valve_env.valveid.preprocess import describe, preprocess_run
 
     assert "x_mm_zero_offset" not in load_run(_write(open_run, tmp_path / "plain.csv")).attrs
@@ -920,6 +920,7 @@ def test_an_opening_transducers_zero_offset_is_warned_of(tmp_path: Path, open_ru
     for offset in (0.03, -0.03):
         run = load_run(_write(open_run.assign(x_mm=open_run.x_mm + offset), tmp_path / "offset.csv"))
         notes = [nt for nt in preprocess_run(run)[1] if nt["what"] == "x_mm_zero_offset"]
-        assert len(notes) == 1 and notes[0]["warn"] and notes[0]["offset_mm"] == pytest.approx(offset, abs=0.003)
-        np.testing.assert_array_equal(run.x_mm, open_run.x_mm + offset)
-        assert any(line.startswith(f"x_mm: rests at {notes[0]['offset_mm']:.3g} mm") for line in describe(notes))
+        assert len(notes) == 1 and notes[0]["offset_mm"] == pytest.approx(offset, abs=0.003)
+        np.testing.assert_allclose(run.x_mm, open_run.x_mm + offset - notes[0]["offset_mm"], atol=1e-12)
+        assert any(line.startswith(f"x_mm: rests at {notes[0]['offset_mm']:.3g} mm") and line.endswith("subtracted")
+                   for line in describe(notes))

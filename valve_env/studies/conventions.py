@@ -333,6 +333,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
     Convention("opening_stored_on_change", "the opening x_mm stored on change with a 0.01 mm dead band (a historian)",
                _on_opening(lambda df, rng: df.assign(x_mm=store_on_change(df["x_mm"].to_numpy(dtype=float), 0.01))),
                loses_information=True),
+    Convention("opening_zero_offset", "the opening x_mm read 0.03 mm high throughout (a position transducer's zero "
+               "set off)", _on_opening(lambda df, rng: df.assign(x_mm=df["x_mm"].to_numpy(dtype=float) + 0.03))),
     Convention("opening_from_flow", "no x_mm column: the opening derived from the flow (the meter's relative error)",
                lambda df, rng: df.drop(columns=["x_mm"])),
     Convention("flow_zero_noise", "the flow meter's noise about 0 (0.5 kg/h added to every reading): a shut valve "

@@ -222,9 +222,8 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         notes.append({"what": "x_mm_zero_offset", "channel": "x_mm", **zero,
                       "why": f"x_mm rests at {zero['offset_mm']:.3g} mm (median; noise sd {zero['noise_mm']:.2g} mm) "
                              f"on the {zero['rows']} rows whose flow is about 0, where the valve sits on its seat "
-                             "(0 mm in the model): the opening transducer's zero reads off. The data are not changed; "
-                             "the fit and the diagnosis read the offset as opening. Subtract it from x_mm if the "
-                             "transducer's zero is what is off", "warn": True})
+                             "(0 mm in the model): the opening transducer's zero reads off, and the offset is "
+                             "subtracted from every row"})
     derived = int(df.attrs.get("x_mm_derived_rows", 0))
     if derived and ("x_mm_derived", "x_mm") not in done:
         other = df.attrs.get("x_mm_other_unit")
@@ -339,7 +338,7 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
                          f"(multiply by {nt['factor']:g}); the measured opening is used")
         elif what == "x_mm_zero_offset":
             lines.append(f"x_mm: rests at {nt['offset_mm']:.3g} mm where the flow is about 0 (the seat, 0 mm in "
-                         "the model): a transducer's zero offset?")
+                         "the model): a transducer's zero offset, subtracted")
         elif what == "x_mm_derived":
             lines.append(f"x_mm: derived from the flow in {nt['rows']} row(s) ({nt['why'].split(':')[0]})")
         elif what == "irregular_sampling":
