@@ -920,7 +920,7 @@ def test_an_opening_transducers_zero_offset_is_taken_out(tmp_path: Path, open_ru
     for offset in (0.03, -0.03):
         run = load_run(_write(open_run.assign(x_mm=open_run.x_mm + offset), tmp_path / "offset.csv"))
         notes = [nt for nt in preprocess_run(run)[1] if nt["what"] == "x_mm_zero_offset"]
-        assert len(notes) == 1 and notes[0]["offset_mm"] == pytest.approx(offset, abs=0.003)
+        assert len(notes) == 1 and notes[0]["warn"] and notes[0]["offset_mm"] == pytest.approx(offset, abs=0.003)
         np.testing.assert_allclose(run.x_mm, open_run.x_mm + offset - notes[0]["offset_mm"], atol=1e-12)
         assert any(line.startswith(f"x_mm: rests at {notes[0]['offset_mm']:.3g} mm") and line.endswith("subtracted")
                    for line in describe(notes))

@@ -223,7 +223,7 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
                       "why": f"x_mm rests at {zero['offset_mm']:.3g} mm (median; noise sd {zero['noise_mm']:.2g} mm) "
                              f"on the {zero['rows']} rows whose flow is about 0, where the valve sits on its seat "
                              "(0 mm in the model): the opening transducer's zero reads off, and the offset is "
-                             "subtracted from every row"})
+                             "subtracted from every row", "warn": True})
     derived = int(df.attrs.get("x_mm_derived_rows", 0))
     if derived and ("x_mm_derived", "x_mm") not in done:
         other = df.attrs.get("x_mm_other_unit")
