@@ -199,9 +199,10 @@ PUMP_OFF_MIN_ROWS = 3
 SEAT_FLOW_SHARE = 0.01
 #: ... and at least this many of them ...
 SEAT_MIN_ROWS = 20
-#: ... rest at an opening this many noise sd (and 1 % of the stroke) off 0: a transducer's zero offset, subtracted with
-#: a note
+#: ... rest at an opening this many noise sd (and 1 % of the stroke) off 0, and at most this share of the stroke: a
+#: transducer's zero offset, subtracted with a note
 ZERO_OFFSET_NOISE = 5.0
+ZERO_OFFSET_MAX_SHARE = 0.1
 #: |time_s| beyond this (s, ~300 years) is not a time.
 MAX_ABS_TIME_S = 1.0e10
 #: The measured channels, whose empty cells drop their row (a logger that missed a value: the row is then
@@ -940,7 +941,8 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
             out["x_mm"] = np.where(gap, derived, x)
         # a run validated before keeps its count: its derived cells are filled now
         out.attrs["x_mm_derived_rows"] = int(gap.sum()) or int(data.attrs.get("x_mm_derived_rows", 0))
-        offset = zero_offset(out["x_mm"].to_numpy(dtype=float), q, float(valve.stroke))
+        offset = zero_offset(out["x_mm"].to_numpy(dtype=float), q, out["dp_mbar"].to_numpy(dtype=float),
+                             float(valve.stroke))
         if offset is not None:  # the seat is 0 mm: the transducer's zero is taken out
             out["x_mm"] = out["x_mm"].to_numpy(dtype=float) - offset["offset_mm"]
             out.attrs["x_mm_zero_offset"] = offset
@@ -959,24 +961,27 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
     return out.reset_index(drop=True)
 
 
-def zero_offset(x: np.ndarray, q: np.ndarray, stroke: float) -> dict[str, float] | None:
+def zero_offset(x: np.ndarray, q: np.ndarray, dp: np.ndarray, stroke: float) -> dict[str, float] | None:
     """A measured opening's zero offset, where the record shows one: on the rows whose flow is about 0 (at most
-    :data:`SEAT_FLOW_SHARE` of the high flow, its 99th percentile: the valve on its seat, which the model puts at
-    0 mm), at least :data:`SEAT_MIN_ROWS` rows and 2 % of them, the opening rests at a value off 0 by more than
-    :data:`ZERO_OFFSET_NOISE` times its noise and 1 % of the stroke, and scatters about it within 3 times its noise
-    (a transducer's zero, not a valve lifting under a meter's low-flow cut-off). The offset, its rows and the noise;
-    else None. :func:`validate_run` subtracts it, with a note."""
-    ok = np.isfinite(x) & np.isfinite(q)
+    :data:`SEAT_FLOW_SHARE` of the high flow, its 99th percentile) under at least half the record's median dp (so the
+    valve is on its seat, which the model puts at 0 mm, and not open under a pump turned down), at least
+    :data:`SEAT_MIN_ROWS` rows and 2 % of them, the opening rests at a value off 0 by more than
+    :data:`ZERO_OFFSET_NOISE` times its noise and 1 % of the stroke, and by at most :data:`ZERO_OFFSET_MAX_SHARE` of
+    the stroke (a transducer's zero, not another scale), and scatters about it within 3 times its noise (not a valve
+    lifting under a meter's low-flow cut-off). The offset, its rows and the noise; else None. :func:`validate_run`
+    subtracts it, with a note."""
+    ok = np.isfinite(x) & np.isfinite(q) & np.isfinite(dp)
     if ok.sum() < SEAT_MIN_ROWS:
         return None
-    xs, qs = x[ok], q[ok]
-    seat = qs <= SEAT_FLOW_SHARE * float(np.percentile(qs, 99))
+    xs, qs, dps = x[ok], q[ok], dp[ok]
+    seat = (qs <= SEAT_FLOW_SHARE * float(np.percentile(qs, 99))) & (dps >= 0.5 * float(np.median(dps)))
     if seat.sum() < max(SEAT_MIN_ROWS, 0.02 * xs.size):
         return None
     noise = max(float(1.4826 * np.median(np.abs(np.diff(xs) - np.median(np.diff(xs)))) / np.sqrt(2.0)), 1e-4)
     c = float(np.median(xs[seat]))
     spread = 1.4826 * float(np.median(np.abs(xs[seat] - c)))
-    if abs(c) <= max(ZERO_OFFSET_NOISE * noise, 0.01 * stroke) or spread > 3.0 * noise:
+    if not max(ZERO_OFFSET_NOISE * noise, 0.01 * stroke) < abs(c) <= ZERO_OFFSET_MAX_SHARE * stroke \
+            or spread > 3.0 * noise:
         return None
     return {"offset_mm": c, "rows": int(seat.sum()), "noise_mm": noise}
 
@@ -1339,4 +1344,4 @@ __all__ = ["LOOP_COLUMNS", "HISTORIAN_MARK", "other_format_hint", "DataError", "
            "FLOW_UNITS", "flow_ratio", "opening_derived", "flow_cut_off", "censored_opening", "PUMP_OFF_DP_SHARE",
            "CUT_OFF_MIN_FLOW_SHARE", "SHORT_SPAN_S", "TANK_HOT_C", "temperature_unit_hint", "text_cells", "is_number",
            "decimal_comma", "decimal_mark_hint", "fortran_exponent", "DASHES", "time_name_hint", "time_order_hint",
-           "zero_offset", "SEAT_FLOW_SHARE", "SEAT_MIN_ROWS", "ZERO_OFFSET_NOISE"]
+           "zero_offset", "SEAT_FLOW_SHARE", "SEAT_MIN_ROWS", "ZERO_OFFSET_NOISE", "ZERO_OFFSET_MAX_SHARE"]

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from tests.estimation.conftest import _small_run
-from valve_env.data_io import MAX_GAP_S, MIN_ROWS, DataError, flow_unit_hint, load_run
+from valve_env.data_io import MAX_GAP_S, MIN_ROWS, DataError, flow_unit_hint, load_run, zero_offset
 from valve_env.params import ValveParams
 from valve_env.physics.valve import opening_from_flow
 
@@ -909,14 +909,26 @@ def test_a_flow_in_another_unit_beside_a_measured_opening_is_warned_of(tmp_path:
 def test_an_opening_transducers_zero_offset_is_taken_out(tmp_path: Path, open_run: pd.DataFrame) -> None:
     """An opening whose transducer's zero reads off (the valve on its seat, its flow about 0, reads +-0.03 mm instead
     of 0): the offset is subtracted, with a note naming it. Before, nothing was said or done, and fit's RMS rose
-    fivefold with residuals that were not white, with no cause named. The run as written and the same run under a
-    flow meter's low-flow cut-off (openings near the seat read as flow 0) are left as they are."""
+    fivefold with residuals that were not white, with no cause named. The run as written, the same run under a flow
+    meter's low-flow cut-off (openings near the seat read as flow 0), a valve held open while the pump is turned down,
+    and an opening off by more than a transducer's zero are left as they are."""
     from valve_env.valveid.preprocess import describe, preprocess_run
 
     assert "x_mm_zero_offset" not in load_run(_write(open_run, tmp_path / "plain.csv")).attrs
     q = open_run.q_kgh.to_numpy()
     cut = open_run.assign(q_kgh=np.where(q < 0.03 * np.percentile(q, 99), 0.0, q))
     assert "x_mm_zero_offset" not in load_run(_write(cut, tmp_path / "cut.csv")).attrs
+    # a pump turned down for a third of the record (dp at 0.1 mbar, the flow with it) under a valve held open at
+    # 0.15 mm, the valve never on its seat: its flow is about 0 there, but the opening is not a zero offset
+    rng = np.random.default_rng(3)
+    low = np.arange(900) >= 600
+    x = np.where(low, 0.15, 0.6 + 0.4 * np.sin(np.arange(900) / 50.0)) + rng.normal(0.0, 0.0024, 900)
+    flow, dp = np.where(low, 0.2, 40.0 + 300.0 * x), np.where(low, 0.1, 100.0)
+    assert zero_offset(x, flow, np.full(900, 100.0), 2.0) is not None  # taken for the seat without the dp
+    assert zero_offset(x, flow, dp, 2.0) is None
+    # an opening off by 0.3 mm on the seat is not a transducer's zero (15 % of the stroke): left as it is
+    far = load_run(_write(open_run.assign(x_mm=open_run.x_mm + 0.3), tmp_path / "far.csv"))
+    assert "x_mm_zero_offset" not in far.attrs
     for offset in (0.03, -0.03):
         run = load_run(_write(open_run.assign(x_mm=open_run.x_mm + offset), tmp_path / "offset.csv"))
         notes = [nt for nt in preprocess_run(run)[1] if nt["what"] == "x_mm_zero_offset"]
