@@ -47,6 +47,7 @@ from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
+from scipy.stats import median_abs_deviation
 
 from valve_env.params import ValveParams
 from valve_env.physics.valve import flow_kgh, opening_from_flow
@@ -977,9 +978,9 @@ def zero_offset(x: np.ndarray, q: np.ndarray, dp: np.ndarray, stroke: float) -> 
     seat = (qs <= SEAT_FLOW_SHARE * float(np.percentile(qs, 99))) & (dps >= 0.5 * float(np.median(dps)))
     if seat.sum() < max(SEAT_MIN_ROWS, 0.02 * xs.size):
         return None
-    noise = max(float(1.4826 * np.median(np.abs(np.diff(xs) - np.median(np.diff(xs)))) / np.sqrt(2.0)), 1e-4)
+    noise = max(float(median_abs_deviation(np.diff(xs), scale="normal")) / np.sqrt(2.0), 1e-4)
     c = float(np.median(xs[seat]))
-    spread = 1.4826 * float(np.median(np.abs(xs[seat] - c)))
+    spread = float(median_abs_deviation(xs[seat], scale="normal"))
     if not max(ZERO_OFFSET_NOISE * noise, 0.01 * stroke) < abs(c) <= ZERO_OFFSET_MAX_SHARE * stroke \
             or spread > 3.0 * noise:
         return None

@@ -326,7 +326,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
             cell = row[idx[c]].strip()
             cols[c].append(_cell_value(c, decimal_comma(cell) if dialect.decimal == "," else cell,
                                        f"{p} line {lineno}, column {c}"))
-    for c, unit in {**{n: u for n, u in named.values()}, **units}.items():
+    for c, unit in {**dict(named.values()), **units}.items():
         if c in ("op", "mv") and unit_key(unit) == "ma" and cols[c]:  # a 4-20 mA signal's current
             cols[c] = [(v - 4.0) / 16.0 * 100.0 for v in cols[c]]
             notes.append(f"{c} is given in mA (a 4-20 mA signal): read as % by (mA - 4) / 16 x 100")
