@@ -726,13 +726,14 @@ def time_order_hint(t: np.ndarray) -> str:
     drops = np.flatnonzero(np.diff(t) <= 0)
     if drops.size == 1 and np.all(np.diff(t[drops[0] + 1:]) > 0):  # two increasing parts
         before, after = t[:drops[0] + 1], t[drops[0] + 1:]
+        dt = float(np.median(np.diff(before))) if before.size > 1 else 0.0
+        # back by an hour, unless the second part starts where the first did (a restart of an hour-long record)
+        if dt > 0 and abs(before[-1] + dt - after[0] - 3600.0) <= 0.5 * dt and after[0] != before[0]:
+            return ("; the time goes back by an hour there (times from a clock on local time, at the end of summer "
+                    "time?): give the times in UTC, or add 3600 s to the times from there")
         if after[0] <= before[0]:
             return ("; the time starts again there (a logger's clock reset, or files joined whose times each start "
                     "at 0?): make it run on, adding the last time before it and one interval to the times from there")
-        dt = float(np.median(np.diff(before))) if before.size > 1 else 0.0
-        if dt > 0 and abs(before[-1] + dt - after[0] - 3600.0) <= 0.5 * dt:
-            return ("; the time goes back by an hour there (times from a clock on local time, at the end of summer "
-                    "time?): give the times in UTC, or add 3600 s to the times from there")
         shared = int(np.isin(after, before).sum())
         if shared:
             return (f"; the rows from there repeat {shared} time(s) of the rows before them (two exports joined with "

@@ -470,6 +470,10 @@ def test_a_time_in_another_unit_by_name_and_rows_newest_first_are_named(tmp_path
                                         r"local time, at the end of summer time\?\): give the times in UTC, or add "
                                         r"3600 s to the times from there$"):
         load_run(_write(local, tmp_path / "local.csv"))
+    # the same within the record's first hour, where the time goes back to before its start (before, named a restart)
+    early = run_df.assign(time_s=np.where(np.arange(len(run_df)) >= 150, t - 3600.0, t))
+    with pytest.raises(DataError, match=r"at row 151 .*; the time goes back by an hour there"):
+        load_run(_write(early, tmp_path / "early.csv"))
 
 
 def test_a_workbook_is_refused_saying_to_save_it_as_csv(tmp_path: Path, run_df: pd.DataFrame) -> None:

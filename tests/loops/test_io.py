@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import gzip
 import re
+from collections.abc import Callable
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -556,7 +558,8 @@ def test_a_historian_export_reads_its_timestamps_by_the_format_line_1_declares(t
     p.write_text("\n".join(["\t".join(head), *lines[1:5], *rows]) + "\n")
     with pytest.raises(LoopDataError, match=r"line 6: timestamp '8 Oct 2024 13:45' is neither in the format line 1 "
                                             r"declares \(.*\) nor in YYYY-MM-DD HH:MM:SS\[\.fff\] \(with a T for the "
-                                            r"space, or / for the -\)$"):
+                                            r"space, or / for the -, or ISO 8601 with its UTC offset, \+08:00 or "
+                                            r"Z\)$"):
         read_loop(p)
 
 
@@ -754,4 +757,66 @@ def test_a_spreadsheets_save_that_rewrote_the_timestamps_is_refused_saying_so(tm
     with pytest.raises(LoopDataError, match=r"line 6: timestamp '08\.10\.2024 13:45' is neither in the format line 1 "
                                             r"declares .*; a spreadsheet that saves the export rewrites its "
                                             r"timestamps"):
+        read_loop(p)
+
+
+def _restamped(tmp_path: Path, name: str, stamp: Callable[[datetime], str], start: datetime) -> Path:
+    """The sticky export with its samples taken every 10 s from ``start`` (a clock that ran on, naive) and each
+    timestamp written by ``stamp``."""
+    lines = STICKY.read_text().splitlines()
+    rows = []
+    for i, ln in enumerate(lines[5:]):
+        f = ln.split("\t")
+        f[0] = stamp(start + timedelta(seconds=10 * i))
+        rows.append("\t".join(f))
+    p = tmp_path / name
+    p.write_text("\n".join([*lines[:5], *rows]) + "\n")
+    return p
+
+
+def _local(change: datetime, hour: int) -> Callable[[datetime], str]:
+    """A local clock that moves by ``hour`` at ``change`` (the true time of the change)."""
+    return lambda t: (t + timedelta(hours=hour) if t >= change else t).strftime("%Y-%m-%d %H:%M:%S")
+
+
+def test_a_historian_export_on_local_time_runs_on_across_a_change_of_summer_time(tmp_path: Path) -> None:
+    """An export on a local clock: at the end of summer time (Europe, 27 Oct 2024, 03:00 back to 02:00) the hour
+    repeats, at its start (31 Mar 2024, 02:00 on to 03:00) an hour is skipped. Both are read as the clock's change,
+    with a note: the record the same as the export's own, which ran on. An hour's jump by day, or forward on a
+    weekday, is no change of summer time: back is refused naming the hour, forward is a gap."""
+    plain = read_loop(STICKY)
+    for start, change, hour in ((datetime(2024, 10, 27, 2, 10), datetime(2024, 10, 27, 3), -1),
+                                (datetime(2024, 3, 31, 1, 10), datetime(2024, 3, 31, 2), 1)):
+        loop = read_loop(_restamped(tmp_path, f"local{hour}.txt", _local(change, hour), start))
+        assert np.array_equal(loop.time_s, plain.time_s) and np.array_equal(loop.op, plain.op)
+        assert np.array_equal(loop.pv, plain.pv)
+        which = "back after 2024-10-27 02:59:50" if hour < 0 else "forward after 2024-03-31 01:59:50"
+        assert any(f"jump by an hour at night ({which} (sample 300))" in n and "change of summer time" in n
+                   for n in loop.notes), loop.notes
+    by_day = datetime(2024, 10, 22, 14, 10)  # a Tuesday
+    with pytest.raises(LoopDataError, match=r"not strictly increasing at sample 301 .*; the time goes back by an "
+                                            r"hour there"):
+        read_loop(_restamped(tmp_path, "day_back.txt", _local(by_day + timedelta(minutes=50), -1), by_day))
+    night = datetime(2024, 10, 22, 2, 10)
+    gap = read_loop(_restamped(tmp_path, "weekday_on.txt", _local(night + timedelta(minutes=50), 1), night))
+    assert gap.time_s[-1] == plain.time_s[-1] + 3600.0
+    assert not any("summer time" in n for n in gap.notes) and any("resampled" in n for n in gap.notes)
+
+
+def test_a_historian_export_with_utc_offsets_is_read(tmp_path: Path) -> None:
+    """ISO 8601 timestamps with their UTC offset (an export in UTC, 'Z', or with its zone, '+08:00') are read, and
+    times count as the clock ran across a change of the offset (+02:00 to +01:00 at the end of summer time). A
+    timestamp without an offset among them is refused in one line."""
+    plain = read_loop(STICKY)
+    start = datetime(2024, 10, 27, 2, 10)
+    change = datetime(2024, 10, 27, 3)  # on the summer clock: 01:00 UTC
+    for name, stamp in (("z", lambda t: f"{t:%Y-%m-%dT%H:%M:%S}Z"), ("cst", lambda t: f"{t:%Y-%m-%dT%H:%M:%S}+08:00"),
+                        ("cet", lambda t: (f"{t:%Y-%m-%dT%H:%M:%S}+02:00" if t < change else
+                                           f"{t - timedelta(hours=1):%Y-%m-%dT%H:%M:%S}+01:00"))):
+        loop = read_loop(_restamped(tmp_path, f"{name}.txt", stamp, start))
+        assert np.array_equal(loop.time_s, plain.time_s) and np.array_equal(loop.op, plain.op), name
+        assert not any("summer time" in n for n in loop.notes), name
+    p = _restamped(tmp_path, "mixed.txt", lambda t: f"{t:%Y-%m-%dT%H:%M:%S}" + ("Z" if t < change else ""), start)
+    with pytest.raises(LoopDataError, match=r"line 306: timestamp '2024-10-27T03:00:00' is not in the format of the "
+                                            r"first \('2024-10-27T02:10:00Z'\)$"):
         read_loop(p)

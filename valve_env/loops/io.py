@@ -394,9 +394,19 @@ def _parse_stamp(text: str, fmt: str) -> datetime:
     return datetime.strptime(text.strip(), fmt)
 
 
+def _parse_offset_stamp(text: str) -> datetime:
+    """An ISO 8601 timestamp with its UTC offset (``+08:00``, ``Z``); ValueError for one without."""
+    ts = datetime.fromisoformat(text.strip())
+    if ts.tzinfo is None:
+        raise ValueError(f"no UTC offset in {text!r}")
+    return ts
+
+
 def _stamp_reader(first_line: str, sample: str, where: str) -> Callable[[str], datetime]:
     """The function that reads the export's timestamps: by the format line 1 declares (its third field), else the
-    default :data:`HISTORIAN_TIME`, with fractional seconds where the first timestamp, ``sample``, has them."""
+    default :data:`HISTORIAN_TIME`, with fractional seconds where the first timestamp, ``sample``, has them, else
+    ISO 8601 with a UTC offset (``2024-10-08T13:45:00+08:00``, ``...Z``: an export in UTC or with its zone), whose
+    times then count across a change of the offset (summer time) as the clock ran."""
     fields = first_line.split("\t")
     declared = fields[2].strip() if len(fields) > 2 else ""
     declared_fmt = time_format(declared)
@@ -407,9 +417,53 @@ def _stamp_reader(first_line: str, sample: str, where: str) -> Callable[[str], d
         except ValueError:
             continue
         return partial(_parse_stamp, fmt=fmt)
+    try:
+        _parse_offset_stamp(sample)
+    except ValueError:
+        pass
+    else:
+        return _parse_offset_stamp
     said = f"the format line 1 declares ({declared!r}) nor in " if declared_fmt else ""
     raise LoopDataError(f"{where}: timestamp {sample!r} is neither in {said}YYYY-MM-DD HH:MM:SS[.fff] (with a T "
-                        "for the space, or / for the -)")
+                        "for the space, or / for the -, or ISO 8601 with its UTC offset, +08:00 or Z)")
+
+
+#: a local clock's change of summer time, as a historian's export on local time shows it: the timestamps jump by an
+#: hour at night (Europe at 01:00 UTC, 02:00-03:00 local; North America, Australia and New Zealand at 02:00 or 03:00
+#: local). The hour of the last timestamp before the jump lies in CLOCK_CHANGE_HOURS
+CLOCK_CHANGE_S = 3600.0
+CLOCK_CHANGE_HOURS = range(0, 4)
+
+
+def clock_changes(t: np.ndarray, stamps: list[datetime]) -> tuple[np.ndarray, str]:
+    """The times ``t`` (s, from the first of the timestamps ``stamps``) of an export on a local clock, run on across
+    its changes of summer time, and the note ('' where there is none). A change is a step of the timestamps that
+    differs from the record's interval (the median step, under half an hour) by an hour within half an interval,
+    at night (:data:`CLOCK_CHANGE_HOURS`): back by an hour (the end of summer time: the hour repeats, which no
+    logger's stop makes), and forward by an hour on a Sunday (its start: a stop of the logger for that very hour
+    would read so too, and the note says what was done). The times from the step on are moved by the hour, so the
+    record runs on at its interval. Timestamps with a UTC offset count as the clock ran, and are returned as they
+    are."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 3 or stamps[0].tzinfo is not None:
+        return t, ""
+    steps = np.diff(t)
+    ahead = steps[steps > 0]
+    dt = float(np.median(ahead)) if ahead.size else 0.0
+    if not 0.0 < dt < CLOCK_CHANGE_S / 2:
+        return t, ""
+    out, said = t.copy(), []
+    for i in np.flatnonzero(np.abs(np.abs(steps - dt) - CLOCK_CHANGE_S) <= dt / 2):
+        before, back = stamps[int(i)], bool(steps[i] < 0)
+        if before.hour not in CLOCK_CHANGE_HOURS or not (back or before.weekday() == 6):
+            continue
+        out[i + 1:] += (CLOCK_CHANGE_S if back else -CLOCK_CHANGE_S)
+        said.append(f"{'back' if back else 'forward'} after {before:%Y-%m-%d %H:%M:%S} (sample {int(i) + 1})")
+    if not said:
+        return t, ""
+    return out, (f"the timestamps jump by an hour at night ({'; '.join(said)}): read as a local clock's change of "
+                 "summer time, the times from there are moved by the hour so that the record runs on at its "
+                 f"{dt:g} s interval; if the logger stopped for that hour instead, the record is joined across it")
 
 
 #: the historian export's tag suffixes of each column, in the order they are looked for, in any case: the format's
@@ -514,6 +568,7 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
     if i_mode is not None:
         cols["mode"] = []
     stamp: Callable[[str], datetime] | None = None
+    stamps: list[datetime] = []
     first = ""
     last = max((j for j, line in enumerate(lines, start=1) if line.strip()), default=0)
     begin = _historian_data_start(lines)
@@ -543,6 +598,7 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
             raise LoopDataError(f"{p} line {lineno}: timestamp {f[0]!r} is not in the format of the first "
                                 f"({first!r})") from None
         t0 = ts if t0 is None else t0
+        stamps.append(ts)
         cols["time_s"].append((ts - t0).total_seconds())
         for c, i in (("op", i_op), ("pv", i_pv), ("sp", i_sp), ("mode", i_mode)):
             if i is None:
@@ -553,7 +609,8 @@ def read_historian(path: str | Path, lines: list[str] | None = None,
             flags[c].append(f[i].strip() not in ("", "0"))
     read, note = historian_flags({c: np.asarray(v, dtype=float) for c, v in cols.items()},
                                  {c: np.asarray(v, dtype=bool) for c, v in flags.items()})
-    return read, tag, [*notes, *([note] if note else [])]
+    read["time_s"], clock = clock_changes(read["time_s"], stamps)
+    return read, tag, [*notes, *(n for n in (clock, note) if n)]
 
 
 def _historian_data_start(lines: list[str]) -> int:
