@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from valve_env.ident.tests import cumulated_periodogram, residual_report
+from valve_env.ident.tests import cumulated_periodogram, residual_report, second_difference_sd
 from valve_env.valveid.diagnostics import paper_figure, phase_diagram, whiteness_figure
 
 
@@ -60,3 +60,17 @@ def test_bench_fit_returns_flat_figures() -> None:
     assert all(isinstance(v, float) for v in out.values())
     assert out["estimator_nll_evals_per_s"] > 0 and out["estimator_fit_wall_s"] > 0
     assert out["estimator_n_samples"] == 721.0
+
+
+def test_the_noise_level_from_second_differences() -> None:
+    """One definition serves the valve's channels and the loops' (ident.tests): white noise of sd 0.05 on a slow sine is
+    read within 5 %; a steady curvature (a parabola) shifts the second differences, which the centred estimate
+    ignores and the one about 0 (the loops', for an OP whose curvature averages out) reads as noise."""
+    rng = np.random.default_rng(3)
+    t = np.arange(5000.0)
+    y = np.sin(t / 400.0) + rng.normal(0.0, 0.05, t.size)
+    assert abs(second_difference_sd(y) / 0.05 - 1.0) < 0.05
+    assert abs(second_difference_sd(y, centred=False) / 0.05 - 1.0) < 0.05
+    bent = y + 0.25 * t**2  # second differences shifted by 0.5, four times their sd (0.05 sqrt 6)
+    assert abs(second_difference_sd(bent) / 0.05 - 1.0) < 0.05 < second_difference_sd(bent, centred=False) / 0.05 - 1.0
+    assert second_difference_sd(y[:2]) == 0.0

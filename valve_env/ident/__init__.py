@@ -6,7 +6,8 @@
 * :mod:`~valve_env.ident.uncertainty`: the finite-difference Hessian, the identified inverse, HAC and
   sandwich covariances;
 * :mod:`~valve_env.ident.bootstrap`: the bootstrap driver;
-* :mod:`~valve_env.ident.tests`: the likelihood-ratio test (boundary mixture, effective sample size),
+* :mod:`~valve_env.ident.tests`: the noise level from second differences, the likelihood-ratio test (boundary
+  mixture, effective sample size),
   BIC, whiteness (Ljung-Box) and the misspecification check;
 * :mod:`~valve_env.ident.examples`: small example models (ctsmTMB's Ornstein-Uhlenbeck models).
 """

@@ -18,6 +18,24 @@ from scipy import stats
 from statsmodels.stats.diagnostic import acorr_ljungbox
 from statsmodels.tsa.stattools import acf, ccf
 
+# --------------------------------------------------------------------------- noise level
+#: the median absolute deviation of a normal sample over its sd (1 / the normal's 3/4 quantile, to 5 digits)
+MAD_TO_SD = 1.4826
+
+
+def sd_from_second_differences(d2: np.ndarray, centred: bool = True) -> float:
+    """The sd of the white noise behind second differences ``d2`` (their variance is 6 sd^2): their median absolute
+    deviation (about their median, or about 0 where not ``centred``) times :data:`MAD_TO_SD` / sqrt(6)."""
+    d2 = np.asarray(d2, dtype=float)
+    return float(MAD_TO_SD * np.median(np.abs(d2 - np.median(d2) if centred else d2)) / math.sqrt(6.0))
+
+
+def second_difference_sd(y: np.ndarray, centred: bool = True) -> float:
+    """The sd of white noise on a smooth signal ``y``, read robustly from its second differences, in which the smooth
+    part cancels (:func:`sd_from_second_differences`). 0 for fewer than 3 samples."""
+    y = np.asarray(y, dtype=float)
+    return sd_from_second_differences(np.diff(y, 2), centred) if y.size >= 3 else 0.0
+
 
 # --------------------------------------------------------------------------- likelihood ratio and criteria
 def lr_pvalue(lr: float, df: int, boundary: bool = False) -> float:

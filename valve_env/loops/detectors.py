@@ -51,8 +51,8 @@ from typing import Any
 
 import numpy as np
 
+from valve_env.ident.tests import second_difference_sd
 from valve_env.loops.io import LoopData
-from valve_env.loops.model import second_difference_sd
 
 
 def _detrend(y: np.ndarray) -> np.ndarray:
@@ -145,8 +145,8 @@ def he_curve_fit(loop: LoopData, upper: float = 0.6, lower: float = 0.4, on: str
 def kano(loop: LoopData, threshold: float = 0.25) -> dict[str, Any]:
     dpv = np.diff(loop.pv)
     dop = np.diff(loop.op)
-    noise = second_difference_sd(loop.pv)
-    op_noise = 3.0 * second_difference_sd(loop.op)
+    noise = second_difference_sd(loop.pv, centred=False)
+    op_noise = 3.0 * second_difference_sd(loop.op, centred=False)
     # sections of monotonic OP motion (sign of a smoothed increment)
     k = 3
     dop_s = np.convolve(loop.op, np.ones(k) / k, mode="same")

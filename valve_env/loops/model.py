@@ -35,7 +35,7 @@ from numba import njit
 from scipy.linalg import solve_banded
 
 from valve_env.ident.mle import profile_maximum
-from valve_env.ident.tests import bic
+from valve_env.ident.tests import bic, second_difference_sd
 from valve_env.physics.stickslip import stick_slip_path
 
 #: valve candidates, nested: linear (S = 0) in backlash (J = 0) in stiction (S, J free)
@@ -118,13 +118,7 @@ def op_jitter(op: np.ndarray, dt: float, scan_s: float) -> float:
     m = dt / scan_s if scan_s > 0 else 1.0
     if m <= 1.0 or op.size < 3:
         return 0.0
-    return second_difference_sd(op) * math.sqrt(m)
-
-
-def second_difference_sd(y: np.ndarray) -> float:
-    """The sd of white noise on a smooth signal ``y``, read robustly from its second differences (in which the smooth
-    part cancels): their median absolute value times 1.4826 (the normal's MAD factor) / sqrt(6)."""
-    return float(np.median(np.abs(np.diff(np.asarray(y, dtype=float), 2))) * 1.4826 / math.sqrt(6.0))
+    return second_difference_sd(op, centred=False) * math.sqrt(m)
 
 
 def valve_path(op: np.ndarray, S: float, J: float, direction: float = 1.0, substeps: int = 1,
@@ -743,5 +737,4 @@ def scan_valve(pv: np.ndarray, paths: tuple[np.ndarray, list[tuple[float, float,
 
 __all__ = ["VALVES", "Settings", "ProcessFit", "ValveFit", "valve_path", "fit_process", "fit_valve",
            "simulate", "residuals", "op_scale", "concentrated_loglik", "Scan", "scan_valve",
-           "scan_paths", "resolution", "subsample_op", "disturbance_basis", "op_jitter", "JITTER_DRAWS",
-           "second_difference_sd"]
+           "scan_paths", "resolution", "subsample_op", "disturbance_basis", "op_jitter", "JITTER_DRAWS"]

@@ -29,6 +29,7 @@ import numpy as np
 from numba import njit
 
 from valve_env.ident.kalman import LOG2PI, ou_innovation, ou_predict, ou_update
+from valve_env.ident.tests import MAD_TO_SD
 from valve_env.params import I_P_BSET, I_STROKE
 from valve_env.physics import valve as phys
 from valve_env.physics.stickslip import initial_state as stick_initial_state
@@ -230,7 +231,7 @@ def stick_demand(x_sub: np.ndarray, sub_idx: np.ndarray, stroke: float) -> np.nd
     mad = np.median(np.abs(d2 - np.median(d2)))
     # the range that m white noise values rarely exceed: 2 sd sqrt(2 ln m) (the universal threshold of
     # Donoho and Johnstone 1994 on either side)
-    delta = 2.0 * math.sqrt(2.0 * math.log(m)) * 1.4826 * mad / math.sqrt(6.0)
+    delta = 2.0 * math.sqrt(2.0 * math.log(m)) * MAD_TO_SD * mad / math.sqrt(6.0)
     c = monotone_path(x_sub, delta)
     # straight lines through the centres of the flat blocks (a block of one sample is its own centre)
     out = c.copy()

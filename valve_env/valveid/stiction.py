@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from valve_env.valveid.temperature import noise_sd, quantum, second_difference_sd
+from valve_env.ident.tests import sd_from_second_differences
+from valve_env.valveid.temperature import noise_sd, quantum
 
 #: the finest opening resolution a channel is taken to have where the data shows none (mm; a position
 #: transducer's): its quantisation sd is the least noise sd the opening is given
@@ -114,7 +115,7 @@ class OpeningNoise:
 def noise_by_level(x: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
     """Where the noise of the opening ``x`` grows with its level: (inner bin edges, each bin's robust sd), mm; None
     where one sd holds (see :data:`LEVEL_RATIO`), or where the record is too short to tell. Each bin's sd is the
-    robust sd of the second differences centred in it (:func:`~valve_env.valveid.temperature.second_difference_sd`)."""
+    robust sd of the second differences centred in it (:func:`~valve_env.ident.tests.sd_from_second_differences`)."""
     x = np.asarray(x, dtype=float)
     if x.size < 3:
         return None
@@ -132,7 +133,7 @@ def noise_by_level(x: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]
         db = d2[which == b]
         if db.size < LEVEL_MIN_PER_BIN:
             return None
-        sds.append(max(second_difference_sd(db), OPENING_RESOLUTION_FLOOR_MM / math.sqrt(12.0)))
+        sds.append(max(sd_from_second_differences(db), OPENING_RESOLUTION_FLOOR_MM / math.sqrt(12.0)))
     if max(sds) <= LEVEL_RATIO * min(sds):
         return None
     return tuple(float(e) for e in edges), tuple(sds)

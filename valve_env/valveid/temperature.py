@@ -27,6 +27,7 @@ from numba import njit
 from scipy.optimize import minimize_scalar
 
 from valve_env.ident.kalman import LOG2PI
+from valve_env.ident.tests import second_difference_sd
 
 
 def read_only(a: np.ndarray) -> np.ndarray:
@@ -129,14 +130,7 @@ def noise_sd(y: np.ndarray) -> float:
     Exactly 0 for a channel that holds its value in more than half of its samples (a quantised,
     stepped or noiseless channel): use :func:`channel_noise` for the noise level a likelihood needs."""
     y = np.asarray(y, dtype=float)
-    if len(y) < 4:
-        return 0.0
-    return second_difference_sd(np.diff(y, 2))
-
-
-def second_difference_sd(d2: np.ndarray) -> float:
-    """The white-noise sd behind second differences ``d2``: their MAD (scaled to an sd) / sqrt(6)."""
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+    return second_difference_sd(y) if len(y) >= 4 else 0.0
 
 
 #: The finest temperature resolution a measured channel is taken to have where the data shows none
