@@ -820,3 +820,44 @@ def test_a_historian_export_with_utc_offsets_is_read(tmp_path: Path) -> None:
     with pytest.raises(LoopDataError, match=r"line 306: timestamp '2024-10-27T03:00:00' is not in the format of the "
                                             r"first \('2024-10-27T02:10:00Z'\)$"):
         read_loop(p)
+
+
+def test_tags_on_their_own_times_are_read_on_common_rows(tmp_path: Path) -> None:
+    """An export of several tags on the union of their timestamps: the sticky record's OP scanned every 5 s (its
+    values at the record's 10 s, and others between), its PV every 10 s, its set point stored on change only. It is
+    read on the PV's rows, the OP there and the set point held, with a note: the record as exported at 10 s, and the
+    same diagnosis. A PV scanned with the OP that stops for a fifth of the record (an outage, not a slower scan) is
+    still refused."""
+    from valve_env.loops.diagnose import diagnose_loop
+
+    plain = read_loop(STICKY)
+    n = plain.time_s.size
+    t = np.arange(2 * n - 1) * 5.0
+    op = np.interp(t, plain.time_s, plain.op) + np.where(np.arange(t.size) % 2 == 1, 0.3, 0.0)
+    pv = np.where(np.arange(t.size) % 2 == 0, np.interp(t, plain.time_s, plain.pv), np.nan)
+    sp_full = np.interp(t, plain.time_s, plain.sp)
+    changed = np.r_[True, np.diff(sp_full) != 0] & (np.arange(t.size) % 2 == 0)
+    sp = np.where(changed, sp_full, np.nan)
+
+    def cell(v: float) -> str:
+        return "" if np.isnan(v) else repr(float(v))
+
+    rows = ["time_s,sp,pv,op", *(f"{t[i]:g},{cell(sp[i])},{cell(pv[i])},{cell(op[i])}" for i in range(t.size))]
+    p = tmp_path / "union.csv"
+    p.write_text("\n".join(rows) + "\n")
+    loop = read_loop(p)
+    assert np.array_equal(loop.time_s, plain.time_s)
+    assert np.allclose(loop.pv, plain.pv, rtol=0, atol=1e-12) and np.allclose(loop.op, plain.op, rtol=0, atol=1e-12)
+    assert np.allclose(loop.sp, plain.sp, rtol=0, atol=1e-12)
+    note = next(x for x in loop.notes if x.startswith("the tags are on their own times"))
+    assert f"sp has a value on {int(changed.sum())} of {t.size} rows, held" in note
+    assert f"pv has a value on {n} of {t.size} rows (one in 2, median): the record is read on those rows" in note
+    read, exported = diagnose_loop(loop).result, diagnose_loop(plain).result
+    assert read["cause"] == exported["cause"]
+    assert read["detection"]["features"] == exported["detection"]["features"]
+    out = np.interp(t, plain.time_s, plain.pv)
+    out[200:500] = np.nan  # a PV scanned with the OP, its transmitter out for 25 min
+    rows = ["time_s,sp,pv,op", *(f"{t[i]:g},{cell(sp_full[i])},{cell(out[i])},{cell(op[i])}" for i in range(t.size))]
+    p.write_text("\n".join(rows) + "\n")
+    with pytest.raises(LoopDataError, match=r"miss a value \(column pv first, at sample 201\); at most 10% may$"):
+        read_loop(p)

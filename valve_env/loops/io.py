@@ -12,8 +12,10 @@ Rows that repeat a timestamp (historian exports do: duplicate rows, two values s
 are merged with a note: exact duplicates dropped, differing rows averaged
 (:func:`merge_repeated_timestamps`); time that goes backwards stays an error.
 
-Samples that miss a value (an empty cell or a NaN marker, :data:`MISSING_MARKERS`, or a historian value whose status
-flag is set, :func:`historian_flags`) are dropped with a note, up to
+An export of tags on their own times (the union of their timestamps, a tag's cell empty where it has no sample) is
+read on common rows, with a note (:func:`tags_on_own_times`). Samples that miss a value (an empty cell or a NaN
+marker, :data:`MISSING_MARKERS`, or a historian value whose status flag is set, :func:`historian_flags`) are dropped
+with a note, up to
 :data:`MAX_MISSING_FRACTION` of them, and the record is resampled over them. A value far outside its column's record
 (a historian's sentinel such as -9999, or a gross spike), in short isolated runs, is read as missing, with a note
 naming the samples (:func:`gross_outliers`).
@@ -723,6 +725,57 @@ def gross_outliers(v: np.ndarray, width: float = 0.0) -> np.ndarray:
     return flags
 
 
+#: the columns a historian holds from one stored value to the next (a set point and a mode change in steps); the
+#: others are measurements, interpolated linearly between their stored values
+HELD_COLUMNS: tuple[str, ...] = ("sp", "mode")
+
+
+def tags_on_own_times(cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], str]:
+    """The columns of an export that writes several tags on the union of their timestamps, each tag's value only
+    where it has a sample (a historian's recorded values side by side: tags scanned at other rates, or stored on
+    change), read on common rows, and the note ('' where the record is not such an export).
+
+    Only a column that misses its value on more than :data:`MAX_MISSING_FRACTION` of the rows is read so (fewer are
+    dropped as missing samples, as before); time must increase. A held column (:data:`HELD_COLUMNS`) keeps each value
+    until the next (its first value back to the start). A measurement (pv, op, mv) is read so where its values are
+    interleaved with empty rows (their median spacing two rows or more: a slower scan, not an outage, which stays
+    missing): where pv or op is one, the record is read on the rows of the one with fewer values; each other
+    interleaved measurement is interpolated linearly in time on the rows read, between its own values (empty outside
+    their span)."""
+    t = cols["time_s"]
+    n = t.size
+    if n < 3 or not np.all(np.diff(t) > 0):
+        return cols, ""
+    have = {c: ~np.isnan(cols[c]) for c in COLUMNS[1:] if c in cols}
+    sparse = [c for c, m in have.items() if (~m).sum() > MAX_MISSING_FRACTION * n and m.sum() >= 1]
+
+    def spacing(c: str) -> float:
+        gaps = np.diff(np.flatnonzero(have[c]))
+        return float(np.median(gaps)) if gaps.size else 0.0
+
+    interleaved = [c for c in sparse if c not in HELD_COLUMNS and spacing(c) >= 2.0]
+    held = [c for c in sparse if c in HELD_COLUMNS]
+    if not (interleaved or held):
+        return cols, ""
+    out, said = dict(cols), []
+    for c in held:
+        last = np.maximum.accumulate(np.where(have[c], np.arange(n), -1))
+        out[c] = cols[c][np.where(last < 0, int(np.flatnonzero(have[c])[0]), last)]
+        said.append(f"{c} has a value on {int(have[c].sum())} of {n} rows, held from each to the next")
+    base = min(("pv", "op"), key=lambda c: int(have[c].sum()))
+    rows = have[base] if base in interleaved else np.ones(n, dtype=bool)
+    if base in interleaved:
+        said.append(f"{base} has a value on {int(rows.sum())} of {n} rows (one in {spacing(base):g}, median): the "
+                    "record is read on those rows")
+    out = {c: v[rows] for c, v in out.items()}
+    for c in (c for c in interleaved if c != base):
+        m, at = have[c], t[rows]
+        out[c] = np.where((at >= t[m][0]) & (at <= t[m][-1]), np.interp(at, t[m], cols[c][m]), np.nan)
+        said.append(f"{c} ({int(m.sum())} values) interpolated linearly in time on those rows")
+    return out, ("the tags are on their own times (an export of several tags on the union of their timestamps, "
+                 f"empty where a tag has no sample): {'; '.join(said)}")
+
+
 def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> LoopData:
     """Validate raw columns (``time_s, sp, pv, op`` and optional ``mv, mode``); see the module doc."""
     where = source or "loop"
@@ -751,6 +804,10 @@ def check_loop(cols: dict[str, np.ndarray], tag: str = "", source: str = "") -> 
         notes.append(f"read {sum(int(g.sum()) for g in gross.values())} value(s) far outside their column's record as "
                      f"missing (a historian's sentinel or a gross spike: beyond the central 90 % by "
                      f"{GROSS_RANGES:g} times its width): {'; '.join(said)}")
+    cols, own_times = tags_on_own_times(cols)
+    if own_times:
+        notes.append(own_times)
+        n = cols["time_s"].size
     missing = np.zeros(n, dtype=bool)
     for c in ("sp", "pv", "op", "mv", "mode"):
         if c in cols:
