@@ -1256,8 +1256,26 @@ def _drop_empty_rows(out: pd.DataFrame, source: str, line: Callable[[int], int] 
     if k > MAX_EMPTY_FRACTION * n:
         r = _file_row(out, i)
         raise DataError(f"{source}: {k} of {n} rows ({k / n:.0%}) have an empty cell in a measured column (the first: "
-                        f"{col!r} at row {r}, line {line(r - 1)}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
+                        f"{col!r} at row {r}, line {line(r - 1)}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may"
+                        f"{own_rates_hint(out)}")
     return _drop_rows(out, empty, "rows_dropped_empty")
+
+
+def own_rates_hint(out: pd.DataFrame) -> str:
+    """What a refusal for empty cells adds where a measured channel's values interleave with empty rows (their
+    median spacing two rows or more, on more than :data:`MAX_EMPTY_FRACTION` of the rows empty): channels logged at
+    their own rates on the union of their times, which the run's format does not take (loop records do:
+    ``loops.io.tags_on_own_times``). Else ''."""
+    said = []
+    for col in MEASURED:
+        have = np.isfinite(out[col].to_numpy(dtype=float))
+        gaps = np.diff(np.flatnonzero(have))
+        if (~have).sum() > MAX_EMPTY_FRACTION * have.size and gaps.size and float(np.median(gaps)) >= 2.0:
+            said.append(f"{col} on one row in {float(np.median(gaps)):g}")
+    if not said:
+        return ""
+    return (f"; the channels have values on rows of their own ({', '.join(said)}: logged at their own rates on the "
+            "union of their times?): give every channel on the rows of the slowest, the others interpolated there")
 
 
 def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str,

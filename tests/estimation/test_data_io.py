@@ -143,6 +143,11 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
      r"non-numeric value 'abc' in column 'q_kgh' at row 8"),
     (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where((x.index < 4) | (x.index % 5 != 0), np.nan)),
      r"have an empty cell in a measured column \(the first: 'T_med_C' at row 6, line 7\); at most 10%"),
+    # channels logged at their own rates on the union of their times: named as such
+    (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where(x.index % 2 == 0, np.nan)),
+     r"at most 10% of the rows may; the channels have values on rows of their own \(T_med_C on one row in 2: logged "
+     r"at their own rates on the union of their times\?\): give every channel on the rows of the slowest, the others "
+     r"interpolated there$"),
     (lambda d: d.assign(time_s=lambda x: x.time_s.where(x.index != 4, np.nan)), r"NaN .* column 'time_s' at row 5"),
     (lambda d: d.assign(time_s=lambda x: x.time_s.where(x.index != 10, 0.0)), r"time_s is not increasing at row 11"),
     (lambda d: d.iloc[:5], rf"too short a record, 5 rows; at least {MIN_ROWS}"),
