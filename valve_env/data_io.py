@@ -924,7 +924,7 @@ def validate_run(data: pd.DataFrame, source: str = "data", valve: ValveParams | 
                         f"after the previous sample (at most {MAX_GAP_S:g} s)")
     if _PUMP_OFF in out.columns:
         out = _drop_rows(out, out.pop(_PUMP_OFF).to_numpy(dtype=bool), "rows_dropped_pump_off")
-    out = _drop_empty_rows(out, source, first_line)
+    out = _drop_empty_rows(_own_rates(out), source, first_line)
     n = len(out)
     T = out["T_tank_C"].to_numpy()
     if float(np.max(T) - np.min(T)) < MIN_T_RANGE_K:
@@ -1256,26 +1256,48 @@ def _drop_empty_rows(out: pd.DataFrame, source: str, line: Callable[[int], int] 
     if k > MAX_EMPTY_FRACTION * n:
         r = _file_row(out, i)
         raise DataError(f"{source}: {k} of {n} rows ({k / n:.0%}) have an empty cell in a measured column (the first: "
-                        f"{col!r} at row {r}, line {line(r - 1)}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may"
-                        f"{own_rates_hint(out)}")
+                        f"{col!r} at row {r}, line {line(r - 1)}); at most {MAX_EMPTY_FRACTION:.0%} of the rows may")
     return _drop_rows(out, empty, "rows_dropped_empty")
 
 
-def own_rates_hint(out: pd.DataFrame) -> str:
-    """What a refusal for empty cells adds where a measured channel's values interleave with empty rows (their
-    median spacing two rows or more, on more than :data:`MAX_EMPTY_FRACTION` of the rows empty): channels logged at
-    their own rates on the union of their times, which the run's format does not take (loop records do:
-    ``loops.io.tags_on_own_times``). Else ''."""
-    said = []
-    for col in MEASURED:
-        have = np.isfinite(out[col].to_numpy(dtype=float))
-        gaps = np.diff(np.flatnonzero(have))
-        if (~have).sum() > MAX_EMPTY_FRACTION * have.size and gaps.size and float(np.median(gaps)) >= 2.0:
-            said.append(f"{col} on one row in {float(np.median(gaps)):g}")
-    if not said:
-        return ""
-    return (f"; the channels have values on rows of their own ({', '.join(said)}: logged at their own rates on the "
-            "union of their times?): give every channel on the rows of the slowest, the others interpolated there")
+def _own_rates(out: pd.DataFrame) -> pd.DataFrame:
+    """The run of a logger that writes its channels at their own rates on the union of their times (each channel's
+    value only where it has a sample, empty elsewhere), on the rows of the slowest channel, the others interpolated
+    linearly in time there; the run as it is where no channel is logged so.
+
+    A measured channel is logged so where it is empty on more than :data:`MAX_EMPTY_FRACTION` of the rows and its
+    values interleave with the empty rows (their median spacing two rows or more: a slower rate, not an outage, whose
+    stretch of empty rows stays empty and refuses the run). The slowest is the one with the fewest values; the rows
+    without its value are dropped (named in ``attrs["rows_dropped_own_rates"]``), and ``attrs["own_rates"]`` says
+    which channel gave the rows and which were interpolated (the note ``own_rates``). x_mm is not interpolated: its
+    empty cells are derived from the flow, as in any run."""
+    n = len(out)
+    t = out["time_s"].to_numpy(dtype=float)
+    have = {c: np.isfinite(out[c].to_numpy(dtype=float)) for c in MEASURED}
+
+    def spacing(c: str) -> float:
+        gaps = np.diff(np.flatnonzero(have[c]))
+        return float(np.median(gaps)) if gaps.size else 0.0
+
+    own = [c for c in MEASURED if (~have[c]).sum() > MAX_EMPTY_FRACTION * n and spacing(c) >= 2.0]
+    if not own or n < 3 or not np.all(np.diff(t) > 0):
+        return out
+    base = min(own, key=lambda c: int(have[c].sum()))
+    rows = have[base]
+    out = out.copy()
+    interpolated = []
+    for c in own:
+        m = have[c]
+        if c == base or m[rows].all():
+            continue
+        at = t[rows]
+        v = out[c].to_numpy(dtype=float, copy=True)
+        v[rows] = np.where((at >= t[m][0]) & (at <= t[m][-1]), np.interp(at, t[m], v[m]), np.nan)
+        out[c] = v
+        interpolated.append(c)
+    out.attrs["own_rates"] = {"channel": base, "every_rows": spacing(base), "rows": int(rows.sum()), "of": n,
+                              "interpolated": interpolated}
+    return _drop_rows(out, ~rows, "rows_dropped_own_rates")
 
 
 def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str,

@@ -143,11 +143,6 @@ def test_a_historians_state_in_place_of_a_value_is_a_missing_sample(tmp_path: Pa
      r"non-numeric value 'abc' in column 'q_kgh' at row 8"),
     (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where((x.index < 4) | (x.index % 5 != 0), np.nan)),
      r"have an empty cell in a measured column \(the first: 'T_med_C' at row 6, line 7\); at most 10%"),
-    # channels logged at their own rates on the union of their times: named as such
-    (lambda d: d.assign(T_med_C=lambda x: x.T_med_C.where(x.index % 2 == 0, np.nan)),
-     r"at most 10% of the rows may; the channels have values on rows of their own \(T_med_C on one row in 2: logged "
-     r"at their own rates on the union of their times\?\): give every channel on the rows of the slowest, the others "
-     r"interpolated there$"),
     (lambda d: d.assign(time_s=lambda x: x.time_s.where(x.index != 4, np.nan)), r"NaN .* column 'time_s' at row 5"),
     (lambda d: d.assign(time_s=lambda x: x.time_s.where(x.index != 10, 0.0)), r"time_s is not increasing at row 11"),
     (lambda d: d.iloc[:5], rf"too short a record, 5 rows; at least {MIN_ROWS}"),
@@ -945,3 +940,39 @@ def test_an_opening_transducers_zero_offset_is_taken_out(tmp_path: Path, open_ru
         np.testing.assert_allclose(run.x_mm, open_run.x_mm + offset - notes[0]["offset_mm"], atol=1e-12)
         assert any(line.startswith(f"x_mm: rests at {notes[0]['offset_mm']:.3g} mm") and line.endswith("subtracted")
                    for line in describe(notes))
+
+
+def test_channels_logged_at_their_own_rates_are_read_on_the_slowest_ones_rows(tmp_path: Path,
+                                                                               run_df: pd.DataFrame) -> None:
+    """A logger that writes each channel at its own rate on the union of their times, empty where a channel has no
+    sample: the temperatures every 20 s, the flow and pressures every 10 s. The run is read on the temperatures' rows,
+    with a note, and is the run as logged every 20 s; with the supply temperature logged 10 s after the tank's, it is
+    interpolated linearly on the tank's rows. An outage of a channel logged with the others is refused as before."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    base = run_df[[c for c in run_df.columns if not c.startswith("true_")]]
+    t = base["time_s"].to_numpy()
+    every = base.iloc[::2].reset_index(drop=True)
+    union = base.copy()
+    union.loc[union.index % 2 == 1, ["T_tank_C", "T_med_C"]] = np.nan
+    run = load_run(_write(union, tmp_path / "union.csv"))
+    assert np.array_equal(run["time_s"].to_numpy(), every["time_s"].to_numpy())
+    for c in ("T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar", "x_mm"):
+        assert np.allclose(run[c].to_numpy(), every[c].to_numpy(), rtol=1e-12, atol=0), c
+    _, notes = preprocess_run(run)
+    own = next(n for n in notes if n["what"] == "own_rates")
+    assert (own["channel"], own["rows"], own["of"], own["every_rows"]) == ("T_tank_C", len(every), len(base), 2.0)
+    assert own["dropped_rows"][:3] == [2, 4, 6]
+    assert any(line.startswith("channels at their own rates: read on the") for line in describe(notes))
+    shifted = union.copy()
+    shifted["T_med_C"] = np.where(union.index % 2 == 1, base["T_med_C"], np.nan)
+    run = load_run(_write(shifted, tmp_path / "shifted.csv"))  # T_med_C has one value fewer: its rows are read
+    assert np.array_equal(run["time_s"].to_numpy(), t[1::2])
+    assert np.allclose(run["T_med_C"].to_numpy(), base["T_med_C"].to_numpy()[1::2], rtol=1e-12, atol=0)
+    halfway = 0.5 * (base["T_tank_C"].to_numpy()[0:-1:2] + base["T_tank_C"].to_numpy()[2::2])
+    assert np.allclose(run["T_tank_C"].to_numpy(), halfway, rtol=1e-9, atol=0)
+    assert (run.attrs["own_rates"]["channel"], run.attrs["own_rates"]["interpolated"]) == ("T_med_C", ["T_tank_C"])
+    out = base.copy()
+    out.loc[40:80, "T_med_C"] = np.nan  # the sensor out for a while, every other channel logged
+    with pytest.raises(DataError, match=r"have an empty cell in a measured column \(the first: 'T_med_C' at row 41"):
+        load_run(_write(out, tmp_path / "outage.csv"))

@@ -169,7 +169,7 @@ def test_a_historians_export_saved_by_a_spreadsheet_is_read(tmp_path) -> None:  
 # --------------------------------------------------------------------------- the corpus
 @pytest.mark.parametrize("case", corpus_cases("default"), ids=lambda c: f"{c['class']}-{c['convention']}")
 def test_the_foreign_data_corpus(case) -> None:
-    """Each class's run under four to eight conventions (39 transformed runs in all, every convention on one to
+    """Each class's run under four to eight conventions (40 transformed runs in all, every convention on one to
     three classes, and three cases of several at once; one test each, so that the two workers of the suite share them):
     no traceback, the right outcome on each, and a spike's replacement reported in the diagnosis's notes (the run is
     read and checked, then diagnosed: two passes). The cause is checked against the class, which the run as

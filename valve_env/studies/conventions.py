@@ -273,6 +273,14 @@ def logger_cut_off(df: pd.DataFrame, rng: np.random.Generator, pad: int = 4096) 
     return out
 
 
+def own_rates(df: pd.DataFrame, columns: tuple[str, ...] = TEMPERATURES, every: int = 2) -> pd.DataFrame:
+    """``columns`` logged on every ``every``-th row only, empty on the others: a logger that writes each channel at its
+    own rate on the union of their times (the temperatures at half the rate of the flow, pressures and opening)."""
+    out = df.copy()
+    out.loc[np.arange(len(out)) % every != 0, list(columns)] = np.nan
+    return out
+
+
 def _on_opening(apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
                 ) -> Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]:
     """A convention of the measured opening: a run without x_mm (its opening derived from the flow) has none to
@@ -343,6 +351,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: pump_off(df, 1.0, rng), loses_information=True),
     Convention("flow_cut_off", "the flow meter's low-flow cut-off: flows below 3 % of the run's high flow read as 0",
                lambda df, rng: flow_cut_off(df), loses_information=True),
+    Convention("own_rates", "the temperatures logged at half the rate of the other channels, on the union of their "
+               "times: empty on every other row", lambda df, rng: own_rates(df), loses_information=True),
     Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
                lambda df, rng: extra_columns(df, rng)),
     Convention("historian_export", "1 % of the rows written twice, 0.4 % of each measured channel's cells a PI "
@@ -384,6 +394,6 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
 
 
 __all__ = ["CONVENTIONS", "Convention", "apply_convention", "frame_problem", "drop_rows", "extra_columns", "gap",
-           "flow_zero_noise", "flow_cut_off", "pump_off",
+           "flow_zero_noise", "flow_cut_off", "pump_off", "own_rates",
            "held_constant", "historian_export", "logger_comments", "logger_cut_off", "noiseless", "quantise",
            "resample", "spikes", "spreadsheet_export", "stepped", "store_on_change", "truncate"]

@@ -37,7 +37,7 @@ each convention is handled once, here, and reported:
 
 Every note is a JSON-ready dict with ``what`` (``noise_level``, ``units_row``, ``units_in_header``,
 ``units_in_cells``, ``nul_padding``, ``last_line_cut``, ``comment_lines``, ``header_lines``, ``rows_repeated``,
-``rows_dropped``, ``spikes_replaced``, ``q_zero_noise``, ``q_cut_off``, ``pump_off``, ``x_mm_derived``,
+``rows_dropped``, ``own_rates``, ``spikes_replaced``, ``q_zero_noise``, ``q_cut_off``, ``pump_off``, ``x_mm_derived``,
 ``irregular_sampling``, ``gap``,
 ``short_span``), the
 ``channel`` where it applies, and ``why``. The ``fit`` and ``diagnose`` JSON carry them under ``preprocessing``, and
@@ -83,7 +83,7 @@ X_SPIKE_RANGE = 0.25
 #: notes that say what the pre-processing changed (kept when a checked run is checked again)
 CHANGE_NOTES: tuple[str, ...] = ("units_row", "units_in_header", "units_in_cells", "nul_padding", "last_line_cut",
                                  "comment_lines", "header_lines", "rows_repeated", "rows_dropped", "spikes_replaced",
-                                 "x_mm_derived", "q_zero_noise", "q_cut_off", "pump_off")
+                                 "x_mm_derived", "q_zero_noise", "q_cut_off", "pump_off", "own_rates")
 #: the most spikes a channel may have (a share of its samples) before the run is refused
 MAX_SPIKE_FRACTION = 0.005
 #: an interval longer than this many median intervals is a gap worth a note
@@ -182,6 +182,14 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
         notes.append({"what": "rows_repeated", "channel": None, "rows": list(repeated),
                       "why": f"{len(repeated)} row(s) that repeat the row before them in every column, time included "
                              "(row numbers as in the file), dropped as one sample written twice"})
+    own = df.attrs.get("own_rates")
+    if own and ("own_rates", own["channel"]) not in done:
+        also = (f"; {', '.join(own['interpolated'])} interpolated linearly in time there between their own values"
+                if own["interpolated"] else "")
+        notes.append({"what": "own_rates", **own, "dropped_rows": list(df.attrs.get("rows_dropped_own_rates", [])),
+                      "why": f"the channels are logged at their own rates on the union of their times, each empty "
+                             f"where it has no sample: the run is read on the {own['rows']} of {own['of']} rows where "
+                             f"the slowest, {own['channel']}, has a value (one row in {own['every_rows']:g}){also}"})
     dropped = df.attrs.get("rows_dropped_empty", [])
     if dropped and ("rows_dropped", None) not in done:
         notes.append({"what": "rows_dropped", "channel": None, "rows": list(dropped),
@@ -321,6 +329,9 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
                          f"{short_list(nt['lines'])})")
         elif what == "rows_repeated":
             lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
+        elif what == "own_rates":
+            lines.append(f"channels at their own rates: read on the {nt['rows']} rows of {nt['channel']}"
+                         + (f", {', '.join(nt['interpolated'])} interpolated there" if nt["interpolated"] else ""))
         elif what == "rows_dropped":
             lines.append(f"{len(nt['rows'])} row(s) with an empty cell dropped ({_row_list(nt['rows'])})")
         elif what == "q_zero_noise":
