@@ -28,7 +28,7 @@ from valve_env.loops.sim import random_case, simulate_case
 #: the conventions of a loop record's file (:func:`loop_file`)
 LOOP_CONVENTIONS = ("quantised", "stored_on_change", "dropped_10", "jitter_20", "op_fraction", "op_eng", "sheet",
                     "mode_names", "extra_columns", "historian", "every_other", "first_40_min", "logger_comments",
-                    "sentinels", "op_ma", "mode_logical")
+                    "sentinels", "op_ma", "mode_logical", "own_times")
 
 
 def _store_on_change(y: np.ndarray, deadband: float) -> np.ndarray:
@@ -70,6 +70,10 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
         df["mode"] = np.where(np.arange(len(df)) < len(df) // 10, "MAN", "AUTO")
     elif "mode_logical" in names:  # a logical column, as pandas writes one
         df["mode"] = np.where(np.arange(len(df)) < len(df) // 10, "False", "True")
+    if "own_times" in names:  # tags on the union of their timestamps: the PV on every other row, the SP on change
+        sp = df["sp"].to_numpy(dtype=float)
+        df.loc[np.arange(len(df)) % 2 == 1, "pv"] = ""
+        df.loc[np.r_[False, sp[1:] == sp[:-1]], "sp"] = ""
     if "extra_columns" in names:
         df["timestamp"] = (pd.Timestamp("2026-03-01") + pd.to_timedelta(df.time_s.astype(float), unit="s")).astype(str)
         df["quality"] = "Good"
@@ -158,7 +162,8 @@ def test_the_loop_file_conventions_are_read(tmp_path: Path) -> None:
     noted = {"dropped_10": "resampled", "jitter_20": "resampled", "op_eng": "engineering units",
              "op_fraction": "within 0 to 1", "sheet": "units row", "mode_names": "manual mode",
              "historian": "missing value", "logger_comments": "comment line(s) among the data",
-             "sentinels": "far outside their column's record", "op_ma": "4-20 mA", "mode_logical": "manual mode"}
+             "sentinels": "far outside their column's record", "op_ma": "4-20 mA", "mode_logical": "manual mode",
+             "own_times": "on their own times"}
     for name in LOOP_CONVENTIONS:
         p = tmp_path / f"{name}.csv"
         p.write_text(loop_file(df, [name], np.random.default_rng(11)))
