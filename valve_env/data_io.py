@@ -1260,44 +1260,88 @@ def _drop_empty_rows(out: pd.DataFrame, source: str, line: Callable[[int], int] 
     return _drop_rows(out, empty, "rows_dropped_empty")
 
 
-def _own_rates(out: pd.DataFrame) -> pd.DataFrame:
-    """The run of a logger that writes its channels at their own rates on the union of their times (each channel's
-    value only where it has a sample, empty elsewhere), on the rows of the slowest channel, the others interpolated
-    linearly in time there; the run as it is where no channel is logged so.
+@dataclass(frozen=True)
+class OwnRates:
+    """Channels logged at their own rates on the union of their times, read on common rows (:func:`own_rates`)."""
 
-    A measured channel is logged so where it is empty on more than :data:`MAX_EMPTY_FRACTION` of the rows and its
-    values interleave with the empty rows (their median spacing two rows or more: a slower rate, not an outage, whose
-    stretch of empty rows stays empty and refuses the run). The slowest is the one with the fewest values; the rows
-    without its value are dropped (named in ``attrs["rows_dropped_own_rates"]``), and ``attrs["own_rates"]`` says
-    which channel gave the rows and which were interpolated (the note ``own_rates``). x_mm is not interpolated: its
-    empty cells are derived from the flow, as in any run."""
-    n = len(out)
-    t = out["time_s"].to_numpy(dtype=float)
-    have = {c: np.isfinite(out[c].to_numpy(dtype=float)) for c in MEASURED}
+    #: the rows read (a mask of the record's rows)
+    rows: np.ndarray
+    #: each channel's values on those rows: as logged, interpolated or held
+    values: dict[str, np.ndarray]
+    #: the channel whose rows are read (None: every row), and the median spacing of its values, rows
+    base: str | None
+    every_rows: float
+    #: the channels interpolated linearly in time on those rows, and those held from each value to the next
+    interpolated: list[str]
+    held: list[str]
+
+
+def own_rates(t: np.ndarray, cols: Mapping[str, np.ndarray], max_empty: float, bases: Iterable[str] | None = None,
+              held: Iterable[str] = ()) -> OwnRates | None:
+    """A record whose logger or historian writes each channel at its own rate on the union of their times (each
+    channel's value only where it has a sample, empty, NaN, elsewhere: tags scanned at other rates, or stored on
+    change), read on common rows; None where no channel is logged so, or where time ``t`` does not increase.
+
+    A channel is logged so where it is empty on more than ``max_empty`` of the rows (fewer are missing samples, for
+    the reader's own rule) and has a value. A ``held`` channel (a set point, a mode: changed in steps) keeps each
+    value until the next, its first back to the start. Any other is read so where its values interleave with the
+    empty rows (their median spacing two rows or more: a slower rate; a stretch of empty rows is an outage, and stays
+    empty). The record is read on the rows of the slowest of those among ``bases`` (default: any; the fewest values),
+    or on every row where there is none; each other interleaved channel without a value on some of those rows is
+    interpolated linearly in time there between its own values (empty outside their span). Used by both readers: a
+    valve run (``data_io``) and a loop record (``loops.io``)."""
+    t = np.asarray(t, dtype=float)
+    n = t.size
+    if n < 3 or not np.all(np.diff(t) > 0):
+        return None
+    held = tuple(held)
+    have = {c: ~np.isnan(np.asarray(v, dtype=float)) for c, v in cols.items()}
+    sparse = [c for c, m in have.items() if (~m).sum() > max_empty * n and m.any()]
 
     def spacing(c: str) -> float:
         gaps = np.diff(np.flatnonzero(have[c]))
         return float(np.median(gaps)) if gaps.size else 0.0
 
-    own = [c for c in MEASURED if (~have[c]).sum() > MAX_EMPTY_FRACTION * n and spacing(c) >= 2.0]
-    if not own or n < 3 or not np.all(np.diff(t) > 0):
-        return out
-    base = min(own, key=lambda c: int(have[c].sum()))
-    rows = have[base]
-    out = out.copy()
+    steps = [c for c in sparse if c in held]
+    own = [c for c in sparse if c not in held and spacing(c) >= 2.0]
+    if not (own or steps):
+        return None
+    values = {c: np.asarray(v, dtype=float) for c, v in cols.items()}
+    for c in steps:
+        last = np.maximum.accumulate(np.where(have[c], np.arange(n), -1))
+        values[c] = values[c][np.where(last < 0, int(np.flatnonzero(have[c])[0]), last)]
+    slow = [c for c in own if bases is None or c in tuple(bases)]
+    base = min(slow, key=lambda c: int(have[c].sum())) if slow else None
+    rows = have[base] if base is not None else np.ones(n, dtype=bool)
+    values = {c: v[rows] for c, v in values.items()}
     interpolated = []
     for c in own:
-        m = have[c]
+        m, at = have[c], t[rows]
         if c == base or m[rows].all():
             continue
-        at = t[rows]
-        v = out[c].to_numpy(dtype=float, copy=True)
-        v[rows] = np.where((at >= t[m][0]) & (at <= t[m][-1]), np.interp(at, t[m], v[m]), np.nan)
-        out[c] = v
+        values[c] = np.where((at >= t[m][0]) & (at <= t[m][-1]), np.interp(at, t[m], cols[c][m]), np.nan)
         interpolated.append(c)
-    out.attrs["own_rates"] = {"channel": base, "every_rows": spacing(base), "rows": int(rows.sum()), "of": n,
-                              "interpolated": interpolated}
-    return _drop_rows(out, ~rows, "rows_dropped_own_rates")
+    return OwnRates(rows, values, base, spacing(base) if base is not None else 1.0, interpolated, steps)
+
+
+def _own_rates(out: pd.DataFrame) -> pd.DataFrame:
+    """The run of a logger that writes its measured channels at their own rates on the union of their times, read on
+    the rows of the slowest (:func:`own_rates`); the run as it is where no channel is logged so. The rows without
+    its value are dropped (named in ``attrs["rows_dropped_own_rates"]``), and ``attrs["own_rates"]`` says which
+    channel gave the rows and which were interpolated (the note ``own_rates``). x_mm is not read so: its empty cells
+    are derived from the flow, as in any run."""
+    read = own_rates(out["time_s"].to_numpy(dtype=float), {c: out[c].to_numpy(dtype=float) for c in MEASURED},
+                     MAX_EMPTY_FRACTION)
+    if read is None or read.base is None:
+        return out
+    out = out.copy()
+    for c in read.interpolated:
+        v = out[c].to_numpy(dtype=float, copy=True)
+        v[read.rows] = read.values[c]
+        out[c] = v
+    out.attrs["own_rates"] = {"channel": read.base, "every_rows": read.every_rows, "rows": int(read.rows.sum()),
+                              "of": len(out), "interpolated": read.interpolated}
+    return _drop_rows(out, ~read.rows, "rows_dropped_own_rates")
 
 
 def _check_range(v: np.ndarray, col: str, lo: float, hi: float, lo_open: bool, what: str, source: str,

@@ -65,6 +65,7 @@ from valve_env.data_io import (
     name_key,
     nul_note,
     other_format_hint,
+    own_rates,
     read_text,
     rename_hint,
     short_list,
@@ -733,45 +734,23 @@ HELD_COLUMNS: tuple[str, ...] = ("sp", "mode")
 def tags_on_own_times(cols: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], str]:
     """The columns of an export that writes several tags on the union of their timestamps, each tag's value only
     where it has a sample (a historian's recorded values side by side: tags scanned at other rates, or stored on
-    change), read on common rows, and the note ('' where the record is not such an export).
-
-    Only a column that misses its value on more than :data:`MAX_MISSING_FRACTION` of the rows is read so (fewer are
-    dropped as missing samples, as before); time must increase. A held column (:data:`HELD_COLUMNS`) keeps each value
-    until the next (its first value back to the start). A measurement (pv, op, mv) is read so where its values are
-    interleaved with empty rows (their median spacing two rows or more: a slower scan, not an outage, which stays
-    missing): where pv or op is one, the record is read on the rows of the one with fewer values; each other
-    interleaved measurement is interpolated linearly in time on the rows read, between its own values (empty outside
-    their span)."""
-    t = cols["time_s"]
-    n = t.size
-    if n < 3 or not np.all(np.diff(t) > 0):
+    change), read on common rows (:func:`valve_env.data_io.own_rates`), and the note ('' where the record is not such
+    an export). A column so is one that misses its value on more than :data:`MAX_MISSING_FRACTION` of the rows;
+    :data:`HELD_COLUMNS` are held from each value to the next; the record is read on the rows of the slower of pv
+    and op where one is interleaved with empty rows."""
+    have = {c: cols[c] for c in COLUMNS[1:] if c in cols}
+    read = own_rates(cols["time_s"], have, MAX_MISSING_FRACTION, bases=("pv", "op"), held=HELD_COLUMNS)
+    if read is None:
         return cols, ""
-    have = {c: ~np.isnan(cols[c]) for c in COLUMNS[1:] if c in cols}
-    sparse = [c for c, m in have.items() if (~m).sum() > MAX_MISSING_FRACTION * n and m.sum() >= 1]
-
-    def spacing(c: str) -> float:
-        gaps = np.diff(np.flatnonzero(have[c]))
-        return float(np.median(gaps)) if gaps.size else 0.0
-
-    interleaved = [c for c in sparse if c not in HELD_COLUMNS and spacing(c) >= 2.0]
-    held = [c for c in sparse if c in HELD_COLUMNS]
-    if not (interleaved or held):
-        return cols, ""
-    out, said = dict(cols), []
-    for c in held:
-        last = np.maximum.accumulate(np.where(have[c], np.arange(n), -1))
-        out[c] = cols[c][np.where(last < 0, int(np.flatnonzero(have[c])[0]), last)]
-        said.append(f"{c} has a value on {int(have[c].sum())} of {n} rows, held from each to the next")
-    base = min(("pv", "op"), key=lambda c: int(have[c].sum()))
-    rows = have[base] if base in interleaved else np.ones(n, dtype=bool)
-    if base in interleaved:
-        said.append(f"{base} has a value on {int(rows.sum())} of {n} rows (one in {spacing(base):g}, median): the "
-                    "record is read on those rows")
-    out = {c: v[rows] for c, v in out.items()}
-    for c in (c for c in interleaved if c != base):
-        m, at = have[c], t[rows]
-        out[c] = np.where((at >= t[m][0]) & (at <= t[m][-1]), np.interp(at, t[m], cols[c][m]), np.nan)
-        said.append(f"{c} ({int(m.sum())} values) interpolated linearly in time on those rows")
+    n = cols["time_s"].size
+    said = [f"{c} has a value on {int(np.sum(~np.isnan(cols[c])))} of {n} rows, held from each to the next"
+            for c in read.held]
+    if read.base is not None:
+        said.append(f"{read.base} has a value on {int(read.rows.sum())} of {n} rows (one in {read.every_rows:g}, "
+                    "median): the record is read on those rows")
+    said += [f"{c} ({int(np.sum(~np.isnan(cols[c])))} values) interpolated linearly in time on those rows"
+             for c in read.interpolated]
+    out = {"time_s": cols["time_s"][read.rows], **read.values}
     return out, ("the tags are on their own times (an export of several tags on the union of their timestamps, "
                  f"empty where a tag has no sample): {'; '.join(said)}")
 
