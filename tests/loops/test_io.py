@@ -190,6 +190,23 @@ def test_every_missing_column_is_named_at_once(tmp_path: Path) -> None:
         read_loop(mixed)
 
 
+def test_columns_named_by_their_historian_tags_are_named_in_the_refusal(tmp_path: Path) -> None:
+    """A loop CSV whose columns carry the historian's tag names (``FIC101.SP``, ``FIC101.PV``, ``FIC101.OP``; a DCS's
+    ``.SV`` and ``.MV`` alike) is told which to rename (before: the missing columns alone), and one loop's where the
+    header holds two loops' tags."""
+    body = "".join(f"{10 * k},1,2,{40 + k % 3},3,4,5\n" for k in range(30))
+    one = _write_text(tmp_path / "one.csv", "time_s,FIC101.SP,FIC101.PV,FIC101.OP,T1,T2,T3\n" + body)
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) sp, pv, op .*; the header has 'FIC101.SP', "
+                                            r"'FIC101.PV', 'FIC101.OP', tag names as a historian writes them: rename "
+                                            r"them sp, pv, op \(names are exact\)$"):
+        read_loop(one)
+    two = _write_text(tmp_path / "two.csv", "time_s,sp,FIC101.PV,FIC101.MV,FIC102.PV,FIC102.OP,T3\n" + body)
+    with pytest.raises(LoopDataError, match=r"missing column\(s\) pv, op .*; the header has 'FIC101.PV', 'FIC101.MV', "
+                                            r"tag names .*: rename them pv, op \(names are exact\); the header holds 2 "
+                                            r"loops' tags \(FIC101, FIC102\): give one loop's$"):
+        read_loop(two)
+
+
 @pytest.mark.parametrize("tag", ["{c}", "FIC101.{C}"])
 def test_a_long_export_is_refused_naming_its_channel_column(tmp_path: Path, tag: str) -> None:
     """A historian's long (narrow) export, one row per channel and time with the channel in a ``tag`` column (PI's

@@ -119,6 +119,26 @@ def _suffixed(column: str, header: list[str]) -> str | None:
     return next((h for h in header if pattern.fullmatch(h.strip())), None)
 
 
+def _tagged(header: list[str]) -> dict[str, dict[str, int]]:
+    """The loops whose tags the header names as a historian does (``FIC101.PV``: :func:`historian_loops`)."""
+    return historian_loops([h.strip() for h in header])
+
+
+def tag_name_hint(missing: list[str], header: list[str]) -> str:
+    """Where the loop CSV's columns ``missing`` are absent and the header names them as a historian names its tags
+    (``FIC101.SP``, ``FIC101.PV``, ``FIC101.OP``; ``.SV`` and ``.MV`` too: :data:`HISTORIAN_SUFFIXES`), the refusal's
+    hint: rename them, one loop's where the header holds several. Else ''."""
+    loops = {t: roles for t, roles in _tagged(header).items() if any(c in roles for c in missing)}
+    if not loops:
+        return ""
+    roles = next(iter(loops.values()))
+    found = [(c, header[roles[c]].strip()) for c in missing if c in roles]
+    many = (f"; the header holds {len(loops)} loops' tags ({', '.join(loops)}): give one loop's" if len(loops) > 1
+            else "")
+    return (f"; the header has {', '.join(repr(h) for _, h in found)}, tag names as a historian writes them: rename "
+            f"{'it' if len(found) == 1 else 'them'} {', '.join(c for c, _ in found)} (names are exact){many}")
+
+
 def unit_suffix_hint(missing: list[str], header: list[str]) -> str:
     """Where the loop CSV's columns ``missing`` are absent and the header has each followed by a unit after an
     underscore (``pv_degC``, ``op_pct``), the refusal's hint: name them so, with the unit in brackets if wanted
@@ -286,11 +306,14 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
         other = [c for c in missing if c != "time_s" or not time_hint]
         told = [c for c in other if synonym_hint([c], header)]
         suffixed = [c for c in other if c not in told and _suffixed(c, header)]
+        tagged = [c for c in other if c not in told and c not in suffixed
+                  and any(c in roles for roles in _tagged(header).values())]
         hint = (long_format_hint(missing, {h: [r[j] for r in rows[1:] if j < len(r)] for j, h in enumerate(header)})
                 if len(missing) > 1 else "")
         hint = other_format_hint(header, "loop") or hint or (
-            time_hint + synonym_hint(told, header) + unit_suffix_hint(suffixed, header)
-            + rename_hint([c for c in other if c not in told and c not in suffixed], header, COLUMNS))
+            time_hint + synonym_hint(told, header) + unit_suffix_hint(suffixed, header) + tag_name_hint(tagged, header)
+            + rename_hint([c for c in other if c not in told and c not in suffixed and c not in tagged], header,
+                          COLUMNS))
         raise LoopDataError(f"{p}: missing column(s) {', '.join(missing)} (need time_s, sp, pv, op){hint}")
     wanted = [c for c in COLUMNS if c in header]
     idx: dict[str, int] = {c: header.index(c) for c in wanted}
