@@ -119,16 +119,12 @@ def _suffixed(column: str, header: list[str]) -> str | None:
     return next((h for h in header if pattern.fullmatch(h.strip())), None)
 
 
-def _tagged(header: list[str]) -> dict[str, dict[str, int]]:
-    """The loops whose tags the header names as a historian does (``FIC101.PV``: :func:`historian_loops`)."""
-    return historian_loops([h.strip() for h in header])
-
-
 def tag_name_hint(missing: list[str], header: list[str]) -> str:
     """Where the loop CSV's columns ``missing`` are absent and the header names them as a historian names its tags
     (``FIC101.SP``, ``FIC101.PV``, ``FIC101.OP``; ``.SV`` and ``.MV`` too: :data:`HISTORIAN_SUFFIXES`), the refusal's
     hint: rename them, one loop's where the header holds several. Else ''."""
-    loops = {t: roles for t, roles in _tagged(header).items() if any(c in roles for c in missing)}
+    loops = {t: roles for t, roles in historian_loops([h.strip() for h in header]).items()
+             if any(c in roles for c in missing)}
     if not loops:
         return ""
     roles = next(iter(loops.values()))
@@ -306,8 +302,7 @@ def read_loop_csv(path: str | Path, lines: list[str] | None = None) -> tuple[dic
         other = [c for c in missing if c != "time_s" or not time_hint]
         told = [c for c in other if synonym_hint([c], header)]
         suffixed = [c for c in other if c not in told and _suffixed(c, header)]
-        tagged = [c for c in other if c not in told and c not in suffixed
-                  and any(c in roles for roles in _tagged(header).values())]
+        tagged = [c for c in other if c not in told and c not in suffixed and tag_name_hint([c], header)]
         hint = (long_format_hint(missing, {h: [r[j] for r in rows[1:] if j < len(r)] for j, h in enumerate(header)})
                 if len(missing) > 1 else "")
         hint = other_format_hint(header, "loop") or hint or (
