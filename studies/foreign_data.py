@@ -1,6 +1,6 @@
 """The foreign-data corpus (valve_env.studies.foreign): every case diagnosed, judged, and tabulated.
 
-    python studies/foreign_data.py --size default --workers 2      # the default suite's 32 cases and their 5 originals
+    python studies/foreign_data.py --size default --workers 2      # the default suite's 41 cases and their 5 originals
     python studies/foreign_data.py --size full --workers 2         # the slow suite's corpus
 
 Prints one line per case (class, convention, outcome, verdict, CPU seconds) and the counts: runs,

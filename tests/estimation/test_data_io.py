@@ -942,6 +942,39 @@ def test_an_opening_transducers_zero_offset_is_taken_out(tmp_path: Path, open_ru
                    for line in describe(notes))
 
 
+def test_channels_stored_on_change_are_held_from_each_value_to_the_next(tmp_path: Path, run_df: pd.DataFrame) -> None:
+    """A historian's export on the union of times that writes a channel only where its value changed, empty between:
+    the medium temperature held by a thermostat in noiseless steps (a value on 3 rows) and the rig's pressures at
+    their set values (a value on the first row only). Each is held from each value to the next, with a note, and the
+    run is the one with the values written on every row. Before, the medium temperature's 3 rows were read as a slower
+    logger's (the run cut to them) and a pressure written once was refused for its empty cells. A channel missing a
+    third of its cells at random is still refused."""
+    from valve_env.valveid.preprocess import describe, preprocess_run
+
+    full = run_df[[c for c in run_df.columns if not c.startswith("true_")]].copy()
+    t = full["time_s"].to_numpy()
+    full["T_med_C"] = np.where(t < 1200.0, 70.0, np.where(t < 2400.0, 75.0, 72.5))
+    full["dp_mbar"], full["ps_bar"] = 100.0, 2.0
+    changes = full.copy()
+    for c in ("T_med_C", "dp_mbar", "ps_bar"):
+        v = full[c].to_numpy()
+        changes.loc[np.r_[False, v[1:] == v[:-1]], c] = np.nan
+    run, written = load_run(_write(changes, tmp_path / "changes.csv")), load_run(_write(full, tmp_path / "full.csv"))
+    assert len(run) == len(written) == len(full)
+    for c in ("time_s", "T_tank_C", "T_med_C", "q_kgh", "dp_mbar", "ps_bar", "x_mm"):
+        assert np.array_equal(run[c].to_numpy(), written[c].to_numpy()), c
+    assert run.attrs["own_rates"]["channel"] is None
+    assert run.attrs["own_rates"]["held"] == {"T_med_C": 3, "dp_mbar": 1, "ps_bar": 1}
+    _, notes = preprocess_run(run)
+    own = next(n for n in notes if n["what"] == "own_rates")
+    assert f"T_med_C has a value on 3 of {len(full)} rows, held from each to the next (stored on change)" in own["why"]
+    assert "channels on their own times: T_med_C, dp_mbar, ps_bar stored on change, held" in describe(notes)
+    missing = full.copy()
+    missing.loc[np.random.default_rng(0).random(len(full)) < 1 / 3, "T_tank_C"] = np.nan
+    with pytest.raises(DataError, match=r"have an empty cell in a measured column \(the first: 'T_tank_C'"):
+        load_run(_write(missing, tmp_path / "missing.csv"))
+
+
 def test_channels_logged_at_their_own_rates_are_read_on_the_slowest_ones_rows(tmp_path: Path,
                                                                                run_df: pd.DataFrame) -> None:
     """A logger that writes each channel at its own rate on the union of their times, empty where a channel has no
@@ -963,7 +996,7 @@ def test_channels_logged_at_their_own_rates_are_read_on_the_slowest_ones_rows(tm
     own = next(n for n in notes if n["what"] == "own_rates")
     assert (own["channel"], own["rows"], own["of"], own["every_rows"]) == ("T_tank_C", len(every), len(base), 2.0)
     assert own["dropped_rows"][:3] == [2, 4, 6]
-    assert any(line.startswith("channels at their own rates: read on the") for line in describe(notes))
+    assert any(line.startswith("channels on their own times: read on the") for line in describe(notes))
     shifted = union.copy()
     shifted["T_med_C"] = np.where(union.index % 2 == 1, base["T_med_C"], np.nan)
     run = load_run(_write(shifted, tmp_path / "shifted.csv"))  # T_med_C has one value fewer: its rows are read

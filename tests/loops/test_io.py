@@ -878,3 +878,23 @@ def test_tags_on_their_own_times_are_read_on_common_rows(tmp_path: Path) -> None
     p.write_text("\n".join(rows) + "\n")
     with pytest.raises(LoopDataError, match=r"miss a value \(column pv first, at sample 201\); at most 10% may$"):
         read_loop(p)
+
+
+def test_a_pv_stored_on_change_is_held_from_each_value_to_the_next(tmp_path: Path) -> None:
+    """An export on the union of the tags' timestamps whose PV a historian stored on change (a dead band of one sd of
+    its sample-to-sample moves), empty between: the PV is held from each stored value to the next, on every row,
+    with a note. Before, its values, at irregular rows, were read as a slower scan, and the record was cut to them."""
+    from valve_env.studies.conventions import store_on_change
+
+    plain = read_loop(STICKY)
+    held = store_on_change(plain.pv, float(np.std(np.diff(plain.pv))))
+    stored = np.r_[True, held[1:] != held[:-1]]
+    columns = zip(plain.time_s.tolist(), plain.sp.tolist(), held.tolist(), plain.op.tolist(), stored, strict=True)
+    rows = ["time_s,sp,pv,op", *(f"{t:g},{sp!r},{repr(pv) if keep else ''},{op!r}" for t, sp, pv, op, keep in columns)]
+    p = tmp_path / "on_change.csv"
+    p.write_text("\n".join(rows) + "\n")
+    loop = read_loop(p)
+    assert np.array_equal(loop.time_s, plain.time_s)
+    assert np.array_equal(loop.pv, held) and np.array_equal(loop.op, plain.op)
+    note = next(x for x in loop.notes if x.startswith("the tags are on their own times"))
+    assert f"pv has a value on {int(stored.sum())} of {plain.time_s.size} rows, held from each to the next" in note

@@ -169,11 +169,12 @@ def test_a_historians_export_saved_by_a_spreadsheet_is_read(tmp_path) -> None:  
 # --------------------------------------------------------------------------- the corpus
 @pytest.mark.parametrize("case", corpus_cases("default"), ids=lambda c: f"{c['class']}-{c['convention']}")
 def test_the_foreign_data_corpus(case) -> None:
-    """Each class's run under four to eight conventions (40 transformed runs in all, every convention on one to
+    """Each class's run under six to nine conventions (41 transformed runs in all, every convention on one to
     three classes, and three cases of several at once; one test each, so that the two workers of the suite share them):
-    no traceback, the right outcome on each, and a spike's replacement reported in the diagnosis's notes (the run is
-    read and checked, then diagnosed: two passes). The cause is checked against the class, which the run as
-    generated is named (asserted for this seed in the slow suite's full corpus)."""
+    no traceback, the right outcome on each, a spike's replacement reported in the diagnosis's notes (the run is read
+    and checked, then diagnosed: two passes), and channels stored on change held (``own_rates``). The cause is
+    checked against the class, which the run as generated is named (asserted for this seed in the slow suite's full
+    corpus)."""
     cls = case["class"]
     r = run_case(case)
     ok, why = acceptable(r, cls)
@@ -181,6 +182,8 @@ def test_the_foreign_data_corpus(case) -> None:
         assert r["finite"], f"{case}: non-finite estimates"
         if case["convention"].startswith("spikes"):
             assert "spikes_replaced" in r["preprocessing"], f"{case}: {r['preprocessing']}"
+        if case["convention"] == "changes_only":
+            assert "own_rates" in r["preprocessing"], f"{case}: {r['preprocessing']}"
         if case["convention"] == "opening_zero_offset":  # this seed's valve rests on its seat long enough to show it
             assert "x_mm_zero_offset" in r["preprocessing"], f"{case}: {r['preprocessing']}"
     assert ok, f"{cls}: {case['convention']}: {why}"
@@ -191,7 +194,7 @@ def test_the_default_corpus_covers_every_convention() -> None:
 
     seen = {c["convention"] for c in corpus_cases("default")}
     assert len(corpus_cases("default")) >= 30
-    for cls in CLASSES:  # each class's run under four to eight conventions
+    for cls in CLASSES:  # each class's run under six to nine conventions
         assert len([c for c in corpus_cases("default") if c["class"] == cls]) >= 4, cls
     assert set(CONVENTIONS) - {"quantised_0.1"} <= seen
     assert {"jitter_20", "medium_constant", "medium_thermostat", "record_2h", "dt_60_gen"} <= seen

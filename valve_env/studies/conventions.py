@@ -281,6 +281,16 @@ def own_rates(df: pd.DataFrame, columns: tuple[str, ...] = TEMPERATURES, every: 
     return out
 
 
+def changes_only(df: pd.DataFrame, columns: tuple[str, ...]) -> pd.DataFrame:
+    """Each of ``columns`` written only on the rows where its value changed, empty where it repeats the row before: a
+    historian's export of tags stored on change, side by side on the union of their times."""
+    out = df.copy()
+    for c in columns:
+        v = out[c].to_numpy(dtype=float)
+        out.loc[np.r_[False, v[1:] == v[:-1]], c] = np.nan
+    return out
+
+
 def _on_opening(apply: Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]
                 ) -> Callable[[pd.DataFrame, np.random.Generator], pd.DataFrame]:
     """A convention of the measured opening: a run without x_mm (its opening derived from the flow) has none to
@@ -353,6 +363,11 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: flow_cut_off(df), loses_information=True),
     Convention("own_rates", "the temperatures logged at half the rate of the other channels, on the union of their "
                "times: empty on every other row", lambda df, rng: own_rates(df), loses_information=True),
+    Convention("changes_only", "the medium temperature in noiseless steps and dp_mbar and ps_bar at a rig's set values "
+               "(stepped_medium and dp_constant), each written only where it changed: a historian's export of tags "
+               "stored on change, on the union of their times",
+               lambda df, rng: changes_only(held_constant(held_constant(stepped(df, "T_med_C", 0.1), "dp_mbar"),
+                                                          "ps_bar"), ("T_med_C", "dp_mbar", "ps_bar"))),
     Convention("extra_columns", "extra columns (a timestamp, a status flag, another sensor), columns shuffled",
                lambda df, rng: extra_columns(df, rng)),
     Convention("historian_export", "1 % of the rows written twice, 0.4 % of each measured channel's cells a PI "
@@ -393,7 +408,8 @@ def apply_convention(df: pd.DataFrame, name: str, rng: np.random.Generator | Non
     return out
 
 
-__all__ = ["CONVENTIONS", "Convention", "apply_convention", "frame_problem", "drop_rows", "extra_columns", "gap",
+__all__ = ["CONVENTIONS", "Convention", "apply_convention", "changes_only", "frame_problem", "drop_rows",
+           "extra_columns", "gap",
            "flow_zero_noise", "flow_cut_off", "pump_off", "own_rates",
            "held_constant", "historian_export", "logger_comments", "logger_cut_off", "noiseless", "quantise",
            "resample", "spikes", "spreadsheet_export", "stepped", "store_on_change", "truncate"]

@@ -13,7 +13,7 @@ cause, or the truth where the original missed it; or ``none`` where the conventi
 (:attr:`Convention.loses_information`);
 or a one-line refusal where refusal is the right answer (:data:`MAY_REFUSE`). Anything else raised
 is a failure. Several conventions at once (:data:`COMBINED`) are cases too. The default test suite runs
-:func:`corpus_cases` ``("default")`` (40 transformed runs), the slow suite ``("full")`` (600);
+:func:`corpus_cases` ``("default")`` (41 transformed runs), the slow suite ``("full")`` (615);
 ``studies/foreign_data.py`` prints the table.
 """
 
@@ -72,14 +72,14 @@ MAY_REFUSE: dict[tuple[str, str], str] = {
     ("medium_temperature", "medium_constant"): "a constant medium temperature cannot identify beta",
 }
 
-#: the default suite's conventions per class (40 runs: each convention on one to three classes, three combinations)
+#: the default suite's conventions per class (41 runs: each convention on one to three classes, three combinations)
 _DEFAULT_PLAN: dict[str, tuple[str, ...]] = {
     "none": ("quantised_0.1", "stepped_medium", "dropped_10", "spikes", "medium_thermostat", "jitter_20",
              "opening_stored_on_change", "flow_zero_noise+opening_from_flow", "flow_cut_off+opening_from_flow"),
     "sensor_lag": ("quantised_0.01", "noiseless_temperatures", "gap_1h", "dt_60", "medium_constant", "record_2h",
                    "logger_cut_off", "flow_cut_off", "own_rates"),
     "medium_temperature": ("quantised_tank_0.1", "dp_constant", "dropped_5", "medium_thermostat", "medium_constant",
-                           "extra_columns", "pump_off_1h", "opening_zero_offset"),
+                           "extra_columns", "pump_off_1h", "opening_zero_offset", "changes_only"),
     "stiction": ("stepped_medium", "gap_1h", "dt_60", "jitter_20", "spikes_opening", "opening_quantised_0.01",
                  "opening_from_flow", "flow_cut_off+opening_from_flow"),
     "setpoint_drift": ("spreadsheet_export", "historian_export", "logger_comments", "dt_60_gen",
@@ -113,7 +113,7 @@ BASE_RUN: dict[str, float] = {"duration_h": 6.0, "dt_s": 20.0}
 
 
 def corpus_cases(size: str = "default", seeds: tuple[int, ...] | None = None) -> list[dict[str, Any]]:
-    """The corpus's cases: ``"default"`` (40: every convention on one to three classes, three combinations) or
+    """The corpus's cases: ``"default"`` (41: every convention on one to three classes, three combinations) or
     ``"full"`` (every convention on every class, for each of :data:`FULL_SEEDS`)."""
     if size not in ("default", "full"):
         raise ValueError(f"size must be 'default' or 'full', got {size!r}")

@@ -184,12 +184,15 @@ def preprocess_run(df: pd.DataFrame, source: str = "run") -> tuple[pd.DataFrame,
                              "(row numbers as in the file), dropped as one sample written twice"})
     own = df.attrs.get("own_rates")
     if own and ("own_rates", own["channel"]) not in done:
-        also = (f"; {', '.join(own['interpolated'])} interpolated linearly in time there between their own values"
-                if own["interpolated"] else "")
+        said = [f"{c} has a value on {k} of {own['of']} rows, held from each to the next (stored on change)"
+                for c, k in own.get("held", {}).items()]
+        if own["channel"] is not None:
+            said.append(f"the run is read on the {own['rows']} rows where the slowest, {own['channel']}, has a value "
+                        f"(one row in {own['every_rows']:g})")
+        said += [f"{c} interpolated linearly in time there between its own values" for c in own["interpolated"]]
         notes.append({"what": "own_rates", **own, "dropped_rows": list(df.attrs.get("rows_dropped_own_rates", [])),
-                      "why": f"the channels are logged at their own rates on the union of their times, each empty "
-                             f"where it has no sample: the run is read on the {own['rows']} of {own['of']} rows where "
-                             f"the slowest, {own['channel']}, has a value (one row in {own['every_rows']:g}){also}"})
+                      "why": "the channels are logged on the union of their times, each empty where it has no sample "
+                             "(at its own rate, or stored on change): " + "; ".join(said)})
     dropped = df.attrs.get("rows_dropped_empty", [])
     if dropped and ("rows_dropped", None) not in done:
         notes.append({"what": "rows_dropped", "channel": None, "rows": list(dropped),
@@ -330,8 +333,11 @@ def describe(notes: list[dict[str, Any]]) -> list[str]:
         elif what == "rows_repeated":
             lines.append(f"{len(nt['rows'])} repeated row(s) dropped ({_row_list(nt['rows'])})")
         elif what == "own_rates":
-            lines.append(f"channels at their own rates: read on the {nt['rows']} rows of {nt['channel']}"
-                         + (f", {', '.join(nt['interpolated'])} interpolated there" if nt["interpolated"] else ""))
+            parts = [f"{', '.join(nt['held'])} stored on change, held"] if nt.get("held") else []
+            if nt["channel"] is not None:
+                parts.append(f"read on the {nt['rows']} rows of {nt['channel']}"
+                             + (f", {', '.join(nt['interpolated'])} interpolated there" if nt["interpolated"] else ""))
+            lines.append("channels on their own times: " + "; ".join(parts))
         elif what == "rows_dropped":
             lines.append(f"{len(nt['rows'])} row(s) with an empty cell dropped ({_row_list(nt['rows'])})")
         elif what == "q_zero_noise":
