@@ -3,9 +3,10 @@ calls it: a result with finite numbers (the cause one of the format's), or a ref
 
 The reader's tests (tests/loops/test_io.py) take each convention alone; here they are stacked on simulated loops of
 wide variety (:func:`valve_env.loops.sim.random_case`): a historian's states and repeated rows, a spreadsheet's
-semicolons, decimal commas, units row and error values, a mode by name, rounding, storage on change, jitter, dropped
-samples, OP as a fraction, in engineering units or in mA, a logical mode, extra columns in any order, another
-interval, a short record, a logger's comment lines among the data and a historian's -9999 sentinels.
+semicolons, decimal commas, units row and error values, a mode by name, rounding, storage on change (the value held, or
+empty between changes), jitter, dropped samples, OP as a fraction, in engineering units or in mA, a logical mode,
+extra columns in any order, another interval, a short record, a logger's comment lines among the data and a
+historian's -9999 sentinels.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from valve_env.loops.sim import random_case, simulate_case
 #: the conventions of a loop record's file (:func:`loop_file`)
 LOOP_CONVENTIONS = ("quantised", "stored_on_change", "dropped_10", "jitter_20", "op_fraction", "op_eng", "sheet",
                     "mode_names", "extra_columns", "historian", "every_other", "first_40_min", "logger_comments",
-                    "sentinels", "op_ma", "mode_logical", "own_times")
+                    "sentinels", "op_ma", "mode_logical", "own_times", "pv_on_change")
 
 
 def _store_on_change(y: np.ndarray, deadband: float) -> np.ndarray:
@@ -74,6 +75,10 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
         sp = df["sp"].to_numpy(dtype=float)
         df.loc[np.arange(len(df)) % 2 == 1, "pv"] = ""
         df.loc[np.r_[False, sp[1:] == sp[:-1]], "sp"] = ""
+    elif "pv_on_change" in names:  # the PV stored on change (2 % of its span), exported on the union of the tags'
+        held = _store_on_change(df["pv"].to_numpy(dtype=float), span / 50.0)  # times: empty between its changes
+        df["pv"] = held.astype(object)
+        df.loc[np.r_[False, held[1:] == held[:-1]], "pv"] = ""
     if "extra_columns" in names:
         df["timestamp"] = (pd.Timestamp("2026-03-01") + pd.to_timedelta(df.time_s.astype(float), unit="s")).astype(str)
         df["quality"] = "Good"
@@ -163,7 +168,7 @@ def test_the_loop_file_conventions_are_read(tmp_path: Path) -> None:
              "op_fraction": "within 0 to 1", "sheet": "units row", "mode_names": "manual mode",
              "historian": "missing value", "logger_comments": "comment line(s) among the data",
              "sentinels": "far outside their column's record", "op_ma": "4-20 mA", "mode_logical": "manual mode",
-             "own_times": "on their own times"}
+             "own_times": "on their own times", "pv_on_change": "held from each to the next"}
     for name in LOOP_CONVENTIONS:
         p = tmp_path / f"{name}.csv"
         p.write_text(loop_file(df, [name], np.random.default_rng(11)))
