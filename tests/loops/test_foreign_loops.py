@@ -25,20 +25,12 @@ from hypothesis import strategies as st
 from valve_env.cli import main
 from valve_env.loops.diagnose import CAUSES
 from valve_env.loops.sim import random_case, simulate_case
+from valve_env.studies.conventions import store_on_change
 
 #: the conventions of a loop record's file (:func:`loop_file`)
 LOOP_CONVENTIONS = ("quantised", "stored_on_change", "dropped_10", "jitter_20", "op_fraction", "op_eng", "sheet",
                     "mode_names", "extra_columns", "historian", "every_other", "first_40_min", "logger_comments",
                     "sentinels", "op_ma", "mode_logical", "own_times", "pv_on_change")
-
-
-def _store_on_change(y: np.ndarray, deadband: float) -> np.ndarray:
-    out, last = y.copy(), y[0]
-    for j, v in enumerate(y):
-        if abs(v - last) > deadband:
-            last = v
-        out[j] = last
-    return out
 
 
 def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> str:
@@ -52,7 +44,7 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
         q = 10.0 ** math.floor(math.log10(span / 20.0))
         df = df.assign(pv=np.round(df.pv / q) * q, sp=np.round(df.sp / q) * q, op=np.round(df.op, 1))
     if "stored_on_change" in names:  # an exception deadband of 2 % of the span
-        df = df.assign(pv=_store_on_change(df.pv.to_numpy(), span / 50.0))
+        df = df.assign(pv=store_on_change(df.pv.to_numpy(), span / 50.0))
     if "jitter_20" in names:
         dt = float(np.median(np.diff(df.time_s)))
         t = df.time_s.to_numpy() + rng.uniform(-0.1, 0.1, len(df)) * dt
@@ -76,7 +68,7 @@ def loop_file(df: pd.DataFrame, names: list[str], rng: np.random.Generator) -> s
         df.loc[np.arange(len(df)) % 2 == 1, "pv"] = ""
         df.loc[np.r_[False, sp[1:] == sp[:-1]], "sp"] = ""
     elif "pv_on_change" in names:  # the PV stored on change (2 % of its span), exported on the union of the tags'
-        held = _store_on_change(df["pv"].to_numpy(dtype=float), span / 50.0)  # times: empty between its changes
+        held = store_on_change(df["pv"].to_numpy(dtype=float), span / 50.0)  # times: empty between its changes
         df["pv"] = held.astype(object)
         df.loc[np.r_[False, held[1:] == held[:-1]], "pv"] = ""
     if "extra_columns" in names:
