@@ -158,6 +158,23 @@ def truncate(df: pd.DataFrame, hours: float) -> pd.DataFrame:
     return df[t <= t[0] + hours * 3600.0].reset_index(drop=True)
 
 
+def slow_noise(df: pd.DataFrame, rng: np.random.Generator, column: str = "T_tank_C", sd: float = 0.02,
+               tau_s: float = 120.0) -> pd.DataFrame:
+    """``column`` read with slow noise added: a first-order (Ornstein-Uhlenbeck) error of stationary sd ``sd`` (the
+    column's unit) and correlation time ``tau_s``, sampled exactly at the record's times (an AR(1) at a constant
+    interval). A tank's sensor away from the valve's bulb reads the water's local mixing and stratification so,
+    and a transmitter's electronics drift so: an error that the white-noise models of the pre-processing leave in
+    the smoothed temperature."""
+    t = df["time_s"].to_numpy(dtype=float)
+    a = np.exp(-np.diff(t) / float(tau_s))
+    w = rng.standard_normal(t.size)
+    e = np.empty(t.size)
+    e[0] = sd * w[0]
+    for k in range(1, t.size):
+        e[k] = a[k - 1] * e[k - 1] + sd * np.sqrt(1.0 - a[k - 1] ** 2) * w[k]
+    return df.assign(**{column: df[column].to_numpy(dtype=float) + e})
+
+
 def spikes(df: pd.DataFrame, count: int, rng: np.random.Generator, column: str = "T_tank_C",
            size: float = 3.0) -> pd.DataFrame:
     """``count`` isolated one-sample spikes of +-``size`` (the column's unit) at random rows away from the
@@ -342,6 +359,8 @@ CONVENTIONS: dict[str, Convention] = {c.name: c for c in (
                lambda df, rng: gap(df, 1.0, rng), loses_information=True),
     Convention("dt_60", "one row a minute (a 60 s logger)",
                lambda df, rng: resample(df, 60.0), loses_information=True),
+    Convention("slow_tank_noise", "T_tank_C with slow noise: a first-order error of sd 0.02 K and 2 min correlation "
+               "time (a sensor away from the bulb, in the tank's mixing)", lambda df, rng: slow_noise(df, rng)),
     Convention("spikes", "three isolated 3 K spikes on T_tank_C",
                lambda df, rng: spikes(df, 3, rng)),
     Convention("spikes_opening", "three isolated 1 mm glitches of the opening x_mm (a position transducer's)",
