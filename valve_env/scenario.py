@@ -234,15 +234,15 @@ def make_scenario(
     elif params.supply_profile == "network":
         supply = supply_plan(params, t)
         if params.supply_noise_K > 0:
-            supply = supply + _ou(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_noise_K)
+            supply = supply + ou_path(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_noise_K)
     else:
-        supply = params.supply_C + _ou(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_amplitude_K)
+        supply = params.supply_C + ou_path(rng, n_steps, dt_s, params.supply_tau_h * 3600.0, params.supply_amplitude_K)
         supply = np.clip(supply, *SUPPLY_LIMITS_C)  # an unbounded Gaussian path; liquid water stays within
     if params.supply_profile == "network":
         supply = np.clip(supply, *SUPPLY_LIMITS_C)  # the plan plus an unbounded Gaussian disturbance
     dp = dp_plan(params, t)
     if params.dp_noise_mbar > 0:
-        dp = np.clip(dp + _ou(rng, n_steps, dt_s, params.dp_tau_s, params.dp_noise_mbar), 0.0, DP_MAX_MBAR)
+        dp = np.clip(dp + ou_path(rng, n_steps, dt_s, params.dp_tau_s, params.dp_noise_mbar), 0.0, DP_MAX_MBAR)
     T0 = params.T_init_C + (rng.uniform(-1.0, 1.0) * params.T_init_spread_K if params.T_init_spread_K > 0 else 0.0)
     return ScenarioArrays(draw_W, draw_T, draw_m, supply, dp, float(T0))
 
@@ -292,13 +292,17 @@ def dp_plan(params: ScenarioParams, t_s: np.ndarray | float) -> np.ndarray:
     return params.dp_mbar * (1.0 - params.dp_swing * network_load(t))
 
 
-def _ou(rng: np.random.Generator, n: int, dt: float, tau: float, sd: float) -> np.ndarray:
-    """Stationary Ornstein-Uhlenbeck path sampled exactly at step dt."""
-    a = np.exp(-dt / tau)
+def ou_path(rng: np.random.Generator, n: int, dt: float | np.ndarray, tau: float, sd: float) -> np.ndarray:
+    """Stationary Ornstein-Uhlenbeck path of ``n`` samples (time constant ``tau``, sd ``sd``), sampled exactly at
+    steps ``dt``: one step, or the ``n - 1`` intervals of irregular sample times."""
+    a = np.broadcast_to(np.exp(-np.asarray(dt, dtype=float) / tau), (max(n - 1, 0),))
+    b = sd * np.sqrt(1.0 - a * a)
     z = rng.normal(0.0, 1.0, size=n)
     x = np.empty(n)
     x[0] = sd * z[0]
-    b = sd * np.sqrt(1.0 - a * a)
+    # Python floats in the loop: the same IEEE arithmetic, without NumPy's per-element scalar overhead
+    al, bl, zl, prev = a.tolist(), b.tolist(), z.tolist(), float(x[0])
     for k in range(1, n):
-        x[k] = a * x[k - 1] + b * z[k]
+        prev = al[k - 1] * prev + bl[k - 1] * zl[k]
+        x[k] = prev
     return x

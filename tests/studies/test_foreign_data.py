@@ -48,7 +48,6 @@ def test_the_noise_level_of_a_channel_follows_its_convention() -> None:
     assert quantum(smooth + 0.01 * rng.standard_normal(t.size)) is None
 
 
-
 def test_slow_noise_is_a_first_order_error_of_its_sd_and_correlation_time() -> None:
     """The slow_tank_noise convention's error: stationary sd 0.02 K, autocorrelation exp(-lag / tau) at the record's
     own (irregular) times, and nothing else of the run changed."""
@@ -62,6 +61,7 @@ def test_slow_noise_is_a_first_order_error_of_its_sd_and_correlation_time() -> N
     r = float(np.corrcoef(e[:-lag], e[lag:])[0, 1])
     assert r == pytest.approx(float(np.mean(np.exp(-(t[lag:] - t[:-lag]) / 120.0))), abs=0.02)
     assert out["T_med_C"].equals(df["T_med_C"]) and out["time_s"].equals(df["time_s"])
+
 
 def test_the_smoother_takes_a_held_noiseless_channel() -> None:
     """The regression behind the foreign-data crash: a channel that holds its value for most samples

@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from valve_env.data_io import MEASURED
+from valve_env.scenario import ou_path
 
 TEMPERATURES: tuple[str, ...] = ("T_tank_C", "T_med_C")
 
@@ -161,17 +162,12 @@ def truncate(df: pd.DataFrame, hours: float) -> pd.DataFrame:
 def slow_noise(df: pd.DataFrame, rng: np.random.Generator, column: str = "T_tank_C", sd: float = 0.02,
                tau_s: float = 120.0) -> pd.DataFrame:
     """``column`` read with slow noise added: a first-order (Ornstein-Uhlenbeck) error of stationary sd ``sd`` (the
-    column's unit) and correlation time ``tau_s``, sampled exactly at the record's times (an AR(1) at a constant
-    interval). A tank's sensor away from the valve's bulb reads the water's local mixing and stratification so,
-    and a transmitter's electronics drift so: an error that the white-noise models of the pre-processing leave in
-    the smoothed temperature."""
+    column's unit) and correlation time ``tau_s``, sampled exactly at the record's times
+    (:func:`valve_env.scenario.ou_path`). A tank's sensor away from the valve's bulb reads the water's local mixing
+    and stratification so, and a transmitter's electronics drift so: an error that the white-noise models of the
+    pre-processing leave in the smoothed temperature."""
     t = df["time_s"].to_numpy(dtype=float)
-    a = np.exp(-np.diff(t) / float(tau_s))
-    w = rng.standard_normal(t.size)
-    e = np.empty(t.size)
-    e[0] = sd * w[0]
-    for k in range(1, t.size):
-        e[k] = a[k - 1] * e[k - 1] + sd * np.sqrt(1.0 - a[k - 1] ** 2) * w[k]
+    e = ou_path(rng, t.size, np.diff(t), float(tau_s), sd)
     return df.assign(**{column: df[column].to_numpy(dtype=float) + e})
 
 
