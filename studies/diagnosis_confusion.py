@@ -74,12 +74,16 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
                           "delta_bic": float(f.delta_bic),
                           "validation_loglik_gain": float(f.validation_loglik_gain),
                           "training_slips": f.training_slips, "null_guard": f.null_guard,
+                          "validation_sim_rms_before_mm": float(f.validation_sim_rms_before_mm),
                           "validation_sim_rms_after_mm": float(f.validation_sim_rms_after_mm),
                           "significant": bool(f.significant), "relevant": bool(f.relevant),
                           "validated": bool(f.validated), "effect_size_mm": float(f.effect_size_mm),
                           "s_w": float(f.fit.params["s_w"]),
                           "params": {k: float(v) for k, v in f.fit.effect_params.items()}}
                          for f in d.findings]
+    out["simulation_check"] = d.simulation_check
+    out["final_fit"] = {"rms_mm": float(d.final.rms_mm), "s_w": float(d.final.params["s_w"]),
+                        "s_e": float(d.final.params["s_e"]), "tau_e": float(d.final.params["tau_e"])}
     out["best_candidate"] = best.effect
     out["best_p"] = best.p_value
     return out

@@ -15,7 +15,15 @@ import pandas as pd
 import pytest
 
 from valve_env.experiment import simulate_experiment
-from valve_env.valveid.diagnose import Diagnosis, DiagnosisError, diagnose, rank_key
+from valve_env.valveid.diagnose import (
+    SIMULATION_CHECK_RATIO,
+    Diagnosis,
+    DiagnosisError,
+    diagnose,
+    rank_key,
+    simulation_check,
+)
+from valve_env.valveid.fitting import FitResult
 
 HOURS = 10.0
 
@@ -64,6 +72,10 @@ def test_hidden_effect_is_named(results, truth: str) -> None:  # type: ignore[no
     assert [x.effect for x in d.findings] == [x.effect for x in sorted(d.findings, key=rank_key)]
     rest = [x for x in d.findings if not x.accepted]
     assert [x.delta_bic for x in rest] == sorted(x.delta_bic for x in rest)
+    # the named model simulates the held-out opening to within its noise: no misfit warning
+    assert d.simulation_check["model"] == (truth if truth != "none" else "base")
+    assert d.simulation_check["passed"] and d.simulation_check["ratio"] < 2.0, d.simulation_check
+    assert not [w for w in d.warnings if "simulates the held-out opening" in w]
 
 
 @pytest.mark.parametrize("truth", ["sensor_lag", "medium_temperature", "setpoint_drift", "stiction"])
@@ -256,6 +268,7 @@ def test_json_document(results, tmp_path: Path) -> None:  # type: ignore[no-unty
         assert set(f["params"]) == set(f["std"])
     assert j["findings"][0]["params"].keys() == {"tau_s"}
     assert j["gain"]["validation_rms_after_mm"] < j["gain"]["validation_rms_before_mm"]
+    assert j["simulation_check"]["model"] == "sensor_lag" and j["simulation_check"]["passed"] is True
     # each candidate says why it is not named; the named one says nothing
     assert j["findings"][0]["not_named_because"] == []
     assert all(f["not_named_because"] for f in j["findings"][1:])
@@ -667,3 +680,30 @@ def test_a_run_without_an_effect_whose_tank_temperature_has_slow_noise_is_named_
     assert case["truth"] == "none"
     df = apply_convention(simulate_case(case), "slow_tank_noise", np.random.default_rng(case["seed"]))
     assert diagnose(df, bootstrap_B=0).cause == "none"
+
+
+def test_the_simulation_check_warns_where_the_model_simulates_the_held_out_opening_far_outside_its_noise() -> None:
+    fit = FitResult(("stiction",), {"s_w": 0.002, "band_mm": 0.03}, {}, 0.0, 100, 4, 0.01, True)
+    check, warning = simulation_check(fit, 0.002 * SIMULATION_CHECK_RATIO * 0.99)
+    assert check["passed"] and warning == [] and check["model"] == "stiction"
+    check, warning = simulation_check(fit, 0.012)
+    assert not check["passed"] and check["ratio"] == pytest.approx(6.0)
+    assert len(warning) == 1 and "12 um RMS, 6.0 times the opening's noise" in warning[0]
+    assert "stand in for an error the model lacks" in warning[0]
+    base = FitResult((), {"s_w": 0.002}, {}, 0.0, 100, 3, 0.01, True)
+    assert "no effect explains it" in simulation_check(base, 0.012)[1][0]
+
+
+def test_a_finding_that_slow_noise_in_the_tank_temperature_makes_is_warned_of() -> None:
+    """The run of the strict xfail above (seed 20271250, run 5, slow_tank_noise; 15 s): still named stiction, and
+    its held-out simulation error (18.9 um, 9 times the opening's noise) warns that the model does not explain the
+    record. The run as generated passes the check (ratio 1.04)."""
+    from valve_env.experiment import random_cases, simulate_case
+    from valve_env.studies.conventions import apply_convention
+
+    case = random_cases(60, 20271250)[5]
+    df = apply_convention(simulate_case(case), "slow_tank_noise", np.random.default_rng(case["seed"]))
+    d = diagnose(df, bootstrap_B=0)
+    assert not d.simulation_check["passed"] and d.simulation_check["model"] == "stiction"
+    assert [w for w in d.warnings if "simulates the held-out opening" in w and "slow noise" in w]
+    assert d.to_json()["simulation_check"]["passed"] is False
