@@ -63,6 +63,9 @@ def test_diagnose_writes_spec_json_and_report(good: Path, tmp_path: Path, capsys
     text = report.read_text()
     assert "Cause: `medium_temperature`" in text
     assert "model-based bootstrap" in text
+    sc = j["simulation_check"]
+    assert sc["model"] == "medium_temperature" and sc["passed"] is True
+    assert "*Simulation check* (medium_temperature model)" in text and f"{sc['ratio']:.1f} times" in text
     for png in ("out_fit.png", "out_phase.png", "out_residuals.png"):
         assert (tmp_path / png).stat().st_size > 1000
         assert png in text

@@ -196,6 +196,13 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
     L += [f"*Gain:* validation one-step RMS {g['validation_rms_before_mm'] * 1e3:.2f} -> "
           f"{g['validation_rms_after_mm'] * 1e3:.2f} um ({g['validation_rms_reduction']:.0%} less); simulation RMS "
           f"on the fitting data {g['rms_before_mm'] * 1e3:.2f} -> {g['rms_after_mm'] * 1e3:.2f} um.", ""]
+    sc = d.simulation_check
+    if sc:
+        L += [f"*Simulation check* ({sc['model']} model): the held-out opening simulated from the temperatures "
+              f"alone is {sc['held_out_simulation_rms_mm'] * 1e3:.2f} um RMS off, {sc['ratio']:.1f} times the "
+              f"opening's noise ({sc['opening_noise_sd_mm'] * 1e3:.2f} um); "
+              + ("within" if sc["passed"] else "**beyond**") + f" the {sc['limit']:g} a model that explains the record "
+              "stays within (docs/diagnosis.md, \"The JSON\").", ""]
     if "stiction_band_mm" in (d.sensitivity or {}):
         b = d.sensitivity["stiction_band_mm"]
         L += ["*What this record can see:* " + (
