@@ -443,24 +443,26 @@ def swap_notes(final: FitResult) -> list[str]:
             "columns are swapped in the file, swap them back and diagnose again"]
 
 
-#: the held-out simulation error of the diagnosed model, in units of the opening's white-noise sd, above which the
+#: the held-out simulation error of the diagnosed model, in units of the opening's noise sd, above which the
 #: diagnosis warns that the model does not explain the record (:func:`simulation_check`). Set on development runs
-#: (docs/diagnosis.md, "Known limits"): a right model's ratio reached 3.8 at one row a minute and 6.8 with the tank
-#: temperature rounded to 0.1 K, 3.1 elsewhere; runs whose tank temperature carries slow noise 6.6-26
+#: (docs/history/diagnosis.md, 2026-12-03): a right model's ratio reached 3.8 at one row a minute and 6.8 with the
+#: tank temperature rounded to 0.1 K, 3.1 elsewhere; runs whose tank temperature carries slow noise 6.6-26
 SIMULATION_CHECK_RATIO = 5.0
 
 
-def simulation_check(final: FitResult, held_out_sim_rms_mm: float) -> tuple[dict[str, Any], list[str]]:
+def simulation_check(final: FitResult, held_out_sim_rms_mm: float,
+                     noise_sd_mm: float) -> tuple[dict[str, Any], list[str]]:
     """Simulation validation of the diagnosed model (Ljung 1999, section 16.6): the held-out opening simulated from
-    the temperatures alone, its RMS error against the opening's white-noise sd ``s_w``. A model that explains the
-    record simulates it to within a few noise sds; a larger error is a misfit that no candidate explains, where a
-    named effect may stand in for an error the model lacks (slow noise in the tank temperature) and a ``none`` is
-    no clean bill. It decides nothing: it returns the check for the JSON and a warning where the ratio exceeds
+    the temperatures alone, its RMS error against the held-out opening's own noise sd (``noise_sd_mm``, from the
+    record: :func:`valve_env.valveid.stiction.opening_noise`; the fitted white noise ``s_w`` can fall to its bound
+    where the model's error term takes all the noise, at one row a minute). A model that explains the record
+    simulates it to within a few noise sds; a larger error is a misfit that no candidate explains, where a named
+    effect may stand in for an error the model lacks (slow noise in the tank temperature) and a ``none`` is no
+    clean bill. It decides nothing: it returns the check for the JSON and a warning where the ratio exceeds
     :data:`SIMULATION_CHECK_RATIO`."""
-    s_w = float(final.params["s_w"])
-    ratio = held_out_sim_rms_mm / s_w if s_w > 0 else math.inf
+    ratio = held_out_sim_rms_mm / noise_sd_mm if noise_sd_mm > 0 else math.inf
     check = {"model": "+".join(final.effects) or "base", "held_out_simulation_rms_mm": float(held_out_sim_rms_mm),
-             "opening_noise_sd_mm": s_w, "ratio": float(ratio), "limit": SIMULATION_CHECK_RATIO,
+             "opening_noise_sd_mm": float(noise_sd_mm), "ratio": float(ratio), "limit": SIMULATION_CHECK_RATIO,
              "passed": bool(ratio <= SIMULATION_CHECK_RATIO)}
     if check["passed"]:
         return check, []
@@ -1177,7 +1179,7 @@ def diagnose(df: pd.DataFrame, *, validate: pd.DataFrame | None = None, holdout:
                 "n_train": len(train), "n_validation": vr[1] - vr[0], "max_effects": max_effects,
                 "temperature_noise_C": train.s_T, "medium_temperature_noise_C": train.s_M}
     clue = unit_clue(run, valve) if on_bound(final) or unidentified(final) else ""
-    check, check_warning = simulation_check(final, ref_val[2])
+    check, check_warning = simulation_check(final, ref_val[2], opening_noise(valid.x[vr[0]:vr[1]]).sd)
     warnings = identification_notes(base, final, clue) + swap_notes(final) + check_warning
     notes += warnings
     withheld = list(conditional_std(final))
