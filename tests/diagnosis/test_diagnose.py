@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -661,6 +662,16 @@ def test_a_run_without_an_effect_rounded_to_a_tenth_of_a_kelvin_is_named_none_un
     assert causes == {"Haswell": "none", "Sandybridge": "none"}, causes
 
 
+def _confusion_run(seed: int, i: int, convention: str) -> tuple[dict[str, Any], pd.DataFrame]:
+    """Run ``i`` of the confusion study's seed ``seed`` (studies/diagnosis_confusion.py) under ``convention``, as
+    the study makes it for a convention of the corpus (its ``irregular`` also jitters): the case and its run."""
+    from valve_env.experiment import random_cases, simulate_case
+    from valve_env.studies.conventions import apply_convention
+
+    case = random_cases(60, seed)[i]
+    return case, apply_convention(simulate_case(case), convention, np.random.default_rng(case["seed"]))
+
+
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, raises=AssertionError,
                    reason="slow noise in the tank temperature (a first-order error, 0.02 K over 2 min) is taken for "
@@ -673,12 +684,8 @@ def test_a_run_without_an_effect_whose_tank_temperature_has_slow_noise_is_named_
     temperature, the output-error model drives the valve with it, and a stem that does not follow its wiggles is
     what stiction's dead zone describes. Strict: when this run is named none, the test passes and must be
     unmarked."""
-    from valve_env.experiment import random_cases, simulate_case
-    from valve_env.studies.conventions import apply_convention
-
-    case = random_cases(60, 20271250)[5]
+    case, df = _confusion_run(20271250, 5, "slow_tank_noise")
     assert case["truth"] == "none"
-    df = apply_convention(simulate_case(case), "slow_tank_noise", np.random.default_rng(case["seed"]))
     assert diagnose(df, bootstrap_B=0).cause == "none"
 
 
@@ -698,12 +705,8 @@ def test_the_simulation_check_warns_where_the_model_simulates_the_held_out_openi
 def test_a_finding_that_slow_noise_in_the_tank_temperature_makes_is_warned_of() -> None:
     """The run of the strict xfail above (seed 20271250, run 5, slow_tank_noise; 15 s): still named stiction, and
     its held-out simulation error (18.9 um, 9 times the opening's noise) warns that the model does not explain the
-    record. The run as generated passes the check (ratio 1.04)."""
-    from valve_env.experiment import random_cases, simulate_case
-    from valve_env.studies.conventions import apply_convention
-
-    case = random_cases(60, 20271250)[5]
-    df = apply_convention(simulate_case(case), "slow_tank_noise", np.random.default_rng(case["seed"]))
+    record. The run as generated passes the check (ratio 1.02)."""
+    _, df = _confusion_run(20271250, 5, "slow_tank_noise")
     d = diagnose(df, bootstrap_B=0)
     assert not d.simulation_check["passed"] and d.simulation_check["model"] == "stiction"
     assert [w for w in d.warnings if "simulates the held-out opening" in w and "slow noise" in w]
@@ -714,11 +717,7 @@ def test_the_simulation_check_holds_where_the_fitted_white_noise_falls_to_its_bo
     """At one row a minute the model's error term can take all the opening's noise and its white noise s_w falls to
     the bound (1e-5 mm): measured against s_w, a right model (confusion seed 20271256, run 7: a medium weight, 10 s
     read once a minute) was 200 times off. Against the held-out opening's own noise it is within 2."""
-    from valve_env.experiment import random_cases, simulate_case
-    from valve_env.studies.conventions import apply_convention
-
-    case = random_cases(60, 20271256)[7]
-    df = apply_convention(simulate_case(case), "dt_60", np.random.default_rng(case["seed"]))
+    case, df = _confusion_run(20271256, 7, "dt_60")
     d = diagnose(df, bootstrap_B=0)
     assert d.cause == case["truth"] == "medium_temperature"
     assert d.final.params["s_w"] < 1e-4  # the case: s_w at its bound
