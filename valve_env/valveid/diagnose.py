@@ -149,6 +149,9 @@ class Finding:
     robust: dict[str, Any] | None = None
     #: stiction's simulated null (:func:`stiction_null`), where it was run (a finding that would be named)
     null_guard: dict[str, Any] | None = None
+    #: stiction on a record whose sensed temperature is rounded: the samples at the smoothed temperatures' sharp
+    #: bends that its statistics leave out (:func:`rounding_bends_left_out`)
+    rounding_bends: dict[str, Any] | None = None
 
     @property
     def fit(self) -> FitResult:
@@ -233,6 +236,7 @@ class Finding:
             **({"input_resolution_mm": float(self.input_resolution_mm)} if self.input_resolution_mm else {}),
             **({"training_slips": self.training_slips} if self.training_slips is not None else {}),
             **({"null_guard": self.null_guard} if self.null_guard is not None else {}),
+            **({"rounding_bends": self.rounding_bends} if self.rounding_bends is not None else {}),
             "on_top_of": list(self.reference),
             "std_method": self.std_method,
             "uncertainty": self.uncertainty,
@@ -660,12 +664,19 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
     lr, p = lr_test(ref_fit.loglik, fit.loglik, k, EFFECTS[effect].boundary)
     n = train.t.shape[0]
     v_rms, v_ll, v_sim = _held_out(model, valid, fit.params, *vr)
+    gain = v_ll - ref_val[1]
+    at_bends = None
+    if EFFECTS[effect].variance_gain and ROUNDED_TANK_RULE and tank_rounded(train):
+        # the rounding cannot time the sensed temperature at a sharp bend: the statistics leave those samples out
+        at_bends = rounding_bends_left_out(Model(ref_fit.effects, valve), ref_fit, model, fit, train, valid, vr)
+        lr, p = lr_test(0.0, at_bends.pop("training_gain"), k, EFFECTS[effect].boundary)
+        gain = at_bends.pop("held_out_gain")
     f = Finding(
         effect=effect, estimator=est, reference=ref_effects, lr_stat=lr, p_value=p, delta_aic=2 * k - lr,
         delta_bic=delta_bic(lr, k, n), rms_before_mm=ref_fit.rms_mm, rms_after_mm=fit.rms_mm,
         validation_rms_before_mm=ref_val[0], validation_rms_after_mm=v_rms,
-        validation_loglik_gain=v_ll - ref_val[1], validation_sim_rms_before_mm=ref_val[2],
-        validation_sim_rms_after_mm=v_sim,
+        validation_loglik_gain=gain, validation_sim_rms_before_mm=ref_val[2],
+        validation_sim_rms_after_mm=v_sim, rounding_bends=at_bends,
     )
     f.effect_size_mm = effect_size(model, train, fit.params, effect)
     f.significant = p < alpha and f.delta_bic < 0
@@ -871,6 +882,48 @@ def record_shows_band(parts: tuple[np.ndarray, ...], stroke: float, band: float,
 
 #: docs/diagnosis.md, "Method": the slips' check applies where the fitted model's opening would show slips
 SLIPS_RESOLVED_CHECK = True
+#: docs/diagnosis.md, "Method": on a record whose sensed temperature is rounded (:func:`tank_rounded`), stiction's
+#: likelihood ratio and held-out gain leave out the samples within ``BEND_WINDOW`` of a sharp bend of a rounded
+#: channel's smoothed level, a second difference above ``BEND_STEP_FRACTION`` of its rounding step
+BEND_STEP_FRACTION = 0.1
+BEND_WINDOW = 2
+
+
+def rounding_bends(data: RunData) -> np.ndarray:
+    """The samples of ``data`` within :data:`BEND_WINDOW` samples of a sharp bend of a coarsely rounded temperature
+    channel (:func:`coarsely_rounded`): where the smoothed level's second difference exceeds
+    :data:`BEND_STEP_FRACTION` of the channel's rounding step.
+
+    At such a bend (a draw-off turns the tank temperature from rising slowly to falling 0.2 K a sample) the rounded
+    record cannot time the temperature within its cell: the smoothed level leads the water by up to a few samples,
+    the reference model moves the opening before the stem does, and a stick band of about one cell's opening holds
+    it. On development seed 20271260 at 0.1 K one such sample gave 67 of the 95 nats of a false finding; with the
+    true temperatures as input the stick statistic of the three false findings was negative (docs/history/
+    diagnosis.md, 2026-12-03). Noisy channels (the smoother times a bend from many samples) mark none."""
+    bend = np.zeros(len(data), dtype=bool)
+    for level, noise in ((data.T, data.T_noise), (data.M, data.M_noise)):
+        if coarsely_rounded(noise) and level.shape[0] > 2:
+            bend[1:-1] |= np.abs(np.diff(level, 2)) > BEND_STEP_FRACTION * float(noise.quantum or 0.0)
+    return np.convolve(bend, np.ones(2 * BEND_WINDOW + 1), mode="same") > 0
+
+
+def rounding_bends_left_out(ref_model: Model, ref_fit: FitResult, model: Model, fit: FitResult, train: RunData,
+                            valid: RunData, vr: tuple[int, int]) -> dict[str, Any]:
+    """Stiction's log-likelihood gain over the reference at both fits, with the samples at the rounded
+    temperatures' sharp bends (:func:`rounding_bends`) left out: ``training_gain`` (nats; the likelihood ratio's
+    half) and ``held_out_gain`` over samples ``vr`` of ``valid``, beside the samples left out and the gains over all
+    samples. The statistic at the fits over all samples, not refitted without the bends."""
+    a, b = vr
+    g = model.loglik_terms(train, fit.params) - ref_model.loglik_terms(train, ref_fit.params)
+    gv = (model.loglik_terms(valid, fit.params) - ref_model.loglik_terms(valid, ref_fit.params))[a:b]
+    m, mv = rounding_bends(train), rounding_bends(valid)[a:b]
+    return {"training_gain": float(np.sum(g[~m])), "held_out_gain": float(np.sum(gv[~mv])),
+            "training_samples_left_out": int(m.sum()), "held_out_samples_left_out": int(mv.sum()),
+            "lr_stat_all_samples": max(2.0 * float(np.sum(g)), 0.0),
+            "validation_loglik_gain_all_samples": float(np.sum(gv)),
+            "step_fraction": BEND_STEP_FRACTION, "window": BEND_WINDOW}
+
+
 #: the held-out log-likelihood gain (nats) stiction needs where the record cannot show slips, or where its sensed
 #: temperature is rounded (ROUNDED_TANK_RULE)
 UNRESOLVED_MIN_GAIN = 5.0
