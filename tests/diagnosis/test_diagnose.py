@@ -756,4 +756,23 @@ def test_a_run_without_an_effect_rounded_to_a_tenth_of_a_kelvin_is_not_named_for
     assert st.rounding_bends["training_samples_left_out"] < len(d.train) // 5
     assert st.lr_stat < 10.0 and not st.significant
     assert d.cause == "none"
-    assert "rounding_bends" in d.to_json()["findings"][0] or d.to_json()["findings"][0]["effect"] != "stiction"
+    j = next(f for f in d.to_json()["findings"] if f["effect"] == "stiction")
+    assert j["rounding_bends"]["training_samples_left_out"] == st.rounding_bends["training_samples_left_out"]
+    assert any("sharp bends" in w and "with them: LR 189" in w for w in j["not_named_because"])
+
+
+def test_a_band_rounded_to_a_tenth_of_a_kelvin_is_named_with_the_bends_left_out_and_said_so() -> None:
+    """Run 38 of confusion seed 20271260 under quantised_0.1 (a band of 0.018 mm; 10 s, 14.7 h): named stiction with
+    the samples at the rounded temperatures' bends left out (LR 261 over all samples, 45 without), and the report's
+    evidence says which statistics are taken without them."""
+    from valve_env.valveid.report import render_markdown
+
+    case, df = _confusion_run(20271260, 38, "quantised_0.1")
+    assert case["truth"] == "stiction"
+    d = diagnose(df, bootstrap_B=0)
+    assert d.cause == "stiction"
+    f = d.findings[0]
+    assert f.rounding_bends is not None and f.lr_stat < f.rounding_bends["lr_stat_all_samples"]
+    evidence = next(line for line in render_markdown(d, [], "run").splitlines() if line.startswith("*Evidence:*"))
+    assert "the likelihood ratio and the held-out gain are taken without the" in evidence
+    assert f"LR {f.rounding_bends['lr_stat_all_samples']:.1f}" in evidence

@@ -162,6 +162,17 @@ class Finding:
     def accepted(self) -> bool:
         return self.significant and self.relevant and self.validated
 
+    def bends_left_out(self) -> str:
+        """Where stiction's statistics leave out the rounded temperatures' sharp bends (:attr:`rounding_bends`), what
+        they leave out and what they read with those samples in, in words; else empty."""
+        rb = self.rounding_bends
+        if rb is None:
+            return ""
+        return (f"without the {rb['training_samples_left_out']} fitting and {rb['held_out_samples_left_out']} held-out "
+                "samples at the rounded temperatures' sharp bends, where the rounding cannot time the input (with "
+                f"them: LR {rb['lr_stat_all_samples']:.1f}, held-out gain "
+                f"{rb['validation_loglik_gain_all_samples']:+.1f} nats)")
+
     def not_named_because(self, alpha: float, min_gain: float, min_size: float) -> list[str]:
         """Each check that keeps this candidate from being named, in words (docs/diagnosis.md, "Method"; empty where
         it is named): the likelihood test at ``alpha``, stiction's slips and null guard, the held-out gain
@@ -171,8 +182,9 @@ class Finding:
         um = 1e3
         out = []
         if not (self.p_value < alpha and self.delta_bic < 0):
+            bends = f", {self.bends_left_out()}" if self.rounding_bends else ""
             out.append(f"the likelihood does not favour it (p = {self.p_value:.2g} at the {alpha:g} level, "
-                       f"delta BIC {self.delta_bic:+.1f})")
+                       f"delta BIC {self.delta_bic:+.1f}{bends})")
         elif self.null_guard is not None and not self.null_guard.get("passed", True):
             null = np.asarray(self.null_guard["null"])
             out.append(f"{int(np.sum(null >= self.null_guard['statistic']))} of {null.size} runs simulated without it "

@@ -184,12 +184,14 @@ def render_markdown(d: Diagnosis, figures: list[tuple[str, str]], title: str = "
                       f"difference added to the sd (errors in variables, docs/uncertainty.md): {both}.", ""]
         else:
             L += [f"*Uncertainty:* {f.std_method}.", ""]
+        bends = (f"; the likelihood ratio and the held-out gain are taken {f.bends_left_out()}"
+                 if f.rounding_bends else "")
         L += [f"*Physics:* {eff.physics}", "",
               f"*Evidence:* likelihood ratio {f.lr_stat:.1f} (p = {f.p_value:.2g}), delta AIC = "
               f"{f.delta_aic:.1f}, delta BIC = {f.delta_bic:.1f}; on data not used for fitting "
               f"({d.settings['validation']}) the one-step RMS goes from {f.validation_rms_before_mm * 1e3:.2f} "
               f"to {f.validation_rms_after_mm * 1e3:.2f} um and the log-likelihood rises by "
-              f"{f.validation_loglik_gain:.1f}.", ""]
+              f"{f.validation_loglik_gain:.1f}{bends}.", ""]
         if len(d.selected) > 1:
             L += [f"*Forward selection* found {len(d.selected)} effects, in this order: "
                   + " -> ".join(f"`{e}`" for e in d.selected) + ".", ""]
