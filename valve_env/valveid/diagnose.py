@@ -677,12 +677,12 @@ def _finding(effect: str, est: ValveEstimator, ref_effects: tuple[str, ...], ref
     n = train.t.shape[0]
     v_rms, v_ll, v_sim = _held_out(model, valid, fit.params, *vr)
     gain = v_ll - ref_val[1]
-    at_bends = None
+    at_bends: dict[str, Any] | None = None
     if EFFECTS[effect].variance_gain and ROUNDED_TANK_RULE and tank_rounded(train):
         # the rounding cannot time the sensed temperature at a sharp bend: the statistics leave those samples out
-        at_bends = rounding_bends_left_out(Model(ref_fit.effects, valve), ref_fit, model, fit, train, valid, vr)
-        lr, p = lr_test(0.0, at_bends.pop("training_gain"), k, EFFECTS[effect].boundary)
-        gain = at_bends.pop("held_out_gain")
+        train_gain, gain, at_bends = rounding_bends_left_out(Model(ref_fit.effects, valve), ref_fit, model, fit,
+                                                             train, valid, vr)
+        lr, p = lr_test(0.0, train_gain, k, EFFECTS[effect].boundary)
     f = Finding(
         effect=effect, estimator=est, reference=ref_effects, lr_stat=lr, p_value=p, delta_aic=2 * k - lr,
         delta_bic=delta_bic(lr, k, n), rms_before_mm=ref_fit.rms_mm, rms_after_mm=fit.rms_mm,
@@ -920,20 +920,21 @@ def rounding_bends(data: RunData) -> np.ndarray:
 
 
 def rounding_bends_left_out(ref_model: Model, ref_fit: FitResult, model: Model, fit: FitResult, train: RunData,
-                            valid: RunData, vr: tuple[int, int]) -> dict[str, Any]:
+                            valid: RunData, vr: tuple[int, int]) -> tuple[float, float, dict[str, Any]]:
     """Stiction's log-likelihood gain over the reference at both fits, with the samples at the rounded
-    temperatures' sharp bends (:func:`rounding_bends`) left out: ``training_gain`` (nats; the likelihood ratio's
-    half) and ``held_out_gain`` over samples ``vr`` of ``valid``, beside the samples left out and the gains over all
-    samples. The statistic at the fits over all samples, not refitted without the bends."""
+    temperatures' sharp bends (:func:`rounding_bends`) left out: (the training gain, nats, the likelihood ratio's
+    half; the held-out gain over samples ``vr`` of ``valid``; the record of the JSON, :attr:`Finding.rounding_bends`:
+    the samples left out and the statistics over all samples). The statistic at the fits over all samples, not
+    refitted without the bends."""
     a, b = vr
     g = model.loglik_terms(train, fit.params) - ref_model.loglik_terms(train, ref_fit.params)
     gv = (model.loglik_terms(valid, fit.params) - ref_model.loglik_terms(valid, ref_fit.params))[a:b]
     m, mv = rounding_bends(train), rounding_bends(valid)[a:b]
-    return {"training_gain": float(np.sum(g[~m])), "held_out_gain": float(np.sum(gv[~mv])),
-            "training_samples_left_out": int(m.sum()), "held_out_samples_left_out": int(mv.sum()),
-            "lr_stat_all_samples": max(2.0 * float(np.sum(g)), 0.0),
-            "validation_loglik_gain_all_samples": float(np.sum(gv)),
-            "step_fraction": BEND_STEP_FRACTION, "window": BEND_WINDOW}
+    return float(np.sum(g[~m])), float(np.sum(gv[~mv])), {
+        "training_samples_left_out": int(m.sum()), "held_out_samples_left_out": int(mv.sum()),
+        "lr_stat_all_samples": max(2.0 * float(np.sum(g)), 0.0),
+        "validation_loglik_gain_all_samples": float(np.sum(gv)),
+        "step_fraction": BEND_STEP_FRACTION, "window": BEND_WINDOW}
 
 
 #: the held-out log-likelihood gain (nats) stiction needs where the record cannot show slips, or where its sensed
