@@ -776,3 +776,20 @@ def test_a_band_rounded_to_a_tenth_of_a_kelvin_is_named_with_the_bends_left_out_
     evidence = next(line for line in render_markdown(d, [], "run").splitlines() if line.startswith("*Evidence:*"))
     assert "the likelihood ratio and the held-out gain are taken without the" in evidence
     assert f"LR {f.rounding_bends['lr_stat_all_samples']:.1f}" in evidence
+
+
+def test_a_band_whose_held_out_gain_is_taken_without_the_bends_says_so_where_it_is_not_named() -> None:
+    """Run 38 of confusion seed 20271262 under quantised_0.1 (a band of 0.019 mm; 30 s, 18.8 h; a development run since
+    2026-12-03): stiction is significant in training, but the held-out gain, taken without the samples at the rounded
+    temperatures' bends, stays below the 5 nats a rounded record needs, so it is named none. The reason given for that
+    says the held-out gain was taken without those samples, and what it was with them."""
+    case, df = _confusion_run(20271262, 38, "quantised_0.1")
+    assert case["truth"] == "stiction"
+    d = diagnose(df, bootstrap_B=0)
+    st = next(f for f in d.steps[0] if f.effect == "stiction")
+    assert st.significant and not st.validated and st.rounding_bends is not None
+    assert d.cause == "none"
+    j = next(f for f in d.to_json()["findings"] if f["effect"] == "stiction")
+    held = [w for w in j["not_named_because"] if w.startswith("no held-out measure confirms it")]
+    assert len(held) == 1 and "sharp bends" in held[0], j["not_named_because"]
+    assert f"held-out gain {st.rounding_bends['validation_loglik_gain_all_samples']:+.1f} nats" in held[0]

@@ -181,10 +181,12 @@ class Finding:
             return []
         um = 1e3
         out = []
+        # where the statistics leave out the rounded temperatures' bends, the first reason that quotes one says so
+        bends = f", {self.bends_left_out()}" if self.rounding_bends else ""
         if not (self.p_value < alpha and self.delta_bic < 0):
-            bends = f", {self.bends_left_out()}" if self.rounding_bends else ""
             out.append(f"the likelihood does not favour it (p = {self.p_value:.2g} at the {alpha:g} level, "
                        f"delta BIC {self.delta_bic:+.1f}{bends})")
+            bends = ""
         elif self.null_guard is not None and not self.null_guard.get("passed", True):
             null = np.asarray(self.null_guard["null"])
             out.append(f"{int(np.sum(null >= self.null_guard['statistic']))} of {null.size} runs simulated without it "
@@ -207,8 +209,8 @@ class Finding:
             one = f"{self.validation_rms_before_mm * um:.2f} -> {self.validation_rms_after_mm * um:.2f}"
             sim = f"{self.validation_sim_rms_before_mm * um:.2f} -> {self.validation_sim_rms_after_mm * um:.2f}"
             slipped = "; the held-out opening's slips" if self.training_slips is not None else ""
-            out.append(f"no held-out measure confirms it (log-likelihood {self.validation_loglik_gain:+.1f} nats; "
-                       f"one-step RMS {one} um; simulation RMS {sim} um{slipped})")
+            out.append(f"no held-out measure confirms it (log-likelihood {self.validation_loglik_gain:+.1f} "
+                       f"nats{bends}; one-step RMS {one} um; simulation RMS {sim} um{slipped})")
         if not self.relevant:
             s_w = float(self.fit.params["s_w"])
             if self.effect_size_mm < min_size * s_w:
